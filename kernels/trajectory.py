@@ -1,0 +1,299 @@
+"""Reference generation: cycloidal profiles (Eq. II.33) on lines, arcs and half ellipses.
+
+A :class:`Path` is a sequence of segments; each segment is travelled with its own cycloidal
+profile ``s(t) = s_f (t/T - sin(2 pi t/T) / (2 pi))`` whose duration follows from the peak
+tangential acceleration ``2 pi s_f / T^2`` (errata.md). The reference at time ``t`` is
+``p_c(s(t))``, ``p_c' sdot`` and ``p_c'' sdot^2 + p_c' sddot`` (Eq. II.33).
+
+A :class:`Task` plays its path forward, dwells, plays it backward and dwells, and repeats,
+so that a run of any length has a defined reference.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path as FsPath
+from typing import Protocol
+
+import numpy as np
+
+Vec3 = tuple[float, float, float]
+
+_QUAD_NODES = 256  # Gauss-Legendre nodes for arc length
+
+
+class Curve(Protocol):
+    """A curve parametrised by ``u`` in [0, 1]."""
+
+    def point(self, u: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, first and second derivatives with respect to ``u``."""
+        ...
+
+
+@dataclass(frozen=True)
+class Line:
+    """Straight segment from ``start`` to ``end`` (m)."""
+
+    start: Vec3
+    end: Vec3
+
+    def point(self, u: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        a, b = np.asarray(self.start), np.asarray(self.end)
+        return a + u * (b - a), b - a, np.zeros(3)
+
+
+@dataclass(frozen=True)
+class Ellipse:
+    """Elliptic arc ``centre + cos(th) a + sin(th) b`` for ``th`` from ``th0`` to ``th1``.
+
+    ``a`` and ``b`` are the (conjugate) semi-axis vectors; equal orthogonal lengths give a
+    circular arc.
+    """
+
+    centre: Vec3
+    a: Vec3
+    b: Vec3
+    th0: float = 0.0
+    th1: float = math.pi
+
+    def point(self, u: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        c, a, b = np.asarray(self.centre), np.asarray(self.a), np.asarray(self.b)
+        k = self.th1 - self.th0
+        th = self.th0 + k * u
+        ct, st = math.cos(th), math.sin(th)
+        return c + ct * a + st * b, k * (-st * a + ct * b), -k * k * (ct * a + st * b)
+
+
+def arc(centre: Vec3, start: Vec3, end: Vec3, *, normal: Vec3 = (0.0, 0.0, 1.0)) -> Ellipse:
+    """Circular arc about ``centre`` from ``start`` to ``end``, turning positively about
+    ``normal`` (a half circle when ``end`` is opposite ``start``)."""
+    c, s, e, n = (np.asarray(v, dtype=float) for v in (centre, start, end, normal))
+    a = s - c
+    r = float(np.linalg.norm(a))
+    if r == 0.0 or abs(np.linalg.norm(e - c) - r) > 1e-9 * max(1.0, r):
+        raise ValueError("arc: start and end must be at the same non-zero distance from centre")
+    n = n / np.linalg.norm(n)
+    b = np.cross(n, a)
+    cos_t = float(np.clip((a @ (e - c)) / r**2, -1.0, 1.0))
+    sin_t = float((b @ (e - c)) / r**2)
+    th1 = math.atan2(sin_t, cos_t)
+    if th1 <= 0.0:
+        th1 += 2.0 * math.pi
+    return Ellipse(tuple(c), tuple(a), tuple(b), 0.0, th1)
+
+
+def half_ellipse(start: Vec3, top: Vec3, end: Vec3) -> Ellipse:
+    """Half ellipse from ``start`` through ``top`` to ``end`` (``top`` above the midpoint)."""
+    s, t, e = (np.asarray(v, dtype=float) for v in (start, top, end))
+    c = 0.5 * (s + e)
+    return Ellipse(tuple(c), tuple(s - c), tuple(t - c), 0.0, math.pi)
+
+
+@dataclass
+class Segment:
+    """A curve travelled with a cycloidal profile of peak tangential acceleration
+    ``accel`` (m/s^2)."""
+
+    curve: Line | Ellipse
+    accel: float
+    length: float = field(init=False)
+    duration: float = field(init=False)
+    _table_u: np.ndarray = field(init=False, repr=False)
+    _table_s: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.accel) and self.accel > 0.0):
+            raise ValueError(f"accel must be a positive number of m/s^2, got {self.accel!r}")
+        # arc-length table s(u) by composite Gauss-Legendre, inverted by Newton at run time
+        n = 200
+        us = np.linspace(0.0, 1.0, n + 1)
+        xg, wg = np.polynomial.legendre.leggauss(8)
+        s = [0.0]
+        for k in range(n):
+            a, b = us[k], us[k + 1]
+            mid, half = 0.5 * (a + b), 0.5 * (b - a)
+            seg = sum(
+                w * np.linalg.norm(self.curve.point(mid + half * x)[1]) for x, w in zip(xg, wg)
+            )
+            s.append(s[-1] + half * seg)
+        self._table_u = us
+        self._table_s = np.array(s)
+        self.length = float(s[-1])
+        if self.length <= 0.0:
+            raise ValueError("segment has zero length")
+        self.duration = math.sqrt(2.0 * math.pi * self.length / self.accel)
+
+    def _u_of_s(self, s: float) -> float:
+        u = float(np.interp(s, self._table_s, self._table_u))
+        for _ in range(4):  # Newton on s(u) - s = 0
+            d = float(np.linalg.norm(self.curve.point(u)[1]))
+            k = int(min(max(np.searchsorted(self._table_u, u) - 1, 0), len(self._table_u) - 2))
+            u0 = self._table_u[k]
+            s0 = self._table_s[k]
+            # integrate |p'| from u0 to u with Simpson
+            m = 0.5 * (u0 + u)
+            f0 = np.linalg.norm(self.curve.point(u0)[1])
+            fm = np.linalg.norm(self.curve.point(m)[1])
+            s_u = s0 + (u - u0) / 6.0 * (f0 + 4.0 * fm + d)
+            u -= (s_u - s) / d
+            u = min(max(u, 0.0), 1.0)
+        return u
+
+    def profile(self, t: float) -> tuple[float, float, float]:
+        """Cycloidal ``s, sdot, sddot`` at ``t`` in [0, duration] (Eq. II.33 timing law)."""
+        T, sf = self.duration, self.length
+        t = min(max(t, 0.0), T)
+        w = 2.0 * math.pi / T
+        s = sf * (t / T - math.sin(w * t) / (2.0 * math.pi))
+        sd = sf / T * (1.0 - math.cos(w * t))
+        sdd = sf / T * w * math.sin(w * t)
+        return s, sd, sdd
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reference position, velocity and acceleration at ``t`` (Eq. II.33)."""
+        s, sd, sdd = self.profile(t)
+        u = self._u_of_s(s)
+        p, dp, ddp = self.curve.point(u)
+        speed_u = float(np.linalg.norm(dp))
+        tangent = dp / speed_u  # dp/ds
+        # d2p/ds2 = (ddp - (tangent . ddp) tangent) / |dp|^2
+        curv = (ddp - (tangent @ ddp) * tangent) / speed_u**2
+        return p, tangent * sd, curv * sd * sd + tangent * sdd
+
+
+@dataclass
+class Task:
+    """A named path played forward and back, with dwells at both ends."""
+
+    name: str
+    segments: list[Segment]
+    dwell: float = 0.05
+    reference_length_m: float | None = None
+    reference_duration_s: float | None = None
+
+    @property
+    def length(self) -> float:
+        """Length of the path one way (m)."""
+        return sum(s.length for s in self.segments)
+
+    @property
+    def duration(self) -> float:
+        """Duration of the path one way (s)."""
+        return sum(s.duration for s in self.segments)
+
+    @property
+    def period(self) -> float:
+        """Forward, dwell, backward, dwell (s)."""
+        return 2.0 * (self.duration + self.dwell)
+
+    def start(self) -> np.ndarray:
+        """Position at ``t = 0`` (m)."""
+        return self.segments[0].sample(0.0)[0]
+
+    def sample_path(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One way along the path, clamped to its ends."""
+        for seg in self.segments:
+            if t <= seg.duration:
+                return seg.sample(t)
+            t -= seg.duration
+        return self.segments[-1].sample(self.segments[-1].duration)
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reference ``(p_c, pdot_c, pddot_c)`` at time ``t >= 0`` of the looping task."""
+        d, w = self.duration, self.dwell
+        t = t % self.period
+        if t <= d:
+            return self.sample_path(t)
+        if t <= d + w:
+            return self.sample_path(d)[0], np.zeros(3), np.zeros(3)
+        if t <= 2.0 * d + w:
+            p, v, a = self.sample_path(2.0 * d + w - t)
+            return p, -v, a
+        return self.sample_path(0.0)[0], np.zeros(3), np.zeros(3)
+
+
+def circle_task() -> Task:
+    """§ V.6.1: half circle of radius 0.4 m in z = -0.35 m, 120 m/s^2 peak (errata.md)."""
+    seg = Segment(arc((0.0, 0.0, -0.35), (0.0, 0.4, -0.35), (0.0, -0.4, -0.35)), 120.0)
+    return Task("circle", [seg], reference_length_m=1.257, reference_duration_s=0.253)
+
+
+def pick_place_task() -> Task:
+    """§ V.6.2: half ellipse through (0.125,0,-0.35), (0,0,-0.31), (-0.125,0,-0.35),
+    80 m/s^2 peak (errata.md)."""
+    seg = Segment(
+        half_ellipse((0.125, 0.0, -0.35), (0.0, 0.0, -0.31), (-0.125, 0.0, -0.35)), 80.0
+    )
+    return Task("pick-place", [seg], reference_length_m=0.292, reference_duration_s=0.153)
+
+
+TASKS = {"circle": circle_task, "pick-place": pick_place_task}
+
+
+def task_from_json(path: str | FsPath) -> Task:
+    """Load a task from a JSON file.
+
+    Format::
+
+        {"name": "mine", "dwell": 0.05, "segments": [
+            {"type": "line", "start": [x,y,z], "end": [x,y,z], "accel": 50},
+            {"type": "arc", "centre": [...], "start": [...], "end": [...], "accel": 50},
+            {"type": "half-ellipse", "start": [...], "top": [...], "end": [...], "accel": 50}]}
+
+    Raises
+    ------
+    ValueError
+        Naming the segment and field that is wrong.
+    """
+    try:
+        data = json.loads(FsPath(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read task: {exc}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("segments"), list):
+        raise ValueError(f"{path}: a task is an object with a 'segments' list")
+    segs = []
+    for k, s in enumerate(data["segments"]):
+        where = f"{path}: segments[{k}]"
+        if not isinstance(s, dict):
+            raise ValueError(f"{where} must be an object")
+
+        def vec(key: str, s: dict = s, where: str = where) -> Vec3:
+            v = s.get(key)
+            if (
+                not isinstance(v, list)
+                or len(v) != 3
+                or not all(isinstance(x, int | float) and math.isfinite(x) for x in v)
+            ):
+                raise ValueError(f"{where}.{key} must be a list of 3 finite numbers (m)")
+            return (float(v[0]), float(v[1]), float(v[2]))
+
+        accel = s.get("accel")
+        if not isinstance(accel, int | float) or not 0.0 < accel <= 1000.0:
+            raise ValueError(f"{where}.accel must be in (0, 1000] m/s^2, got {accel!r}")
+        kind = s.get("type")
+        if kind == "line":
+            curve: Line | Ellipse = Line(vec("start"), vec("end"))
+        elif kind == "arc":
+            curve = arc(vec("centre"), vec("start"), vec("end"))
+        elif kind == "half-ellipse":
+            curve = half_ellipse(vec("start"), vec("top"), vec("end"))
+        else:
+            raise ValueError(f"{where}.type must be line, arc or half-ellipse, got {kind!r}")
+        segs.append(Segment(curve, float(accel)))
+    if not segs:
+        raise ValueError(f"{path}: a task needs at least one segment")
+    dwell = data.get("dwell", 0.05)
+    if not isinstance(dwell, int | float) or not 0.0 <= dwell <= 60.0:
+        raise ValueError(f"{path}: dwell must be in [0, 60] s, got {dwell!r}")
+    return Task(str(data.get("name", FsPath(path).stem)), segs, float(dwell))
+
+
+def get_task(name: str) -> Task:
+    """A built-in task by name (``circle``, ``pick-place``) or a JSON task file."""
+    if name in TASKS:
+        return TASKS[name]()
+    if FsPath(name).is_file():
+        return task_from_json(name)
+    raise ValueError(f"task must be one of {', '.join(TASKS)} or a JSON file, got {name!r}")

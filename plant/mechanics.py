@@ -1,0 +1,272 @@
+"""Constrained multibody mechanics of the Delta, derived from its bodies.
+
+Independent of the controller's model: no inverse kinematics, no Jacobian, no two-spaces
+model from :mod:`ctrlunit.kernels` (only the parameter record). The coordinates are the
+natural ones, ``x = (q_1, q_2, q_3, p_x, p_y, p_z)``: three arm angles and the platform
+position, tied by the geometric constraints of Eq. II.8,
+
+    phi_i = |d_i|^2 - l_b^2 = 0,    d_i = p + R_i [r_b, 0, 0] - R_i [r_a + l_a cos q_i, 0,
+                                                                    l_a sin q_i].
+
+Bodies
+------
+* arm ``i``: rotational inertia ``j_arm`` about its joint, centre of mass at ``g_a`` (for
+  gravity);
+* forearm ``i``: a rigid thin rod between the arm tip ``A`` and the platform joint ``B``,
+  mass ``m_b`` with its centre of mass at ``rho = g_b / l_b`` from ``A`` and transverse
+  inertia ``j_b``. Its kinetic energy is the quadratic form
+  ``1/2 [vA vB] K [vA vB]^T`` with ``K = [[m_b (1-rho)^2 + j, m_b rho (1-rho) - j],
+  [.., m_b rho^2 + j]]``, ``j = j_b / l_b^2`` (rigid-body kinetic energy written with the
+  end-point velocities);
+* platform: point mass ``m_c``.
+
+Lagrange's equations with multipliers ``lambda``::
+
+    M(x) xddot + G(x)^T lambda = Q(x, xdot, tau)
+    G(x) xddot = -gamma(x, xdot)                  (phi_ddot = 0)
+
+with ``G = d phi / dx``. The nine unknowns are solved by eliminating ``qddot`` per axis and
+then ``lambda``, leaving one 3x3 system in ``pddot`` (all on plain floats: the plant runs
+many sub-steps per control period). Drift is removed by projecting positions and
+velocities back onto the constraint manifold after every sub-step.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..kernels.params import GRAVITY, DeltaParams
+
+_G = (0.0, 2.0 * math.pi / 3.0, 4.0 * math.pi / 3.0)
+COS = tuple(math.cos(g) for g in _G)
+SIN = tuple(math.sin(g) for g in _G)
+
+Vec = list[float]
+
+
+@dataclass(frozen=True)
+class BodyConstants:
+    """Constants of the bodies derived from :class:`DeltaParams`.
+
+    Attributes
+    ----------
+    j_arm : arm rotational inertia used on the arm side (kg m^2).
+    k_aa, k_ab, k_bb : forearm end-point kinetic matrix entries (kg).
+    m_plat : platform mass plus the forearms' share at the platform end (kg).
+    grav_arm : gravity torque gain on each arm, ``g (m_a g_a + m_b (1-rho) l_a)`` (N m).
+    grav_plat : gravity force on the platform coordinates ``g (m_c + 3 m_b rho)`` (N).
+    """
+
+    j_arm: float
+    k_aa: float
+    k_ab: float
+    k_bb: float
+    m_plat: float
+    grav_arm: float
+    grav_plat: float
+
+
+def body_constants(params: DeltaParams, *, arm_inertia: float | None = None) -> BodyConstants:
+    """Constants of the bodies; ``arm_inertia`` overrides ``j_a`` (e.g. minus the motor's
+    share when an elastic belt separates the motor)."""
+    rho = params.g_b / params.l_b
+    j = params.j_b / params.l_b**2
+    k_aa = params.m_b * (1.0 - rho) ** 2 + j
+    k_ab = params.m_b * rho * (1.0 - rho) - j
+    k_bb = params.m_b * rho**2 + j
+    return BodyConstants(
+        j_arm=params.j_a if arm_inertia is None else arm_inertia,
+        k_aa=k_aa,
+        k_ab=k_ab,
+        k_bb=k_bb,
+        m_plat=params.m_c + 3.0 * k_bb,
+        # gravity: arm centre of mass, and the rod's mass (1-rho) at A-end, rho at B-end
+        # (the rod's centre of mass height is linear in the end heights)
+        grav_arm=GRAVITY * (params.m_a * params.g_a + params.m_b * (1.0 - rho) * params.l_a),
+        grav_plat=GRAVITY * (params.m_c + 3.0 * params.m_b * rho),
+    )
+
+
+def _solve3(a: list[list[float]], b: Vec) -> Vec:
+    """Solve a 3x3 system by Gaussian elimination with partial pivoting."""
+    m = [a[0][:] + [b[0]], a[1][:] + [b[1]], a[2][:] + [b[2]]]
+    for c in range(3):
+        piv = max(range(c, 3), key=lambda r: abs(m[r][c]))
+        if piv != c:
+            m[c], m[piv] = m[piv], m[c]
+        inv = 1.0 / m[c][c]
+        for r in range(c + 1, 3):
+            f = m[r][c] * inv
+            if f != 0.0:
+                row_r, row_c = m[r], m[c]
+                for k in range(c, 4):
+                    row_r[k] -= f * row_c[k]
+    x = [0.0, 0.0, 0.0]
+    for r in (2, 1, 0):
+        s = m[r][3] - sum(m[r][k] * x[k] for k in range(r + 1, 3))
+        x[r] = s / m[r][r]
+    return x
+
+
+class Geometry:
+    """Per-axis geometric quantities at a configuration ``(q, p)``."""
+
+    __slots__ = ("d", "u", "v")
+
+    def __init__(self, params: DeltaParams, q: Vec, p: Vec) -> None:
+        l_a = params.l_a
+        self.u: list[tuple[float, float, float]] = []
+        self.v: list[tuple[float, float, float]] = []
+        self.d: list[tuple[float, float, float]] = []
+        for i in range(3):
+            c, s = COS[i], SIN[i]
+            cq, sq = math.cos(q[i]), math.sin(q[i])
+            # arm direction v and its derivative u (world)
+            v = (c * cq, s * cq, sq)
+            u = (-c * sq, -s * sq, cq)
+            rad = params.r_a + l_a * cq - params.r_b
+            d = (p[0] - c * rad, p[1] - s * rad, p[2] - l_a * sq)
+            self.u.append(u)
+            self.v.append(v)
+            self.d.append(d)
+
+
+def constraint_residual(params: DeltaParams, q: Vec, p: Vec) -> Vec:
+    """``|d_i| - l_b`` for each forearm (m): the constraint error as a length."""
+    g = Geometry(params, q, p)
+    return [math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) - params.l_b for d in g.d]
+
+
+def accelerations(
+    params: DeltaParams,
+    bc: BodyConstants,
+    q: Vec,
+    p: Vec,
+    qd: Vec,
+    pd: Vec,
+    tau: Vec,
+) -> tuple[Vec, Vec]:
+    """Solve the equations of motion with multipliers for ``(qddot, pddot)``.
+
+    ``tau`` is the net generalised torque on each arm coordinate (actuator, belt and
+    friction already combined), N m.
+    """
+    l_a = params.l_a
+    geo = Geometry(params, q, p)
+    a = bc.j_arm + bc.k_aa * l_a * l_a  # q-diagonal of M
+    s = bc.k_ab * l_a  # coupling M_qp row i = s u_i^T
+    m = bc.m_plat
+    # generalised forces (minus velocity terms)
+    Qq = [0.0, 0.0, 0.0]
+    Qp = [0.0, 0.0, -bc.grav_plat]
+    gam = [0.0, 0.0, 0.0]
+    Gq = [0.0, 0.0, 0.0]
+    for i in range(3):
+        u, v, d = geo.u[i], geo.v[i], geo.d[i]
+        cq = v[0] * COS[i] + v[1] * SIN[i]  # cos q_i
+        Qq[i] = tau[i] - bc.grav_arm * cq
+        # velocity term of the rod on the platform coordinates: -k_ab * (tip accel part)
+        w2 = qd[i] * qd[i]
+        Qp[0] += bc.k_ab * l_a * v[0] * w2
+        Qp[1] += bc.k_ab * l_a * v[1] * w2
+        Qp[2] += bc.k_ab * l_a * v[2] * w2
+        # (the q-row velocity term k_aa l_a^2 u.v qd^2 vanishes: u is orthogonal to v)
+        Gq[i] = -2.0 * l_a * (d[0] * u[0] + d[1] * u[1] + d[2] * u[2])
+        dd = (pd[0] - l_a * u[0] * qd[i], pd[1] - l_a * u[1] * qd[i], pd[2] - l_a * u[2] * qd[i])
+        gam[i] = 2.0 * (dd[0] ** 2 + dd[1] ** 2 + dd[2] ** 2) + 2.0 * l_a * w2 * (
+            d[0] * v[0] + d[1] * v[1] + d[2] * v[2]
+        )
+    # Eliminate qdd_i = (Qq_i - s u_i.pdd - Gq_i lam_i) / a, then lam_i from the
+    # constraint rows:  e_i.pdd - (Gq_i^2/a) lam_i = -gam_i - Gq_i Qq_i / a
+    A = [[m, 0.0, 0.0], [0.0, m, 0.0], [0.0, 0.0, m]]
+    r1 = list(Qp)
+    e = []
+    for i in range(3):
+        u, d = geo.u[i], geo.d[i]
+        for r in range(3):
+            r1[r] -= s / a * u[r] * Qq[i]
+            for c in range(3):
+                A[r][c] -= s * s / a * u[r] * u[c]
+        e.append([2.0 * d[r] - Gq[i] * s / a * u[r] for r in range(3)])
+    r2 = [-gam[i] - Gq[i] * Qq[i] / a for i in range(3)]
+    Dinv = [a / (Gq[i] * Gq[i]) for i in range(3)]
+    # lam_i = Dinv_i (e_i.pdd - r2_i);  A pdd + sum e_i lam_i = r1
+    for i in range(3):
+        ei = e[i]
+        for r in range(3):
+            r1[r] += ei[r] * Dinv[i] * r2[i]
+            for c in range(3):
+                A[r][c] += ei[r] * Dinv[i] * ei[c]
+    pdd = _solve3(A, r1)
+    qdd = [0.0, 0.0, 0.0]
+    for i in range(3):
+        ei = e[i]
+        lam = Dinv[i] * (ei[0] * pdd[0] + ei[1] * pdd[1] + ei[2] * pdd[2] - r2[i])
+        u = geo.u[i]
+        qdd[i] = (Qq[i] - s * (u[0] * pdd[0] + u[1] * pdd[1] + u[2] * pdd[2]) - Gq[i] * lam) / a
+    return qdd, pdd
+
+
+def project(params: DeltaParams, q: Vec, p: Vec, qd: Vec, pd: Vec) -> tuple[Vec, Vec]:
+    """Project onto the constraint manifold: positions by Gauss-Newton on ``p`` (arm angles
+    kept), velocities so that ``G xdot = 0`` by correcting ``pdot``.
+
+    Returns the corrected ``(p, pdot)``.
+    """
+    p = list(p)
+    for _ in range(3):
+        geo = Geometry(params, q, p)
+        phi = [d[0] ** 2 + d[1] ** 2 + d[2] ** 2 - params.l_b**2 for d in geo.d]
+        if max(abs(x) for x in phi) < 1e-15:
+            break
+        jac = [[2.0 * d[0], 2.0 * d[1], 2.0 * d[2]] for d in geo.d]
+        step = _solve3(jac, phi)
+        p = [p[0] - step[0], p[1] - step[1], p[2] - step[2]]
+    geo = Geometry(params, q, p)
+    # velocity: 2 d_i.(pd - l_a u_i qd_i) = 0
+    jac = [[2.0 * d[0], 2.0 * d[1], 2.0 * d[2]] for d in geo.d]
+    rhs = []
+    for i in range(3):
+        d, u = geo.d[i], geo.u[i]
+        rhs.append(
+            2.0 * (d[0] * (pd[0] - params.l_a * u[0] * qd[i])
+                   + d[1] * (pd[1] - params.l_a * u[1] * qd[i])
+                   + d[2] * (pd[2] - params.l_a * u[2] * qd[i]))
+        )
+    corr = _solve3(jac, rhs)
+    return p, [pd[0] - corr[0], pd[1] - corr[1], pd[2] - corr[2]]
+
+
+def assemble_platform(params: DeltaParams, q: Vec, p_guess: Vec) -> Vec:
+    """Platform position that closes the three loops for arm angles ``q``, by Newton on the
+    constraints from ``p_guess`` (the plant's own forward kinematics)."""
+    p, _ = project(params, q, p_guess, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    for _ in range(20):
+        res = constraint_residual(params, q, p)
+        if max(abs(r) for r in res) < 1e-13:
+            break
+        p, _ = project(params, q, p, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    return p
+
+
+def platform_velocity(params: DeltaParams, q: Vec, p: Vec, qd: Vec) -> Vec:
+    """``pdot`` consistent with arm rates ``qd`` (solves ``G xdot = 0`` for ``pdot``)."""
+    _, pd = project(params, q, p, qd, [0.0, 0.0, 0.0])
+    return pd
+
+
+def energy(params: DeltaParams, bc: BodyConstants, q: Vec, p: Vec, qd: Vec, pd: Vec) -> float:
+    """Kinetic plus potential energy of the bodies (J), potential zero at z = 0."""
+    l_a = params.l_a
+    ke = 0.5 * bc.m_plat * (pd[0] ** 2 + pd[1] ** 2 + pd[2] ** 2)
+    pe = bc.grav_plat * p[2]
+    geo = Geometry(params, q, p)
+    for i in range(3):
+        u = geo.u[i]
+        va = (l_a * u[0] * qd[i], l_a * u[1] * qd[i], l_a * u[2] * qd[i])
+        ke += 0.5 * bc.j_arm * qd[i] ** 2
+        ke += 0.5 * bc.k_aa * (va[0] ** 2 + va[1] ** 2 + va[2] ** 2)
+        ke += bc.k_ab * (va[0] * pd[0] + va[1] * pd[1] + va[2] * pd[2])
+        pe += bc.grav_arm * math.sin(q[i])
+    return ke + pe

@@ -1,0 +1,240 @@
+"""The simulated Delta: integration, actuators, sensors (brief: "The plant").
+
+Fixed-step RK4 with sub-steps and projection onto the constraints, first-order actuator lag
+(Eq. IV.6), torque saturation, encoder quantisation, viscous friction and an optional
+elastic belt (two-mass model per axis, § V.6.3). Usable in-process; the Zenoh role lives in
+:mod:`ctrlunit.runtime.plant_node`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from ..kernels.params import DELTA_IA, DeltaParams
+from . import mechanics as mech
+
+
+class PlantConfigError(ValueError):
+    """A plant option is out of range; the message names it."""
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """Options of the simulated plant.
+
+    Attributes
+    ----------
+    period : control period (s): one :meth:`Plant.step` advances this much.
+    substeps : RK4 sub-steps per period (>= 1; default 10).
+    lag : actuator time constant (s) of Eq. IV.6; 0 applies the command at once.
+    friction : viscous friction on each joint (N m s/rad).
+    quantise : round encoder readings to whole increments.
+    belt : simulate the elastic belt between motor and arm (§ V.6.3).
+    belt_stiffness : k_e at the joint (N m/rad).
+    belt_ratio : reduction n_r (reported; the model is written at the joint).
+    motor_inertia : motor and pulley inertia reflected at the joint (kg m^2).
+    belt_damping : damping of the belt (N m s/rad).
+    """
+
+    period: float = 1e-3
+    substeps: int = 10
+    lag: float = 0.0
+    friction: float = 0.0
+    quantise: bool = True
+    belt: bool = False
+    belt_stiffness: float = 8080.0
+    belt_ratio: float = 10.0
+    motor_inertia: float = 0.0065
+    belt_damping: float = 0.0
+
+    def __post_init__(self) -> None:
+        checks = {
+            "period": (1e-6, 1.0, self.period),
+            "substeps": (1, 10_000, self.substeps),
+            "lag": (0.0, 1.0, self.lag),
+            "friction": (0.0, 100.0, self.friction),
+            "belt_stiffness": (1.0, 1e7, self.belt_stiffness),
+            "belt_ratio": (1.0, 1000.0, self.belt_ratio),
+            "motor_inertia": (1e-6, 1.0, self.motor_inertia),
+            "belt_damping": (0.0, 1e3, self.belt_damping),
+        }
+        for name, (lo, hi, val) in checks.items():
+            if isinstance(val, bool) or not isinstance(val, int | float) or not (
+                math.isfinite(val) and lo <= val <= hi
+            ):
+                raise PlantConfigError(f"plant {name} = {val!r} is outside [{lo}, {hi}]")
+        if not isinstance(self.substeps, int):
+            raise PlantConfigError(f"plant substeps must be an integer, got {self.substeps!r}")
+
+
+@dataclass
+class PlantState:
+    """Full state of the plant (SI units, lists of three floats)."""
+
+    q: list[float]
+    p: list[float]
+    qd: list[float]
+    pd: list[float]
+    motor: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    motor_d: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    tau_applied: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    time: float = 0.0
+
+
+class Plant:
+    """The simulated Delta robot.
+
+    Parameters
+    ----------
+    params : robot parameters.
+    config : plant options.
+    q0 : initial arm angles (rad); the platform is assembled from them.
+    """
+
+    def __init__(
+        self,
+        params: DeltaParams = DELTA_IA,
+        config: PlantConfig | None = None,
+        *,
+        q0: tuple[float, float, float] | list[float] = (-0.4, -0.4, -0.4),
+        p_guess: tuple[float, float, float] = (0.0, 0.0, -0.4),
+    ) -> None:
+        self.params = params
+        self.config = config or PlantConfig()
+        arm_inertia = params.j_a
+        if self.config.belt:
+            arm_inertia = params.j_a - self.config.motor_inertia
+            if arm_inertia <= 0.0:
+                raise PlantConfigError(
+                    f"plant motor_inertia = {self.config.motor_inertia} must be below "
+                    f"j_a = {params.j_a} kg m^2 (j_a includes the motor)"
+                )
+        self.bc = mech.body_constants(params, arm_inertia=arm_inertia)
+        q = [float(v) for v in q0]
+        p = mech.assemble_platform(params, q, list(p_guess))
+        self.state = PlantState(q=q, p=p, qd=[0.0] * 3, pd=[0.0] * 3, motor=list(q))
+        self.command = [0.0, 0.0, 0.0]
+        self.step_count = 0
+
+    # -- actuators ------------------------------------------------------------------------
+
+    def set_command(self, tau: list[float] | tuple[float, ...]) -> None:
+        """Set the commanded torques (N m), saturated at ``tau_max``. The caller validates
+        the message; this clamps."""
+        lim = self.params.tau_max
+        self.command = [min(max(float(t), -lim), lim) for t in tau]
+
+    # -- integration ----------------------------------------------------------------------
+
+    def _deriv(self, y: list[float], tau_a: list[float]) -> list[float]:
+        """Time derivative of the state vector ``y`` (see :meth:`_pack`)."""
+        q, p, qd, pd = y[0:3], y[3:6], y[6:9], y[9:12]
+        cfg = self.config
+        if cfg.belt:
+            m, md = y[12:15], y[15:18]
+            tb = [
+                cfg.belt_stiffness * (m[i] - q[i]) + cfg.belt_damping * (md[i] - qd[i])
+                for i in range(3)
+            ]
+            net = tb
+            mdd = [
+                (tau_a[i] - tb[i] - cfg.friction * md[i]) / cfg.motor_inertia for i in range(3)
+            ]
+        else:
+            net = [tau_a[i] - cfg.friction * qd[i] for i in range(3)]
+        qdd, pdd = mech.accelerations(self.params, self.bc, q, p, qd, pd, net)
+        out = qd + pd + qdd + pdd
+        if cfg.belt:
+            out += md + mdd
+        return out
+
+    def _pack(self) -> list[float]:
+        s = self.state
+        y = s.q + s.p + s.qd + s.pd
+        if self.config.belt:
+            y += s.motor + s.motor_d
+        return y
+
+    def _unpack(self, y: list[float]) -> None:
+        s = self.state
+        s.q, s.p, s.qd, s.pd = y[0:3], y[3:6], y[6:9], y[9:12]
+        if self.config.belt:
+            s.motor, s.motor_d = y[12:15], y[15:18]
+
+    def substep(self, h: float) -> None:
+        """Advance one sub-step of ``h`` seconds (RK4, then projection)."""
+        cfg = self.config
+        s = self.state
+        # exact first-order lag over the sub-step (Eq. IV.6), torque held within it
+        if cfg.lag > 0.0:
+            k = 1.0 - math.exp(-h / cfg.lag)
+            s.tau_applied = [a + k * (c - a) for a, c in zip(s.tau_applied, self.command)]
+        else:
+            s.tau_applied = list(self.command)
+        tau = s.tau_applied
+        y = self._pack()
+        n = len(y)
+        k1 = self._deriv(y, tau)
+        k2 = self._deriv([y[j] + 0.5 * h * k1[j] for j in range(n)], tau)
+        k3 = self._deriv([y[j] + 0.5 * h * k2[j] for j in range(n)], tau)
+        k4 = self._deriv([y[j] + h * k3[j] for j in range(n)], tau)
+        y = [y[j] + h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]) for j in range(n)]
+        self._unpack(y)
+        s.p, s.pd = mech.project(self.params, s.q, s.p, s.qd, s.pd)
+        s.time += h
+
+    def step(self) -> None:
+        """Advance one control period with the current command."""
+        h = self.config.period / self.config.substeps
+        for _ in range(self.config.substeps):
+            self.substep(h)
+        self.step_count += 1
+
+    # -- sensors --------------------------------------------------------------------------
+
+    def sensed_angles(self) -> list[float]:
+        """Angles the encoders see: the arm, or the motor side when a belt is simulated."""
+        return list(self.state.motor if self.config.belt else self.state.q)
+
+    def encoder_counts(self) -> list[int]:
+        """Encoder readings in increments (``encoder_counts`` per turn), rounded to the
+        nearest increment."""
+        inc = self.params.increment
+        return [round(a / inc) for a in self.sensed_angles()]
+
+    def measured_angles(self) -> list[float]:
+        """Encoder readings converted to radians (quantised unless disabled)."""
+        if not self.config.quantise:
+            return self.sensed_angles()
+        inc = self.params.increment
+        return [c * inc for c in self.encoder_counts()]
+
+    # -- diagnostics ----------------------------------------------------------------------
+
+    def energy(self) -> float:
+        """Total mechanical energy (J), motor side included when a belt is simulated."""
+        s = self.state
+        e = mech.energy(self.params, self.bc, s.q, s.p, s.qd, s.pd)
+        if self.config.belt:
+            cfg = self.config
+            for i in range(3):
+                e += 0.5 * cfg.motor_inertia * s.motor_d[i] ** 2
+                e += 0.5 * cfg.belt_stiffness * (s.motor[i] - s.q[i]) ** 2
+        return e
+
+    def constraint_error(self) -> float:
+        """Largest ``| |d_i| - l_b |`` (m)."""
+        s = self.state
+        return max(abs(r) for r in mech.constraint_residual(self.params, s.q, s.p))
+
+    def set_state(
+        self, q: list[float], qd: list[float] | None = None, *, p_guess: list[float] | None = None
+    ) -> None:
+        """Place the robot at arm angles ``q`` with rates ``qd`` (platform assembled)."""
+        qd = [0.0] * 3 if qd is None else [float(v) for v in qd]
+        q = [float(v) for v in q]
+        p = mech.assemble_platform(self.params, q, p_guess or list(self.state.p))
+        pd = mech.platform_velocity(self.params, q, p, qd)
+        self.state = PlantState(q=q, p=p, qd=qd, pd=pd, motor=list(q), motor_d=list(qd),
+                                tau_applied=list(self.state.tau_applied), time=self.state.time)

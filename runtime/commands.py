@@ -1,0 +1,1 @@
+"""Run-time commands of the ``ctrlunit`` CLI (registered on import)."""

@@ -1,0 +1,156 @@
+"""The simulated Delta: conservation, statics, the model cross-check, sensors, the belt."""
+
+from __future__ import annotations
+
+import ast
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ctrlunit.kernels.dynamics import gravity_torques, inverse_dynamics
+from ctrlunit.kernels.kinematics import inverse_kinematics
+from ctrlunit.kernels.params import DELTA_IA as P
+from ctrlunit.kernels.trajectory import circle_task, pick_place_task
+from ctrlunit.plant.simulator import Plant, PlantConfig, PlantConfigError
+
+PLANT_DIR = Path(__file__).resolve().parents[1] / "plant"
+
+
+def test_plant_does_not_import_the_controllers_model():
+    """Only the parameter record may come from kernels/."""
+    for f in PLANT_DIR.glob("*.py"):
+        tree = ast.parse(f.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and "kernels" in node.module:
+                assert node.module.endswith("kernels.params"), f"{f.name} imports {node.module}"
+            if isinstance(node, ast.Import):
+                for alias in node.names:
+                    assert "kernels" not in alias.name or alias.name.endswith("params")
+
+
+def test_free_fall_conserves_energy_and_constraints():
+    plant = Plant(P, PlantConfig(quantise=False), q0=(-0.3, -0.5, -0.4))
+    e0 = plant.energy()
+    drift = residual = 0.0
+    for _ in range(2000):  # 2 s
+        plant.step()
+        drift = max(drift, abs(plant.energy() - e0))
+        residual = max(residual, plant.constraint_error())
+    s = plant.state
+    print(f"energy drift {drift:.3e} J over 2 s, |E0| = {abs(e0):.3f} J, constraint "
+          f"residual {residual:.2e} m, arms now at {np.degrees(s.q).round(1)} deg")
+    assert drift / abs(e0) < 1e-6
+    assert residual < 1e-9
+    assert max(abs(a - b) for a, b in zip(s.q, (-0.3, -0.5, -0.4))) > 0.5  # it did move
+
+
+@pytest.mark.parametrize(
+    "p", [(0, 0, -0.35), (0.15, 0, -0.4), (-0.1, 0.12, -0.45), (0.05, -0.2, -0.5), (0, 0, -0.6)]
+)
+def test_kernel_gravity_torques_hold_the_platform(p):
+    q = inverse_kinematics(P, p)
+    plant = Plant(P, PlantConfig(quantise=False), q0=tuple(q), p_guess=p)
+    plant.set_command(list(gravity_torques(P, p)))
+    drift = 0.0
+    for _ in range(1000):
+        plant.step()
+        drift = max(drift, float(np.linalg.norm(np.array(plant.state.p) - np.array(p))))
+    print(f"hold at {p}: drift {drift * 1e6:.4f} um over 1 s")
+    assert drift < 1e-6
+
+
+def open_loop_error(task, model: str) -> float:
+    """Max platform error when the model's torques, evaluated from the reference at the
+    plant's own sub-step times, drive the plant open loop (no lag, quantisation, friction,
+    saturation)."""
+    params = P.with_(tau_max=1e3)
+    plant = Plant(params, PlantConfig(quantise=False))
+    p0 = task.sample_path(0.0)[0]
+    plant.set_state(list(inverse_kinematics(params, p0)), [0.0] * 3, p_guess=list(p0))
+    h = plant.config.period / plant.config.substeps
+    err, t = 0.0, 0.0
+    for _ in range(int(task.duration / h) + 1):
+        plant.set_command(list(inverse_dynamics(params, *task.sample_path(t + h / 2), model=model)))
+        plant.substep(h)
+        t += h
+        err = max(err, float(np.linalg.norm(np.array(plant.state.p) - task.sample_path(t)[0])))
+    return err
+
+
+@pytest.mark.parametrize("task", [pick_place_task(), circle_task()], ids=lambda t: t.name)
+def test_complete_model_drives_the_plant_along_the_task(task):
+    complete = open_loop_error(task, "complete")
+    simplified = open_loop_error(task, "simplified")
+    print(f"{task.name}: open-loop error complete {complete * 1e3:.5f} mm, "
+          f"simplified {simplified * 1e3:.2f} mm")
+    assert complete < 1e-4
+    assert simplified > 10 * complete
+
+
+def test_circle_needs_more_than_the_torque_limit():
+    """A finding: the § V.6.1 circle at 120 m/s^2 needs more than 20 N m (errata figures)."""
+    task = circle_task()
+    peak = max(
+        np.abs(inverse_dynamics(P, *task.sample_path(t))).max()
+        for t in np.linspace(0, task.duration, 300)
+    )
+    print(f"circle peak torque {peak:.2f} N m (limit {P.tau_max} N m)")
+    assert peak > P.tau_max
+
+
+def test_encoder_counts_agree_with_arm_angle_to_one_increment():
+    plant = Plant(P, PlantConfig(), q0=(-0.3, -0.5, -0.4))
+    for _ in range(200):
+        plant.step()
+        counts = plant.encoder_counts()
+        for c, q in zip(counts, plant.state.q):
+            assert isinstance(c, int)
+            assert abs(c * P.increment - q) <= P.increment
+
+
+def test_saturation_and_lag():
+    plant = Plant(P, PlantConfig(lag=0.005), q0=(-0.4, -0.4, -0.4))
+    plant.set_command([100.0, -100.0, 5.0])
+    assert plant.command == [20.0, -20.0, 5.0]
+    plant.step()
+    # after 1 ms of a 5 ms lag: 1 - exp(-0.2) of the command
+    assert math.isclose(plant.state.tau_applied[2], 5.0 * (1 - math.exp(-0.2)), rel_tol=1e-9)
+
+
+def test_bad_config_names_the_field():
+    with pytest.raises(PlantConfigError, match="substeps"):
+        PlantConfig(substeps=0)
+    with pytest.raises(PlantConfigError, match="lag"):
+        PlantConfig(lag=-1.0)
+
+
+def belt_resonance_hz() -> float:
+    """Resonance of one chain measured from a simulated torque step on its motor."""
+    p = (0.0, 0.0, -0.4)
+    q = inverse_kinematics(P, p)
+    cfg = PlantConfig(belt=True, quantise=False, period=1e-4, substeps=2)
+    plant = Plant(P, cfg, q0=tuple(q), p_guess=p)
+    hold = list(gravity_torques(P, p))
+    plant.set_state(list(q))
+    # pre-load the belt so that the hold is static, then step axis 1
+    for i in range(3):
+        plant.state.motor[i] = q[i] + hold[i] / cfg.belt_stiffness
+    plant.set_command([hold[0] + 0.5, hold[1], hold[2]])
+    defl = []
+    for _ in range(2000):  # 0.2 s at 10 kHz
+        plant.step()
+        defl.append(plant.state.motor[0] - plant.state.q[0])
+    x = np.array(defl) - np.mean(defl)
+    spec = np.abs(np.fft.rfft(x * np.hanning(len(x))))
+    freqs = np.fft.rfftfreq(len(x), 1e-4)
+    return float(freqs[1 + np.argmax(spec[1:])])
+
+
+def test_belt_resonance_is_measured_and_reported():
+    f = belt_resonance_hz()
+    print(f"single-chain belt resonance: {f:.0f} Hz (thesis § V.6.3: 125 Hz)")
+    # two-mass bound: sqrt(k (1/j_m + 1/j_arm)) with j_arm between the bare arm and j_a
+    lo = math.sqrt(8080 * (1 / 0.0065 + 1 / 0.05)) / (2 * math.pi)
+    hi = math.sqrt(8080 * (1 / 0.0065 + 1 / (P.j_a - 0.0065))) / (2 * math.pi)
+    assert lo * 0.9 < f < hi * 1.1

@@ -1,0 +1,56 @@
+"""Reference generation and the two thesis tasks against errata.md."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from ctrlunit.kernels.trajectory import Segment, arc, circle_task, half_ellipse, pick_place_task
+
+
+@pytest.mark.parametrize(
+    ("task", "length", "duration", "speed"),
+    [(circle_task(), 1.257, 0.2565, 9.8), (pick_place_task(), 0.277, 0.147, None)],
+    ids=["circle", "pick-place"],
+)
+def test_task_figures_agree_with_errata_to_two_percent(task, length, duration, speed):
+    assert math.isclose(task.length, length, rel_tol=0.02)
+    assert math.isclose(task.duration, duration, rel_tol=0.02)
+    if speed is not None:
+        ts = np.linspace(0, task.duration, 501)
+        peak = max(np.linalg.norm(task.sample_path(t)[1]) for t in ts)
+        assert math.isclose(peak, speed, rel_tol=0.02)
+
+
+def test_cycloidal_profile_peaks():
+    seg = Segment(half_ellipse((0.1, 0, -0.4), (0, 0, -0.35), (-0.1, 0, -0.4)), 50.0)
+    ts = np.linspace(0.0, seg.duration, 2001)
+    sd = [seg.profile(t)[1] for t in ts]
+    sdd = [seg.profile(t)[2] for t in ts]
+    assert math.isclose(max(sd), 2 * seg.length / seg.duration, rel_tol=1e-5)
+    assert math.isclose(max(sdd), 50.0, rel_tol=1e-4)
+
+
+@pytest.mark.parametrize("task", [circle_task(), pick_place_task()], ids=lambda t: t.name)
+def test_velocity_and_acceleration_are_derivatives_of_position(task):
+    h = 1e-6
+    for t in np.linspace(0.01, task.duration - 0.01, 25):
+        _, v, a = task.sample_path(t)
+        pp, vp, _ = task.sample_path(t + h)
+        pm, vm, _ = task.sample_path(t - h)
+        assert np.allclose((pp - pm) / (2 * h), v, atol=1e-6)
+        assert np.allclose((vp - vm) / (2 * h), a, atol=1e-4 * max(1.0, np.abs(a).max()))
+
+
+def test_task_loops_forward_and_back_and_rests_at_ends():
+    task = pick_place_task()
+    assert np.allclose(task.sample(0.0)[0], (0.125, 0, -0.35))
+    assert np.allclose(task.sample(task.duration + 0.5 * task.dwell)[0], (-0.125, 0, -0.35))
+    assert np.allclose(task.sample(task.period)[0], (0.125, 0, -0.35))
+    assert np.allclose(task.sample(task.duration + 0.5 * task.dwell)[1], 0.0)
+
+
+def test_arc_rejects_inconsistent_radius():
+    with pytest.raises(ValueError, match="same non-zero distance"):
+        arc((0, 0, 0), (1, 0, 0), (0, 2, 0))

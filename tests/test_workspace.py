@@ -1,0 +1,54 @@
+"""Usable workspace (Eq. V.33) and the joint box (Eq. V.32)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from ctrlunit.kernels.kinematics import inverse_kinematics
+from ctrlunit.kernels.params import DELTA_IA as P
+from ctrlunit.kernels.trajectory import circle_task
+from ctrlunit.kernels.workspace import (
+    WorkspaceError,
+    check_point,
+    in_joint_box,
+    require_path,
+    require_point,
+    slice_map,
+    stiffness_eigenvalues,
+)
+
+
+def test_eigenvalues_equal_w_x2_wt_form():
+    p = (0.1, 0.0, -0.4)
+    from ctrlunit.kernels.kinematics import inverse_jacobian
+
+    ji = inverse_jacobian(P, p) * P.l_a
+    assert np.allclose(stiffness_eigenvalues(P, p), np.linalg.eigvalsh(ji.T @ ji))
+
+
+def test_circle_leaves_joint_box_but_stays_usable():
+    """errata § V.6.1: a joint passes 15 deg, yet min eig stays near 0.24."""
+    task = circle_task()
+    pts = np.array([task.sample_path(t)[0] for t in np.linspace(0, task.duration, 301)])
+    lo = require_path(P, pts)
+    assert 0.2 < lo < 0.3
+    assert not all(in_joint_box(P, inverse_kinematics(P, p)) for p in pts)
+
+
+def test_low_stiffness_point_is_refused_with_point_and_bound():
+    xs, ys, _, eig = slice_map(P, -0.32, n=41)
+    iy, ix = np.unravel_index(np.nanargmin(eig), eig.shape)
+    assert eig[iy, ix] < P.beta_min
+    msg = r"point \(.*\) m: smallest eigenvalue.*beta_min = 0.1"
+    with pytest.raises(WorkspaceError, match=msg):
+        require_point(P, (xs[ix], ys[iy], -0.32))
+
+
+def test_near_forward_singularity_is_refused_by_beta_max():
+    with pytest.raises(WorkspaceError, match=r"point \(0.0000, 0.0000, -0.1500\).*beta_max"):
+        require_point(P, (0.0, 0.0, -0.15))
+
+
+def test_unreachable_point_is_not_usable():
+    res = check_point(P, (0.0, 0.0, -1.5))
+    assert not res.ok and "out of reach" in res.reason
