@@ -138,6 +138,18 @@ def constraint_residual(params: DeltaParams, q: Vec, p: Vec) -> Vec:
     return [math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) - params.l_b for d in g.d]
 
 
+def _inv_sym3(a00, a01, a02, a11, a12, a22):
+    """Inverse of a symmetric 3x3 matrix as its six distinct entries."""
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    inv = 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)
+    return c00 * inv, c01 * inv, c02 * inv, c11 * inv, c12 * inv, c22 * inv
+
+
 def accelerations(
     params: DeltaParams,
     bc: BodyConstants,
@@ -150,61 +162,85 @@ def accelerations(
     """Solve the equations of motion with multipliers for ``(qddot, pddot)``.
 
     ``tau`` is the net generalised torque on each arm coordinate (actuator, belt and
-    friction already combined), N m.
+    friction already combined), N m. Written out by hand: the plant evaluates it four
+    times per sub-step.
+
+    Elimination: the arm rows give ``qdd_i = (Qq_i - s u_i.pdd - Gq_i lam_i) / a``; the
+    platform rows then read ``A0 pdd + E lam = r1`` with the positive definite
+    ``A0 = m I - (s^2/a) sum u_i u_i^T`` and ``e_i = 2 d_i - (s Gq_i / a) u_i``; the
+    constraint rows ``E^T pdd - D lam = r2`` with ``D = diag(Gq_i^2 / a)``. So
+    ``(E^T A0^-1 E + D) lam = E^T A0^-1 r1 - r2``: positive definite while the constraint
+    gradients are independent, also where ``Gq_i = 0`` (arm and forearm aligned).
     """
     l_a = params.l_a
-    geo = Geometry(params, q, p)
-    a = bc.j_arm + bc.k_aa * l_a * l_a  # q-diagonal of M
-    s = bc.k_ab * l_a  # coupling M_qp row i = s u_i^T
-    m = bc.m_plat
-    # generalised forces (minus velocity terms)
-    Qq = [0.0, 0.0, 0.0]
-    Qp = [0.0, 0.0, -bc.grav_plat]
-    gam = [0.0, 0.0, 0.0]
-    Gq = [0.0, 0.0, 0.0]
+    a = bc.j_arm + bc.k_aa * l_a * l_a
+    s = bc.k_ab * l_a
+    s_a = s / a
+    ss_a = s * s_a
+    px, py, pz = p
+    rr = params.r_a - params.r_b
+    a00 = a11 = a22 = bc.m_plat
+    a01 = a02 = a12 = 0.0
+    b0, b1, b2 = 0.0, 0.0, -bc.grav_plat
+    us, es, Qqs, Gqs, r2s = [], [], [], [], []
     for i in range(3):
-        u, v, d = geo.u[i], geo.v[i], geo.d[i]
-        cq = v[0] * COS[i] + v[1] * SIN[i]  # cos q_i
-        Qq[i] = tau[i] - bc.grav_arm * cq
-        # velocity term of the rod on the platform coordinates: -k_ab * (tip accel part)
-        w2 = qd[i] * qd[i]
-        Qp[0] += bc.k_ab * l_a * v[0] * w2
-        Qp[1] += bc.k_ab * l_a * v[1] * w2
-        Qp[2] += bc.k_ab * l_a * v[2] * w2
-        # (the q-row velocity term k_aa l_a^2 u.v qd^2 vanishes: u is orthogonal to v)
-        Gq[i] = -2.0 * l_a * (d[0] * u[0] + d[1] * u[1] + d[2] * u[2])
-        dd = (pd[0] - l_a * u[0] * qd[i], pd[1] - l_a * u[1] * qd[i], pd[2] - l_a * u[2] * qd[i])
-        gam[i] = 2.0 * (dd[0] ** 2 + dd[1] ** 2 + dd[2] ** 2) + 2.0 * l_a * w2 * (
-            d[0] * v[0] + d[1] * v[1] + d[2] * v[2]
-        )
-    # Eliminate qdd_i = (Qq_i - s u_i.pdd - Gq_i lam_i) / a, then lam_i from the
-    # constraint rows:  e_i.pdd - (Gq_i^2/a) lam_i = -gam_i - Gq_i Qq_i / a
-    A = [[m, 0.0, 0.0], [0.0, m, 0.0], [0.0, 0.0, m]]
-    r1 = list(Qp)
-    e = []
+        c, sn = COS[i], SIN[i]
+        cq, sq = math.cos(q[i]), math.sin(q[i])
+        vx, vy, vz = c * cq, sn * cq, sq
+        ux, uy, uz = -c * sq, -sn * sq, cq
+        rad = rr + l_a * cq
+        dx, dy, dz = px - c * rad, py - sn * rad, pz - l_a * sq
+        w = qd[i]
+        w2 = w * w
+        Qq = tau[i] - bc.grav_arm * cq
+        kv = bc.k_ab * l_a * w2
+        Gq = -2.0 * l_a * (dx * ux + dy * uy + dz * uz)
+        ex, ey, ez = pd[0] - l_a * ux * w, pd[1] - l_a * uy * w, pd[2] - l_a * uz * w
+        gam = 2.0 * (ex * ex + ey * ey + ez * ez) + 2.0 * l_a * w2 * (dx * vx + dy * vy + dz * vz)
+        k = Gq * s_a
+        sq_a = s_a * Qq
+        b0 += kv * vx - sq_a * ux
+        b1 += kv * vy - sq_a * uy
+        b2 += kv * vz - sq_a * uz
+        a00 -= ss_a * ux * ux
+        a11 -= ss_a * uy * uy
+        a22 -= ss_a * uz * uz
+        a01 -= ss_a * ux * uy
+        a02 -= ss_a * ux * uz
+        a12 -= ss_a * uy * uz
+        us.append((ux, uy, uz))
+        es.append((2.0 * dx - k * ux, 2.0 * dy - k * uy, 2.0 * dz - k * uz))
+        Qqs.append(Qq)
+        Gqs.append(Gq)
+        r2s.append(-gam - Gq * Qq / a)
+    i00, i01, i02, i11, i12, i22 = _inv_sym3(a00, a01, a02, a11, a12, a22)
+
+    def ainv(x: float, y: float, z: float) -> tuple[float, float, float]:
+        return (i00 * x + i01 * y + i02 * z, i01 * x + i11 * y + i12 * z,
+                i02 * x + i12 * y + i22 * z)
+
+    yr = ainv(b0, b1, b2)
+    ye = [ainv(*e) for e in es]
+    # S = E^T A0^-1 E + D (symmetric), rhs = E^T A0^-1 r1 - r2
+    S = [[0.0] * 3 for _ in range(3)]
+    rhs = [0.0, 0.0, 0.0]
     for i in range(3):
-        u, d = geo.u[i], geo.d[i]
-        for r in range(3):
-            r1[r] -= s / a * u[r] * Qq[i]
-            for c in range(3):
-                A[r][c] -= s * s / a * u[r] * u[c]
-        e.append([2.0 * d[r] - Gq[i] * s / a * u[r] for r in range(3)])
-    r2 = [-gam[i] - Gq[i] * Qq[i] / a for i in range(3)]
-    Dinv = [a / (Gq[i] * Gq[i]) for i in range(3)]
-    # lam_i = Dinv_i (e_i.pdd - r2_i);  A pdd + sum e_i lam_i = r1
-    for i in range(3):
-        ei = e[i]
-        for r in range(3):
-            r1[r] += ei[r] * Dinv[i] * r2[i]
-            for c in range(3):
-                A[r][c] += ei[r] * Dinv[i] * ei[c]
-    pdd = _solve3(A, r1)
+        e = es[i]
+        rhs[i] = e[0] * yr[0] + e[1] * yr[1] + e[2] * yr[2] - r2s[i]
+        for j in range(i, 3):
+            y = ye[j]
+            S[i][j] = S[j][i] = e[0] * y[0] + e[1] * y[1] + e[2] * y[2]
+        S[i][i] += Gqs[i] * Gqs[i] / a
+    j00, j01, j02, j11, j12, j22 = _inv_sym3(S[0][0], S[0][1], S[0][2], S[1][1], S[1][2],
+                                             S[2][2])
+    lam = (j00 * rhs[0] + j01 * rhs[1] + j02 * rhs[2],
+           j01 * rhs[0] + j11 * rhs[1] + j12 * rhs[2],
+           j02 * rhs[0] + j12 * rhs[1] + j22 * rhs[2])
+    pdd = [yr[k] - lam[0] * ye[0][k] - lam[1] * ye[1][k] - lam[2] * ye[2][k] for k in range(3)]
     qdd = [0.0, 0.0, 0.0]
     for i in range(3):
-        ei = e[i]
-        lam = Dinv[i] * (ei[0] * pdd[0] + ei[1] * pdd[1] + ei[2] * pdd[2] - r2[i])
-        u = geo.u[i]
-        qdd[i] = (Qq[i] - s * (u[0] * pdd[0] + u[1] * pdd[1] + u[2] * pdd[2]) - Gq[i] * lam) / a
+        ux, uy, uz = us[i]
+        qdd[i] = (Qqs[i] - s * (ux * pdd[0] + uy * pdd[1] + uz * pdd[2]) - Gqs[i] * lam[i]) / a
     return qdd, pdd
 
 

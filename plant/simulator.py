@@ -181,14 +181,20 @@ class Plant:
         k4 = self._deriv([y[j] + h * k3[j] for j in range(n)], tau)
         y = [y[j] + h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]) for j in range(n)]
         self._unpack(y)
-        s.p, s.pd = mech.project(self.params, s.q, s.p, s.qd, s.pd)
         s.time += h
 
+    def project(self) -> None:
+        """Project the state back onto the constraints (positions and velocities)."""
+        s = self.state
+        s.p, s.pd = mech.project(self.params, s.q, s.p, s.qd, s.pd)
+
     def step(self) -> None:
-        """Advance one control period with the current command."""
+        """Advance one control period with the current command (RK4 sub-steps, then one
+        projection onto the constraints)."""
         h = self.config.period / self.config.substeps
         for _ in range(self.config.substeps):
             self.substep(h)
+        self.project()
         self.step_count += 1
 
     # -- sensors --------------------------------------------------------------------------

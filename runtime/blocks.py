@@ -1,0 +1,248 @@
+"""Implementations of the stage graph's kernels, bound to value names.
+
+Each kernel reads and writes a context: a dict of values where per-axis values (``*_i``) are
+lists of three (``None`` for axes this process does not hold). The same bound functions
+run on the central, on the peripherals and in the single-process reference, so the
+arithmetic does not depend on where a block runs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from ..kernels import kinematics as kin
+from ..kernels.dynamics import ModelCoefficients, axis_dynamics, coefficients, operational_force
+from ..kernels.forward import newton_step
+from ..kernels.laws import Gains, joint_command, joint_pd, nominal_joint_inertia, saturate
+from ..kernels.params import DeltaParams
+from ..kernels.trajectory import Task
+from ..topology.graph import Block
+
+Ctx = dict
+
+
+@dataclass
+class BlockConfig:
+    """What the kernels need besides their inputs."""
+
+    params: DeltaParams
+    coef: ModelCoefficients
+    gains: Gains
+    a0: float
+    task: Task | None
+    period: float
+    observer: str
+    lead: float = 0.0
+    """Feed-forward lead (s): the reference acceleration is taken at the middle of the
+    period in which the command will act, ``(depth - 1/2) T`` after the sample."""
+
+    @classmethod
+    def build(
+        cls,
+        params: DeltaParams,
+        *,
+        model: str,
+        gains: Gains,
+        task: Task | None,
+        period: float,
+        observer: str,
+        depth: int = 1,
+    ) -> BlockConfig:
+        return cls(params, coefficients(params, model), gains, nominal_joint_inertia(params),
+                   task, period, observer, (depth - 0.5) * period)
+
+
+class ObserverDiverged(RuntimeError):
+    """The Newton-Raphson observer left the reachable space or did not converge."""
+
+
+# --- axis kernels: f(ctx, i, cfg, names) ----------------------------------------------
+
+
+def k_ik(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    p = c[n["p"]]
+    try:
+        ax = kin.ik_axis(cfg.params, i, p[0], p[1], p[2])
+    except kin.UnreachableError as exc:
+        raise ObserverDiverged(str(exc)) from None
+    c[n["ax_i"]][i] = ax
+    c[n["q_i"]][i] = ax.q
+
+
+def k_jinv(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    c[n["row_i"]][i] = kin.jinv_row(cfg.params, i, _ax(c[n["ax_i"]][i]))
+
+
+def k_residual(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    c[n["r_i"]][i] = c[n["q_i"]][i] - c[n["qmeas_i"]][i]
+
+
+def k_jdot(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    row = c[n["row_i"]][i]
+    pd = c[n["pd"]]
+    qd = kin.dot_row(row, pd)
+    c[n["qd_i"]][i] = qd
+    c[n["jdp_i"]][i] = kin.jinvdot_pdot_row(cfg.params, i, _ax(c[n["ax_i"]][i]), pd, qd)
+
+
+def k_accel(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    c[n["qdd_i"]][i] = kin.accel_row(c[n["row_i"]][i], c[n["pdd"]], c[n["jdp_i"]][i])
+
+
+def k_dyn_axis(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    d = axis_dynamics(cfg.coef, i, _ax(c[n["ax_i"]][i]), c[n["qd_i"]][i], c[n["qdd_i"]][i],
+                      c[n["pdd"]])
+    c[n["tauq_i"]][i] = d.tau_q
+    c[n["f_i"]][i] = d.force
+
+
+def k_ref_rates(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    ax = _ax(c[n["axr_i"]][i])
+    row = c[n["rowr_i"]][i]
+    vc, ac = c[n["vc"]], c[n["ac"]]
+    qd = kin.dot_row(row, vc)
+    c[n["qdc_i"]][i] = qd
+    c[n["qddc_i"]][i] = kin.accel_row(row, ac, kin.jinvdot_pdot_row(cfg.params, i, ax, vc, qd))
+
+
+def k_joint_law(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    c[n["qddcmd_i"]][i] = joint_command(cfg.gains, c[n["qc_i"]][i], c[n["qdc_i"]][i],
+                                        c[n["qddc_i"]][i], c[n["qmeas_i"]][i],
+                                        c[n["qdmeas_i"]][i])
+
+
+def k_joint_pd(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    c[n["taufb_i"]][i] = joint_pd(cfg.gains, cfg.a0, c[n["qc_i"]][i], c[n["qdc_i"]][i],
+                                  c[n["qmeas_i"]][i], c[n["qdmeas_i"]][i])
+
+
+def k_joint_pd_static(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
+    c[n["taufb_i"]][i] = joint_pd(cfg.gains, cfg.a0, c[n["qc_i"]][i], 0.0,
+                                  c[n["qmeas_i"]][i], c[n["qdmeas_i"]][i])
+
+
+# --- central kernels: f(ctx, cfg, names) -------------------------------------------------
+
+
+def k_reference(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    assert cfg.task is not None
+    t = c[n["t"]]
+    p, v, _ = cfg.task.sample(t)
+    a = cfg.task.sample(t + cfg.lead)[2]
+    c[n["pc"]] = (float(p[0]), float(p[1]), float(p[2]))
+    c[n["vc"]] = (float(v[0]), float(v[1]), float(v[2]))
+    c[n["ac"]] = (float(a[0]), float(a[1]), float(a[2]))
+
+
+def k_predict(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    p, pd, pdd = c[n["est"]]
+    if cfg.observer == "predict":
+        T = cfg.period
+        h = 0.5 * T * T
+        c[n["p_lin0"]] = (p[0] + pd[0] * T + pdd[0] * h, p[1] + pd[1] * T + pdd[1] * h,
+                          p[2] + pd[2] * T + pdd[2] * h)
+    else:
+        c[n["p_lin0"]] = tuple(p)
+
+
+def k_observer(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    rows = c[n["row_i"]]
+    r = c[n["r_i"]]
+    p = c[n["p_lin"]]
+    try:
+        j = kin.inv3((tuple(rows[0]), tuple(rows[1]), tuple(rows[2])))
+    except ZeroDivisionError:
+        raise ObserverDiverged(f"inverse Jacobian singular at p = {p}") from None
+    step = kin.matvec3(j, (r[0], r[1], r[2]))
+    new = (p[0] - step[0], p[1] - step[1], p[2] - step[2])
+    if not all(math.isfinite(x) for x in new) or max(abs(x) for x in step) > 0.05:
+        raise ObserverDiverged(
+            f"Newton-Raphson step of {max(abs(x) for x in step):.3g} m at p = {p}: the "
+            "observer lost the robot"
+        )
+    c[n["p"]] = new
+    c[n["J"]] = j
+
+
+def k_velocity(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    """``pdot = J qdot``; the backward-difference rate is the velocity half a period ago,
+    so half a period of the last commanded acceleration is added."""
+    qd = c[n["qdmeas_i"]]
+    v = kin.matvec3(c[n["J"]], (qd[0], qd[1], qd[2]))
+    a = c[n["est"]][2]
+    h = 0.5 * cfg.period
+    c[n["pd"]] = (v[0] + h * a[0], v[1] + h * a[1], v[2] + h * a[2])
+
+
+def k_law(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    from ..kernels.laws import operational_command
+
+    c[n["pdd"]] = operational_command(cfg.gains, c[n["pc"]], c[n["vc"]], c[n["ac"]], c[n["p"]],
+                                      c[n["pd"]])
+
+
+def k_task_accel(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    rows = c[n["row_i"]]
+    j = kin.inv3((tuple(rows[0]), tuple(rows[1]), tuple(rows[2])))
+    qdd, jdp = c[n["qddcmd_i"]], c[n["jdp_i"]]
+    c[n["pdd"]] = kin.matvec3(j, (qdd[0] - jdp[0], qdd[1] - jdp[1], qdd[2] - jdp[2]))
+
+
+def k_dyn_central(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    rows = c[n["row_i"]]
+    j = kin.inv3((tuple(rows[0]), tuple(rows[1]), tuple(rows[2])))
+    f = operational_force(cfg.coef, c[n["pdd"]], [tuple(x) for x in c[n["f_i"]]])
+    jt = kin.matTvec3(j, f)
+    tq = c[n["tauq_i"]]
+    tau = [tq[0] + jt[0], tq[1] + jt[1], tq[2] + jt[2]]
+    fb = c.get(n.get("taufb_i", "taufb_i"))
+    if fb is not None:
+        tau = [tau[k] + fb[k] for k in range(3)]
+    c[n["tau"]] = tau
+
+
+def k_gravity_central(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    q = c[n["qmeas_i"]]
+    fb = c[n["taufb_i"]]
+    jt = kin.matTvec3(c[n["J"]], (0.0, 0.0, cfg.coef.p_g))
+    c[n["tau"]] = [fb[k] + cfg.coef.q_g * math.cos(q[k]) + jt[k] for k in range(3)]
+
+
+def k_collect(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    c[n["tau"]] = list(c[n["taufb_i"]])
+
+
+def k_output(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    tau = c[n["tau"]]
+    c[n["cmd"]] = list(saturate((tau[0], tau[1], tau[2]), cfg.params.tau_max))
+
+
+def _ax(v: object) -> kin.AxisIK:
+    return v if isinstance(v, kin.AxisIK) else kin.AxisIK(*v)  # type: ignore[misc]
+
+
+AXIS_KERNELS: dict[str, Callable[[Ctx, int, BlockConfig, dict[str, str]], None]] = {
+    "ik": k_ik, "jinv": k_jinv, "residual": k_residual, "jdot": k_jdot, "accel": k_accel,
+    "dyn_axis": k_dyn_axis, "ref_rates": k_ref_rates, "joint_law": k_joint_law,
+    "joint_pd": k_joint_pd, "joint_pd_static": k_joint_pd_static,
+}
+CENTRAL_KERNELS: dict[str, Callable[[Ctx, BlockConfig, dict[str, str]], None]] = {
+    "reference": k_reference, "predict": k_predict, "observer": k_observer,
+    "velocity": k_velocity, "law": k_law, "task_accel": k_task_accel,
+    "dyn_central": k_dyn_central, "gravity_central": k_gravity_central,
+    "collect": k_collect, "output": k_output,
+}
+
+
+def names_for(block: Block) -> dict[str, str]:
+    """The kernel's default value names mapped through the block's bindings."""
+
+    class _Default(dict):
+        def __missing__(self, key: str) -> str:
+            return key
+
+    d = _Default()
+    d.update(dict(block.bind))
+    return d

@@ -1,0 +1,122 @@
+"""Message codec: msgpack maps with schema version, unit id, cycle and stage.
+
+Every decoded message is validated (types, lengths, finite numbers) before anything reads
+it; a bad one raises :class:`BadMessage`, which the receiver counts and drops.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import msgpack
+
+SCHEMA_VERSION = 1
+MAX_MESSAGE_BYTES = 64 * 1024
+MAX_CYCLE = 2**62
+
+
+class BadMessage(ValueError):
+    """A payload failed decoding or validation; ``reason`` is a short counter key."""
+
+    def __init__(self, reason: str, detail: str = "") -> None:
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+
+
+def encode(unit: str, cycle: int, stage: int | str, **fields: Any) -> bytes:
+    """Encode a message (floats as float64, so values round-trip bit for bit)."""
+    msg = {"v": SCHEMA_VERSION, "unit": unit, "cycle": cycle, "stage": stage}
+    msg.update(fields)
+    return msgpack.packb(msg, use_bin_type=True, use_single_float=False)
+
+
+def decode(data: bytes, unit: str) -> dict[str, Any]:
+    """Decode and check the envelope of a message for ``unit``.
+
+    Raises
+    ------
+    BadMessage
+        On undecodable bytes, a missing or ill-typed envelope field, another schema
+        version or another unit id.
+    """
+    if len(data) > MAX_MESSAGE_BYTES:
+        raise BadMessage("too_large", f"{len(data)} bytes")
+    try:
+        msg = msgpack.unpackb(data, raw=False, strict_map_key=True, max_array_len=64,
+                              max_map_len=64, max_str_len=256, max_bin_len=0)
+    except Exception as exc:  # msgpack raises several unrelated types
+        raise BadMessage("undecodable", type(exc).__name__) from None
+    if not isinstance(msg, dict):
+        raise BadMessage("not_a_map")
+    if msg.get("v") != SCHEMA_VERSION:
+        raise BadMessage("schema_version", repr(msg.get("v")))
+    if msg.get("unit") != unit:
+        raise BadMessage("foreign_unit", repr(msg.get("unit"))[:40])
+    cycle = msg.get("cycle")
+    if isinstance(cycle, bool) or not isinstance(cycle, int) or not 0 <= cycle < MAX_CYCLE:
+        raise BadMessage("bad_cycle", repr(cycle)[:40])
+    stage = msg.get("stage")
+    if isinstance(stage, bool) or not isinstance(stage, int | str):
+        raise BadMessage("bad_stage", repr(stage)[:40])
+    return msg
+
+
+def check_float(x: Any, what: str) -> float:
+    """A finite float (ints accepted)."""
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        raise BadMessage("bad_value", f"{what} must be a finite number")
+    return float(x)
+
+
+def check_vector(x: Any, n: int, what: str) -> list[float]:
+    """A list of ``n`` finite floats."""
+    if not isinstance(x, list) or len(x) != n:
+        raise BadMessage("bad_value", f"{what} must be a list of {n} numbers")
+    return [check_float(v, what) for v in x]
+
+
+def shape_of(name: str) -> tuple[int, ...]:
+    """Shape of one value (one axis's entry for per-axis values) by its name."""
+    base = name[:-2] if name.endswith("_i") else name
+    stem = base.rstrip("0123456789")
+    if stem in ("axo", "axr", "ax"):
+        return (9,)
+    if stem in ("rowo", "rowr", "row", "f"):
+        return (3,)
+    if stem in ("J", "est"):
+        return (3, 3)
+    if stem in ("t", "q", "qo", "qc", "r", "qd", "jdp", "qdd", "tauq", "taufb", "qdc", "qddc",
+                "qddcmd", "qmeas", "qdmeas"):
+        return ()
+    return (3,)  # positions, velocities, accelerations, torques
+
+
+def check_value(x: Any, name: str) -> Any:
+    """Validate a value against :func:`shape_of` ``(name)``."""
+    shape = shape_of(name)
+    if shape == ():
+        return check_float(x, name)
+    if len(shape) == 1:
+        return check_vector(x, shape[0], name)
+    if not isinstance(x, list) or len(x) != shape[0]:
+        raise BadMessage("bad_value", f"{name} must be {shape[0]} rows")
+    return [check_vector(r, shape[1], name) for r in x]
+
+
+def check_vals(vals: Any, names: list[str], n_axes: int) -> dict[str, Any]:
+    """Validate a ``vals`` map: exactly ``names``; per-axis ones hold ``n_axes`` entries."""
+    if not isinstance(vals, dict):
+        raise BadMessage("bad_vals", "vals must be a map")
+    if set(vals) != set(names):
+        raise BadMessage("bad_vals", f"expected {sorted(names)}")
+    out = {}
+    for name in names:
+        v = vals[name]
+        if name.endswith("_i"):
+            if not isinstance(v, list) or len(v) != n_axes:
+                raise BadMessage("bad_vals", f"{name} must hold {n_axes} entries")
+            out[name] = [check_value(e, name) for e in v]
+        else:
+            out[name] = check_value(v, name)
+    return out

@@ -1,0 +1,172 @@
+"""Execution of an exchange plan: the same code on the central, the peripherals and in the
+single-process reference.
+
+The central runs :meth:`Engine.cycle`, a generator that executes central steps and yields
+at every round; the caller scatters the round's request, gathers the replies, merges them
+with :meth:`Engine.merge_reply` and resumes the generator. A peripheral runs
+:meth:`Engine.run_round` for its axes. :meth:`Engine.run_local` runs a whole interval in one
+process with no exchange (n = 0, and the ``t_1`` measurement).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Generator, Iterable
+from typing import Any
+
+from ..topology.plan import ExchangePlan, Round
+from .blocks import AXIS_KERNELS, CENTRAL_KERNELS, BlockConfig, Ctx, names_for
+
+
+class CostModel:
+    """Makes each block occupy its process for a given time without burning CPU.
+
+    ``t800``: the block's T-800 time (per axis for axis blocks), after computing its real
+    result the process sleeps until that time has passed since the block started.
+    """
+
+    def __init__(self, name: str = "native") -> None:
+        if name not in ("native", "t800"):
+            raise ValueError(f"cost model must be native or t800, got {name!r}")
+        self.name = name
+        self.errors_ns: list[int] = []
+
+    def occupy(self, t800_us: float, count: int, t0_ns: int) -> None:
+        if self.name == "native":
+            return
+        target = t0_ns + int(t800_us * 1000.0 * count)
+        remaining = target - time.monotonic_ns()
+        if remaining > 0:
+            time.sleep(remaining / 1e9)
+        if len(self.errors_ns) < 100_000:
+            self.errors_ns.append(time.monotonic_ns() - target)
+
+
+SpanSink = Callable[[str, int, int], None]
+
+
+class Engine:
+    """Runs the blocks of an exchange plan.
+
+    Parameters
+    ----------
+    plan : the exchange plan.
+    cfg : kernel configuration.
+    cost : cost model (``native`` computes only).
+    span : optional ``span(block, t0_ns, t1_ns)`` callback recording each block's time.
+    """
+
+    def __init__(
+        self,
+        plan: ExchangePlan,
+        cfg: BlockConfig,
+        *,
+        cost: CostModel | None = None,
+        span: SpanSink | None = None,
+    ) -> None:
+        self.plan = plan
+        self.cfg = cfg
+        self.cost = cost or CostModel()
+        self.span = span
+        names: set[str] = set(plan.graph.sources)
+        for b in plan.graph.blocks:
+            names.update(b.inputs)
+            names.update(b.outputs)
+        self.axis_names = sorted(n for n in names if n.endswith("_i"))
+        # bind kernels once
+        self._bound: dict[str, tuple[Any, dict[str, str], float, bool]] = {}
+        for b in plan.graph.blocks:
+            fn = AXIS_KERNELS[b.kernel] if b.per_axis else CENTRAL_KERNELS[b.kernel]
+            self._bound[b.name] = (fn, names_for(b), b.t800_us, b.per_axis)
+
+    # -- contexts ---------------------------------------------------------------------
+
+    def new_ctx(self, t: float, est: Any, qmeas: Iterable[float], qdmeas: Iterable[float]) -> Ctx:
+        """A fresh interval context from its sources."""
+        c: Ctx = {n: [None, None, None] for n in self.axis_names}
+        c["t"] = t
+        c["est"] = est
+        c["qmeas_i"] = list(qmeas)
+        c["qdmeas_i"] = list(qdmeas)
+        return c
+
+    # -- running blocks ---------------------------------------------------------------
+
+    def _run_block(self, name: str, c: Ctx, axes: Iterable[int]) -> None:
+        fn, n, cost_us, per_axis = self._bound[name]
+        t0 = time.monotonic_ns()
+        if per_axis:
+            count = 0
+            for i in axes:
+                fn(c, i, self.cfg, n)
+                count += 1
+        else:
+            fn(c, self.cfg, n)
+            count = 1
+        self.cost.occupy(cost_us, count, t0)
+        if self.span is not None:
+            self.span(name, t0, time.monotonic_ns())
+
+    def run_round(self, rnd: Round, c: Ctx, axes: Iterable[int]) -> None:
+        """Run a round's per-axis blocks for ``axes`` on context ``c``."""
+        axes = tuple(axes)
+        for b in rnd.blocks:
+            self._run_block(b.name, c, axes)
+
+    def cycle(self, c: Ctx) -> Generator[Round, None, Ctx]:
+        """Run the interval on the central, yielding at each round."""
+        for step in self.plan.steps:
+            if step.round is not None:
+                yield step.round
+            else:
+                assert step.block is not None
+                self._run_block(step.block.name, c, (0, 1, 2))
+        return c
+
+    def run_local(self, c: Ctx) -> Ctx:
+        """Run the whole interval in this process, rounds included (no exchange)."""
+        gen = self.cycle(c)
+        try:
+            rnd = next(gen)
+            while True:
+                self.run_round(rnd, c, (0, 1, 2))
+                rnd = gen.send(None)
+        except StopIteration:
+            pass
+        return c
+
+    # -- messages ---------------------------------------------------------------------
+
+    @staticmethod
+    def request_vals(rnd: Round, c: Ctx, axes: tuple[int, ...]) -> dict[str, Any]:
+        """The request payload of ``rnd`` for a peripheral owning ``axes``."""
+        vals: dict[str, Any] = {}
+        for name in rnd.send:
+            v = c[name]
+            vals[name] = [_plain(v[i]) for i in axes] if name.endswith("_i") else _plain(v)
+        return vals
+
+    @staticmethod
+    def reply_vals(rnd: Round, c: Ctx, axes: tuple[int, ...]) -> dict[str, Any]:
+        """The reply payload of ``rnd`` from a peripheral owning ``axes``."""
+        return {name: [_plain(c[name][i]) for i in axes] for name in rnd.recv}
+
+    @staticmethod
+    def merge(c: Ctx, vals: dict[str, Any], axes: tuple[int, ...]) -> None:
+        """Merge decoded values into a context (per-axis values by axis)."""
+        for name, v in vals.items():
+            if name.endswith("_i"):
+                slot = c.setdefault(name, [None, None, None])
+                for k, i in enumerate(axes):
+                    slot[i] = v[k]
+            else:
+                c[name] = v
+
+
+def _plain(v: Any) -> Any:
+    """Tuples and named tuples to lists (msgpack keeps floats as float64)."""
+    if isinstance(v, tuple):
+        return [_plain(x) for x in v]
+    if isinstance(v, list):
+        return [_plain(x) for x in v]
+    return v

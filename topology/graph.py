@@ -1,0 +1,253 @@
+"""The stage graph of one sampling interval, as data (thesis Fig. 19-21).
+
+A graph is an ordered list of :class:`Block`. A block is ``axis`` (runs once per axis, may
+run on a peripheral) or ``central`` (sequential, on the central). Values whose name ends in
+``_i`` are per-axis (a list of three on the central, one entry per owned axis on a
+peripheral); other values are central. The order is a valid topological order; the
+exchange plan (:mod:`ctrlunit.topology.plan`) is derived from it and a placement.
+
+Each block names the kernel it runs (``kernel``), the thesis equation, and its cost on a
+T-800 in microseconds (per axis for axis blocks), derived from the 1994 timing table of
+errata.md (see :data:`T800_NOTES`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+AXIS = "axis"
+CENTRAL = "central"
+
+LAWS = ("resolved-acceleration", "computed-torque", "pd-feedforward", "pd-gravity", "pd")
+OBSERVERS = ("predict", "previous")
+
+
+@dataclass(frozen=True)
+class Block:
+    """One block of the interval.
+
+    Attributes
+    ----------
+    name : unique name in the graph.
+    kind : ``"axis"`` or ``"central"``.
+    kernel : the implementation to run (several blocks may share one, with other names).
+    inputs, outputs : value names; ``*_i`` are per-axis.
+    equation : the thesis equation it implements.
+    t800_us : T-800 time for this block (per axis for axis blocks), microseconds.
+    bind : pairs (kernel argument, value name) renaming the kernel's default names.
+    """
+
+    name: str
+    kind: str
+    kernel: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    equation: str
+    t800_us: float
+    bind: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def per_axis(self) -> bool:
+        return self.kind == AXIS
+
+
+@dataclass(frozen=True)
+class StageGraph:
+    """An interval as an ordered list of blocks plus the values it starts from."""
+
+    law: str
+    model: str
+    observer: str
+    iterations: int
+    blocks: tuple[Block, ...]
+    sources: tuple[str, ...]
+
+    def block(self, name: str) -> Block:
+        for b in self.blocks:
+            if b.name == name:
+                return b
+        raise KeyError(name)
+
+    @property
+    def axis_blocks(self) -> tuple[Block, ...]:
+        return tuple(b for b in self.blocks if b.per_axis)
+
+    def t_single_t800_us(self) -> float:
+        """T-800 time of the whole interval on one processor."""
+        return sum(b.t800_us * (3 if b.per_axis else 1) for b in self.blocks)
+
+
+# T-800 costs (us). errata.md: IK 240 us for 3 axes; IK + J^-1 380 us; LU 24 us;
+# d/dt(J^-1).pdot 268 us; all kinematics 1320 us; complete law 284 us; whole cycle 1604 us.
+T800 = {
+    "reference": 60.0,  # profile generator (not in the table; a few dozen FLOP)
+    "predict": 10.0,
+    "ik": 80.0,  # 240 / 3
+    "jinv": 140.0 / 3.0,  # (380 - 240) / 3
+    "residual": 4.0,
+    "observer": 24.0 + 36.0,  # LU of J^-1 + solve and update
+    "velocity": 20.0,  # pdot = J qdot (solve with the LU)
+    "jdot": 268.0 / 3.0,
+    "accel": 12.0,  # 18 FLOP (§ V.3.4)
+    "law": 30.0,
+    "dyn_axis": 30.0,
+    "dyn_central": 284.0 - 30.0 - 3 * 30.0,  # rest of the 127 FLOP law after the axis part
+    "output": 20.0,
+    "ref_rates": 268.0 / 3.0 + 12.0,
+    "joint_law": 10.0,
+    "joint_pd": 10.0,
+    "joint_pd_static": 8.0,
+    "collect": 10.0,
+    "gravity_central": 40.0,
+    "task_accel": 30.0,
+}
+T800_NOTES = (
+    "Per-block T-800 times split from the 1994 table (errata.md): inverse kinematics "
+    "240 us / 3 axes, inverse Jacobian (380-240) us / 3, LU 24 us, d/dt(J^-1).pdot "
+    "268 us / 3, complete law 284 us split into 30 us per axis and the rest central; "
+    "blocks the table does not list are estimated from their FLOP counts."
+)
+
+
+def _b(name: str, kind: str, kernel: str, inputs: str, outputs: str, eq: str,
+       bind: tuple[tuple[str, str], ...] = ()) -> Block:
+    return Block(name, kind, kernel, tuple(inputs.split()), tuple(outputs.split()), eq,
+                 T800[kernel], bind)
+
+
+def _observer_blocks(iterations: int, observer: str) -> list[Block]:
+    """Newton-Raphson observer (Eq. II.20): ``iterations`` rounds of IK + J^-1 row +
+    residual on the axes, update on the central."""
+    out = [_b("predict", CENTRAL, "predict", "est", "p_lin0",
+              "prediction p + pdot T + pddot T^2/2" if observer == "predict" else "previous p")]
+    for k in range(iterations):
+        lin, nxt = f"p_lin{k}", (f"p_lin{k + 1}" if k + 1 < iterations else "p")
+        s = f"{k}"
+        out += [
+            _b(f"ik_obs{s}", AXIS, "ik", f"{lin}", f"axo{s}_i qo{s}_i", "V.16-V.21",
+               (("p", lin), ("ax_i", f"axo{s}_i"), ("q_i", f"qo{s}_i"))),
+            _b(f"jinv_obs{s}", AXIS, "jinv", f"axo{s}_i", f"rowo{s}_i", "V.24-V.26",
+               (("ax_i", f"axo{s}_i"), ("row_i", f"rowo{s}_i"))),
+            _b(f"residual{s}", AXIS, "residual", f"qo{s}_i qmeas_i", f"r{s}_i", "II.20",
+               (("q_i", f"qo{s}_i"), ("r_i", f"r{s}_i"))),
+            _b(f"observer{s}", CENTRAL, "observer", f"{lin} rowo{s}_i r{s}_i",
+               f"{nxt} J", "II.20 (errata sign), LU of J^-1",
+               (("p_lin", lin), ("row_i", f"rowo{s}_i"), ("r_i", f"r{s}_i"), ("p", nxt))),
+        ]
+    out.append(_b("velocity", CENTRAL, "velocity", "J qdmeas_i est", "pd", "pdot = J qdot"))
+    return out
+
+
+def _reference_joint_blocks() -> list[Block]:
+    """Joint-space reference q_c, qdot_c, qddot_c from the operational one (per axis)."""
+    return [
+        _b("ik_ref", AXIS, "ik", "pc", "axr_i qc_i", "V.16-V.21",
+           (("p", "pc"), ("ax_i", "axr_i"), ("q_i", "qc_i"))),
+        _b("jinv_ref", AXIS, "jinv", "axr_i", "rowr_i", "V.24-V.26",
+           (("ax_i", "axr_i"), ("row_i", "rowr_i"))),
+        _b("ref_rates", AXIS, "ref_rates", "axr_i rowr_i vc ac", "qdc_i qddc_i", "V.28-V.31"),
+    ]
+
+
+def stage_graph(
+    law: str = "resolved-acceleration",
+    model: str = "complete",
+    *,
+    observer: str = "predict",
+    iterations: int | None = None,
+) -> StageGraph:
+    """The stage graph of one interval for a control law and model.
+
+    Parameters
+    ----------
+    law : one of :data:`LAWS`.
+    model : ``complete`` or ``simplified``.
+    observer : ``predict`` (start the Newton-Raphson from a prediction) or ``previous``
+        (from the previous estimate, as the thesis).
+    iterations : Newton-Raphson iterations; default 1 with ``predict``, 2 with ``previous``.
+    """
+    if law not in LAWS:
+        raise ValueError(f"law must be one of {', '.join(LAWS)}, got {law!r}")
+    if model not in ("complete", "simplified"):
+        raise ValueError(f"model must be complete or simplified, got {model!r}")
+    if observer not in OBSERVERS:
+        raise ValueError(f"observer must be one of {', '.join(OBSERVERS)}, got {observer!r}")
+    if iterations is None:
+        iterations = 1 if observer == "predict" else 2
+    if not 1 <= iterations <= 5:
+        raise ValueError(f"observer iterations must be in [1, 5], got {iterations}")
+    ref = [_b("reference", CENTRAL, "reference", "t", "pc vc ac", "II.33")]
+    out = [_b("output", CENTRAL, "output", "tau", "cmd", "saturation, command out")]
+    blocks: list[Block]
+    if law == "resolved-acceleration":
+        blocks = ref + _observer_blocks(iterations, observer) + [
+            _b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14"),
+            _b("ik", AXIS, "ik", "p", "ax_i q_i", "V.16-V.21"),
+            _b("jinv", AXIS, "jinv", "ax_i", "row_i", "V.24-V.26"),
+            _b("jdot", AXIS, "jdot", "ax_i row_i pd", "qd_i jdp_i", "V.28-V.30"),
+            _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
+            _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qdd_i pdd", "tauq_i f_i",
+               "V.50 joint part (qA qddot + qg + coupling)"),
+            _b("dyn_central", CENTRAL, "dyn_central", "row_i tauq_i f_i pdd", "tau",
+               "V.50 operational part and J^T"),
+        ] + out
+    elif law == "computed-torque":
+        blocks = ref + _reference_joint_blocks() + [
+            _b("joint_law", AXIS, "joint_law", "qc_i qdc_i qddc_i qmeas_i qdmeas_i",
+               "qddcmd_i", "Fig. 18 (qddot* = qddot_c + kp q~ + kd q~dot)"),
+        ] + _observer_blocks(iterations, observer) + [
+            _b("ik", AXIS, "ik", "p", "ax_i q_i", "V.16-V.21"),
+            _b("jinv", AXIS, "jinv", "ax_i", "row_i", "V.24-V.26"),
+            _b("jdot", AXIS, "jdot", "ax_i row_i pd", "qd_i jdp_i", "V.28-V.30"),
+            _b("task_accel", CENTRAL, "task_accel", "row_i qddcmd_i jdp_i", "pdd",
+               "pddot = J (qddot* - dJ^-1/dt pdot)"),
+            _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qddcmd_i pdd", "tauq_i f_i",
+               "V.50 joint part", (("qdd_i", "qddcmd_i"),)),
+            _b("dyn_central", CENTRAL, "dyn_central", "row_i tauq_i f_i pdd", "tau",
+               "V.50 operational part and J^T"),
+        ] + out
+    elif law == "pd-feedforward":
+        blocks = ref + _reference_joint_blocks() + [
+            _b("dyn_ref", AXIS, "dyn_axis", "axr_i qdc_i qddc_i ac", "tauq_i f_i",
+               "V.50 joint part at the reference",
+               (("ax_i", "axr_i"), ("qd_i", "qdc_i"), ("qdd_i", "qddc_i"), ("pdd", "ac"))),
+            _b("joint_pd", AXIS, "joint_pd", "qc_i qdc_i qmeas_i qdmeas_i", "taufb_i",
+               "IV.13 feedback"),
+            _b("dyn_central", CENTRAL, "dyn_central", "rowr_i tauq_i f_i ac taufb_i", "tau",
+               "V.50 operational part at the reference, J^T, plus feedback",
+               (("row_i", "rowr_i"), ("pdd", "ac"))),
+        ] + out
+    elif law == "pd-gravity":
+        blocks = ref + _reference_joint_blocks()[:1] + [
+            _b("joint_pd", AXIS, "joint_pd_static", "qc_i qmeas_i qdmeas_i", "taufb_i",
+               "V.38 feedback (reference velocity zero-order)"),
+        ] + _observer_blocks(iterations, observer)[:-1] + [
+            _b("gravity_central", CENTRAL, "gravity_central", "J qmeas_i taufb_i", "tau",
+               "V.38: qg(q) + J^T pg + feedback"),
+        ] + out
+    else:  # pd: no model terms
+        blocks = ref + _reference_joint_blocks() + [
+            _b("joint_pd", AXIS, "joint_pd", "qc_i qdc_i qmeas_i qdmeas_i", "taufb_i",
+               "joint PD, no model terms"),
+            _b("collect", CENTRAL, "collect", "taufb_i", "tau", "tau = feedback"),
+        ] + out
+    sources = ("t", "est", "qmeas_i", "qdmeas_i")
+    graph = StageGraph(law, model, observer, iterations, tuple(blocks), sources)
+    validate_graph(graph)
+    return graph
+
+
+def validate_graph(graph: StageGraph) -> None:
+    """Check names are unique and every input is produced before it is used."""
+    seen = set(graph.sources)
+    names = set()
+    for b in graph.blocks:
+        if b.name in names:
+            raise ValueError(f"stage graph: block {b.name!r} appears twice")
+        names.add(b.name)
+        for v in b.inputs:
+            if v not in seen:
+                raise ValueError(f"stage graph: block {b.name!r} needs {v!r} before it exists")
+        if b.kind == CENTRAL and any(o.endswith("_i") for o in b.outputs):
+            raise ValueError(f"stage graph: central block {b.name!r} outputs a per-axis value")
+        seen.update(b.outputs)
