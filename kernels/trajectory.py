@@ -27,7 +27,7 @@ _QUAD_NODES = 256  # Gauss-Legendre nodes for arc length
 class Curve(Protocol):
     """A curve parametrised by ``u`` in [0, 1]."""
 
-    def point(self, u: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def point(self, u: float) -> tuple[Vec3, Vec3, Vec3]:
         """Position, first and second derivatives with respect to ``u``."""
         ...
 
@@ -39,9 +39,15 @@ class Line:
     start: Vec3
     end: Vec3
 
-    def point(self, u: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        a, b = np.asarray(self.start), np.asarray(self.end)
-        return a + u * (b - a), b - a, np.zeros(3)
+    def point(self, u: float) -> tuple[Vec3, Vec3, Vec3]:
+        a, b = self.start, self.end
+        d = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+        return (a[0] + u * d[0], a[1] + u * d[1], a[2] + u * d[2]), d, (0.0, 0.0, 0.0)
+
+    @property
+    def uniform(self) -> bool:
+        """Arc length is proportional to ``u``."""
+        return True
 
 
 @dataclass(frozen=True)
@@ -58,12 +64,36 @@ class Ellipse:
     th0: float = 0.0
     th1: float = math.pi
 
-    def point(self, u: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        c, a, b = np.asarray(self.centre), np.asarray(self.a), np.asarray(self.b)
+    def point(self, u: float) -> tuple[Vec3, Vec3, Vec3]:
+        c, a, b = self.centre, self.a, self.b
         k = self.th1 - self.th0
         th = self.th0 + k * u
         ct, st = math.cos(th), math.sin(th)
-        return c + ct * a + st * b, k * (-st * a + ct * b), -k * k * (ct * a + st * b)
+        k2 = k * k
+        return (
+            (c[0] + ct * a[0] + st * b[0], c[1] + ct * a[1] + st * b[1],
+             c[2] + ct * a[2] + st * b[2]),
+            (k * (-st * a[0] + ct * b[0]), k * (-st * a[1] + ct * b[1]),
+             k * (-st * a[2] + ct * b[2])),
+            (-k2 * (ct * a[0] + st * b[0]), -k2 * (ct * a[1] + st * b[1]),
+             -k2 * (ct * a[2] + st * b[2])),
+        )
+
+    @property
+    def uniform(self) -> bool:
+        """A circular arc (orthogonal semi-axes of equal length) is travelled uniformly."""
+        la = math.sqrt(sum(x * x for x in self.a))
+        lb = math.sqrt(sum(x * x for x in self.b))
+        dot = sum(x * y for x, y in zip(self.a, self.b))
+        return abs(la - lb) <= 1e-12 * max(la, 1.0) and abs(dot) <= 1e-12 * max(la * lb, 1.0)
+
+
+def _t3(v: np.ndarray) -> Vec3:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _norm(v: Vec3) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
 def arc(centre: Vec3, start: Vec3, end: Vec3, *, normal: Vec3 = (0.0, 0.0, 1.0)) -> Ellipse:
@@ -81,14 +111,14 @@ def arc(centre: Vec3, start: Vec3, end: Vec3, *, normal: Vec3 = (0.0, 0.0, 1.0))
     th1 = math.atan2(sin_t, cos_t)
     if th1 <= 0.0:
         th1 += 2.0 * math.pi
-    return Ellipse(tuple(c), tuple(a), tuple(b), 0.0, th1)
+    return Ellipse(_t3(c), _t3(a), _t3(b), 0.0, th1)
 
 
 def half_ellipse(start: Vec3, top: Vec3, end: Vec3) -> Ellipse:
     """Half ellipse from ``start`` through ``top`` to ``end`` (``top`` above the midpoint)."""
     s, t, e = (np.asarray(v, dtype=float) for v in (start, top, end))
     c = 0.5 * (s + e)
-    return Ellipse(tuple(c), tuple(s - c), tuple(t - c), 0.0, math.pi)
+    return Ellipse(_t3(c), _t3(s - c), _t3(t - c), 0.0, math.pi)
 
 
 @dataclass
@@ -106,17 +136,15 @@ class Segment:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.accel) and self.accel > 0.0):
             raise ValueError(f"accel must be a positive number of m/s^2, got {self.accel!r}")
-        # arc-length table s(u) by composite Gauss-Legendre, inverted by Newton at run time
-        n = 200
+        # arc-length table s(u): composite 8-point Gauss-Legendre on 512 panels
+        n = 512
         us = np.linspace(0.0, 1.0, n + 1)
         xg, wg = np.polynomial.legendre.leggauss(8)
         s = [0.0]
         for k in range(n):
             a, b = us[k], us[k + 1]
             mid, half = 0.5 * (a + b), 0.5 * (b - a)
-            seg = sum(
-                w * np.linalg.norm(self.curve.point(mid + half * x)[1]) for x, w in zip(xg, wg)
-            )
+            seg = sum(w * _norm(self.curve.point(mid + half * x)[1]) for x, w in zip(xg, wg))
             s.append(s[-1] + half * seg)
         self._table_u = us
         self._table_s = np.array(s)
@@ -124,22 +152,24 @@ class Segment:
         if self.length <= 0.0:
             raise ValueError("segment has zero length")
         self.duration = math.sqrt(2.0 * math.pi * self.length / self.accel)
+        self._uniform = self.curve.uniform
 
     def _u_of_s(self, s: float) -> float:
-        u = float(np.interp(s, self._table_s, self._table_u))
-        for _ in range(4):  # Newton on s(u) - s = 0
-            d = float(np.linalg.norm(self.curve.point(u)[1]))
-            k = int(min(max(np.searchsorted(self._table_u, u) - 1, 0), len(self._table_u) - 2))
-            u0 = self._table_u[k]
-            s0 = self._table_s[k]
-            # integrate |p'| from u0 to u with Simpson
-            m = 0.5 * (u0 + u)
-            f0 = np.linalg.norm(self.curve.point(u0)[1])
-            fm = np.linalg.norm(self.curve.point(m)[1])
-            s_u = s0 + (u - u0) / 6.0 * (f0 + 4.0 * fm + d)
-            u -= (s_u - s) / d
-            u = min(max(u, 0.0), 1.0)
-        return u
+        """Invert the arc length: exact for lines and circles, else table and Newton."""
+        if self._uniform:
+            return min(max(s / self.length, 0.0), 1.0)
+        ts, tu = self._table_s, self._table_u
+        k = int(np.searchsorted(ts, s)) - 1
+        k = min(max(k, 0), len(ts) - 2)
+        u0, s0 = float(tu[k]), float(ts[k])
+        f0 = _norm(self.curve.point(u0)[1])
+        u = u0 + (s - s0) / f0 if f0 > 0.0 else u0
+        for _ in range(3):  # Newton on s(u) - s, s(u) by Simpson from the table node
+            fm = _norm(self.curve.point(0.5 * (u0 + u))[1])
+            fu = _norm(self.curve.point(u)[1])
+            s_u = s0 + (u - u0) / 6.0 * (f0 + 4.0 * fm + fu)
+            u -= (s_u - s) / fu
+        return min(max(u, 0.0), 1.0)
 
     def profile(self, t: float) -> tuple[float, float, float]:
         """Cycloidal ``s, sdot, sddot`` at ``t`` in [0, duration] (Eq. II.33 timing law)."""
@@ -151,16 +181,19 @@ class Segment:
         sdd = sf / T * w * math.sin(w * t)
         return s, sd, sdd
 
-    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sample(self, t: float) -> tuple[Vec3, Vec3, Vec3]:
         """Reference position, velocity and acceleration at ``t`` (Eq. II.33)."""
         s, sd, sdd = self.profile(t)
         u = self._u_of_s(s)
         p, dp, ddp = self.curve.point(u)
-        speed_u = float(np.linalg.norm(dp))
-        tangent = dp / speed_u  # dp/ds
-        # d2p/ds2 = (ddp - (tangent . ddp) tangent) / |dp|^2
-        curv = (ddp - (tangent @ ddp) * tangent) / speed_u**2
-        return p, tangent * sd, curv * sd * sd + tangent * sdd
+        su = _norm(dp)
+        tx, ty, tz = dp[0] / su, dp[1] / su, dp[2] / su  # dp/ds
+        td = tx * ddp[0] + ty * ddp[1] + tz * ddp[2]
+        k = 1.0 / (su * su)
+        cx, cy, cz = (ddp[0] - td * tx) * k, (ddp[1] - td * ty) * k, (ddp[2] - td * tz) * k
+        sd2 = sd * sd
+        return (p, (tx * sd, ty * sd, tz * sd),
+                (cx * sd2 + tx * sdd, cy * sd2 + ty * sdd, cz * sd2 + tz * sdd))
 
 
 @dataclass
@@ -172,6 +205,7 @@ class Task:
     dwell: float = 0.05
     reference_length_m: float | None = None
     reference_duration_s: float | None = None
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def length(self) -> float:
@@ -190,9 +224,9 @@ class Task:
 
     def start(self) -> np.ndarray:
         """Position at ``t = 0`` (m)."""
-        return self.segments[0].sample(0.0)[0]
+        return np.array(self.segments[0].sample(0.0)[0])
 
-    def sample_path(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sample_path(self, t: float) -> tuple[Vec3, Vec3, Vec3]:
         """One way along the path, clamped to its ends."""
         for seg in self.segments:
             if t <= seg.duration:
@@ -200,18 +234,31 @@ class Task:
             t -= seg.duration
         return self.segments[-1].sample(self.segments[-1].duration)
 
-    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Reference ``(p_c, pdot_c, pddot_c)`` at time ``t >= 0`` of the looping task."""
+    def sample(self, t: float) -> tuple[Vec3, Vec3, Vec3]:
+        """Reference ``(p_c, pdot_c, pddot_c)`` at time ``t >= 0`` of the looping task.
+
+        Results are cached by time within the task's period (a run at a fixed sampling
+        period meets the same times again every loop)."""
+        key = round((t % self.period) * 1e9)
+        hit = self._cache.get(key)
+        if hit is None:
+            hit = self._sample(t)
+            if len(self._cache) < 200_000:
+                self._cache[key] = hit
+        return hit
+
+    def _sample(self, t: float) -> tuple[Vec3, Vec3, Vec3]:
         d, w = self.duration, self.dwell
         t = t % self.period
         if t <= d:
             return self.sample_path(t)
+        zero = (0.0, 0.0, 0.0)
         if t <= d + w:
-            return self.sample_path(d)[0], np.zeros(3), np.zeros(3)
+            return self.sample_path(d)[0], zero, zero
         if t <= 2.0 * d + w:
             p, v, a = self.sample_path(2.0 * d + w - t)
-            return p, -v, a
-        return self.sample_path(0.0)[0], np.zeros(3), np.zeros(3)
+            return p, (-v[0], -v[1], -v[2]), a
+        return self.sample_path(0.0)[0], zero, zero
 
 
 def circle_task() -> Task:

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 from ..kernels import kinematics as kin
 from ..kernels.dynamics import ModelCoefficients, axis_dynamics, coefficients, operational_force
-from ..kernels.forward import newton_step
 from ..kernels.laws import Gains, joint_command, joint_pd, nominal_joint_inertia, saturate
 from ..kernels.params import DeltaParams
 from ..kernels.trajectory import Task

@@ -220,9 +220,9 @@ def workspace(png: str | None, as_json: bool, grid: int, params_file: str | None
 
 def main() -> None:
     """Entry point of the ``ctrlunit`` console script."""
-    from . import commands  # noqa: F401  (registers the run-time commands)
+    from . import commands  # registers the run-time commands
 
-    cli(prog_name="ctrlunit")
+    commands.cli(prog_name="ctrlunit")  # the registered group, also under ``python -m``
 
 
 if __name__ == "__main__":

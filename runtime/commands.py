@@ -1,1 +1,240 @@
-"""Run-time commands of the ``ctrlunit`` CLI (registered on import)."""
+"""Run-time commands of the ``ctrlunit`` CLI: start and the single roles."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from typing import Any
+
+import click
+
+from .cli import _fail, _json_safe, cli
+from .config import EXIT_CONFIG, ConfigError, RunConfig, parse_duration
+
+
+def _duration(_ctx: Any, param: click.Parameter, value: str | None) -> float | None:
+    if value is None:
+        return None
+    try:
+        return parse_duration(value, field_name=f"--{param.name}")
+    except ConfigError as exc:
+        raise click.BadParameter(str(exc)) from None
+
+
+def run_options(fn: Any) -> Any:
+    """Options shared by start and the single roles (see the brief's Interfaces)."""
+    opts = [
+        click.option("--peripherals", type=click.IntRange(0, 3), default=3, show_default=True,
+                     help="Number of peripheral processes (0 = single processor)."),
+        click.option("--pipeline", type=click.IntRange(1, 2), default=1, show_default=True,
+                     help="Pipeline depth (§ IV.7.2)."),
+        click.option("--clock", type=click.Choice(["lockstep", "realtime", "freerun"]),
+                     default="realtime", show_default=True),
+        click.option("--period", default="1ms", show_default=True, callback=_duration,
+                     help="Sampling period: 500us, 1ms, or seconds."),
+        click.option("--task", default="pick-place", show_default=True,
+                     help="pick-place, circle, or a JSON task file."),
+        click.option("--law", type=click.Choice(["resolved-acceleration", "computed-torque",
+                                                 "pd-feedforward", "pd-gravity", "pd"]),
+                     default="resolved-acceleration", show_default=True),
+        click.option("--model", type=click.Choice(["complete", "simplified"]),
+                     default="complete", show_default=True),
+        click.option("--cycles", type=click.IntRange(1, 10**9), default=None,
+                     help="Intervals to run (default: one loop of the task)."),
+        click.option("--duration", default=None, callback=_duration,
+                     help="Run length instead of --cycles (e.g. 30s)."),
+        click.option("--record", type=click.Path(dir_okay=False), default=None,
+                     help="Record every interval to an MCAP file."),
+        click.option("--report", type=click.Path(dir_okay=False), default=None,
+                     help="Write the report as JSON."),
+        click.option("--unit", default=None, help="Unit id (keys ctrlunit/<unit>/...)."),
+        click.option("--cost-model", type=click.Choice(["native", "t800"]), default="native",
+                     show_default=True),
+        click.option("--placement", type=click.Path(dir_okay=False), default=None),
+        click.option("--params", type=click.Path(dir_okay=False), default=None,
+                     help="TOML file of Delta parameters."),
+        click.option("--observer", type=click.Choice(["predict", "previous"]),
+                     default="predict", show_default=True,
+                     help="Newton-Raphson start: prediction (1 iteration) or previous (2)."),
+        click.option("--bandwidth", "bandwidth_hz", type=float, default=20.0,
+                     show_default=True, help="Closed-loop bandwidth of the gains (Hz)."),
+        click.option("--listen", multiple=True, help="Zenoh endpoint to listen on."),
+        click.option("--connect", multiple=True, help="Zenoh endpoint to connect to."),
+        click.option("--zenoh-config", type=click.Path(dir_okay=False), default=None),
+        click.option("--timeout", default="2s", show_default=True, callback=_duration,
+                     help="Reply timeout in lockstep and freerun (realtime: 3 periods)."),
+        click.option("--pin", default=None, help="CPUs for this process, e.g. 0 or 0,1."),
+        click.option("--plant-substeps", type=click.IntRange(1, 1000), default=10,
+                     show_default=True),
+        click.option("--plant-lag", default="0s", callback=_duration_or_zero,
+                     help="Actuator time constant (Eq. IV.6)."),
+        click.option("--belt", is_flag=True, help="Simulate the elastic belt (§ V.6.3)."),
+        click.option("--spec", type=click.Path(dir_okay=False), default=None,
+                     help="Run configuration written by ctrlunit start (internal)."),
+    ]
+    for o in reversed(opts):
+        fn = o(fn)
+    return fn
+
+
+def _duration_or_zero(ctx: Any, param: click.Parameter, value: str) -> float:
+    if value in ("0", "0s", 0):
+        return 0.0
+    return _duration(ctx, param, value) or 0.0
+
+
+def make_rc(kw: dict[str, Any]) -> RunConfig:
+    from .launcher import load_spec
+
+    spec = kw.pop("spec", None)
+    listen = list(kw.pop("listen", ()) or ()) or None
+    connect = list(kw.pop("connect", ()) or ()) or None
+    if spec:
+        rc = load_spec(spec)
+        rc.listen = listen or rc.listen
+        rc.connect = connect or rc.connect
+        return rc
+    unit = kw.pop("unit", None)
+    rc = RunConfig(**{k: v for k, v in kw.items() if k in RunConfig.__dataclass_fields__})
+    rc.plant_lag = kw.get("plant_lag", 0.0)
+    rc.listen, rc.connect = listen, connect
+    if unit:
+        rc.unit = unit
+    return rc
+
+
+@cli.command()
+@run_options
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+@click.option("--progress/--no-progress", default=None,
+              help="Progress display (default: when stdout is a terminal).")
+def start(as_json: bool, progress: bool | None, **kw: Any) -> None:
+    """Start plant, central and peripherals on this host and run the task."""
+    from .launcher import start as run_start
+
+    try:
+        rc = make_rc(kw).validate()
+    except ConfigError as exc:
+        _fail(str(exc), EXIT_CONFIG)
+        return
+    show = sys.stdout.isatty() if progress is None else progress
+    prog, finish = _progress(show)
+    code, report = run_start(rc, echo=lambda m: click.echo(m, err=True), progress=prog)
+    finish()
+    if "cycles" not in report:
+        _fail(report["fault"]["message"], code)
+        return
+    if rc.report:
+        with open(rc.report, "w") as fh:
+            json.dump(_json_safe(report), fh, indent=2)
+    from .report import summary
+
+    click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
+    if code:
+        f = report.get("fault") or {}
+        click.echo(f"ctrlunit: fault in {f.get('process')}: {f.get('message')}", err=True)
+    sys.exit(code)
+
+
+def _progress(show: bool) -> tuple[Any, Any]:
+    if not show:
+        return None, lambda: None
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    prog = Progress(TextColumn("[bold]ctrlunit"), BarColumn(), TextColumn("{task.completed}/"
+                    "{task.total} intervals"), TextColumn("{task.fields[stat]}"),
+                    TimeRemainingColumn(), transient=True)
+    state: dict[str, Any] = {}
+
+    def on_cycle(central: Any, cycle: int, _ctx: dict) -> None:
+        if "task" not in state:
+            prog.start()
+            state["task"] = prog.add_task("run", total=central.cycles, stat="")
+        if central.done % 100 == 0 or central.done == central.cycles:
+            log = central.log.cmd_ns
+            stat = ""
+            if len(log) > 101:
+                stat = f"period {(log[-1] - log[-101]) / 100 / 1e3:.0f} us"
+            prog.update(state["task"], completed=central.done, stat=stat)
+
+    def finish() -> None:
+        if "task" in state:
+            prog.stop()
+
+    return on_cycle, finish
+
+
+@cli.command()
+@run_options
+@click.option("--index", type=click.IntRange(1, 3), required=True)
+def peripheral(index: int, **kw: Any) -> None:
+    """Run peripheral K of a unit (connects to the central's endpoint)."""
+    from .launcher import make_setup, run_peripheral
+    from .zsession import make_config, pin_cpus
+
+    rc = make_rc(kw)
+    try:
+        setup = make_setup(rc)
+    except (ConfigError, ValueError) as exc:
+        _fail(str(exc), EXIT_CONFIG)
+        return
+    if index > setup.placement.peripherals:
+        _fail(f"--index {index} is outside [1, {setup.placement.peripherals}]", EXIT_CONFIG)
+    pin_cpus(rc.pin)
+    conf = make_config(listen=rc.listen, connect=rc.connect, config_file=rc.zenoh_config)
+    sys.exit(_quiet(lambda: run_peripheral(setup, index, conf)))
+
+
+@cli.command()
+@run_options
+def plant(**kw: Any) -> None:
+    """Run the simulated Delta as a Zenoh node (connects to the central's endpoint)."""
+    from .launcher import make_setup, run_plant
+    from .zsession import make_config, pin_cpus
+
+    rc = make_rc(kw)
+    try:
+        setup = make_setup(rc)
+    except (ConfigError, ValueError) as exc:
+        _fail(str(exc), EXIT_CONFIG)
+        return
+    pin_cpus(rc.pin)
+    conf = make_config(listen=rc.listen, connect=rc.connect, config_file=rc.zenoh_config)
+    sys.exit(_quiet(lambda: run_plant(setup, conf)))
+
+
+@cli.command()
+@run_options
+@click.option("--json", "as_json", is_flag=True)
+def central(as_json: bool, **kw: Any) -> None:
+    """Run the central alone; plant and peripherals are started separately
+    (``ctrlunit plant`` / ``ctrlunit peripheral --index K`` with the same options and
+    ``--connect`` to this process's ``--listen`` endpoint)."""
+    from .launcher import central_only
+
+    rc = make_rc(kw)
+    try:
+        rc.validate()
+    except ConfigError as exc:
+        _fail(str(exc), EXIT_CONFIG)
+        return
+    if not rc.listen:
+        _fail("central needs --listen ENDPOINT (e.g. tcp/127.0.0.1:7447)", EXIT_CONFIG)
+    code, report = central_only(rc)
+    from .report import summary
+
+    if "cycles" in report:
+        click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
+    sys.exit(code)
+
+
+def _quiet(fn: Any) -> int:
+    """Run a role; Ctrl-C (sent to the whole process group) ends it quietly."""
+    try:
+        return fn()
+    except KeyboardInterrupt:
+        return 130
+
+
+_ = math

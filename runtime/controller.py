@@ -79,9 +79,8 @@ class Controller:
 
     def handoff(self, ctx: dict) -> None:
         """Take the observer's estimate from an interval at its hand-off point."""
-        p, pd, pdd = self.est
         self.est = (
-            tuple(ctx.get("p", p)),
+            tuple(ctx.get("p", self.est[0])),
             tuple(ctx.get("pd", (0.0, 0.0, 0.0))),
             tuple(ctx.get("pdd", (0.0, 0.0, 0.0))),
         )
@@ -140,28 +139,13 @@ def simulate(
     pc = plant_config or PlantConfig(period=period)
     plant = Plant(params, pc, q0=initial_angles(params, task), p_guess=tuple(task.start()))
     ctl = Controller(engine, period, params.increment, tuple(task.start()))
-    hand = handoff_step(engine.plan)
     pending: list[list[float]] = []
     plant.set_command(initial_command(params, task))
     res = SimResult([], [], [])
     for k in range(cycles):
         counts = plant.encoder_counts()
-        ctx = ctl.sources(k, counts)
-        gen = engine.cycle(ctx)
-        step = 0
-        for step_idx, _ in enumerate(engine.plan.steps):  # noqa: B007
-            pass
-        # run the interval, handing off at the hand-off point
-        idx = 0
-        try:
-            rnd = next(gen)
-            while True:
-                engine.run_round(rnd, ctx, (0, 1, 2))
-                rnd = gen.send(None)
-        except StopIteration:
-            pass
-        del step, idx
-        ctl.handoff(ctx)
+        ctx = engine.run_local(ctl.sources(k, counts))
+        ctl.handoff(ctx)  # sequential: the hand-off point is the end of the interval
         res.commands.append(list(ctx["cmd"]))
         res.references.append(list(ctx.get("pc", task.sample(k * period)[0])))
         res.positions.append(list(plant.state.p))
@@ -169,5 +153,4 @@ def simulate(
         if len(pending) > delay:
             plant.set_command(pending.pop(0))
         plant.step()
-        _ = hand
     return res

@@ -12,7 +12,8 @@ from ctrlunit.kernels.trajectory import circle_task, pick_place_task
 
 def observer_hit_rate(task, *, iterations: int, predict: bool, period: float = 1e-3) -> float:
     """Fraction of samples whose estimate is within one encoder increment in joint space."""
-    samples = [task.sample_path(t) for t in np.arange(0.0, task.duration, period)]
+    samples = [tuple(np.asarray(x) for x in task.sample_path(t))
+               for t in np.arange(0.0, task.duration, period)]
     p_est, v_prev, a_prev = samples[0][0], np.zeros(3), np.zeros(3)
     hits = 0
     for p, v, a in samples:

@@ -36,9 +36,9 @@ def test_cycloidal_profile_peaks():
 def test_velocity_and_acceleration_are_derivatives_of_position(task):
     h = 1e-6
     for t in np.linspace(0.01, task.duration - 0.01, 25):
-        _, v, a = task.sample_path(t)
-        pp, vp, _ = task.sample_path(t + h)
-        pm, vm, _ = task.sample_path(t - h)
+        _, v, a = (np.asarray(x) for x in task.sample_path(t))
+        pp, vp, _ = (np.asarray(x) for x in task.sample_path(t + h))
+        pm, vm, _ = (np.asarray(x) for x in task.sample_path(t - h))
         assert np.allclose((pp - pm) / (2 * h), v, atol=1e-6)
         assert np.allclose((vp - vm) / (2 * h), a, atol=1e-4 * max(1.0, np.abs(a).max()))
 

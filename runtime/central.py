@@ -1,0 +1,542 @@
+"""The central role: the pipeline scheduler (§ IV.7.2, Fig. 24), timing and faults.
+
+Scheduling
+----------
+Up to ``depth`` intervals are in flight. Interval k+1 may start when (a) its sample is
+here, (b) fewer than ``depth`` intervals are in flight and (c) interval k has passed its
+hand-off point (the observer's estimate is final), so that at depth 2 the central works on
+one interval while the peripherals work on the other. Every message carries its cycle and
+round; a reply for anything else is counted and dropped. Every wait is bounded: a missing
+reply or sample is a detected fault, never a hang.
+
+Clocks
+------
+``lockstep`` and ``realtime``: interval k starts from plant sample k (``realtime`` skips
+to the newest sample when the unit falls behind, and counts the skipped ones).
+``freerun``: no plant; each interval starts as soon as a slot is free, from a synthetic
+sample (the reference's inverse kinematics, quantised): it measures the shortest period
+the unit itself sustains.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import statistics
+import time
+from array import array
+from collections import OrderedDict
+from collections.abc import Callable, Generator
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..kernels.kinematics import inverse_kinematics
+from ..topology.plan import Round
+from .blocks import ObserverDiverged
+from .codec import BadMessage, check_vals, check_vector, encode
+from .config import EXIT_LINK, EXIT_OBSERVER, EXIT_OK, EXIT_PERIPHERAL, EXIT_PLANT, RunConfig
+from .controller import Controller, handoff_step
+from .engine import CostModel, Engine
+from .node import Node
+
+
+class Fault(RuntimeError):
+    """A detected fault: ``process`` names the failed process, ``code`` the exit code."""
+
+    def __init__(self, message: str, *, process: str, code: int) -> None:
+        super().__init__(message)
+        self.process = process
+        self.code = code
+
+
+@dataclass
+class InFlight:
+    cycle: int
+    gen: Generator[Round, None, Any]
+    ctx: dict
+    sample_ns: int
+    start_ns: int
+    round: Round | None = None
+    waiting: set[int] = field(default_factory=set)
+    deadline_ns: int = 0
+    handed_off: bool = False
+    started: bool = False
+
+
+@dataclass
+class CycleLog:
+    """Per-cycle measurements (compact arrays, so that long runs stay small)."""
+
+    cmd_ns: array = field(default_factory=lambda: array("q"))
+    sample_ns: array = field(default_factory=lambda: array("q"))
+    cycle: array = field(default_factory=lambda: array("q"))
+    commands: array = field(default_factory=lambda: array("d"))
+    true_p: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+
+
+class Central:
+    """The central process of a unit.
+
+    Parameters
+    ----------
+    node : the central's Zenoh node.
+    rc : run configuration.
+    engine : engine built from the run's plan (placement included).
+    controller : sources and observer state.
+    cycles : number of intervals to run.
+    on_cycle : optional ``on_cycle(central, cycle, ctx)`` after each interval (recording,
+        progress).
+    on_message : optional ``on_message(direction, key, cycle, stage, payload, t_ns)`` for
+        every exchange (recording).
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        rc: RunConfig,
+        engine: Engine,
+        controller: Controller,
+        cycles: int,
+        *,
+        on_cycle: Callable[[Central, int, dict], None] | None = None,
+        on_message: Callable[[str, str, int, Any, bytes, int], None] | None = None,
+        keep_commands: bool = True,
+    ) -> None:
+        self.node = node
+        self.rc = rc
+        self.engine = engine
+        self.ctl = controller
+        self.cycles = cycles
+        self.on_cycle = on_cycle
+        self.on_message = on_message
+        self.keep_commands = keep_commands
+        self.plan = engine.plan
+        self.n = self.plan.placement.peripherals
+        self.depth = rc.pipeline
+        self.hand = handoff_step(self.plan)
+        self.round_step = {}
+        for k, s in enumerate(self.plan.steps):
+            if s.round is not None:
+                self.round_step[s.round.index] = k
+        keys = node.keys
+        self.pub_req = [node.publisher(keys.request(k + 1)) for k in range(self.n)]
+        self.pub_cmd = node.publisher(keys.command)
+        self.pub_ctl = node.publisher(keys.control)
+        for k in range(self.n):
+            node.subscribe(keys.reply(k + 1), "reply", k)
+        node.subscribe(keys.hello, "hello")
+        if rc.clock != "freerun":
+            node.subscribe(keys.sample, "sample")
+        self.log = CycleLog()
+        self.inflight: OrderedDict[int, InFlight] = OrderedDict()
+        self.samples: dict[int, tuple[list[int], int]] = {}
+        self.next_cycle = 0
+        self.done = 0
+        self.skipped = 0
+        self.late_replies = 0
+        self.plant_misses = 0
+        self.plant_busy_ns = 0
+        self.periph_busy_ns = [0] * self.n
+        self.wait_ns = 0
+        self.t_start_ns = 0
+        self.t_end_ns = 0
+        self.role_reports: dict[str, dict] = {}
+        self.spans: list[tuple[str, int, int, int]] = []  # (process, cycle, t0, t1), bounded
+        self.max_spans = 20_000
+        self.last_sample_ns = 0
+        self.t1_inputs: list[tuple] = []
+        self.newest_sample = -1
+        self.child_check: Callable[[], tuple[str, int] | None] | None = None
+        self._next_child_check = 0.0
+
+    # -- start-up ---------------------------------------------------------------------
+
+    def expected_roles(self) -> set[str]:
+        roles = {f"peripheral-{k + 1}" for k in range(self.n)}
+        if self.rc.clock != "freerun":
+            roles.add("plant")
+        return roles
+
+    def handshake(self) -> None:
+        """Wait for every role's hello, then say go."""
+        expected = self.expected_roles()
+        seen: set[str] = set()
+        deadline = time.monotonic() + self.rc.startup_timeout
+        while seen != expected:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                missing = ", ".join(sorted(expected - seen))
+                raise Fault(f"no hello from {missing} within {self.rc.startup_timeout} s",
+                            process=missing, code=EXIT_LINK)
+            self._check_children()
+            try:
+                ev = self.node.events.get(timeout=min(left, 0.1))
+            except queue.Empty:
+                continue
+            if ev[0] == "hello":
+                msg = self.node.decode(ev[2])
+                if msg is not None and msg.get("role") in expected:
+                    seen.add(msg["role"])
+            elif ev[0] == "sample":
+                pass  # the plant's first sample may only follow go
+        self.say("go")
+
+    def say(self, stage: str, **extra: Any) -> None:
+        self.pub_ctl.put(encode(self.node.unit, 0, stage, **extra))
+
+    # -- the loop ---------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Run ``cycles`` intervals. Raises :class:`Fault` on a detected fault."""
+        self.t_start_ns = time.monotonic_ns()
+        timeout_ns = self._timeout_ns()
+        while self.done < self.cycles and not (self.next_cycle >= self.cycles
+                                               and not self.inflight):
+            self._start_ready()
+            now = time.monotonic_ns()
+            wait_until = now + timeout_ns
+            for f in self.inflight.values():
+                if f.waiting:
+                    wait_until = min(wait_until, f.deadline_ns)
+            t0 = time.monotonic_ns()
+            try:
+                ev = self.node.events.get(timeout=max(0.0, (wait_until - now) / 1e9))
+            except queue.Empty:
+                ev = None
+            self.wait_ns += time.monotonic_ns() - t0
+            if ev is not None:
+                self._handle(ev)
+            self._check_deadlines(timeout_ns)
+            self._check_children()
+        self.t_end_ns = time.monotonic_ns()
+
+    def _timeout_ns(self) -> int:
+        """How long a reply or a sample may be missing before it is a fault: the
+        ``--timeout`` in lockstep and freerun; in realtime three periods, but never less
+        than 20 ms (a late reply is lateness, counted as a miss by the plant; silence for
+        that long is a failed process)."""
+        if self.rc.clock == "realtime":
+            return int(max(3 * self.rc.period, 0.020) * 1e9)
+        return int(self.rc.timeout * 1e9)
+
+    WARMUP_BASE = 1 << 40
+
+    def warm_up(self, rounds: int = 50) -> None:
+        """Exercise the request/reply path before measuring (Zenoh routes, code paths),
+        with round 0 of a throw-away interval; the replies are checked and discarded."""
+        if self.n == 0 or not self.plan.rounds:
+            return
+        est = self.ctl.est
+        for i in range(rounds):
+            ctx = self.engine.new_ctx(0.0, est, [0.0] * 3, [0.0] * 3)
+            ctx["qmeas_i"] = [float(q) for q in
+                              inverse_kinematics(self.engine.cfg.params, est[0])]
+            gen = self.engine.cycle(ctx)
+            try:
+                rnd = next(gen)
+            except (StopIteration, ObserverDiverged):
+                return
+            cycle = self.WARMUP_BASE + i
+            payloads = [encode(self.node.unit, cycle, rnd.index,
+                               vals=Engine.request_vals(rnd, ctx, self.plan.placement.axes[k]))
+                        for k in range(self.n)]
+            waiting = set(range(self.n))
+            deadline = time.monotonic() + self.rc.startup_timeout
+            resend = 0.0
+            while waiting:
+                if time.monotonic() >= resend:  # the first requests may race the routes
+                    for k in waiting:
+                        self.pub_req[k].put(payloads[k])
+                    resend = time.monotonic() + 0.2
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    k = min(waiting)
+                    raise Fault(f"peripheral {k + 1} did not answer during warm-up",
+                                process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
+                try:
+                    ev = self.node.events.get(timeout=min(left, 0.1))
+                except queue.Empty:
+                    self._check_children()
+                    continue
+                if ev[0] == "reply":
+                    msg = self.node.decode(ev[2])
+                    if msg is not None and msg["cycle"] == cycle:
+                        waiting.discard(ev[1])
+                elif ev[0] == "sample":
+                    self._on_sample(ev[2], ev[3])
+                elif ev[0] == "hello":
+                    self._handle(ev)
+
+    def _check_deadlines(self, timeout_ns: int) -> None:
+        now = time.monotonic_ns()
+        for f in self.inflight.values():
+            if f.waiting and now > f.deadline_ns:
+                k = min(f.waiting)
+                raise Fault(
+                    f"peripheral {k + 1} did not answer round {f.round.index if f.round else '?'}"
+                    f" of cycle {f.cycle} within {timeout_ns / 1e6:.1f} ms",
+                    process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
+        if (self.rc.clock != "freerun" and not self.inflight and not self.samples
+                and self.next_cycle < self.cycles):
+            last = self.last_sample_ns or self.t_start_ns
+            if now - last > timeout_ns + (int(self.rc.period * 1e9) if
+                                          self.rc.clock == "realtime" else 0):
+                raise Fault(f"no sample from the plant for {(now - last) / 1e6:.1f} ms "
+                            f"(cycle {self.next_cycle} awaited, newest seen "
+                            f"{self.newest_sample})", process="plant", code=EXIT_PLANT)
+
+    def _check_children(self) -> None:
+        """Fault at once when a role process this central started has died."""
+        if self.child_check is None:
+            return
+        now = time.monotonic()
+        if now < self._next_child_check:
+            return
+        self._next_child_check = now + 0.05
+        dead = self.child_check()
+        if dead is not None:
+            name, rc = dead
+            code = EXIT_PLANT if name == "plant" else EXIT_PERIPHERAL
+            raise Fault(f"{name} exited (status {rc})", process=name, code=code)
+
+    # -- events -----------------------------------------------------------------------
+
+    def _handle(self, ev: tuple[str, int, bytes, int]) -> None:
+        kind, index, data, rx = ev
+        if kind == "reply":
+            self._on_reply(index, data, rx)
+        elif kind == "sample":
+            self._on_sample(data, rx)
+        elif kind == "hello":
+            msg = self.node.decode(data)
+            if msg is None:
+                return
+            if msg.get("stage") == "hello":
+                self.say("go")  # a role that missed go asks again
+            elif msg.get("stage") == "bye" and isinstance(msg.get("role"), str):
+                self.role_reports[msg["role"]] = msg.get("report") or {}
+        else:
+            self.node.reject("unexpected_key")
+
+    def _on_sample(self, data: bytes, rx: int) -> None:
+        msg = self.node.decode(data)
+        if msg is None:
+            return
+        if msg["stage"] != "sample":
+            self.node.reject("bad_stage")
+            return
+        try:
+            counts = msg.get("counts")
+            if not isinstance(counts, list) or len(counts) != 3 or not all(
+                isinstance(c, int) and not isinstance(c, bool) and abs(c) < 10**9
+                for c in counts
+            ):
+                raise BadMessage("bad_value", "counts")
+            t_ns = msg.get("t_ns")
+            if isinstance(t_ns, bool) or not isinstance(t_ns, int):
+                raise BadMessage("bad_value", "t_ns")
+            p = check_vector(msg.get("p"), 3, "p")
+            span = msg.get("span")
+            if not (isinstance(span, list) and len(span) == 2 and all(
+                    isinstance(x, int) for x in span)):
+                raise BadMessage("bad_value", "span")
+        except BadMessage as exc:
+            self.node.reject(exc.reason)
+            return
+        cycle = msg["cycle"]
+        if cycle < self.next_cycle or cycle >= self.cycles + self.depth + 1:
+            self.node.reject("stale_cycle" if cycle < self.next_cycle else "future_cycle")
+            return
+        self.last_sample_ns = rx
+        self.newest_sample = max(self.newest_sample, cycle)
+        self.samples[cycle] = (counts, t_ns)
+        if len(self.samples) > 64:  # realtime and far behind: keep the newest
+            del self.samples[min(self.samples)]
+        self.log.true_p[cycle] = (p[0], p[1], p[2])
+        self.plant_busy_ns += span[1] - span[0]
+        misses = msg.get("misses")
+        if isinstance(misses, int) and not isinstance(misses, bool):
+            self.plant_misses = misses
+        self._span("plant", cycle, span[0], span[1])
+        if self.on_message is not None:
+            self.on_message("in", self.node.keys.sample, cycle, "sample", data, rx)
+
+    def _on_reply(self, k: int, data: bytes, rx: int) -> None:
+        msg = self.node.decode(data)
+        if msg is None:
+            return
+        f = self.inflight.get(msg["cycle"])
+        if f is None or f.round is None or msg["stage"] != f.round.index or k not in f.waiting:
+            self.node.reject("unexpected_reply")
+            return
+        axes = self.plan.placement.axes[k]
+        try:
+            vals = check_vals(msg.get("vals"), f.round.recv, len(axes))
+            span = msg.get("span")
+            if not (isinstance(span, list) and len(span) == 2 and all(
+                    isinstance(x, int) and not isinstance(x, bool) for x in span)):
+                raise BadMessage("bad_value", "span")
+        except BadMessage as exc:
+            self.node.reject(exc.reason)
+            return
+        if self.on_message is not None:
+            self.on_message("in", self.node.keys.reply(k + 1), f.cycle, f.round.index, data, rx)
+        Engine.merge(f.ctx, vals, axes)
+        self.periph_busy_ns[k] += span[1] - span[0]
+        self._span(f"peripheral_{k + 1}", f.cycle, span[0], span[1])
+        f.waiting.discard(k)
+        if not f.waiting:
+            self._advance(f)
+
+    # -- intervals --------------------------------------------------------------------
+
+    def _may_start(self) -> bool:
+        if len(self.inflight) >= self.depth or self.next_cycle >= self.cycles:
+            return False
+        if self.inflight:
+            last = next(reversed(self.inflight.values()))
+            if not last.handed_off:
+                return False
+        return True
+
+    def _start_ready(self) -> None:
+        while self._may_start():
+            k = self.next_cycle
+            if self.rc.clock == "freerun":
+                counts, t_ns = self._synthetic_sample(k), time.monotonic_ns()
+            else:
+                if k not in self.samples:
+                    if self.rc.clock == "realtime" and self.samples and max(self.samples) > k:
+                        newest = max(self.samples)
+                        self.skipped += newest - k
+                        for c in [c for c in self.samples if c < newest]:
+                            del self.samples[c]
+                        self.next_cycle = k = newest
+                    else:
+                        return
+                counts, t_ns = self.samples.pop(k)
+            self.next_cycle = k + 1
+            t0 = time.monotonic_ns()
+            ctx = self.ctl.sources(k, counts)
+            if len(self.t1_inputs) < self.rc.t1_cycles:
+                self.t1_inputs.append((ctx["t"], ctx["est"], list(ctx["qmeas_i"]),
+                                       list(ctx["qdmeas_i"])))
+            f = InFlight(k, self.engine.cycle(ctx), ctx, t_ns, t0)
+            self.inflight[k] = f
+            self._advance(f)
+
+    def _synthetic_sample(self, k: int) -> list[int]:
+        p = self.engine.cfg.task.sample(k * self.rc.period)[0]  # type: ignore[union-attr]
+        inc = self.engine.cfg.params.increment
+        return [round(q / inc) for q in inverse_kinematics(self.engine.cfg.params, p)]
+
+    def _advance(self, f: InFlight) -> None:
+        try:
+            rnd = f.gen.send(None) if f.started else next(f.gen)
+        except StopIteration:
+            rnd = None
+        except ObserverDiverged as exc:
+            raise Fault(f"cycle {f.cycle}: {exc}", process="central",
+                        code=EXIT_OBSERVER) from None
+        f.started = True
+        if not f.handed_off and (rnd is None or self.round_step[rnd.index] > self.hand):
+            self.ctl.handoff(f.ctx)
+            f.handed_off = True
+        if rnd is None:
+            self._finish(f)
+            return
+        f.round = rnd
+        f.waiting = set(range(self.n))
+        f.deadline_ns = time.monotonic_ns() + self._timeout_ns()
+        for k in range(self.n):
+            axes = self.plan.placement.axes[k]
+            payload = encode(self.node.unit, f.cycle, rnd.index,
+                             vals=Engine.request_vals(rnd, f.ctx, axes))
+            self.pub_req[k].put(payload)
+            if self.on_message is not None:
+                self.on_message("out", self.node.keys.request(k + 1), f.cycle, rnd.index,
+                                payload, time.monotonic_ns())
+        self._span("central", f.cycle, f.start_ns, time.monotonic_ns())
+        f.start_ns = time.monotonic_ns()
+
+    def _finish(self, f: InFlight) -> None:
+        cmd = f.ctx["cmd"]
+        payload = encode(self.node.unit, f.cycle, "command", tau=[float(x) for x in cmd])
+        self.pub_cmd.put(payload)
+        now = time.monotonic_ns()
+        self._span("central", f.cycle, f.start_ns, now)
+        if self.on_message is not None:
+            self.on_message("out", self.node.keys.command, f.cycle, "command", payload, now)
+        del self.inflight[f.cycle]
+        log = self.log
+        log.cmd_ns.append(now)
+        log.sample_ns.append(f.sample_ns)
+        log.cycle.append(f.cycle)
+        if self.keep_commands:
+            log.commands.extend(float(x) for x in cmd)
+        self.done += 1
+        if self.on_cycle is not None:
+            self.on_cycle(self, f.cycle, f.ctx)
+
+    def _span(self, proc: str, cycle: int, t0: int, t1: int) -> None:
+        if len(self.spans) < self.max_spans:
+            self.spans.append((proc, cycle, t0, t1))
+
+    # -- end --------------------------------------------------------------------------
+
+    def stop(self, *, reason: str = "done", wait: float = 1.0) -> None:
+        """Tell every role to stop (the plant runs its safe stop) and collect their
+        reports for up to ``wait`` seconds."""
+        expected = self.expected_roles()
+        deadline = time.monotonic() + wait
+        self.say("stop", reason=reason)
+        next_say = time.monotonic() + 0.1
+        while set(self.role_reports) < expected and time.monotonic() < deadline:
+            try:
+                ev = self.node.events.get(timeout=0.05)
+            except queue.Empty:
+                ev = None
+            if ev is not None and ev[0] == "hello":
+                self._handle(ev)
+            if time.monotonic() > next_say:
+                self.say("stop", reason=reason)
+                next_say = time.monotonic() + 0.1
+
+
+def measure_t1(engine_factory: Callable[[], Engine], inputs: list[tuple], *, repeat: int = 1
+               ) -> tuple[float, dict[str, float]]:
+    """``t_1``: the same intervals computed by one process with no exchange.
+
+    Parameters
+    ----------
+    engine_factory : builds an n = 0 engine (same law, model, cost model).
+    inputs : ``(t, est, qmeas, qdmeas)`` of recorded intervals.
+
+    Returns
+    -------
+    (median seconds per interval, mean seconds per block)
+    """
+    block_ns: dict[str, list[int]] = {}
+
+    def span(name: str, t0: int, t1: int) -> None:
+        block_ns.setdefault(name, []).append(t1 - t0)
+
+    eng = engine_factory()
+    eng.span = span
+    times = []
+    for _ in range(repeat):
+        for t, est, q, qd in inputs:
+            ctx = eng.new_ctx(t, est, q, qd)
+            t0 = time.perf_counter_ns()
+            try:
+                eng.run_local(ctx)
+            except ObserverDiverged:
+                continue
+            times.append(time.perf_counter_ns() - t0)
+    if not times:
+        return math.nan, {}
+    per_block = {k: statistics.fmean(v) / 1e9 for k, v in block_ns.items()}
+    return statistics.median(times) / 1e9, per_block
+
+
+__all__ = ["EXIT_OK", "Central", "CostModel", "Fault", "measure_t1"]

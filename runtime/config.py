@@ -1,0 +1,126 @@
+"""Run configuration: every option of ``ctrlunit start`` with its validation."""
+
+from __future__ import annotations
+
+import re
+import secrets
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+CLOCKS = ("lockstep", "realtime", "freerun")
+
+# exit codes, one per fault class
+EXIT_OK = 0
+EXIT_CONFIG = 1
+EXIT_PERIPHERAL = 3
+EXIT_PLANT = 4
+EXIT_OBSERVER = 5
+EXIT_LINK = 6
+EXIT_INTERRUPTED = 130
+
+_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0}
+
+
+class ConfigError(ValueError):
+    """An option is out of range; the message names it and the allowed range."""
+
+
+def parse_duration(text: str | float, *, field_name: str = "duration") -> float:
+    """``500us``, ``1ms``, ``30s``, ``2min`` or a bare number of seconds -> seconds."""
+    if isinstance(text, int | float):
+        value = float(text)
+    else:
+        m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zµ]*)\s*", text)
+        if not m or (m.group(2) and m.group(2) not in _UNITS):
+            raise ConfigError(
+                f"{field_name} = {text!r}: expected a number with a unit (s, ms, us, ns, min) "
+                "or a bare number of seconds"
+            )
+        value = float(m.group(1)) * _UNITS.get(m.group(2) or "s", 1.0)
+    if not value > 0.0:
+        raise ConfigError(f"{field_name} = {text!r} must be positive")
+    return value
+
+
+@dataclass
+class RunConfig:
+    """Options of one run (see ``ctrlunit start --help``)."""
+
+    peripherals: int = 3
+    pipeline: int = 1
+    clock: str = "realtime"
+    period: float = 1e-3
+    task: str = "pick-place"
+    law: str = "resolved-acceleration"
+    model: str = "complete"
+    cycles: int | None = None
+    duration: float | None = None
+    record: str | None = None
+    report: str | None = None
+    unit: str = field(default_factory=lambda: "u" + secrets.token_hex(4))
+    cost_model: str = "native"
+    placement: str | None = None
+    params: str | None = None
+    observer: str = "predict"
+    bandwidth_hz: float = 20.0
+    listen: list[str] | None = None
+    connect: list[str] | None = None
+    zenoh_config: str | None = None
+    timeout: float = 2.0
+    startup_timeout: float = 30.0
+    pin: str | None = None
+    plant_substeps: int = 10
+    plant_lag: float = 0.0
+    plant_friction: float = 0.0
+    belt: bool = False
+    t1_cycles: int = 500
+    progress: bool = False
+
+    def validate(self) -> RunConfig:
+        from ..topology.graph import LAWS
+
+        def bad(name: str, allowed: str) -> ConfigError:
+            return ConfigError(f"{name} = {getattr(self, name)!r}: allowed {allowed}")
+
+        if self.peripherals not in (0, 1, 2, 3):
+            raise bad("peripherals", "0, 1, 2 or 3")
+        if self.pipeline not in (1, 2):
+            raise bad("pipeline", "1 or 2")
+        if self.clock not in CLOCKS:
+            raise bad("clock", ", ".join(CLOCKS))
+        if not 20e-6 <= self.period <= 1.0:
+            raise bad("period", "20us to 1s")
+        if self.law not in LAWS:
+            raise bad("law", ", ".join(LAWS))
+        if self.model not in ("complete", "simplified"):
+            raise bad("model", "complete or simplified")
+        if self.cycles is not None and not 1 <= self.cycles <= 10**9:
+            raise bad("cycles", "1 to 1e9")
+        if self.cost_model not in ("native", "t800"):
+            raise bad("cost_model", "native or t800")
+        if self.observer not in ("predict", "previous"):
+            raise bad("observer", "predict or previous")
+        if not 0.1 <= self.bandwidth_hz <= 200.0:
+            raise bad("bandwidth_hz", "0.1 to 200 Hz")
+        if not 0.01 <= self.timeout <= 600.0:
+            raise bad("timeout", "0.01 to 600 s")
+        if not 1 <= self.plant_substeps <= 1000:
+            raise bad("plant_substeps", "1 to 1000")
+        from .zsession import check_unit_id
+
+        try:
+            check_unit_id(self.unit)
+        except ValueError as exc:
+            raise ConfigError(f"unit: {exc}") from None
+        return self
+
+    def total_cycles(self, task_period: float) -> int:
+        """Cycles to run: ``cycles``, else ``duration / period``, else one task loop."""
+        if self.cycles is not None:
+            return self.cycles
+        if self.duration is not None:
+            return max(1, round(self.duration / self.period))
+        return max(1, round(task_period / self.period)) + 1
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)

@@ -1,0 +1,348 @@
+"""``ctrlunit start``: plant, central and peripherals on this host, and the roles one by one.
+
+The launcher runs the central in its own process and starts the plant and the peripherals
+as children. Every child dies with the launcher (``PR_SET_PDEATHSIG``), exits on the
+central's ``stop``, and has a watchdog on the central's silence; on completion, Ctrl-C or
+any failure the launcher says stop, waits briefly, then terminates and kills what is left.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..kernels.laws import Gains
+from ..kernels.params import DELTA_IA, DeltaParams, load_params
+from ..kernels.trajectory import Task, get_task
+from ..kernels.workspace import require_path
+from ..plant.simulator import Plant, PlantConfig
+from ..topology.graph import stage_graph
+from ..topology.placement import Placement, default_placement, load_placement
+from ..topology.plan import ExchangePlan, exchange_plan
+from .blocks import BlockConfig
+from .central import Central, Fault, measure_t1
+from .config import (
+    EXIT_CONFIG,
+    EXIT_INTERRUPTED,
+    EXIT_LINK,
+    EXIT_OK,
+    ConfigError,
+    RunConfig,
+)
+from .controller import Controller, initial_angles, initial_command
+from .engine import CostModel, Engine
+from .node import Node
+from .report import build_report
+from .zsession import default_endpoint, make_config, pin_cpus
+
+
+@dataclass
+class Setup:
+    """Everything a role derives from the run configuration."""
+
+    rc: RunConfig
+    params: DeltaParams
+    task: Task
+    placement: Placement
+    plan: ExchangePlan
+    cycles: int
+
+    def engine(self, *, peripherals_plan: bool = True, cost: str | None = None) -> Engine:
+        plan = self.plan if peripherals_plan else exchange_plan(self.plan.graph,
+                                                                default_placement(0))
+        lead_depth = self.rc.pipeline + (1 if self.rc.clock == "realtime" else 0)
+        cfg = BlockConfig.build(self.params, model=self.rc.model,
+                                gains=Gains.from_bandwidth(self.rc.bandwidth_hz),
+                                task=self.task, period=self.rc.period,
+                                observer=self.rc.observer, depth=lead_depth)
+        return Engine(plan, cfg, cost=CostModel(cost or self.rc.cost_model))
+
+
+def make_setup(rc: RunConfig) -> Setup:
+    """Validate a run configuration and derive the plan.
+
+    Raises
+    ------
+    ConfigError
+        Naming the field at fault; a task outside the usable workspace is refused here,
+        before any motion.
+    """
+    rc.validate()
+    params = DELTA_IA if rc.params is None else load_params(rc.params)
+    try:
+        task = get_task(rc.task)
+    except ValueError as exc:
+        raise ConfigError(f"task: {exc}") from None
+    pts = np.array([task.sample_path(t)[0] for t in np.linspace(0.0, task.duration, 400)])
+    try:
+        require_path(params, pts, what=f"task {task.name}")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    graph = stage_graph(rc.law, rc.model, observer=rc.observer)
+    if rc.placement:
+        placement = load_placement(rc.placement,
+                                   block_names={b.name for b in graph.axis_blocks})
+        if placement.peripherals != rc.peripherals:
+            raise ConfigError(
+                f"placement {rc.placement} has {placement.peripherals} peripherals but "
+                f"--peripherals is {rc.peripherals}")
+    else:
+        placement = default_placement(rc.peripherals)
+    plan = exchange_plan(graph, placement)
+    return Setup(rc, params, task, placement, plan, rc.total_cycles(task.period))
+
+
+# -- children -------------------------------------------------------------------------
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    with contextlib.suppress(Exception):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Path
+               ) -> subprocess.Popen:
+    """Start one role as a child process (``ctrlunit plant|peripheral --spec``)."""
+    unit = json.loads(spec.read_text())["run"]["unit"]
+    args = [sys.executable, "-m", "ctrlunit.runtime.cli", role, "--spec", str(spec),
+            "--connect", endpoint, "--unit", unit]  # the unit id names the process in ps
+    if index is not None:
+        args += ["--index", str(index)]
+    out = open(log, "wb")
+    return subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                            preexec_fn=_die_with_parent)
+
+
+def end_children(children: list[subprocess.Popen], *, grace: float = 1.0) -> None:
+    """Wait up to ``grace`` s for children to exit, then terminate, then kill."""
+    deadline = time.monotonic() + grace
+    for p in children:
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+    for p in children:
+        if p.poll() is None:
+            p.terminate()
+    for p in children:
+        try:
+            p.wait(timeout=0.5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=1.0)
+
+
+# -- roles ----------------------------------------------------------------------------
+
+
+def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
+    from .peripheral import declare, serve
+
+    node = Node(conf, setup.rc.unit, f"peripheral-{index}")
+    try:
+        reply = declare(node, index - 1)
+        node.wait_for_go(timeout=setup.rc.startup_timeout)
+        res = serve(node, setup.engine(), index - 1, reply,
+                    watchdog=max(5.0, 3 * setup.rc.timeout))
+        _bye(node, res)
+        return EXIT_OK if res["exit"] == "stop" else EXIT_LINK
+    except TimeoutError as exc:
+        print(f"ctrlunit peripheral {index}: {exc}", file=sys.stderr)
+        return EXIT_LINK
+    finally:
+        node.close()
+
+
+def run_plant(setup: Setup, conf: Any) -> int:
+    from .plant_node import PlantServer, serve
+
+    rc = setup.rc
+    plant = Plant(setup.params, PlantConfig(period=rc.period, substeps=rc.plant_substeps,
+                                           lag=rc.plant_lag, friction=rc.plant_friction,
+                                           belt=rc.belt),
+                  q0=initial_angles(setup.params, setup.task),
+                  p_guess=tuple(setup.task.start()))
+    node = Node(conf, rc.unit, "plant")
+    try:
+        server = PlantServer(node, plant, depth=rc.pipeline,
+                             initial=initial_command(setup.params, setup.task))
+        node.wait_for_go(timeout=rc.startup_timeout)
+        res = serve(node, server, clock=rc.clock, period=rc.period, cycles=setup.cycles,
+                    watchdog=max(5.0, 3 * rc.timeout))
+        safe_stop(plant)
+        _bye(node, res)
+        return EXIT_OK if res["exit"] in ("stop", "done") else EXIT_LINK
+    except TimeoutError as exc:
+        print(f"ctrlunit plant: {exc}", file=sys.stderr)
+        return EXIT_LINK
+    finally:
+        node.close()
+
+
+def safe_stop(plant: Plant, *, hold_s: float = 0.05) -> None:
+    """The documented stop: keep the last command for ``hold_s`` (the central's last
+    command holds the robot with gravity compensation), then zero torque."""
+    steps = max(1, round(hold_s / plant.config.period))
+    for _ in range(steps):
+        plant.step()
+    plant.set_command([0.0, 0.0, 0.0])
+
+
+def _bye(node: Node, report: dict[str, Any]) -> None:
+    from .codec import encode
+
+    pub = node.publisher(node.keys.hello)
+    for _ in range(3):
+        pub.put(encode(node.unit, 0, "bye", role=node.role, report=report))
+        time.sleep(0.02)
+
+
+# -- the whole unit ---------------------------------------------------------------------
+
+
+def central_only(rc: RunConfig) -> tuple[int, dict]:
+    """Run the central alone (the other roles are started by hand)."""
+    return start(rc, spawn=False)
+
+
+def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool = True
+          ) -> tuple[int, dict]:
+    """Run a whole unit on this host; returns ``(exit code, report)``."""
+    try:
+        setup = make_setup(rc)
+    except (ConfigError, ValueError) as exc:
+        return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
+                                       "code": EXIT_CONFIG}}
+    run_dir = Path(tempfile.mkdtemp(prefix="ctrlunit-"))
+    spec = run_dir / "spec.json"
+    spec.write_text(json.dumps({"run": rc.to_dict()}))
+    endpoint = rc.listen[0] if rc.listen else default_endpoint(run_dir)
+    connect_ep = rc.connect[0] if rc.connect else endpoint
+    pin_cpus(rc.pin)
+    node = Node(make_config(listen=[endpoint], config_file=rc.zenoh_config), rc.unit,
+                "central")
+    engine = setup.engine()
+    ctl = Controller(engine, rc.period, setup.params.increment, tuple(setup.task.start()))
+    recorder = None
+    if rc.record:
+        from .recorder import Recorder
+
+        recorder = Recorder(rc.record, setup)
+    central = Central(node, rc, engine, ctl, setup.cycles,
+                      on_cycle=_chain(recorder.on_cycle if recorder else None, progress),
+                      on_message=recorder.on_message if recorder else None)
+    children: list[subprocess.Popen] = []
+    code, fault = EXIT_OK, None
+    old_int = signal.getsignal(signal.SIGINT)
+    try:
+        if not spawn:
+            pass
+        elif rc.clock != "freerun":
+            children.append(spawn_role(spec, "plant", None, connect_ep, run_dir / "plant.log"))
+        for k in range(setup.placement.peripherals if spawn else 0):
+            children.append(spawn_role(spec, "peripheral", k + 1, connect_ep,
+                                       run_dir / f"peripheral-{k + 1}.log"))
+        names = _child_names(rc, setup) if spawn else []
+
+        def check() -> tuple[str, int] | None:
+            for p, name in zip(children, names, strict=False):
+                if p.poll() is not None:
+                    return name, p.returncode
+            return None
+
+        central.child_check = check
+        central.handshake()
+        central.warm_up()
+        central.say("start")
+        central.run()
+    except Fault as exc:
+        code = exc.code
+        fault = {"process": exc.process, "message": str(exc), "code": exc.code}
+    except KeyboardInterrupt:
+        code = EXIT_INTERRUPTED
+        fault = {"process": "user", "message": "interrupted", "code": code}
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # finish cleaning up
+        central.t_end_ns = central.t_end_ns or time.monotonic_ns()
+        try:
+            central.stop(reason="done" if fault is None else fault["message"],
+                         wait=1.0 if fault is None else 0.5)
+        finally:
+            end_children(children, grace=1.0)
+            node.close()
+            if recorder is not None:
+                recorder.close(central)
+            signal.signal(signal.SIGINT, old_int)
+    for p, name in zip(children, _child_names(rc, setup), strict=False):
+        if p.returncode not in (0, None) and fault is None and p.returncode != -15:
+            log = (run_dir / f"{name}.log").read_text(errors="replace")[-2000:]
+            echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
+    report = finish_report(setup, central, fault)
+    if recorder is not None:
+        recorder.write_report(report)
+    return code, report
+
+
+def _child_names(rc: RunConfig, setup: Setup) -> list[str]:
+    names = [] if rc.clock == "freerun" else ["plant"]
+    return names + [f"peripheral-{k + 1}" for k in range(setup.placement.peripherals)]
+
+
+def _chain(*fns: Any) -> Any:
+    fs = [f for f in fns if f is not None]
+    if not fs:
+        return None
+
+    def call(*a: Any) -> None:
+        for f in fs:
+            f(*a)
+
+    return call
+
+
+def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[str, Any]:
+    rc = setup.rc
+    wall = max(1, central.t_end_ns - central.t_start_ns)
+    business = {"central": max(0.0, 1.0 - central.wait_ns / wall)}
+    for k in range(setup.placement.peripherals):
+        business[f"peripheral_{k + 1}"] = central.periph_busy_ns[k] / wall
+    if rc.clock != "freerun":
+        business["plant"] = central.plant_busy_ns / wall
+    t1, per_block = math.nan, {}
+    if central.t1_inputs:
+        t1, per_block = measure_t1(lambda: setup.engine(peripherals_plan=False),
+                                   central.t1_inputs[: (50 if rc.cost_model == "t800" else None)])
+    rejected = dict(central.node.rejected)
+    for role, rep in central.role_reports.items():
+        for k, v in (rep.get("rejected") or {}).items():
+            rejected[f"{role}:{k}"] = v
+    cost_err = None
+    return build_report(
+        rc=rc, plan=setup.plan, task=setup.task, cmd_ns=list(central.log.cmd_ns),
+        sample_ns=list(central.log.sample_ns), commands=list(central.log.commands),
+        true_p=central.log.true_p, business=business,
+        deadline_misses=central.plant_misses, skipped=central.skipped, rejected=rejected,
+        t1_s=t1, per_block_s=per_block, fault=fault,
+        wall_s=(central.t_end_ns - central.t_start_ns) / 1e9, cost_error_s=cost_err,
+    )
+
+
+def load_spec(path: str) -> RunConfig:
+    data = json.loads(Path(path).read_text())["run"]
+    return RunConfig(**data)
+
+
+os.environ.setdefault("RUST_LOG", "error")  # keep Zenoh's own logging quiet

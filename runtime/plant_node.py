@@ -1,0 +1,190 @@
+"""The plant role: the simulated Delta as a Zenoh node.
+
+It publishes each sample (encoder counts, sample number, the host monotonic time of the
+sample, the plant's compute span) and takes commands (three torques and the cycle they
+answer). A command is rejected and counted when it is malformed (NaN, inf, wrong length
+or type), stale or from the future; the last valid command stays applied.
+
+Clocks
+------
+``lockstep``: after sample k the plant waits for the command of cycle ``k - latency``
+(``latency = depth - 1``; before the first one it holds the initial command), applies it,
+advances one period and publishes sample k+1.
+
+``realtime``: the plant ticks on its own wall clock. At tick j it applies the command of
+cycle ``j - depth`` if it has arrived (else a deadline miss is counted and the last command
+stays), publishes sample j and simulates period j.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import time
+from typing import Any
+
+from ..plant.simulator import Plant
+from .codec import BadMessage, check_vector, encode
+from .node import Node, is_stop
+
+
+class PlantServer:
+    """State of the plant role between messages."""
+
+    def __init__(self, node: Node, plant: Plant, *, depth: int, initial: list[float]) -> None:
+        self.node = node
+        self.plant = plant
+        self.depth = depth
+        self.pub = node.publisher(node.keys.sample)
+        node.subscribe(node.keys.command, "command")
+        self.commands: dict[int, list[float]] = {}
+        self.applied_cycle = -1
+        self.plant.set_command(initial)
+        self.misses = 0
+        self.busy_ns = 0
+        self.sample_no = 0
+
+    def take_command(self, data: bytes) -> None:
+        msg = self.node.decode(data)
+        if msg is None:
+            return
+        if msg["stage"] != "command":
+            self.node.reject("bad_stage")
+            return
+        try:
+            tau = check_vector(msg.get("tau"), 3, "tau")
+        except BadMessage as exc:
+            self.node.reject(exc.reason)
+            return
+        cycle = msg["cycle"]
+        if cycle <= self.applied_cycle:
+            self.node.reject("stale_cycle")
+            return
+        if cycle >= self.sample_no + 1:  # no sample of that number was published yet
+            self.node.reject("future_cycle")
+            return
+        if len(self.commands) > 64:
+            self.commands.pop(min(self.commands))
+        self.commands[cycle] = tau
+        self.node.last_heard_ns = time.monotonic_ns()
+
+    def apply(self, cycle: int) -> bool:
+        """Apply the command of ``cycle``; if it is not here (a deadline miss), apply the
+        newest earlier command that arrived late, else keep the last one. Returns whether
+        the due command was here."""
+        ready = [c for c in self.commands if c <= cycle]
+        if not ready:
+            return False
+        newest = max(ready)
+        self.plant.set_command(self.commands[newest])
+        self.applied_cycle = newest
+        for c in ready:
+            del self.commands[c]
+        return newest == cycle
+
+    def publish_sample(self, span: tuple[int, int]) -> None:
+        counts = self.plant.encoder_counts()
+        s = self.plant.state
+        self.pub.put(encode(
+            self.node.unit, self.sample_no, "sample", counts=counts, t_ns=time.monotonic_ns(),
+            span=list(span), p=[float(x) for x in s.p], misses=self.misses,
+            applied=self.applied_cycle,
+        ))
+
+    def simulate(self) -> tuple[int, int]:
+        t0 = time.monotonic_ns()
+        self.plant.step()
+        t1 = time.monotonic_ns()
+        self.busy_ns += t1 - t0
+        if not all(math.isfinite(x) for x in self.plant.state.q):
+            raise FloatingPointError("plant state is no longer finite")
+        return t0, t1
+
+
+def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles: int,
+          watchdog: float) -> dict[str, Any]:
+    """Run the plant until ``cycles`` samples are out, a stop, or the watchdog.
+
+    The clock starts on the central's ``start`` order (after its warm-up)."""
+    latency = server.depth - 1
+    while True:
+        try:
+            ev = node.events.get(timeout=0.2)
+        except queue.Empty:
+            if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
+                return _result(server, "watchdog", time.monotonic_ns())
+            continue
+        if ev[0] == "control":
+            msg = node.decode(ev[2])
+            if msg is not None and msg["stage"] in ("start", "stop"):
+                node.last_heard_ns = time.monotonic_ns()
+                if msg["stage"] == "stop":
+                    return _result(server, "stop", time.monotonic_ns())
+                break
+    t_start = time.monotonic_ns()
+    server.publish_sample((t_start, t_start))
+    exit_reason = "done"
+    tick_ns = int(period * 1e9)
+    next_tick = time.monotonic_ns() + tick_ns
+    while server.sample_no < cycles:
+        if clock == "lockstep":
+            due = server.sample_no - latency
+            if due >= 0:
+                # wait for the awaited command
+                while due not in server.commands:
+                    try:
+                        ev = node.events.get(timeout=0.2)
+                    except queue.Empty:
+                        if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
+                            return _result(server, "watchdog", t_start)
+                        continue
+                    if is_stop(node, ev):
+                        return _result(server, "stop", t_start)
+                    if ev[0] == "command":
+                        server.take_command(ev[2])
+                server.apply(due)
+            span = server.simulate()
+            server.sample_no += 1
+            server.publish_sample(span)
+        else:  # realtime
+            while True:
+                now = time.monotonic_ns()
+                if now >= next_tick:
+                    break
+                try:
+                    ev = node.events.get(timeout=(next_tick - now) / 1e9)
+                except queue.Empty:
+                    break
+                if is_stop(node, ev):
+                    return _result(server, "stop", t_start)
+                if ev[0] == "command":
+                    server.take_command(ev[2])
+            next_tick += tick_ns
+            if time.monotonic_ns() > next_tick:  # fell more than a period behind
+                next_tick = time.monotonic_ns() + tick_ns
+            server.sample_no += 1
+            due = server.sample_no - server.depth
+            if due >= 0 and not server.apply(due):
+                server.misses += 1
+            span = server.simulate()
+            server.publish_sample(span)
+            if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
+                return _result(server, "watchdog", t_start)
+    # keep answering until the central says stop (it may still be finishing)
+    deadline = time.monotonic() + watchdog
+    while time.monotonic() < deadline:
+        try:
+            ev = node.events.get(timeout=0.1)
+        except queue.Empty:
+            continue
+        if is_stop(node, ev):
+            break
+        if ev[0] == "command":
+            server.take_command(ev[2])
+    return _result(server, exit_reason, t_start)
+
+
+def _result(server: PlantServer, reason: str, t_start: int) -> dict[str, Any]:
+    return {"exit": reason, "samples": server.sample_no, "misses": server.misses,
+            "busy_ns": server.busy_ns, "wall_ns": time.monotonic_ns() - t_start,
+            "rejected": dict(server.node.rejected)}

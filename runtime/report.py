@@ -1,0 +1,159 @@
+"""The run report: the brief's keys, as JSON and as a human summary."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import statistics
+from typing import Any
+
+import numpy as np
+
+from ..kernels.trajectory import Task
+
+
+def quantiles(values: list[float] | np.ndarray) -> dict[str, float]:
+    """p50, p99 and max (NaN when empty)."""
+    a = np.asarray(values, dtype=float)
+    if a.size == 0:
+        return {"p50": math.nan, "p99": math.nan, "max": math.nan}
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+            "max": float(a.max())}
+
+
+def command_digest(commands: list[float] | np.ndarray) -> str:
+    """SHA-256 of the commands as float64 bytes (bit-identity checks)."""
+    return hashlib.sha256(np.asarray(commands, dtype="<f8").tobytes()).hexdigest()
+
+
+def tracking(task: Task, period: float, true_p: dict[int, tuple[float, float, float]]
+             ) -> dict[str, float]:
+    """Platform error against the reference at each sample time (m)."""
+    errs = []
+    for k, p in sorted(true_p.items()):
+        ref = task.sample(k * period)[0]
+        errs.append(math.dist(p, ref))
+    if not errs:
+        return {"max": math.nan, "rms": math.nan}
+    a = np.asarray(errs)
+    return {"max": float(a.max()), "rms": float(np.sqrt((a * a).mean()))}
+
+
+def build_report(
+    *,
+    rc: Any,
+    plan: Any,
+    task: Task,
+    cmd_ns: list[int],
+    sample_ns: list[int],
+    commands: list[float],
+    true_p: dict[int, tuple[float, float, float]],
+    business: dict[str, float],
+    deadline_misses: int,
+    skipped: int,
+    rejected: dict[str, int],
+    t1_s: float,
+    per_block_s: dict[str, float],
+    fault: dict[str, Any] | None,
+    wall_s: float,
+    cost_error_s: float | None = None,
+) -> dict[str, Any]:
+    """Assemble the report (see the brief's "Interfaces" for the keys)."""
+    n = plan.placement.peripherals
+    processors = plan.placement.processors
+    warm = min(100, len(cmd_ns) // 10)
+    c = np.asarray(cmd_ns[warm:], dtype=np.int64)
+    s = np.asarray(sample_ns[warm:], dtype=np.int64)
+    period = np.diff(c) / 1e9 if c.size > 1 else np.array([])
+    trav = (c - s) / 1e9 if c.size else np.array([])
+    pq, tq = quantiles(period), quantiles(trav)
+    t_par = tq["p50"] if rc.pipeline == 1 else pq["p50"]
+    eff = t1_s / (t_par * processors) if t_par and t_par > 0 else math.nan
+    speedup = t1_s / t_par if t_par and t_par > 0 else math.nan
+    tau = np.asarray(commands).reshape(-1, 3) if len(commands) else np.zeros((0, 3))
+    graph = plan.graph
+    central_s = sum(v for k, v in per_block_s.items() if not graph.block(k).per_axis)
+    axis_s = sum(v for k, v in per_block_s.items() if graph.block(k).per_axis)
+    t_s = central_s + axis_s
+    t_p = central_s + axis_s / max(n, 1)
+    jitter = float(np.std(period)) if period.size else math.nan
+    return {
+        "processors": processors,
+        "peripherals": n,
+        "pipeline": rc.pipeline,
+        "clock": rc.clock,
+        "cycles": len(cmd_ns),
+        "nominal_period_s": rc.period,
+        "law": rc.law,
+        "model": rc.model,
+        "task": task.name,
+        "cost_model": rc.cost_model,
+        "unit": rc.unit,
+        "round_trips": plan.round_trips,
+        "placement": plan.placement.to_dict(),
+        "period_s": pq,
+        "jitter_s": {"std": jitter, "p99_minus_p50": pq["p99"] - pq["p50"]},
+        "traversal_s": tq,
+        "deadline_misses": deadline_misses,
+        "skipped_samples": skipped,
+        "business": business,
+        "t1_s": t1_s,
+        "t_parallel_s": t_par,
+        "t_parallel_is": "traversal p50" if rc.pipeline == 1 else "period p50",
+        "efficiency": eff,
+        "efficiency_n": processors,
+        "speedup": speedup,
+        "t_s_model_s": t_s,
+        "t_p_model_s": t_p,
+        "block_cost_s": per_block_s,
+        "tracking_error_m": tracking(task, rc.period, true_p) if rc.clock != "freerun"
+        else {"max": math.nan, "rms": math.nan},
+        "torque_nm": {"max": float(np.abs(tau).max()) if tau.size else math.nan},
+        "command_digest": command_digest(commands),
+        "rejected_messages": rejected,
+        "cost_model_error_s": cost_error_s,
+        "wall_s": wall_s,
+        "fault": fault,
+    }
+
+
+def summary(r: dict[str, Any]) -> str:
+    """The human summary printed at the end of a run."""
+
+    def us(x: float) -> str:
+        return "   n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:8.1f} us"
+
+    def mm(x: float) -> str:
+        return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e3:.3f} mm"
+
+    lines = [
+        f"ctrlunit: {r['cycles']} intervals, {r['peripherals']} peripheral(s), pipeline depth "
+        f"{r['pipeline']}, clock {r['clock']}, {r['law']} + {r['model']} model, task "
+        f"{r['task']}, cost model {r['cost_model']}",
+        f"  round trips per interval  {r['round_trips']}",
+        f"  period      p50 {us(r['period_s']['p50'])}  p99 {us(r['period_s']['p99'])}  "
+        f"max {us(r['period_s']['max'])}",
+        f"  traversal   p50 {us(r['traversal_s']['p50'])}  p99 {us(r['traversal_s']['p99'])}  "
+        f"max {us(r['traversal_s']['max'])}",
+        f"  jitter      std {us(r['jitter_s']['std'])}",
+        f"  deadline misses {r['deadline_misses']}   skipped samples {r['skipped_samples']}",
+        "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
+        f"  t_1 (one process, no exchange) {us(r['t1_s'])}   t_s {us(r['t_s_model_s'])}   "
+        f"t_p {us(r['t_p_model_s'])}",
+        f"  efficiency (Eq. IV.23, N = {r['efficiency_n']}, t_parallel = {r['t_parallel_is']}) "
+        f"{r['efficiency'] * 100:.1f} %   speedup {r['speedup']:.2f}"
+        if math.isfinite(r["efficiency"]) else "  efficiency n/a",
+        f"  tracking error max {mm(r['tracking_error_m']['max'])}   rms "
+        f"{mm(r['tracking_error_m']['rms'])}   peak torque {r['torque_nm']['max']:.2f} N m",
+    ]
+    if r["rejected_messages"]:
+        lines.append("  rejected messages " + ", ".join(
+            f"{k}: {v}" for k, v in sorted(r["rejected_messages"].items())))
+    if r.get("fault"):
+        f = r["fault"]
+        lines.append(f"  FAULT in {f['process']}: {f['message']} (exit {f['code']})")
+    return "\n".join(lines)
+
+
+def median(xs: list[float]) -> float:
+    return statistics.median(xs) if xs else math.nan

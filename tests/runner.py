@@ -1,0 +1,59 @@
+"""Helpers to run ``ctrlunit`` in a subprocess and to find its processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+
+def unit_id(tag: str) -> str:
+    """A unique unit id per test, so that runs cannot cross."""
+    return f"t-{tag}-{uuid.uuid4().hex[:8]}"
+
+
+def pids_of(unit: str) -> list[int]:
+    """Processes whose command line mentions ``unit`` (from /proc)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit() or int(d.name) == os.getpid():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if unit in cmd and "ctrlunit" in cmd:
+            out.append(int(d.name))
+    return out
+
+
+def kill_unit(unit: str) -> None:
+    for pid in pids_of(unit):
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
+def ctrlunit(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ctrlunit.runtime.cli", *args],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def start_json(tmp_path: Path, *args: str, timeout: float = 300.0, tag: str = "run"
+               ) -> tuple[int, dict, str]:
+    """Run ``ctrlunit start`` with a unique unit and a report file; always cleans up."""
+    unit = unit_id(tag)
+    report = tmp_path / f"{unit}.json"
+    try:
+        res = ctrlunit("start", "--unit", unit, "--report", str(report), *args, timeout=timeout)
+    finally:
+        time.sleep(0.1)
+        kill_unit(unit)
+    data = json.loads(report.read_text()) if report.exists() else {}
+    return res.returncode, data, res.stdout + res.stderr

@@ -1,0 +1,110 @@
+"""The star over Zenoh: identical arithmetic, pipeline, clocks, tracking, clean exits."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from ctrlunit.kernels.laws import Gains
+from ctrlunit.kernels.params import DELTA_IA as P
+from ctrlunit.kernels.trajectory import pick_place_task
+from ctrlunit.runtime.controller import simulate
+from ctrlunit.runtime.report import command_digest
+from ctrlunit.topology.graph import LAWS
+from runner import kill_unit, pids_of, start_json, unit_id
+
+pytestmark = pytest.mark.zenoh
+CYCLES = 150
+
+
+@pytest.mark.parametrize("law", LAWS)
+def test_lockstep_commands_are_bit_identical_for_n_0_to_3(tmp_path, law):
+    digests = set()
+    for n in (0, 1, 2, 3):
+        code, rep, out = start_json(tmp_path, "--peripherals", str(n), "--clock", "lockstep",
+                                    "--cycles", str(CYCLES), "--law", law, tag=f"bit{n}")
+        assert code == 0, out
+        assert rep["cycles"] == CYCLES
+        digests.add(rep["command_digest"])
+    ref = simulate(P, pick_place_task(), law=law, gains=Gains.from_bandwidth(20.0),
+                   cycles=CYCLES)
+    digests.add(command_digest([x for c in ref.commands for x in c]))
+    assert len(digests) == 1
+
+
+def test_depth_two_equals_one_process_with_command_one_period_later(tmp_path):
+    code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",
+                                "lockstep", "--cycles", str(CYCLES), tag="depth2")
+    assert code == 0, out
+    ref = simulate(P, pick_place_task(), gains=Gains.from_bandwidth(20.0), cycles=CYCLES,
+                   delay=1)
+    assert rep["command_digest"] == command_digest([x for c in ref.commands for x in c])
+    at_depth1 = simulate(P, pick_place_task(), gains=Gains.from_bandwidth(20.0), cycles=CYCLES)
+    assert rep["command_digest"] != command_digest([x for c in at_depth1.commands for x in c])
+
+
+def test_resolved_acceleration_tracks_pick_place_far_better_than_pd(tmp_path):
+    results = {}
+    for law in ("resolved-acceleration", "pd"):
+        code, rep, out = start_json(tmp_path, "--peripherals", "3", "--clock", "lockstep",
+                                    "--law", law, tag=law[:4])
+        assert code == 0, out
+        results[law] = rep["tracking_error_m"]["max"]
+    ra, pd = results["resolved-acceleration"], results["pd"]
+    print(f"pick & place, lockstep 1 kHz: resolved acceleration {ra * 1e3:.3f} mm, "
+          f"PD (same gains, no model) {pd * 1e3:.3f} mm, ratio {pd / ra:.1f}")
+    assert ra <= 0.5e-3
+    assert pd >= 5 * ra
+
+
+@pytest.mark.parametrize("depth", [1, 2])
+def test_realtime_at_1ms_reports_misses(tmp_path, depth):
+    code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", str(depth),
+                                "--clock", "realtime", "--period", "1ms", "--cycles", "600",
+                                tag=f"rt{depth}")
+    assert code == 0, out
+    assert isinstance(rep["deadline_misses"], int)
+    assert rep["cycles"] + rep["skipped_samples"] >= 600 - 5
+    print(f"realtime 1 ms, depth {depth}: misses {rep['deadline_misses']}, skipped "
+          f"{rep['skipped_samples']}, period p50 {rep['period_s']['p50'] * 1e6:.0f} us")
+
+
+def test_freerun_depth_two_completes_and_reports_round_trips(tmp_path):
+    cycles = int(os.environ.get("CTRLUNIT_FREERUN_CYCLES", "20000"))
+    code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",
+                                "freerun", "--cycles", str(cycles), tag="free", timeout=400)
+    assert code == 0, out
+    assert rep["cycles"] == cycles
+    assert rep["round_trips"] == 2
+    assert rep["period_s"]["p50"] > 0
+    print(f"freerun n=3 depth 2: period p50 {rep['period_s']['p50'] * 1e6:.0f} us over "
+          f"{cycles} intervals")
+
+
+def test_ctrl_c_leaves_no_process_behind():
+    unit = unit_id("sigint")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
+         "realtime", "--duration", "60s"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 20
+        while len(pids_of(unit)) < 5 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert len(pids_of(unit)) >= 5  # launcher + plant + 3 peripherals
+        time.sleep(1.0)
+        os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
+        t0 = time.monotonic()
+        while pids_of(unit) and time.monotonic() - t0 < 2.0:
+            time.sleep(0.05)
+        left = pids_of(unit)
+        assert not left, f"still running 2 s after Ctrl-C: {left}"
+        assert proc.wait(timeout=1) == 130
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()

@@ -1,0 +1,80 @@
+"""Stage graphs, placements and exchange plans."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from ctrlunit.topology.graph import LAWS, stage_graph
+from ctrlunit.topology.placement import (
+    Placement,
+    PlacementError,
+    default_placement,
+    load_placement,
+    placement_from_mapping,
+)
+from ctrlunit.topology.plan import exchange_plan
+
+
+@pytest.mark.parametrize("law", LAWS)
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_every_law_needs_at_most_three_round_trips(law, n):
+    plan = exchange_plan(stage_graph(law), default_placement(n))
+    assert 1 <= plan.round_trips <= 3
+
+
+def test_resolved_acceleration_needs_two_rounds_with_predicted_observer():
+    assert exchange_plan(stage_graph(), default_placement(3)).round_trips == 2
+    thesis = stage_graph(observer="previous")  # n_s = 2 from the previous estimate
+    assert exchange_plan(thesis, default_placement(3)).round_trips == 3
+
+
+def test_single_processor_plan_has_no_round():
+    assert exchange_plan(stage_graph(), default_placement(0)).round_trips == 0
+
+
+def test_requests_carry_only_what_the_round_needs():
+    plan = exchange_plan(stage_graph(), default_placement(3))
+    r0, r1 = plan.rounds
+    assert set(r0.send) == {"p_lin0", "qmeas_i"}
+    assert set(r0.recv) == {"rowo0_i", "r0_i"}
+    assert set(r1.send) == {"p", "pd", "pdd"}
+    assert set(r1.recv) == {"row_i", "tauq_i", "f_i"}
+
+
+def test_moving_a_block_to_the_central_changes_the_plan():
+    pl = Placement(((0,), (1,), (2,)), frozenset({"accel", "dyn_axis"}))
+    plan = exchange_plan(stage_graph(), pl)
+    r1 = plan.rounds[1]
+    assert "accel" not in [b.name for b in r1.blocks]
+    assert {"jdp_i", "ax_i", "qd_i"} <= set(r1.recv)
+
+
+def test_placement_must_cover_each_axis_once():
+    with pytest.raises(PlacementError, match="cover axes 0, 1, 2 exactly once"):
+        Placement(((0, 1), (1, 2)))
+
+
+def test_placement_file_errors_name_the_field(tmp_path):
+    f = tmp_path / "p.json"
+    f.write_text(json.dumps({"peripherals": 5}))
+    with pytest.raises(PlacementError, match=r"peripherals = 5 must be an integer in \[0, 3\]"):
+        load_placement(f)
+    with pytest.raises(PlacementError, match="central_blocks.*not per-axis blocks"):
+        placement_from_mapping({"peripherals": 3, "central_blocks": ["law"]},
+                               block_names={"ik", "accel"})
+    with pytest.raises(PlacementError, match="unknown field"):
+        placement_from_mapping({"peripherals": 1, "speed": 3})
+
+
+def test_placement_round_trips_through_a_file(tmp_path):
+    pl = Placement(((0, 2), (1,)), frozenset({"accel"}))
+    f = tmp_path / "p.json"
+    f.write_text(json.dumps(pl.to_dict()))
+    assert load_placement(f) == pl
+    assert pl.processors == 3
+
+
+def test_unknown_law_is_refused_with_the_allowed_list():
+    with pytest.raises(ValueError, match="resolved-acceleration"):
+        stage_graph("fuzzy")
