@@ -146,6 +146,7 @@ class Central:
         self.last_sample_ns = 0
         self.t1_inputs: list[tuple] = []
         self.newest_sample = -1
+        self.cycle_spans: dict[int, list[tuple[str, int, int]]] = {}
         self.child_check: Callable[[], tuple[str, int] | None] | None = None
         self._next_child_check = 0.0
 
@@ -372,6 +373,8 @@ class Central:
         axes = self.plan.placement.axes[k]
         try:
             vals = check_vals(msg.get("vals"), f.round.recv, len(axes))
+            if "trace" in msg and not isinstance(msg["trace"], dict):
+                raise BadMessage("bad_value", "trace")
             span = msg.get("span")
             if not (isinstance(span, list) and len(span) == 2 and all(
                     isinstance(x, int) and not isinstance(x, bool) for x in span)):
@@ -404,6 +407,10 @@ class Central:
             k = self.next_cycle
             if self.rc.clock == "freerun":
                 counts, t_ns = self._synthetic_sample(k), time.monotonic_ns()
+                if self.on_message is not None:
+                    self.on_message("in", self.node.keys.sample, k, "sample", encode(
+                        self.node.unit, k, "sample", counts=counts, t_ns=t_ns, synthetic=True),
+                        t_ns)
             else:
                 if k not in self.samples:
                     if self.rc.clock == "realtime" and self.samples and max(self.samples) > k:
@@ -477,10 +484,19 @@ class Central:
         self.done += 1
         if self.on_cycle is not None:
             self.on_cycle(self, f.cycle, f.ctx)
+            self.cycle_spans.pop(f.cycle, None)
+            for c in [c for c in self.cycle_spans if c < f.cycle - 8]:
+                del self.cycle_spans[c]
 
     def _span(self, proc: str, cycle: int, t0: int, t1: int) -> None:
         if len(self.spans) < self.max_spans:
             self.spans.append((proc, cycle, t0, t1))
+        if self.on_cycle is not None:
+            self.cycle_spans.setdefault(cycle, []).append((proc, t0, t1))
+
+    def spans_of(self, cycle: int) -> list[tuple[str, int, int]]:
+        """The spans recorded for ``cycle`` (each process's compute time)."""
+        return self.cycle_spans.get(cycle, [])
 
     # -- end --------------------------------------------------------------------------
 

@@ -75,6 +75,8 @@ class RunConfig:
     belt: bool = False
     t1_cycles: int = 500
     progress: bool = False
+    status_file: str | None = None
+    trace: bool = False
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS

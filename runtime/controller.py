@@ -63,6 +63,7 @@ class Controller:
     p0: tuple[float, float, float]
     est: tuple = field(init=False)
     q_prev: list[float] | None = field(default=None, init=False)
+    k_prev: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
         self.est = (tuple(self.p0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
@@ -70,11 +71,13 @@ class Controller:
     def sources(self, cycle: int, counts: list[int]) -> dict:
         """Context of interval ``cycle`` from its encoder counts."""
         q = [c * self.increment for c in counts]
-        if self.q_prev is None:
+        if self.q_prev is None or cycle <= self.k_prev:
             qd = [0.0, 0.0, 0.0]
-        else:
-            qd = [(q[i] - self.q_prev[i]) / self.period for i in range(3)]
+        else:  # skipped samples (realtime, behind) widen the difference
+            dt = self.period * (cycle - self.k_prev)
+            qd = [(q[i] - self.q_prev[i]) / dt for i in range(3)]
         self.q_prev = q
+        self.k_prev = cycle
         return self.engine.new_ctx(cycle * self.period, self.est, q, qd)
 
     def handoff(self, ctx: dict) -> None:

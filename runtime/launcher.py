@@ -156,7 +156,7 @@ def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
         reply = declare(node, index - 1)
         node.wait_for_go(timeout=setup.rc.startup_timeout)
         res = serve(node, setup.engine(), index - 1, reply,
-                    watchdog=max(5.0, 3 * setup.rc.timeout))
+                    watchdog=max(5.0, 3 * setup.rc.timeout), trace=setup.rc.trace)
         _bye(node, res)
         return EXIT_OK if res["exit"] == "stop" else EXIT_LINK
     except TimeoutError as exc:
@@ -226,6 +226,7 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     except (ConfigError, ValueError) as exc:
         return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
                                        "code": EXIT_CONFIG}}
+    rc.trace = bool(rc.record)
     run_dir = Path(tempfile.mkdtemp(prefix="ctrlunit-"))
     spec = run_dir / "spec.json"
     spec.write_text(json.dumps({"run": rc.to_dict()}))
@@ -242,7 +243,8 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
 
         recorder = Recorder(rc.record, setup)
     central = Central(node, rc, engine, ctl, setup.cycles,
-                      on_cycle=_chain(recorder.on_cycle if recorder else None, progress),
+                      on_cycle=_chain(recorder.on_cycle if recorder else None, progress,
+                                      _status_writer(rc.status_file)),
                       on_message=recorder.on_message if recorder else None)
     children: list[subprocess.Popen] = []
     code, fault = EXIT_OK, None
@@ -299,6 +301,21 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
 def _child_names(rc: RunConfig, setup: Setup) -> list[str]:
     names = [] if rc.clock == "freerun" else ["plant"]
     return names + [f"peripheral-{k + 1}" for k in range(setup.placement.peripherals)]
+
+
+def _status_writer(path: str | None) -> Any:
+    """Every 10 intervals, write the completed count to ``path`` (atomic rename)."""
+    if not path:
+        return None
+    tmp = path + ".tmp"
+
+    def write(central: Central, _cycle: int, _ctx: dict) -> None:
+        if central.done % 10 == 0:
+            with open(tmp, "w") as fh:
+                fh.write(str(central.done))
+            os.replace(tmp, path)
+
+    return write
 
 
 def _chain(*fns: Any) -> Any:

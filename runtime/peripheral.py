@@ -13,7 +13,7 @@ import time
 from typing import Any
 
 from .codec import BadMessage, check_vals, encode
-from .engine import Engine
+from .engine import Engine, _plain
 from .node import Node, is_stop
 
 MAX_KEPT_CYCLES = 8
@@ -27,8 +27,8 @@ def declare(node: Node, index: int) -> Any:
     return node.publisher(node.keys.reply(index + 1))
 
 
-def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
-          ) -> dict[str, Any]:
+def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float,
+          trace: bool = False) -> dict[str, Any]:
     """Answer requests until stopped; returns counters.
 
     Parameters
@@ -41,6 +41,8 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
     """
     axes = engine.plan.placement.axes[index]
     rounds = {r.index: r for r in engine.plan.rounds}
+    trace_names = {r.index: [o for b in r.blocks for o in b.outputs if o not in r.recv]
+                   for r in engine.plan.rounds}
     ctxs: dict[int, dict] = {}
     served = 0
     busy_ns = 0
@@ -94,8 +96,11 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
             node.reject(f"kernel_error:{type(exc).__name__}")
             continue
         out = Engine.reply_vals(rnd, ctx, axes)
+        extra = {}
+        if trace:  # recording: every intermediate value too, for replay --verify
+            extra["trace"] = {n: [_plain(ctx[n][i]) for i in axes] for n in trace_names[rnd.index]}
         t1 = time.monotonic_ns()
-        reply.put(encode(node.unit, cycle, rnd.index, vals=out, span=[t0, t1]))
+        reply.put(encode(node.unit, cycle, rnd.index, vals=out, span=[t0, t1], **extra))
         busy_ns += t1 - t0
         served += 1
         if rnd.index == engine.plan.round_trips - 1:

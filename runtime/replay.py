@@ -1,0 +1,327 @@
+"""``ctrlunit replay``: verify a recording bit for bit, republish it, export it.
+
+``verify`` re-executes every block in one process on the recorded samples, round by round
+in the recorded plan: each recorded request must equal the central's recomputed values,
+each recorded reply the recomputed per-axis values, each command the recomputed command.
+The first divergence names the cycle, the block that produces the value, the axis, the
+expected (recorded) and the recomputed value.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import msgpack
+
+from .recording import Recording
+
+Vals = dict[str, Any]
+
+
+@dataclass
+class Divergence:
+    cycle: int
+    block: str
+    axis: int | None
+    value: str
+    expected: Any
+    got: Any
+
+    def __str__(self) -> str:
+        where = f"axis {self.axis}" if self.axis is not None else "central"
+        return (f"first divergence at cycle {self.cycle}, block {self.block} ({where}), value "
+                f"{self.value}: recorded {self.expected!r}, recomputed {self.got!r}")
+
+
+def _setup(rec: Recording) -> Any:
+    from .config import RunConfig
+    from .launcher import make_setup
+
+    rc = RunConfig(**rec.config)
+    rc.record = rc.report = None
+    return make_setup(rc)
+
+
+def _index(rec: Recording, topic_prefix: str) -> dict[tuple[int, int, Any], dict]:
+    """(peripheral, cycle, stage) -> message, for requests or replies."""
+    out: dict[tuple[int, int, Any], dict] = {}
+    for topic in rec.topics:
+        if topic.startswith("/peripheral/") and topic.endswith(topic_prefix):
+            k = int(topic.split("/")[2]) - 1
+            for _, m in rec.decoded(topic):
+                out[(k, m["cycle"], m["stage"])] = m
+    return out
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, tuple | list):
+        return [_plain(x) for x in v]
+    return v
+
+
+def cycles_in_order(rec: Recording) -> list[tuple[int, list[int]]]:
+    """Started intervals in order with their encoder counts (from the commands' cycles)."""
+    samples = {m["cycle"]: m["counts"] for _, m in rec.decoded("/plant/sample")}
+    out = []
+    for _, m in rec.decoded("/plant/command"):
+        k = m["cycle"]
+        if k in samples:
+            out.append((k, samples[k]))
+    return out
+
+
+def recorded_inputs(rec: Recording, setup: Any) -> list[tuple]:
+    """``(t, est, qmeas, qdmeas)`` of the recorded intervals (for ``t_1``)."""
+    from .controller import Controller
+
+    engine = setup.engine(peripherals_plan=False)
+    ctl = Controller(engine, setup.rc.period, setup.params.increment, tuple(setup.task.start()))
+    out = []
+    for k, counts in cycles_in_order(rec):
+        ctx = ctl.sources(k, counts)
+        out.append((ctx["t"], ctx["est"], list(ctx["qmeas_i"]), list(ctx["qdmeas_i"])))
+        engine.run_local(ctx)
+        ctl.handoff(ctx)
+    return out
+
+
+def verify(
+    rec: Recording,
+    *,
+    cycles: tuple[int, int] | None = None,
+    alter: tuple[str, int] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[int, Divergence | None]:
+    """Re-execute every block and compare with the recording.
+
+    Parameters
+    ----------
+    cycles : only compare cycles in ``[a, b)`` (all are re-executed: the observer's state
+        runs through every interval).
+    alter : ``(block, cycle)``: perturb that block's first output at that cycle (to check
+        that verification catches a wrong kernel).
+
+    Returns
+    -------
+    (intervals compared, first divergence or None)
+    """
+    from .controller import Controller, handoff_step
+    from .engine import Engine
+
+    setup = _setup(rec)
+    engine = setup.engine()
+    plan = engine.plan
+    producer = {o: b.name for b in plan.graph.blocks for o in b.outputs}
+    ctl = Controller(engine, setup.rc.period, setup.params.increment, tuple(setup.task.start()))
+    hand = handoff_step(plan)
+    round_step = {s.round.index: k for k, s in enumerate(plan.steps) if s.round is not None}
+    requests, replies = _index(rec, "/request"), _index(rec, "/reply")
+    commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
+    central_trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
+    current = {"cycle": -1}
+    if alter is not None:
+        name, at = alter
+        fn, names, cost, per_axis = engine._bound[name]
+        block = plan.graph.block(name)
+
+        def altered(c: dict, *args: Any) -> None:
+            fn(c, *args)
+            if current["cycle"] != at:
+                return
+            out = names[block.outputs[0]]
+            if per_axis:
+                i = args[0]
+                v = c[out][i]
+                c[out][i] = _nudge(v)
+            else:
+                c[out] = _nudge(c[out])
+
+        engine._bound[name] = (altered, names, cost, per_axis)
+    done = 0
+    seq = cycles_in_order(rec)
+    for idx, (k, counts) in enumerate(seq):
+        current["cycle"] = k
+        compare = cycles is None or cycles[0] <= k < cycles[1]
+        ctx = ctl.sources(k, counts)
+        gen = engine.cycle(ctx)
+        handed = False
+        try:
+            rnd = next(gen)
+            while True:
+                if not handed and round_step[rnd.index] > hand:
+                    ctl.handoff(ctx)
+                    handed = True
+                for p in range(plan.placement.peripherals):
+                    axes = plan.placement.axes[p]
+                    if compare:
+                        got = Engine.request_vals(rnd, ctx, axes)
+                        m = requests.get((p, k, rnd.index))
+                        if m is None:
+                            return done, Divergence(k, "(request)", None, "missing", None, None)
+                        d = _diff(got, m["vals"], axes, producer, k)
+                        if d:
+                            return done, d
+                engine.run_round(rnd, ctx, (0, 1, 2))
+                rnd = gen.send(None)
+        except StopIteration:
+            pass
+        if not handed:
+            ctl.handoff(ctx)
+        if compare:
+            d = _compare_blocks(plan, ctx, k, central_trace.get(k), replies)
+            if d:
+                return done, d
+            rec_cmd = commands.get(k)
+            if rec_cmd != [float(x) for x in ctx["cmd"]]:
+                return done, Divergence(k, "output", None, "cmd", rec_cmd, list(ctx["cmd"]))
+            done += 1
+        if progress is not None and idx % 500 == 0:
+            progress(idx, len(seq))
+    return done, None
+
+
+def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
+                    replies: dict[tuple[int, int, Any], dict]) -> Divergence | None:
+    """Compare every block's outputs, in plan order, with what the recording holds: the
+    central's trace for central blocks, the replies (values and trace) for per-axis blocks
+    run on the peripherals. The first difference names its block."""
+    for step in plan.steps:
+        if step.round is None:
+            b = step.block
+            if central is None:
+                continue
+            for name in b.outputs:
+                if name.endswith("_i"):
+                    continue
+                if name in central and _plain(ctx[name]) != central[name]:
+                    return Divergence(k, b.name, None, name, central[name], _plain(ctx[name]))
+            continue
+        rnd = step.round
+        for b in rnd.blocks:
+            for p in range(plan.placement.peripherals):
+                axes = plan.placement.axes[p]
+                m = replies.get((p, k, rnd.index))
+                if m is None:
+                    return Divergence(k, "(reply)", None, "missing", None, None)
+                recorded = dict(m.get("trace") or {})
+                recorded.update(m["vals"])
+                for name in b.outputs:
+                    if name not in recorded:
+                        continue
+                    for j, axis in enumerate(axes):
+                        got = _plain(ctx[name][axis])
+                        if got != recorded[name][j]:
+                            return Divergence(k, b.name, axis, name, recorded[name][j], got)
+    return None
+
+
+def _nudge(v: Any) -> Any:
+    if isinstance(v, float):
+        return v + abs(v) * 1e-12 + 1e-300
+    if isinstance(v, tuple | list):
+        head = _nudge(v[0])
+        rest = list(v[1:])
+        try:
+            return type(v)(head, *rest)  # named tuples
+        except TypeError:
+            return type(v)([head, *rest])
+    return v
+
+
+def _diff(got: Vals, recorded: Vals, axes: tuple[int, ...], producer: dict[str, str],
+          cycle: int) -> Divergence | None:
+    for name, rv in recorded.items():
+        gv = _plain(got.get(name))
+        if name.endswith("_i"):
+            for j, axis in enumerate(axes):
+                if gv is None or gv[j] != rv[j]:
+                    return Divergence(cycle, producer.get(name, "?"), axis, name, rv[j],
+                                      None if gv is None else gv[j])
+        elif gv != rv:
+            return Divergence(cycle, producer.get(name, "?"), None, name, rv, gv)
+    return None
+
+
+def export_csv(rec: Recording, out_dir: str | Path, *, cycles: tuple[int, int] | None = None
+               ) -> list[Path]:
+    """Write the plottable signals (and commands) as CSV files in ``out_dir``."""
+    import json
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "signals.csv"
+    cols = ["cycle", "t", "p_x", "p_y", "p_z", "ref_x", "ref_y", "ref_z", "q1", "q2", "q3",
+            "tau1", "tau2", "tau3", "tracking_error", "period", "traversal"]
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for _, data in rec.topics.get("/signals/state", []):
+            s = json.loads(data)
+            if cycles and not cycles[0] <= s["cycle"] < cycles[1]:
+                continue
+            p = s.get("p") or {}
+            r = s.get("reference") or {}
+            w.writerow([s["cycle"], s["t"], p.get("x"), p.get("y"), p.get("z"), r.get("x"),
+                        r.get("y"), r.get("z"), *s["q"], *s["torque"], s["tracking_error"],
+                        s["period"], s["traversal"]])
+    return [path]
+
+
+def republish(rec: Recording, *, unit: str, rate: float = 1.0, loop: bool = False,
+              start_offset: float = 0.0, topics: list[str] | None = None,
+              cycles: tuple[int, int] | None = None, conf: Any = None,
+              max_seconds: float | None = None) -> int:
+    """Publish the recorded messages on ``ctrlunit/<unit>/<topic>`` at their recorded pace
+    scaled by ``rate`` (rosbag2's ``--rate``, ``--loop``, ``--start-offset``,
+    ``--topics``). Returns the number of messages published."""
+    import zenoh
+
+    from .zsession import make_config
+
+    msgs = []
+    for topic, items in rec.topics.items():
+        if topics and topic not in topics:
+            continue
+        for t, data in items:
+            if cycles is not None:
+                try:
+                    c = msgpack.unpackb(data, raw=False).get("cycle")
+                except Exception:
+                    c = None
+                if c is None or not cycles[0] <= c < cycles[1]:
+                    continue
+            msgs.append((t, topic, data))
+    msgs.sort(key=lambda x: x[0])
+    if not msgs:
+        return 0
+    t0 = msgs[0][0] + int(start_offset * 1e9)
+    msgs = [m for m in msgs if m[0] >= t0]
+    sent = 0
+    deadline = None if max_seconds is None else time.monotonic() + max_seconds
+    with zenoh.open(conf or make_config()) as session:
+        pubs: dict[str, Any] = {}
+        while True:
+            wall0 = time.monotonic()
+            for t, topic, data in msgs:
+                due = wall0 + (t - t0) / 1e9 / rate
+                delay = due - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                pub = pubs.get(topic)
+                if pub is None:
+                    pub = pubs[topic] = session.declare_publisher(f"ctrlunit/{unit}{topic}")
+                pub.put(data)
+                sent += 1
+                if deadline is not None and time.monotonic() > deadline:
+                    return sent
+            if not loop:
+                return sent
+
+
+_ = math
