@@ -222,6 +222,14 @@ class Task:
         """Forward, dwell, backward, dwell (s)."""
         return 2.0 * (self.duration + self.dwell)
 
+    def align(self, step: float) -> Task:
+        """Lengthen the dwell so that one loop is a whole number of ``step`` (e.g. half a
+        sampling period): the reference then repeats exactly and its cache hits."""
+        n = math.ceil(self.period / step - 1e-9)
+        self.dwell = 0.5 * n * step - self.duration
+        self._cache.clear()
+        return self
+
     def start(self) -> np.ndarray:
         """Position at ``t = 0`` (m)."""
         return np.array(self.segments[0].sample(0.0)[0])

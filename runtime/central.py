@@ -119,7 +119,7 @@ class Central:
             if s.round is not None:
                 self.round_step[s.round.index] = k
         keys = node.keys
-        self.pub_req = [node.publisher(keys.request(k + 1)) for k in range(self.n)]
+        self.pub_req = node.publisher(keys.request) if self.n else None
         self.pub_cmd = node.publisher(keys.command)
         self.pub_ctl = node.publisher(keys.control)
         for k in range(self.n):
@@ -238,16 +238,14 @@ class Central:
             except (StopIteration, ObserverDiverged):
                 return
             cycle = self.WARMUP_BASE + i
-            payloads = [encode(self.node.unit, cycle, rnd.index,
-                               vals=Engine.request_vals(rnd, ctx, self.plan.placement.axes[k]))
-                        for k in range(self.n)]
+            payload = encode(self.node.unit, cycle, rnd.index,
+                             vals=Engine.request_vals(rnd, ctx, (0, 1, 2)))
             waiting = set(range(self.n))
             deadline = time.monotonic() + self.rc.startup_timeout
             resend = 0.0
             while waiting:
                 if time.monotonic() >= resend:  # the first requests may race the routes
-                    for k in waiting:
-                        self.pub_req[k].put(payloads[k])
+                    self.pub_req.put(payload)
                     resend = time.monotonic() + 0.2
                 left = deadline - time.monotonic()
                 if left <= 0:
@@ -455,14 +453,12 @@ class Central:
         f.round = rnd
         f.waiting = set(range(self.n))
         f.deadline_ns = time.monotonic_ns() + self._timeout_ns()
-        for k in range(self.n):
-            axes = self.plan.placement.axes[k]
-            payload = encode(self.node.unit, f.cycle, rnd.index,
-                             vals=Engine.request_vals(rnd, f.ctx, axes))
-            self.pub_req[k].put(payload)
-            if self.on_message is not None:
-                self.on_message("out", self.node.keys.request(k + 1), f.cycle, rnd.index,
-                                payload, time.monotonic_ns())
+        payload = encode(self.node.unit, f.cycle, rnd.index,
+                         vals=Engine.request_vals(rnd, f.ctx, (0, 1, 2)))
+        self.pub_req.put(payload)
+        if self.on_message is not None:
+            self.on_message("out", self.node.keys.request, f.cycle, rnd.index, payload,
+                            time.monotonic_ns())
         self._span("central", f.cycle, f.start_ns, time.monotonic_ns())
         f.start_ns = time.monotonic_ns()
 

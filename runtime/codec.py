@@ -104,19 +104,55 @@ def check_value(x: Any, name: str) -> Any:
     return [check_vector(r, shape[1], name) for r in x]
 
 
+_SHAPES: dict[str, tuple[int, ...]] = {}
+
+
+def _finite_floats(x: Any, n: int, name: str) -> list[float]:
+    """``x`` must be a list of ``n`` finite floats (ints are converted)."""
+    if type(x) is not list or len(x) != n:
+        raise BadMessage("bad_value", f"{name} must be a list of {n} numbers")
+    for y in x:
+        if type(y) is not float:
+            if isinstance(y, bool) or not isinstance(y, int):
+                raise BadMessage("bad_value", f"{name} must hold numbers")
+            x = [float(v) if not isinstance(v, bool) else v for v in x]
+            break
+    # NaN and inf propagate through the sum; a finite overflow is refused as well
+    if not math.isfinite(sum(x)):
+        raise BadMessage("bad_value", f"{name} must be finite")
+    return x
+
+
+def _check_shaped(x: Any, shape: tuple[int, ...], name: str) -> Any:
+    if not shape:
+        if type(x) is float:
+            if x - x != 0.0:  # NaN or inf
+                raise BadMessage("bad_value", f"{name} must be finite")
+            return x
+        return check_float(x, name)
+    if len(shape) == 1:
+        return _finite_floats(x, shape[0], name)
+    if type(x) is not list or len(x) != shape[0]:
+        raise BadMessage("bad_value", f"{name} must be {shape[0]} rows")
+    return [_finite_floats(r, shape[1], name) for r in x]
+
+
 def check_vals(vals: Any, names: list[str], n_axes: int) -> dict[str, Any]:
     """Validate a ``vals`` map: exactly ``names``; per-axis ones hold ``n_axes`` entries."""
-    if not isinstance(vals, dict):
-        raise BadMessage("bad_vals", "vals must be a map")
-    if set(vals) != set(names):
+    if type(vals) is not dict or len(vals) != len(names):
         raise BadMessage("bad_vals", f"expected {sorted(names)}")
     out = {}
     for name in names:
+        if name not in vals:
+            raise BadMessage("bad_vals", f"expected {sorted(names)}")
+        shape = _SHAPES.get(name)
+        if shape is None:
+            shape = _SHAPES[name] = shape_of(name)
         v = vals[name]
         if name.endswith("_i"):
-            if not isinstance(v, list) or len(v) != n_axes:
+            if type(v) is not list or len(v) != n_axes:
                 raise BadMessage("bad_vals", f"{name} must hold {n_axes} entries")
-            out[name] = [check_value(e, name) for e in v]
+            out[name] = [_check_shaped(e, shape, name) for e in v]
         else:
-            out[name] = check_value(v, name)
+            out[name] = _check_shaped(v, shape, name)
     return out

@@ -65,6 +65,9 @@ def run_options(fn: Any) -> Any:
         click.option("--timeout", default="2s", show_default=True, callback=_duration,
                      help="Reply timeout in lockstep and freerun (realtime: 3 periods)."),
         click.option("--pin", default=None, help="CPUs for this process, e.g. 0 or 0,1."),
+        click.option("--cpus", type=click.Choice(["same", "split"]), default=None,
+                     help="start: pin every role on CPU 0 (same), or the central on 0 and "
+                     "the others on 1 (split); default: no pinning."),
         click.option("--plant-substeps", type=click.IntRange(1, 1000), default=10,
                      show_default=True),
         click.option("--plant-lag", default="0s", callback=_duration_or_zero,
@@ -96,6 +99,7 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
         rc = load_spec(spec)
         rc.listen = listen or rc.listen
         rc.connect = connect or rc.connect
+        rc.pin = kw.get("pin") or None
         return rc
     unit = kw.pop("unit", None)
     rc = RunConfig(**{k: v for k, v in kw.items() if k in RunConfig.__dataclass_fields__})

@@ -77,6 +77,7 @@ class RunConfig:
     progress: bool = False
     status_file: str | None = None
     trace: bool = False
+    cpus: str | None = None
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS
@@ -106,6 +107,9 @@ class RunConfig:
             raise bad("bandwidth_hz", "0.1 to 200 Hz")
         if not 0.01 <= self.timeout <= 600.0:
             raise bad("timeout", "0.01 to 600 s")
+        if self.cpus not in (None, "same", "split"):
+            raise bad("cpus", "same (every role on CPU 0) or split (central on 0, the rest "
+                      "on 1)")
         if not 1 <= self.plant_substeps <= 1000:
             raise bad("plant_substeps", "1 to 1000")
         from .zsession import check_unit_id

@@ -137,6 +137,7 @@ def simulate(
 ) -> SimResult:
     """Closed loop in one process: sample k -> interval k -> command applied during period
     ``k + delay`` (``delay = depth - 1``)."""
+    task.align(period / 2.0)  # as the distributed unit does
     engine = build_engine(params, task, law=law, model=model, gains=gains, period=period,
                           observer=observer, depth=delay + 1)
     pc = plant_config or PlantConfig(period=period)

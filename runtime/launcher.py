@@ -83,7 +83,7 @@ def make_setup(rc: RunConfig) -> Setup:
     rc.validate()
     params = DELTA_IA if rc.params is None else load_params(rc.params)
     try:
-        task = get_task(rc.task)
+        task = get_task(rc.task).align(rc.period / 2.0)
     except ValueError as exc:
         raise ConfigError(f"task: {exc}") from None
     pts = np.array([task.sample_path(t)[0] for t in np.linspace(0.0, task.duration, 400)])
@@ -118,14 +118,25 @@ def _die_with_parent() -> None:  # runs in the child between fork and exec
 def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Path
                ) -> subprocess.Popen:
     """Start one role as a child process (``ctrlunit plant|peripheral --spec``)."""
-    unit = json.loads(spec.read_text())["run"]["unit"]
+    run = json.loads(spec.read_text())["run"]
     args = [sys.executable, "-m", "ctrlunit.runtime.cli", role, "--spec", str(spec),
-            "--connect", endpoint, "--unit", unit]  # the unit id names the process in ps
+            "--connect", endpoint, "--unit", run["unit"]]  # the unit id names it in ps
+    cpu = {"same": "0", "split": "1"}.get(run.get("cpus") or "")
+    if cpu is not None and cpu_ok(int(cpu)):
+        args += ["--pin", cpu]
     if index is not None:
         args += ["--index", str(index)]
     out = open(log, "wb")
     return subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                             preexec_fn=_die_with_parent)
+
+
+def cpu_ok(cpu: int) -> bool:
+    """Is ``cpu`` available to this process?"""
+    try:
+        return cpu in os.sched_getaffinity(0)
+    except OSError:
+        return False
 
 
 def end_children(children: list[subprocess.Popen], *, grace: float = 1.0) -> None:
@@ -232,7 +243,7 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     spec.write_text(json.dumps({"run": rc.to_dict()}))
     endpoint = rc.listen[0] if rc.listen else default_endpoint(run_dir)
     connect_ep = rc.connect[0] if rc.connect else endpoint
-    pin_cpus(rc.pin)
+    pin_cpus(rc.pin or ("0" if rc.cpus and cpu_ok(0) else None))
     node = Node(make_config(listen=[endpoint], config_file=rc.zenoh_config), rc.unit,
                 "central")
     engine = setup.engine()

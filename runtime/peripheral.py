@@ -18,12 +18,13 @@ from .node import Node, is_stop
 
 MAX_KEPT_CYCLES = 8
 WARMUP_BASE = 1 << 40  # cycles from here on are the central's warm-up
+ALL_AXES = (0, 1, 2)
 
 
 def declare(node: Node, index: int) -> Any:
     """Declare the request subscriber and the reply publisher (before the handshake, so
     that nothing the central sends after ``go`` can be missed)."""
-    node.subscribe(node.keys.request(index + 1), "request")
+    node.subscribe(node.keys.request, "request")
     return node.publisher(node.keys.reply(index + 1))
 
 
@@ -71,7 +72,7 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
             continue
         t0 = time.monotonic_ns()
         try:
-            vals = check_vals(msg.get("vals"), rnd.send, len(axes))
+            vals = check_vals(msg.get("vals"), rnd.send, 3)
         except BadMessage as exc:
             node.reject(exc.reason)
             continue
@@ -89,7 +90,7 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
             ctxs[cycle] = ctx
             if len(ctxs) > MAX_KEPT_CYCLES:
                 del ctxs[min(ctxs)]
-        Engine.merge(ctx, vals, axes)
+        Engine.merge(ctx, vals, ALL_AXES)
         try:
             engine.run_round(rnd, ctx, axes)
         except Exception as exc:

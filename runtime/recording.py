@@ -91,7 +91,6 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     ``t_1`` comes from the run's result record; if the run died before writing it, it is
     measured again here on the recorded intervals.
     """
-    from ..kernels.trajectory import get_task
     from .config import RunConfig
     from .launcher import make_setup
     from .report import build_report
@@ -149,7 +148,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     fault = json.loads(result.get("fault", "null") or "null")
     if rec.salvaged:
         fault = fault or {"process": "recording", "message": rec.note, "code": None}
-    task = get_task(rc.task)
+    task = setup.task
     rep = build_report(
         rc=rc, plan=setup.plan, task=task, cmd_ns=cmd_ns, sample_ns=sample_ns,
         commands=commands, true_p=true_p, business=business, deadline_misses=misses,

@@ -49,10 +49,13 @@ def _setup(rec: Recording) -> Any:
 
 
 def _index(rec: Recording, topic_prefix: str) -> dict[tuple[int, int, Any], dict]:
-    """(peripheral, cycle, stage) -> message, for requests or replies."""
-    out: dict[tuple[int, int, Any], dict] = {}
+    """(peripheral, cycle, stage) -> reply, or (cycle, stage) -> request."""
+    out: dict[tuple[int, ...], dict] = {}
     for topic in rec.topics:
-        if topic.startswith("/peripheral/") and topic.endswith(topic_prefix):
+        if topic == "/peripheral/request" and topic_prefix == "/request":
+            for _, m in rec.decoded(topic):
+                out[(m["cycle"], m["stage"])] = m
+        elif topic.startswith("/peripheral/") and topic.endswith(topic_prefix):
             k = int(topic.split("/")[2]) - 1
             for _, m in rec.decoded(topic):
                 out[(k, m["cycle"], m["stage"])] = m
@@ -157,16 +160,14 @@ def verify(
                 if not handed and round_step[rnd.index] > hand:
                     ctl.handoff(ctx)
                     handed = True
-                for p in range(plan.placement.peripherals):
-                    axes = plan.placement.axes[p]
-                    if compare:
-                        got = Engine.request_vals(rnd, ctx, axes)
-                        m = requests.get((p, k, rnd.index))
-                        if m is None:
-                            return done, Divergence(k, "(request)", None, "missing", None, None)
-                        d = _diff(got, m["vals"], axes, producer, k)
-                        if d:
-                            return done, d
+                if compare and plan.placement.peripherals:
+                    got = Engine.request_vals(rnd, ctx, (0, 1, 2))
+                    m = requests.get((k, rnd.index))
+                    if m is None:
+                        return done, Divergence(k, "(request)", None, "missing", None, None)
+                    d = _diff(got, m["vals"], (0, 1, 2), producer, k)
+                    if d:
+                        return done, d
                 engine.run_round(rnd, ctx, (0, 1, 2))
                 rnd = gen.send(None)
         except StopIteration:

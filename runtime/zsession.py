@@ -46,8 +46,10 @@ class Keys:
     def command(self) -> str:
         return f"{self.root}/plant/command"
 
-    def request(self, k: int) -> str:
-        return f"{self.root}/peripheral/{k}/request"
+    @property
+    def request(self) -> str:
+        """One request per round for every peripheral (each reads its own axes)."""
+        return f"{self.root}/peripheral/request"
 
     def reply(self, k: int) -> str:
         return f"{self.root}/peripheral/{k}/reply"
