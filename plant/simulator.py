@@ -174,12 +174,13 @@ class Plant:
             s.tau_applied = list(self.command)
         tau = s.tau_applied
         y = self._pack()
-        n = len(y)
         k1 = self._deriv(y, tau)
-        k2 = self._deriv([y[j] + 0.5 * h * k1[j] for j in range(n)], tau)
-        k3 = self._deriv([y[j] + 0.5 * h * k2[j] for j in range(n)], tau)
-        k4 = self._deriv([y[j] + h * k3[j] for j in range(n)], tau)
-        y = [y[j] + h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]) for j in range(n)]
+        hh = 0.5 * h
+        k2 = self._deriv([a + hh * b for a, b in zip(y, k1)], tau)
+        k3 = self._deriv([a + hh * b for a, b in zip(y, k2)], tau)
+        k4 = self._deriv([a + h * b for a, b in zip(y, k3)], tau)
+        h6 = h / 6.0
+        y = [a + h6 * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(y, k1, k2, k3, k4)]
         self._unpack(y)
         s.time += h
 

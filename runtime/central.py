@@ -410,15 +410,15 @@ class Central:
                         self.node.unit, k, "sample", counts=counts, t_ns=t_ns, synthetic=True),
                         t_ns)
             else:
+                if self.rc.clock == "realtime" and self.samples and max(self.samples) > k:
+                    # behind the plant's clock: start from the newest sample, never queue
+                    newest = max(self.samples)
+                    self.skipped += sum(1 for c in self.samples if c < newest) + (
+                        newest - k - len(self.samples) + 1)
+                    self.samples = {newest: self.samples[newest]}
+                    self.next_cycle = k = newest
                 if k not in self.samples:
-                    if self.rc.clock == "realtime" and self.samples and max(self.samples) > k:
-                        newest = max(self.samples)
-                        self.skipped += newest - k
-                        for c in [c for c in self.samples if c < newest]:
-                            del self.samples[c]
-                        self.next_cycle = k = newest
-                    else:
-                        return
+                    return
                 counts, t_ns = self.samples.pop(k)
             self.next_cycle = k + 1
             t0 = time.monotonic_ns()
@@ -447,6 +447,7 @@ class Central:
         if not f.handed_off and (rnd is None or self.round_step[rnd.index] > self.hand):
             self.ctl.handoff(f.ctx)
             f.handed_off = True
+            self._check_state(f)
         if rnd is None:
             self._finish(f)
             return
@@ -461,6 +462,34 @@ class Central:
                             time.monotonic_ns())
         self._span("central", f.cycle, f.start_ns, time.monotonic_ns())
         f.start_ns = time.monotonic_ns()
+
+    def _check_state(self, f: InFlight) -> None:
+        """The observed state must track the reference and stay in the usable workspace
+        (Eq. V.33, checked every 10th interval); otherwise stop safely with a reason."""
+        p, pc = f.ctx.get("p"), f.ctx.get("pc")
+        if p is None or pc is None:
+            return
+        err = math.dist(p, pc)
+        why = None
+        if err > self.rc.max_error:
+            why = (f"tracking error {err * 1e3:.1f} mm exceeds --max-error "
+                   f"{self.rc.max_error * 1e3:.1f} mm")
+        elif f.cycle % 10 == 0:
+            from ..kernels.workspace import check_point
+
+            chk = check_point(self.engine.cfg.params, p)
+            if not chk.ok:
+                why = f"the robot left the usable workspace: {chk.reason}"
+        if why is None:
+            return
+        late = self.plant_misses + self.skipped
+        hint = ""
+        if self.rc.clock == "realtime" and late > max(5, f.cycle // 10):
+            hint = (f"; {self.plant_misses} commands missed their deadline and "
+                    f"{self.skipped} samples were skipped in {f.cycle + 1} periods: this "
+                    f"machine does not sustain a {self.rc.period * 1e3:g} ms period with "
+                    f"{self.n} peripheral(s) (try a longer --period, or --clock lockstep)")
+        raise Fault(f"cycle {f.cycle}: {why}{hint}", process="central", code=EXIT_OBSERVER)
 
     def _finish(self, f: InFlight) -> None:
         cmd = f.ctx["cmd"]

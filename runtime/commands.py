@@ -57,13 +57,17 @@ def run_options(fn: Any) -> Any:
         click.option("--observer", type=click.Choice(["predict", "previous"]),
                      default="predict", show_default=True,
                      help="Newton-Raphson start: prediction (1 iteration) or previous (2)."),
-        click.option("--bandwidth", "bandwidth_hz", type=float, default=20.0,
-                     show_default=True, help="Closed-loop bandwidth of the gains (Hz)."),
+        click.option("--bandwidth", "bandwidth_hz", type=float, default=None,
+                     help="Closed-loop bandwidth of the gains in Hz (default: 20, at most "
+                     "1/(50 period))."),
         click.option("--listen", multiple=True, help="Zenoh endpoint to listen on."),
         click.option("--connect", multiple=True, help="Zenoh endpoint to connect to."),
         click.option("--zenoh-config", type=click.Path(dir_okay=False), default=None),
         click.option("--timeout", default="2s", show_default=True, callback=_duration,
                      help="Reply timeout in lockstep and freerun (realtime: 3 periods)."),
+        click.option("--max-error", default=0.02, type=click.FloatRange(1e-5, 1.0),
+                     show_default=True, help="Tracking error (m) beyond which the unit "
+                     "stops the robot (a fault)."),
         click.option("--pin", default=None, help="CPUs for this process, e.g. 0 or 0,1."),
         click.option("--cpus", type=click.Choice(["same", "split"]), default=None,
                      help="start: pin every role on CPU 0 (same), or the central on 0 and "

@@ -62,7 +62,7 @@ class RunConfig:
     placement: str | None = None
     params: str | None = None
     observer: str = "predict"
-    bandwidth_hz: float = 20.0
+    bandwidth_hz: float | None = None
     listen: list[str] | None = None
     connect: list[str] | None = None
     zenoh_config: str | None = None
@@ -78,6 +78,7 @@ class RunConfig:
     status_file: str | None = None
     trace: bool = False
     cpus: str | None = None
+    max_error: float = 0.02
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS
@@ -103,13 +104,15 @@ class RunConfig:
             raise bad("cost_model", "native or t800")
         if self.observer not in ("predict", "previous"):
             raise bad("observer", "predict or previous")
-        if not 0.1 <= self.bandwidth_hz <= 200.0:
+        if self.bandwidth_hz is not None and not 0.1 <= self.bandwidth_hz <= 200.0:
             raise bad("bandwidth_hz", "0.1 to 200 Hz")
         if not 0.01 <= self.timeout <= 600.0:
             raise bad("timeout", "0.01 to 600 s")
         if self.cpus not in (None, "same", "split"):
             raise bad("cpus", "same (every role on CPU 0) or split (central on 0, the rest "
                       "on 1)")
+        if not 1e-5 <= self.max_error <= 1.0:
+            raise bad("max_error", "10 um to 1 m")
         if not 1 <= self.plant_substeps <= 1000:
             raise bad("plant_substeps", "1 to 1000")
         from .zsession import check_unit_id
@@ -119,6 +122,14 @@ class RunConfig:
         except ValueError as exc:
             raise ConfigError(f"unit: {exc}") from None
         return self
+
+    @property
+    def bandwidth(self) -> float:
+        """Closed-loop bandwidth of the gains (Hz): ``--bandwidth``, else 20 Hz but at most
+        ``1 / (50 T)`` so that slower periods keep their phase margin."""
+        if self.bandwidth_hz is not None:
+            return self.bandwidth_hz
+        return min(20.0, 1.0 / (50.0 * self.period))
 
     def total_cycles(self, task_period: float) -> int:
         """Cycles to run: ``cycles``, else ``duration / period``, else one task loop."""

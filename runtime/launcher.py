@@ -65,7 +65,7 @@ class Setup:
                                                                 default_placement(0))
         lead_depth = self.rc.pipeline + (1 if self.rc.clock == "realtime" else 0)
         cfg = BlockConfig.build(self.params, model=self.rc.model,
-                                gains=Gains.from_bandwidth(self.rc.bandwidth_hz),
+                                gains=Gains.from_bandwidth(self.rc.bandwidth),
                                 task=self.task, period=self.rc.period,
                                 observer=self.rc.observer, depth=lead_depth)
         return Engine(plan, cfg, cost=CostModel(cost or self.rc.cost_model))
@@ -150,7 +150,7 @@ def end_children(children: list[subprocess.Popen], *, grace: float = 1.0) -> Non
             p.terminate()
     for p in children:
         try:
-            p.wait(timeout=0.5)
+            p.wait(timeout=0.3)
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait(timeout=1.0)
@@ -290,11 +290,12 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # finish cleaning up
         central.t_end_ns = central.t_end_ns or time.monotonic_ns()
+        interrupted = code == EXIT_INTERRUPTED
         try:
             central.stop(reason="done" if fault is None else fault["message"],
-                         wait=1.0 if fault is None else 0.5)
+                         wait=1.0 if fault is None else (0.1 if interrupted else 0.5))
         finally:
-            end_children(children, grace=1.0)
+            end_children(children, grace=0.3 if interrupted else 1.0)
             node.close()
             if recorder is not None:
                 recorder.close(central)

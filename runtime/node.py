@@ -54,7 +54,10 @@ class Node:
         self._subs.append(self.session.declare_subscriber(key, cb))
 
     def publisher(self, key: str) -> zenoh.Publisher:
-        return self.session.declare_publisher(key)
+        """A publisher that never drops: every exchange of the interval must arrive (Zenoh's
+        default congestion control for publications is DROP)."""
+        return self.session.declare_publisher(
+            key, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def decode(self, data: bytes) -> dict[str, Any] | None:
         """Decode a message for this unit, or count and drop it."""
