@@ -436,6 +436,8 @@ class Central:
         return [round(q / inc) for q in inverse_kinematics(self.engine.cfg.params, p)]
 
     def _advance(self, f: InFlight) -> None:
+        """Run the interval's central steps up to its next round (or its end)."""
+        f.start_ns = time.monotonic_ns()  # the central's span starts here, not at a send
         try:
             rnd = f.gen.send(None) if f.started else next(f.gen)
         except StopIteration:
@@ -461,7 +463,6 @@ class Central:
             self.on_message("out", self.node.keys.request, f.cycle, rnd.index, payload,
                             time.monotonic_ns())
         self._span("central", f.cycle, f.start_ns, time.monotonic_ns())
-        f.start_ns = time.monotonic_ns()
 
     def _check_state(self, f: InFlight) -> None:
         """The observed state must track the reference and stay in the usable workspace

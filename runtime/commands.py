@@ -36,8 +36,11 @@ def run_options(fn: Any) -> Any:
         click.option("--task", default="pick-place", show_default=True,
                      help="pick-place, circle, or a JSON task file."),
         click.option("--law", type=click.Choice(["resolved-acceleration", "computed-torque",
-                                                 "pd-feedforward", "pd-gravity", "pd"]),
-                     default="resolved-acceleration", show_default=True),
+                                                 "pd-feedforward", "pd-gravity", "pd",
+                                                 "kinematics"]),
+                     default="resolved-acceleration", show_default=True,
+                     help="Control law; 'kinematics' runs the kinematics part alone "
+                     "(benchmarks: its commands are joint accelerations, not torques)."),
         click.option("--model", type=click.Choice(["complete", "simplified"]),
                      default="complete", show_default=True),
         click.option("--cycles", type=click.IntRange(1, 10**9), default=None,
@@ -51,6 +54,9 @@ def run_options(fn: Any) -> Any:
         click.option("--unit", default=None, help="Unit id (keys ctrlunit/<unit>/...)."),
         click.option("--cost-model", type=click.Choice(["native", "t800"]), default="native",
                      show_default=True),
+        click.option("--cost-scale", type=click.FloatRange(0.01, 1000.0), default=1.0,
+                     show_default=True, help="Multiply the T-800 block times (t800 cost "
+                     "model): reproduce the 1994 ratio of arithmetic to communication."),
         click.option("--placement", type=click.Path(dir_okay=False), default=None),
         click.option("--params", type=click.Path(dir_okay=False), default=None,
                      help="TOML file of Delta parameters."),
@@ -339,3 +345,66 @@ def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
         with open(report_file, "w") as fh:
             json.dump(_json_safe(rep), fh, indent=2)
     click.echo(json.dumps(_json_safe(rep)) if as_json else summary(rep))
+
+
+@cli.command()
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="bench-out",
+              show_default=True, help="Directory for report.md, report.json and figures.")
+@click.option("--quick", is_flag=True, help="One repeat, short runs (under 3 minutes).")
+@click.option("--repeats", type=click.IntRange(1, 20), default=None)
+@click.option("--realtime-period", "rt_periods", multiple=True, default=("3ms",),
+              show_default=True, help="Realtime periods to include (repeatable).")
+@click.option("--thesis-scale", type=click.FloatRange(1.0, 1000.0), default=10.0,
+              show_default=True, help="T-800 time scale of the runs compared with 1994.")
+def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str, ...],
+          thesis_scale: float) -> None:
+    """Sweep n x depth x cost model, measure the floor, write reports and figures."""
+    from rich.progress import Progress
+
+    from ..bench.sweep import bench as run_bench
+
+    periods = [parse_duration(p, field_name="--realtime-period") for p in rt_periods]
+    with Progress(transient=True) as prog:
+        task = prog.add_task("bench", total=None)
+
+        def tick(what: str, done: int, total: int) -> None:
+            prog.update(task, description=what[:70], completed=done, total=total)
+
+        rep = run_bench(out_dir, quick=quick, repeats=repeats, realtime_periods=periods,
+                        scale=thesis_scale, progress=tick)
+    click.echo(f"wrote {out_dir}/report.md, report.json and {len(rep['figures'])} figures "
+               f"in {rep['wall_s']:.0f} s")
+
+
+@cli.command()
+@click.argument("source", type=click.Path(exists=True, dir_okay=False))
+@click.option("--write", "out", type=click.Path(dir_okay=False), default="placement.json",
+              show_default=True, help="Placement file to write.")
+@click.option("--json", "as_json", is_flag=True)
+def balance(source: str, out: str, as_json: bool) -> None:
+    """Block costs, t_s (Eq. IV.24), t_p (Eq. IV.25), business and the predicted depth-2
+    period from a run's --report JSON or a recording; recommends and writes a placement."""
+    from ..bench.balance import analyse, load_report, write_placement
+
+    a = analyse(load_report(source))
+    write_placement(a, out)
+    if as_json:
+        click.echo(json.dumps(_json_safe(a)))
+        return
+    lines = [f"balance of {source} ({a['law']}, n = {a['peripherals']}, depth "
+             f"{a['pipeline']})", "  block costs (3 axes):"]
+    for k, v in sorted(a["block_cost_s"].items(), key=lambda kv: -kv[1]):
+        lines.append(f"    {k:16s} {v * 1e6:8.1f} us")
+    lines += [
+        f"  t_s (Eq. IV.24) {a['t_s_s'] * 1e6:.1f} us   t_p (Eq. IV.25) {a['t_p_s'] * 1e6:.1f} us",
+        "  business " + ", ".join(f"{k} {v * 100:.0f} %" for k, v in a["business"].items()),
+        f"  round trip {a['round_trip_s'] * 1e6:.0f} us, central overhead "
+        f"{a['central_overhead_s'] * 1e6:.0f} us per interval",
+        f"  now: predicted depth-2 period {a['current']['period_depth2_s'] * 1e6:.0f} us, "
+        f"measured period {a['measured']['period_s'] * 1e6:.0f} us",
+    ]
+    lines += [f"  recommendation: {r}" for r in a["recommendations"]]
+    lines.append(f"  with the new placement: predicted depth-2 period "
+                 f"{a['predicted']['period_depth2_s'] * 1e6:.0f} us; written to {out} "
+                 f"(ctrlunit start --placement {out})")
+    click.echo("\n".join(lines))

@@ -79,6 +79,7 @@ class RunConfig:
     trace: bool = False
     cpus: str | None = None
     max_error: float = 0.02
+    cost_scale: float = 1.0
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS
@@ -94,7 +95,7 @@ class RunConfig:
             raise bad("clock", ", ".join(CLOCKS))
         if not 20e-6 <= self.period <= 1.0:
             raise bad("period", "20us to 1s")
-        if self.law not in LAWS:
+        if self.law not in (*LAWS, "kinematics"):
             raise bad("law", ", ".join(LAWS))
         if self.model not in ("complete", "simplified"):
             raise bad("model", "complete or simplified")
@@ -111,6 +112,8 @@ class RunConfig:
         if self.cpus not in (None, "same", "split"):
             raise bad("cpus", "same (every role on CPU 0) or split (central on 0, the rest "
                       "on 1)")
+        if not 0.01 <= self.cost_scale <= 1000.0:
+            raise bad("cost_scale", "0.01 to 1000")
         if not 1e-5 <= self.max_error <= 1.0:
             raise bad("max_error", "10 um to 1 m")
         if not 1 <= self.plant_substeps <= 1000:

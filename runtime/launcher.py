@@ -68,7 +68,8 @@ class Setup:
                                 gains=Gains.from_bandwidth(self.rc.bandwidth),
                                 task=self.task, period=self.rc.period,
                                 observer=self.rc.observer, depth=lead_depth)
-        return Engine(plan, cfg, cost=CostModel(cost or self.rc.cost_model))
+        return Engine(plan, cfg, cost=CostModel(cost or self.rc.cost_model,
+                                                scale=self.rc.cost_scale))
 
 
 def make_setup(rc: RunConfig) -> Setup:
@@ -229,9 +230,10 @@ def central_only(rc: RunConfig) -> tuple[int, dict]:
     return start(rc, spawn=False)
 
 
-def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool = True
-          ) -> tuple[int, dict]:
-    """Run a whole unit on this host; returns ``(exit code, report)``."""
+def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool = True,
+          inspect: dict | None = None) -> tuple[int, dict]:
+    """Run a whole unit on this host; returns ``(exit code, report)``. ``inspect``, if
+    given, receives the central (spans, logs) for benchmarks."""
     try:
         setup = make_setup(rc)
     except (ConfigError, ValueError) as exc:
@@ -305,6 +307,9 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
             log = (run_dir / f"{name}.log").read_text(errors="replace")[-2000:]
             echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
     report = finish_report(setup, central, fault)
+    if inspect is not None:
+        inspect["central"] = central
+        inspect["setup"] = setup
     if recorder is not None:
         recorder.write_report(report)
     return code, report
@@ -351,14 +356,31 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
     if rc.clock != "freerun":
         business["plant"] = central.plant_busy_ns / wall
     t1, per_block = math.nan, {}
+    t1_engines: list[Engine] = []
+
+    def t1_engine() -> Engine:
+        t1_engines.append(setup.engine(peripherals_plan=False))
+        return t1_engines[-1]
+
     if central.t1_inputs:
-        t1, per_block = measure_t1(lambda: setup.engine(peripherals_plan=False),
+        t1, per_block = measure_t1(t1_engine,
                                    central.t1_inputs[: (50 if rc.cost_model == "t800" else None)])
+    cost_err = None
+    if rc.cost_model == "t800":
+        # block costs are the emulated T-800 times; the emulation's error is measured
+        per_block = {b.name: b.t800_us * 1e-6 * rc.cost_scale * (3 if b.per_axis else 1)
+                     for b in setup.plan.graph.blocks}
+        errs = sorted(central.engine.cost.errors_ns + [e for g in t1_engines
+                                                       for e in g.cost.errors_ns])
+        if errs:
+            cost_err = {"p50": errs[len(errs) // 2] / 1e9,
+                        "p99": errs[int(len(errs) * 0.99)] / 1e9, "max": errs[-1] / 1e9,
+                        "method": "sleep to 80 us before the T-800 deadline, then spin; "
+                                  "one settle per message sent"}
     rejected = dict(central.node.rejected)
     for role, rep in central.role_reports.items():
         for k, v in (rep.get("rejected") or {}).items():
             rejected[f"{role}:{k}"] = v
-    cost_err = None
     return build_report(
         rc=rc, plan=setup.plan, task=setup.task, cmd_ns=list(central.log.cmd_ns),
         sample_ns=list(central.log.sample_ns), commands=list(central.log.commands),

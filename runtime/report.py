@@ -56,7 +56,7 @@ def build_report(
     per_block_s: dict[str, float],
     fault: dict[str, Any] | None,
     wall_s: float,
-    cost_error_s: float | None = None,
+    cost_error_s: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Assemble the report (see the brief's "Interfaces" for the keys)."""
     n = plan.placement.peripherals
@@ -88,6 +88,7 @@ def build_report(
         "model": rc.model,
         "task": task.name,
         "cost_model": rc.cost_model,
+        "cost_scale": rc.cost_scale,
         "unit": rc.unit,
         "round_trips": plan.round_trips,
         "placement": plan.placement.to_dict(),

@@ -19,6 +19,10 @@ AXIS = "axis"
 CENTRAL = "central"
 
 LAWS = ("resolved-acceleration", "computed-torque", "pd-feedforward", "pd-gravity", "pd")
+KINEMATICS = "kinematics"
+"""Not a control law: the kinematics part of the resolved-acceleration interval alone
+(observer, J^-1, d/dt(J^-1) pdot, acceleration mapper), for the thesis's 'all kinematics'
+efficiency (1320 us on one T-800, 582 us on four)."""
 OBSERVERS = ("predict", "previous")
 
 
@@ -166,7 +170,7 @@ def stage_graph(
         (from the previous estimate, as the thesis).
     iterations : Newton-Raphson iterations; default 1 with ``predict``, 2 with ``previous``.
     """
-    if law not in LAWS:
+    if law not in (*LAWS, KINEMATICS):
         raise ValueError(f"law must be one of {', '.join(LAWS)}, got {law!r}")
     if model not in ("complete", "simplified"):
         raise ValueError(f"model must be complete or simplified, got {model!r}")
@@ -190,6 +194,16 @@ def stage_graph(
                "V.50 joint part (qA qddot + qg + coupling)"),
             _b("dyn_central", CENTRAL, "dyn_central", "row_i tauq_i f_i pdd", "tau",
                "V.50 operational part and J^T"),
+        ] + out
+    elif law == KINEMATICS:
+        blocks = ref + _observer_blocks(iterations, observer) + [
+            _b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14"),
+            _b("ik", AXIS, "ik", "p", "ax_i q_i", "V.16-V.21"),
+            _b("jinv", AXIS, "jinv", "ax_i", "row_i", "V.24-V.26"),
+            _b("jdot", AXIS, "jdot", "ax_i row_i pd", "qd_i jdp_i", "V.28-V.30"),
+            _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
+            _b("collect", CENTRAL, "collect", "qdd_i", "tau", "joint accelerations out",
+               (("taufb_i", "qdd_i"),)),
         ] + out
     elif law == "computed-torque":
         blocks = ref + _reference_joint_blocks() + [

@@ -1,0 +1,92 @@
+"""``report.md`` of a benchmark run."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+
+def _us(x: Any) -> str:
+    return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else (
+        f"{x * 1e6:.0f}")
+
+
+def _pct(x: Any) -> str:
+    return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else (
+        f"{x * 100:.1f} %")
+
+
+def write_markdown(path: Path, r: dict[str, Any]) -> None:
+    m = r["machine"]
+    lines = [
+        "# ctrlunit benchmark",
+        "",
+        f"Machine: {m['platform']}, {m['cores']} cores, Python {m['python']}. "
+        f"{'Quick' if r['quick'] else 'Full'} sweep, {r['repeats']} repeat(s), "
+        f"{r['wall_s']:.0f} s.",
+        "",
+        "Method: " + "; ".join(f"{k}: {v}" for k, v in r["method"].items()) + ".",
+        "",
+        "## Transport floor (same scatter/gather pattern, 64-byte payloads)",
+        "",
+        "| n | pipes p50 (us) | Zenoh p50 (us) | Zenoh p99 (us) | Zenoh / pipes |",
+        "|---|---|---|---|---|",
+    ]
+    for n, f in r["floor"]["by_n"].items():
+        lines.append(f"| {n} | {_us(f['pipe_s']['p50'])} | {_us(f['zenoh_s']['p50'])} | "
+                     f"{_us(f['zenoh_s']['p99'])} | {f['ratio_p50']:.1f} |")
+    lines += [
+        "",
+        "## Sweep (freerun unless stated; medians over repeats)",
+        "",
+        "| n | N | depth | cost | clock | round trips | period p50 / p99 (us) | traversal "
+        "p50 (us) | t_1 (us) | efficiency (spread) | speedup | misses | business |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for x in r["runs"]:
+        if x["tag"] == "thesis":
+            continue
+        busy = ", ".join(f"{k.replace('peripheral_', 'p')} {v * 100:.0f}%"
+                         for k, v in x["business"].items() if v is not None)
+        sp = x["efficiency_spread"]
+        lines.append(
+            f"| {x['peripherals']} | {x['processors']} | {x['pipeline']} | {x['cost_model']} |"
+            f" {x['clock']} {x['nominal_period_s'] * 1e3:g} ms | {x['round_trips']} | "
+            f"{_us(x['period_s']['p50'])} / {_us(x['period_s']['p99'])} | "
+            f"{_us(x['traversal_s']['p50'])} | {_us(x['t1_s'])} | {_pct(x['efficiency'])} "
+            f"({_pct(sp[0])}..{_pct(sp[1])}) | {x['speedup']:.2f} | {x['deadline_misses']} |"
+            f" {busy} |")
+    t = r["thesis_1994"]
+    lines += [
+        "",
+        f"## Against the 1994 unit (t800 cost model x {r['cost_scale_thesis_runs']:g}, "
+        "so that arithmetic outweighs messages as on the Transputers)",
+        "",
+        "| what | 1994 | ctrlunit |",
+        "|---|---|---|",
+    ]
+    by = {(x["law"], x["peripherals"], x["pipeline"]): x for x in r["runs"]
+          if x["tag"] == "thesis"}
+    kin = by.get(("kinematics", 3, 1))
+    whole1 = by.get(("resolved-acceleration", 3, 1))
+    whole2 = by.get(("resolved-acceleration", 3, 2))
+    if kin:
+        lines.append(f"| all kinematics, N = 4, depth 1 | 57 % (1320 us / (582 us x 4)) | "
+                     f"{_pct(kin['efficiency'])} (t_1 {_us(kin['t1_s'])} us, traversal "
+                     f"{_us(kin['traversal_s']['p50'])} us, N = {kin['processors']}) |")
+    if whole1:
+        lines.append(f"| whole cycle, N = 4, depth 1 | 46 % by Eq. IV.23 (54 % printed) | "
+                     f"{_pct(whole1['efficiency'])} (t_1 {_us(whole1['t1_s'])} us, traversal "
+                     f"{_us(whole1['traversal_s']['p50'])} us) |")
+    if whole1 and whole2:
+        ratio = whole2["period_s"]["p50"] / whole1["period_s"]["p50"]
+        lines.append(f"| depth-2 period / depth-1 period | 0.5 designed, not run reliably | "
+                     f"{ratio:.2f} ({_us(whole2['period_s']['p50'])} / "
+                     f"{_us(whole1['period_s']['p50'])} us) |")
+    lines.append(f"| sampling period | {t['period_1_us']} us on 1, {t['period_4_us']} us on 4"
+                 " | see the sweep |")
+    lines += ["", "## Figures", ""]
+    for f in r.get("figures", []):
+        lines.append(f"![{f}]({f})")
+    path.write_text("\n".join(lines) + "\n")

@@ -1,0 +1,72 @@
+"""Benchmark sweep, floor, T-800 cost model and the balance tool."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+from runner import ctrlunit, start_json
+
+pytestmark = pytest.mark.zenoh
+
+
+def test_quick_bench_writes_reports_and_figures_in_time(tmp_path):
+    out = tmp_path / "bench"
+    t0 = time.monotonic()
+    res = ctrlunit("bench", "--quick", "--out", str(out), timeout=400)
+    wall = time.monotonic() - t0
+    assert res.returncode == 0, res.stdout + res.stderr
+    print(f"bench --quick: {wall:.0f} s")
+    assert wall < 180
+    rep = json.loads((out / "report.json").read_text())
+    assert {"machine", "floor", "runs"} <= set(rep)
+    for run in rep["runs"]:
+        for key in ("peripherals", "pipeline", "cost_model", "clock", "processors",
+                    "round_trips", "period_s", "traversal_s", "t1_s", "efficiency",
+                    "speedup", "deadline_misses", "business"):
+            assert key in run, key
+    combos = {(r["peripherals"], r["pipeline"], r["cost_model"]) for r in rep["runs"]
+              if r["clock"] == "freerun" and r["tag"] == "sweep"}
+    assert len(combos) == 16
+    for n, f in rep["floor"]["by_n"].items():
+        assert f["ratio_p50"] > 1.0, n  # Zenoh cannot beat raw pipes
+    for name in ("efficiency.png", "distributions.png", "gantt.png"):
+        assert (out / name).read_bytes()[:4] == b"\x89PNG"
+    md = (out / "report.md").read_text()
+    assert "57 %" in md and "Transport floor" in md
+
+
+def test_t800_cost_model_emulates_the_1994_single_processor_time(tmp_path):
+    code, rep, out = start_json(tmp_path, "--peripherals", "0", "--clock", "freerun",
+                                "--cycles", "200", "--cost-model", "t800", tag="t800")
+    assert code == 0, out
+    from ctrlunit.topology.graph import stage_graph
+
+    expected = stage_graph().t_single_t800_us() * 1e-6
+    print(f"t800 single processor: t_1 {rep['t1_s'] * 1e6:.0f} us for {expected * 1e6:.0f} us "
+          f"of T-800 block times; emulation error p99 "
+          f"{rep['cost_model_error_s']['p99'] * 1e6:.1f} us")
+    assert abs(rep["t1_s"] - expected) < 0.1 * expected
+    assert rep["cost_model_error_s"]["p99"] < 200e-6
+
+
+def test_balance_writes_a_placement_that_start_accepts(tmp_path):
+    code, rep, out = start_json(tmp_path, "--peripherals", "3", "--clock", "freerun",
+                                "--cycles", "1500", tag="bal")
+    assert code == 0, out
+    report = tmp_path / "run.json"
+    report.write_text(json.dumps(rep))
+    placement = tmp_path / "placement.json"
+    res = ctrlunit("balance", str(report), "--write", str(placement), "--json")
+    assert res.returncode == 0, res.stderr
+    a = json.loads(res.stdout)
+    assert a["t_p_s"] < a["t_s_s"]
+    assert a["recommendations"]
+    code2, rep2, out2 = start_json(tmp_path, "--peripherals", str(a["placement"]["peripherals"]),
+                                   "--clock", "freerun", "--cycles", "1500", "--placement",
+                                   str(placement), tag="bal2")
+    assert code2 == 0, out2
+    print(f"balance: {a['recommendations']}; predicted period "
+          f"{a['predicted']['period_depth2_s'] * 1e6:.0f} us; measured before "
+          f"{rep['period_s']['p50'] * 1e6:.0f} us, after {rep2['period_s']['p50'] * 1e6:.0f} us")
