@@ -526,12 +526,27 @@ class Central:
 
     # -- end --------------------------------------------------------------------------
 
+    def hold_torques(self) -> list[float]:
+        """Gravity-holding torques at the last estimated position (the first stage of the
+        safe stop); zeros if that position is not usable."""
+        from ..kernels.dynamics import gravity_torques
+        from ..kernels.workspace import check_point
+
+        p = self.ctl.est[0]
+        try:
+            if check_point(self.engine.cfg.params, p).ok:
+                return [float(x) for x in gravity_torques(self.engine.cfg.params, p)]
+        except (ValueError, ZeroDivisionError):
+            pass
+        return [0.0, 0.0, 0.0]
+
     def stop(self, *, reason: str = "done", wait: float = 1.0) -> None:
         """Tell every role to stop (the plant runs its safe stop) and collect their
         reports for up to ``wait`` seconds."""
         expected = self.expected_roles()
         deadline = time.monotonic() + wait
-        self.say("stop", reason=reason)
+        hold = self.hold_torques()
+        self.say("stop", reason=reason, hold=hold)
         next_say = time.monotonic() + 0.1
         while set(self.role_reports) < expected and time.monotonic() < deadline:
             try:
@@ -541,7 +556,7 @@ class Central:
             if ev is not None and ev[0] == "hello":
                 self._handle(ev)
             if time.monotonic() > next_say:
-                self.say("stop", reason=reason)
+                self.say("stop", reason=reason, hold=hold)
                 next_say = time.monotonic() + 0.1
 
 

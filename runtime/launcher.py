@@ -194,7 +194,11 @@ def run_plant(setup: Setup, conf: Any) -> int:
         node.wait_for_go(timeout=rc.startup_timeout)
         res = serve(node, server, clock=rc.clock, period=rc.period, cycles=setup.cycles,
                     watchdog=max(5.0, 3 * rc.timeout))
-        safe_stop(plant)
+        hold = (node.stop_msg or {}).get("hold")
+        if isinstance(hold, list) and len(hold) == 3 and all(
+                isinstance(x, float) and math.isfinite(x) for x in hold):
+            plant.set_command(hold)
+        res["safe_stop"] = safe_stop(plant)
         _bye(node, res)
         return EXIT_OK if res["exit"] in ("stop", "done") else EXIT_LINK
     except TimeoutError as exc:
@@ -204,13 +208,16 @@ def run_plant(setup: Setup, conf: Any) -> int:
         node.close()
 
 
-def safe_stop(plant: Plant, *, hold_s: float = 0.05) -> None:
-    """The documented stop: keep the last command for ``hold_s`` (the central's last
-    command holds the robot with gravity compensation), then zero torque."""
+def safe_stop(plant: Plant, *, hold_s: float = 0.05) -> dict[str, Any]:
+    """The documented stop: hold with gravity compensation for ``hold_s`` (the torques the
+    central sent with its stop order, computed at its last estimate; the last command if
+    the central is gone), then zero torque."""
+    p0 = list(plant.state.p)
     steps = max(1, round(hold_s / plant.config.period))
     for _ in range(steps):
         plant.step()
     plant.set_command([0.0, 0.0, 0.0])
+    return {"hold_s": hold_s, "drift_m": math.dist(p0, plant.state.p)}
 
 
 def _bye(node: Node, report: dict[str, Any]) -> None:

@@ -43,6 +43,7 @@ class Node:
         self.session = zenoh.open(conf)
         self._subs: list[Any] = []
         self.last_heard_ns = time.monotonic_ns()
+        self.stop_msg: dict[str, Any] | None = None
 
     def subscribe(self, key: str, kind: str, index: int = 0) -> None:
         """Push every sample on ``key`` into the event queue as ``(kind, index, bytes, t)``."""
@@ -121,4 +122,7 @@ def is_stop(node: Node, ev: Event) -> bool:
     if msg is None:
         return False
     node.last_heard_ns = time.monotonic_ns()
-    return msg["stage"] == "stop"
+    if msg["stage"] == "stop":
+        node.stop_msg = msg
+        return True
+    return False
