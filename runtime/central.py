@@ -146,6 +146,7 @@ class Central:
         self.last_sample_ns = 0
         self.t1_inputs: list[tuple] = []
         self.newest_sample = -1
+        self.peers_seen: set[str] = set()
         self.cycle_spans: dict[int, list[tuple[str, int, int]]] = {}
         self.child_check: Callable[[], tuple[str, int] | None] | None = None
         self._next_child_check = 0.0
@@ -189,6 +190,7 @@ class Central:
 
     def run(self) -> None:
         """Run ``cycles`` intervals. Raises :class:`Fault` on a detected fault."""
+        self.zenoh_identity()  # note the peers connected now (others may leave before the end)
         self.t_start_ns = time.monotonic_ns()
         timeout_ns = self._timeout_ns()
         while self.done < self.cycles and not (self.next_cycle >= self.cycles
@@ -539,6 +541,12 @@ class Central:
         except (ValueError, ZeroDivisionError):
             pass
         return [0.0, 0.0, 0.0]
+
+    def zenoh_identity(self) -> dict[str, Any]:
+        """This central's Zenoh id and the ids of the peers it is connected to."""
+        info = self.node.session.info
+        self.peers_seen.update(str(z) for z in info.peers_zid())
+        return {"zid": str(info.zid()), "peers": sorted(self.peers_seen)}
 
     def stop(self, *, reason: str = "done", wait: float = 1.0) -> None:
         """Tell every role to stop (the plant runs its safe stop) and collect their

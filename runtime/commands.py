@@ -107,8 +107,8 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
     connect = list(kw.pop("connect", ()) or ()) or None
     if spec:
         rc = load_spec(spec)
-        rc.listen = listen or rc.listen
-        rc.connect = connect or rc.connect
+        rc.listen = listen  # the central's endpoints are its own, not the children's
+        rc.connect = connect
         rc.pin = kw.get("pin") or None
         return rc
     unit = kw.pop("unit", None)
@@ -241,7 +241,12 @@ def central(as_json: bool, **kw: Any) -> None:
     from .report import summary
 
     if "cycles" in report:
+        if rc.report:
+            with open(rc.report, "w") as fh:
+                json.dump(_json_safe(report), fh, indent=2)
         click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
+    else:
+        click.echo(f"ctrlunit: error: {report['fault']['message']}", err=True)
     sys.exit(code)
 
 

@@ -208,13 +208,17 @@ def run_plant(setup: Setup, conf: Any) -> int:
         node.close()
 
 
-def safe_stop(plant: Plant, *, hold_s: float = 0.05) -> dict[str, Any]:
-    """The documented stop: hold with gravity compensation for ``hold_s`` (the torques the
-    central sent with its stop order, computed at its last estimate; the last command if
-    the central is gone), then zero torque."""
+def safe_stop(plant: Plant, *, hold_s: float = 0.05, damping: float = 1.0) -> dict[str, Any]:
+    """The documented stop: for ``hold_s``, gravity compensation (the torques the central
+    sent with its stop order, computed at its last estimate; the last command if the
+    central is gone) plus drive-level damping ``-damping * qdot`` (N m s/rad) so that a
+    moving robot brakes instead of coasting; then zero torque."""
     p0 = list(plant.state.p)
+    hold = list(plant.command)
     steps = max(1, round(hold_s / plant.config.period))
     for _ in range(steps):
+        qd = plant.state.qd
+        plant.set_command([hold[i] - damping * qd[i] for i in range(3)])
         plant.step()
     plant.set_command([0.0, 0.0, 0.0])
     return {"hold_s": hold_s, "drift_m": math.dist(p0, plant.state.p)}
@@ -251,10 +255,11 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     spec = run_dir / "spec.json"
     spec.write_text(json.dumps({"run": rc.to_dict()}))
     endpoint = rc.listen[0] if rc.listen else default_endpoint(run_dir)
-    connect_ep = rc.connect[0] if rc.connect else endpoint
+    connect_ep = endpoint  # the children always connect to their own central
     pin_cpus(rc.pin or ("0" if rc.cpus and cpu_ok(0) else None))
-    node = Node(make_config(listen=[endpoint], config_file=rc.zenoh_config), rc.unit,
-                "central")
+    # --connect joins the central to another Zenoh network (e.g. another unit's)
+    node = Node(make_config(listen=[endpoint], connect=rc.connect,
+                            config_file=rc.zenoh_config), rc.unit, "central")
     engine = setup.engine()
     ctl = Controller(engine, rc.period, setup.params.increment, tuple(setup.task.start()))
     recorder = None
@@ -299,6 +304,10 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # finish cleaning up
         central.t_end_ns = central.t_end_ns or time.monotonic_ns()
+        try:
+            zenoh_ids = central.zenoh_identity()
+        except Exception:
+            zenoh_ids = {}
         interrupted = code == EXIT_INTERRUPTED
         try:
             central.stop(reason="done" if fault is None else fault["message"],
@@ -314,6 +323,7 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
             log = (run_dir / f"{name}.log").read_text(errors="replace")[-2000:]
             echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
     report = finish_report(setup, central, fault)
+    report["zenoh"] = zenoh_ids
     if inspect is not None:
         inspect["central"] = central
         inspect["setup"] = setup

@@ -115,6 +115,7 @@ def build_report(
         "cost_model_error_s": cost_error_s,
         "wall_s": wall_s,
         "fault": fault,
+        "zenoh": {},
     }
 
 

@@ -1,0 +1,126 @@
+"""10 000 fuzzed payloads on every key of a running unit: no crash, all rejected and
+counted, and (lockstep) the commands bit-identical to an undisturbed run."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import socket
+import subprocess
+import sys
+import time
+
+import msgpack
+import pytest
+import zenoh
+from ctrlunit.runtime.zsession import Keys, make_config
+from runner import kill_unit, unit_id
+
+pytestmark = pytest.mark.zenoh
+N_FUZZ = 10_000
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def fuzz_payloads(unit: str, rng: random.Random, key: str) -> bytes:
+    """One malformed payload; never a well-formed message for the current cycle."""
+    kind = rng.randrange(9)
+    good = {"v": 1, "unit": unit, "cycle": rng.randrange(50), "stage": "command",
+            "tau": [0.1, 0.2, 0.3]}
+    if kind == 0:
+        return rng.randbytes(rng.randrange(0, 300))
+    if kind == 1:
+        return msgpack.packb(good)[: rng.randrange(1, 20)]  # truncated
+    if kind == 2:
+        return msgpack.packb({**good, "v": rng.choice([0, 2, 99, "1", None])})
+    if kind == 3:
+        return msgpack.packb({**good, "unit": "someone-else"})
+    if kind == 4:
+        return msgpack.packb({**good, "cycle": rng.choice([-1, 10**15, "7", 1.5, None])})
+    if kind == 5:
+        return msgpack.packb({**good, "tau": [math.nan, 0.0, 0.0], "counts": [math.inf] * 3,
+                              "vals": {"p": [math.nan] * 3}})
+    if kind == 6:
+        return msgpack.packb({**good, "tau": [1.0] * 5000, "vals": {"x": list(range(5000))}})
+    if kind == 7:
+        return msgpack.packb({**good, "tau": "abc", "vals": 3, "counts": {"a": 1},
+                              "stage": [1, 2]})
+    # stale or future cycles with otherwise plausible content (not on request/control keys)
+    if key.endswith("request") or "control" in key:
+        return msgpack.packb({**good, "v": 7})
+    return msgpack.packb({**good, "cycle": rng.choice([0, 1, 10**9]), "stage":
+                          "sample" if "sample" in key else ("command" if "command" in key
+                                                            else 1),
+                          "counts": [1, 2, 3], "t_ns": 1, "p": [0.0, 0.0, -0.4],
+                          "span": [1, 2], "vals": {}})
+
+
+def run_unit(tmp_path, unit: str, fuzz: bool) -> tuple[int, dict, str]:
+    """The roles one by one (as on several hosts), each also listening on its own loopback
+    endpoint, so that a stranger can reach every key: in peer mode the central does not
+    route for others, so a peer connected to it alone only reaches the central's keys."""
+    ports = [free_port() for _ in range(5)]
+    eps = [f"tcp/127.0.0.1:{p}" for p in ports]
+    report, status = tmp_path / f"{unit}.json", tmp_path / f"{unit}.status"
+    common = ["--unit", unit, "--clock", "lockstep", "--cycles", "1200", "--peripherals", "3"]
+    cli = [sys.executable, "-m", "ctrlunit.runtime.cli"]
+    central = subprocess.Popen(cli + ["central", *common, "--listen", eps[0], "--report",
+                                      str(report), "--status-file", str(status)],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    roles = [subprocess.Popen(cli + ["plant", *common, "--connect", eps[0], "--listen", eps[1]],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    for k in (1, 2, 3):
+        roles.append(subprocess.Popen(
+            cli + ["peripheral", "--index", str(k), *common, "--connect", eps[0], "--listen",
+                   eps[1 + k]], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    try:
+        if fuzz:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                if status.exists() and int(status.read_text() or 0) >= 100:
+                    break
+                time.sleep(0.05)
+            keys = Keys(unit)
+            targets = [keys.sample, keys.command, keys.request, keys.reply(1), keys.reply(2),
+                       keys.reply(3), keys.hello, keys.control]
+            rng = random.Random(7)
+            with zenoh.open(make_config(connect=eps)) as s:
+                pubs = [s.declare_publisher(k) for k in targets]
+                time.sleep(0.5)
+                for i in range(N_FUZZ):
+                    k = i % len(targets)
+                    pubs[k].put(fuzz_payloads(unit, rng, targets[k]))
+                    if i % 200 == 0:
+                        time.sleep(0.01)
+                time.sleep(0.5)
+        out, _ = central.communicate(timeout=300)
+        for p in roles:
+            p.wait(timeout=10)
+    finally:
+        kill_unit(unit)
+        for p in [central, *roles]:
+            if p.poll() is None:
+                p.kill()
+    return central.returncode, json.loads(report.read_text()), out
+
+
+def test_fuzzed_payloads_are_rejected_and_change_nothing(tmp_path):
+    code, fuzzed, out = run_unit(tmp_path, unit_id("fuzz"), fuzz=True)
+    assert code == 0, out
+    code, clean, out = run_unit(tmp_path, unit_id("clean"), fuzz=False)
+    assert code == 0, out
+    rejected = sum(fuzzed["rejected_messages"].values())
+    print(f"fuzz: {N_FUZZ} payloads, {rejected} rejections counted "
+          f"({fuzzed['rejected_messages']}); tracking max "
+          f"{fuzzed['tracking_error_m']['max'] * 1e3:.4f} mm vs "
+          f"{clean['tracking_error_m']['max'] * 1e3:.4f} mm undisturbed")
+    assert rejected >= N_FUZZ
+    for role in ("plant", "peripheral-1", "peripheral-2", "peripheral-3"):
+        assert any(k.startswith(role + ":") for k in fuzzed["rejected_messages"]), role
+    assert fuzzed["command_digest"] == clean["command_digest"]
+    assert fuzzed["tracking_error_m"] == clean["tracking_error_m"]

@@ -1,0 +1,54 @@
+"""Two units on one Zenoh network at once: nothing crosses."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+from runner import kill_unit, start_json, unit_id
+from test_fuzz import free_port
+
+pytestmark = pytest.mark.zenoh
+
+
+def test_two_units_on_one_network_do_not_cross(tmp_path):
+    pa, pb = free_port(), free_port()
+    ua, ub = unit_id("isoA"), unit_id("isoB")
+    common = ["--clock", "lockstep", "--cycles", "2000", "--peripherals", "3"]
+    cli = [sys.executable, "-m", "ctrlunit.runtime.cli", "start"]
+    status = tmp_path / "a.status"
+    a = subprocess.Popen(cli + ["--unit", ua, "--listen", f"tcp/127.0.0.1:{pa}", "--report",
+                                str(tmp_path / "a.json"), "--status-file", str(status),
+                                *common],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 60
+    while not status.exists() and time.monotonic() < deadline:  # A is up and running
+        time.sleep(0.05)
+    b = subprocess.Popen(cli + ["--unit", ub, "--listen", f"tcp/127.0.0.1:{pb}", "--connect",
+                                f"tcp/127.0.0.1:{pa}", "--report", str(tmp_path / "b.json"),
+                                *common, "--law", "computed-torque"],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        out_a, _ = a.communicate(timeout=300)
+        out_b, _ = b.communicate(timeout=300)
+    finally:
+        kill_unit(ua)
+        kill_unit(ub)
+    assert a.returncode == 0, out_a
+    assert b.returncode == 0, out_b
+    ra = json.loads((tmp_path / "a.json").read_text())
+    rb = json.loads((tmp_path / "b.json").read_text())
+    # counters: neither unit saw a single message of the other
+    assert ra["rejected_messages"] == {} and rb["rejected_messages"] == {}
+    assert ra["cycles"] == rb["cycles"] == 2000
+    # ... although they were on one network: each central was connected to the other
+    assert ra["zenoh"]["zid"] in rb["zenoh"]["peers"]
+    assert rb["zenoh"]["zid"] in ra["zenoh"]["peers"]
+    # and each computed exactly what it computes alone
+    _, solo_a, _ = start_json(tmp_path, *common, tag="soloA")
+    _, solo_b, _ = start_json(tmp_path, *common, "--law", "computed-torque", tag="soloB")
+    assert ra["command_digest"] == solo_a["command_digest"]
+    assert rb["command_digest"] == solo_b["command_digest"]
