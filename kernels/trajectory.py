@@ -206,6 +206,8 @@ class Task:
     reference_length_m: float | None = None
     reference_duration_s: float | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
+    _step: float = field(default=0.0, repr=False, compare=False)
+    _grid: int = field(default=0, repr=False, compare=False)
 
     @property
     def length(self) -> float:
@@ -228,6 +230,7 @@ class Task:
         n = math.ceil(self.period / step - 1e-9)
         self.dwell = 0.5 * n * step - self.duration
         self._cache.clear()
+        self._step, self._grid = step, n
         return self
 
     def start(self) -> np.ndarray:
@@ -245,15 +248,20 @@ class Task:
     def sample(self, t: float) -> tuple[Vec3, Vec3, Vec3]:
         """Reference ``(p_c, pdot_c, pddot_c)`` at time ``t >= 0`` of the looping task.
 
-        Results are cached by time within the task's period (a run at a fixed sampling
-        period meets the same times again every loop)."""
-        key = round((t % self.period) * 1e9)
-        hit = self._cache.get(key)
-        if hit is None:
-            hit = self._sample(t)
-            if len(self._cache) < 200_000:
-                self._cache[key] = hit
-        return hit
+        After :meth:`align`, times on the aligned grid are cached by their index within
+        one loop (a run meets the same times again every loop; the cache stays bounded by
+        the loop's length); other times are computed."""
+        step = self._step
+        if step:
+            x = t / step
+            k = round(x)
+            if abs(x - k) < 1e-6:
+                key = k % self._grid
+                hit = self._cache.get(key)
+                if hit is None:
+                    hit = self._cache[key] = self._sample(t)
+                return hit
+        return self._sample(t)
 
     def _sample(self, t: float) -> tuple[Vec3, Vec3, Vec3]:
         d, w = self.duration, self.dwell

@@ -20,9 +20,11 @@ the unit itself sustains.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import queue
 import statistics
+import struct
 import time
 from array import array
 from collections import OrderedDict
@@ -37,7 +39,7 @@ from .codec import BadMessage, check_vals, check_vector, encode
 from .config import EXIT_LINK, EXIT_OBSERVER, EXIT_OK, EXIT_PERIPHERAL, EXIT_PLANT, RunConfig
 from .controller import Controller, handoff_step
 from .engine import CostModel, Engine
-from .node import Node
+from .node import WARM_RSS_AT, Node, rss_kb
 
 
 class Fault(RuntimeError):
@@ -65,13 +67,21 @@ class InFlight:
 
 @dataclass
 class CycleLog:
-    """Per-cycle measurements (compact arrays, so that long runs stay small)."""
+    """Per-cycle measurements, compact so that long runs stay small: two integers per
+    interval, one float per plant sample; the commands only as a running digest and peak.
+    """
 
     cmd_ns: array = field(default_factory=lambda: array("q"))
-    sample_ns: array = field(default_factory=lambda: array("q"))
-    cycle: array = field(default_factory=lambda: array("q"))
-    commands: array = field(default_factory=lambda: array("d"))
-    true_p: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    traversal_ns: array = field(default_factory=lambda: array("i"))  # saturates at 2.1 s
+    errors: array = field(default_factory=lambda: array("d"))
+    digest: Any = field(default_factory=hashlib.sha256)
+    torque_max: float = 0.0
+    true_p: dict[int, tuple[float, float, float]] = field(default_factory=dict)  # recent only
+
+    @property
+    def sample_ns(self) -> list[int]:
+        """Sample times, from command times and traversals."""
+        return [c - t for c, t in zip(self.cmd_ns, self.traversal_ns)]
 
 
 class Central:
@@ -100,7 +110,6 @@ class Central:
         *,
         on_cycle: Callable[[Central, int, dict], None] | None = None,
         on_message: Callable[[str, str, int, Any, bytes, int], None] | None = None,
-        keep_commands: bool = True,
     ) -> None:
         self.node = node
         self.rc = rc
@@ -109,7 +118,6 @@ class Central:
         self.cycles = cycles
         self.on_cycle = on_cycle
         self.on_message = on_message
-        self.keep_commands = keep_commands
         self.plan = engine.plan
         self.n = self.plan.placement.peripherals
         self.depth = rc.pipeline
@@ -142,11 +150,14 @@ class Central:
         self.t_end_ns = 0
         self.role_reports: dict[str, dict] = {}
         self.spans: list[tuple[str, int, int, int]] = []  # (process, cycle, t0, t1), bounded
-        self.max_spans = 20_000
+        self.max_spans = 4_000  # the first few hundred intervals: Gantt charts
         self.last_sample_ns = 0
         self.t1_inputs: list[tuple] = []
         self.newest_sample = -1
         self.peers_seen: set[str] = set()
+        self.rss_warm = -1
+        self.rss_end = -1
+        self.rss_series: list[tuple[int, int]] = []
         self.cycle_spans: dict[int, list[tuple[str, int, int]]] = {}
         self.child_check: Callable[[], tuple[str, int] | None] | None = None
         self._next_child_check = 0.0
@@ -212,6 +223,7 @@ class Central:
             self._check_deadlines(timeout_ns)
             self._check_children()
         self.t_end_ns = time.monotonic_ns()
+        self.rss_end = rss_kb()
 
     def _timeout_ns(self) -> int:
         """How long a reply or a sample may be missing before it is a fault: the
@@ -353,7 +365,12 @@ class Central:
         self.samples[cycle] = (counts, t_ns)
         if len(self.samples) > 64:  # realtime and far behind: keep the newest
             del self.samples[min(self.samples)]
-        self.log.true_p[cycle] = (p[0], p[1], p[2])
+        true_p = self.log.true_p
+        true_p[cycle] = (p[0], p[1], p[2])
+        if len(true_p) > 64:
+            del true_p[min(true_p)]
+        ref = self.engine.cfg.task.sample(cycle * self.rc.period)[0]  # type: ignore[union-attr]
+        self.log.errors.append(math.dist(true_p[cycle], ref))
         self.plant_busy_ns += span[1] - span[0]
         misses = msg.get("misses")
         if isinstance(misses, int) and not isinstance(misses, bool):
@@ -505,11 +522,14 @@ class Central:
         del self.inflight[f.cycle]
         log = self.log
         log.cmd_ns.append(now)
-        log.sample_ns.append(f.sample_ns)
-        log.cycle.append(f.cycle)
-        if self.keep_commands:
-            log.commands.extend(float(x) for x in cmd)
+        log.traversal_ns.append(min(now - f.sample_ns, 2**31 - 1))
+        log.digest.update(struct.pack("<3d", *cmd))
+        log.torque_max = max(log.torque_max, abs(cmd[0]), abs(cmd[1]), abs(cmd[2]))
         self.done += 1
+        if self.done == WARM_RSS_AT:
+            self.rss_warm = rss_kb()
+        if self.done % 10_000 == 0:
+            self.rss_series.append((self.done, rss_kb()))
         if self.on_cycle is not None:
             self.on_cycle(self, f.cycle, f.ctx)
             self.cycle_spans.pop(f.cycle, None)

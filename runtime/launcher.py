@@ -44,7 +44,7 @@ from .config import (
 )
 from .controller import Controller, initial_angles, initial_command
 from .engine import CostModel, Engine
-from .node import Node
+from .node import Node, rss_kb
 from .report import build_report
 from .zsession import default_endpoint, make_config, pin_cpus
 
@@ -324,6 +324,12 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
             echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
     report = finish_report(setup, central, fault)
     report["zenoh"] = zenoh_ids
+    report["memory_kb"] = {"central": {"warm": central.rss_warm,
+                                       "end": central.rss_end if central.rss_end > 0
+                                       else rss_kb(), "series": central.rss_series}}
+    for role, rep in central.role_reports.items():
+        if isinstance(rep.get("rss_kb"), dict):
+            report["memory_kb"][role] = rep["rss_kb"]
     if inspect is not None:
         inspect["central"] = central
         inspect["setup"] = setup
@@ -400,8 +406,9 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
             rejected[f"{role}:{k}"] = v
     return build_report(
         rc=rc, plan=setup.plan, task=setup.task, cmd_ns=list(central.log.cmd_ns),
-        sample_ns=list(central.log.sample_ns), commands=list(central.log.commands),
-        true_p=central.log.true_p, business=business,
+        sample_ns=list(central.log.sample_ns), digest=central.log.digest.hexdigest(),
+        torque_max=central.log.torque_max, tracking_errors=central.log.errors,
+        business=business,
         deadline_misses=central.plant_misses, skipped=central.skipped, rejected=rejected,
         t1_s=t1, per_block_s=per_block, fault=fault,
         wall_s=(central.t_end_ns - central.t_start_ns) / 1e9, cost_error_s=cost_err,

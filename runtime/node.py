@@ -114,6 +114,21 @@ class Node:
                 on_event(ev)
 
 
+def rss_kb() -> int:
+    """Resident memory of this process (kB), from /proc."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return -1
+
+
+WARM_RSS_AT = 1000  # intervals after which memory counts as warmed up
+
+
 def is_stop(node: Node, ev: Event) -> bool:
     """True if ``ev`` is a stop order from the central (and note that it spoke)."""
     if ev[0] != "control":

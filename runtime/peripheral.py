@@ -14,7 +14,7 @@ from typing import Any
 
 from .codec import BadMessage, check_vals, encode
 from .engine import Engine, _plain
-from .node import Node, is_stop
+from .node import WARM_RSS_AT, Node, is_stop, rss_kb
 
 MAX_KEPT_CYCLES = 8
 WARMUP_BASE = 1 << 40  # cycles from here on are the central's warm-up
@@ -46,6 +46,7 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
                    for r in engine.plan.rounds}
     ctxs: dict[int, dict] = {}
     served = 0
+    rss_warm = -1
     busy_ns = 0
     t_start = time.monotonic_ns()
     while True:
@@ -104,7 +105,10 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
         reply.put(encode(node.unit, cycle, rnd.index, vals=out, span=[t0, t1], **extra))
         busy_ns += t1 - t0
         served += 1
+        if served == 2 * WARM_RSS_AT:
+            rss_warm = rss_kb()
         if rnd.index == engine.plan.round_trips - 1:
             ctxs.pop(cycle, None)
     return {"exit": "stop", "served": served, "busy_ns": busy_ns,
-            "wall_ns": time.monotonic_ns() - t_start, "rejected": dict(node.rejected)}
+            "wall_ns": time.monotonic_ns() - t_start, "rejected": dict(node.rejected),
+            "rss_kb": {"warm": rss_warm, "end": rss_kb()}}

@@ -25,7 +25,7 @@ from typing import Any
 
 from ..plant.simulator import Plant
 from .codec import BadMessage, check_vector, encode
-from .node import Node, is_stop
+from .node import WARM_RSS_AT, Node, is_stop, rss_kb
 
 
 class PlantServer:
@@ -43,6 +43,7 @@ class PlantServer:
         self.misses = 0
         self.busy_ns = 0
         self.sample_no = 0
+        self.rss_warm = -1
 
     def take_command(self, data: bytes) -> None:
         msg = self.node.decode(data)
@@ -93,6 +94,8 @@ class PlantServer:
 
     def simulate(self) -> tuple[int, int]:
         t0 = time.monotonic_ns()
+        if self.sample_no == WARM_RSS_AT:
+            self.rss_warm = rss_kb()
         self.plant.step()
         t1 = time.monotonic_ns()
         self.busy_ns += t1 - t0
@@ -187,4 +190,5 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
 def _result(server: PlantServer, reason: str, t_start: int) -> dict[str, Any]:
     return {"exit": reason, "samples": server.sample_no, "misses": server.misses,
             "busy_ns": server.busy_ns, "wall_ns": time.monotonic_ns() - t_start,
-            "rejected": dict(server.node.rejected)}
+            "rejected": dict(server.node.rejected),
+            "rss_kb": {"warm": server.rss_warm, "end": rss_kb()}}

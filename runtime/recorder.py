@@ -163,7 +163,7 @@ class Recorder:
         err = math.dist(true_p, ref) if (true_p is not None and ref is not None) else math.nan
         period = (now - self.last_cmd_ns) / 1e9 if self.last_cmd_ns is not None else math.nan
         self.last_cmd_ns = now
-        trav = (now - central.log.sample_ns[-1]) / 1e9
+        trav = central.log.traversal_ns[-1] / 1e9
         sig = {
             "cycle": cycle,
             "t": t,

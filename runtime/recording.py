@@ -149,9 +149,14 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     if rec.salvaged:
         fault = fault or {"process": "recording", "message": rec.note, "code": None}
     task = setup.task
+    from .report import command_digest, tracking_errors
+
     rep = build_report(
         rc=rc, plan=setup.plan, task=task, cmd_ns=cmd_ns, sample_ns=sample_ns,
-        commands=commands, true_p=true_p, business=business, deadline_misses=misses,
+        digest=command_digest(commands),
+        torque_max=max((abs(x) for x in commands), default=math.nan),
+        tracking_errors=tracking_errors(task, rc.period, true_p), business=business,
+        deadline_misses=misses,
         skipped=skipped, rejected=rejected, t1_s=t1, per_block_s=per_block, fault=fault,
         wall_s=wall / 1e9,
     )

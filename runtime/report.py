@@ -26,16 +26,17 @@ def command_digest(commands: list[float] | np.ndarray) -> str:
     return hashlib.sha256(np.asarray(commands, dtype="<f8").tobytes()).hexdigest()
 
 
-def tracking(task: Task, period: float, true_p: dict[int, tuple[float, float, float]]
-             ) -> dict[str, float]:
-    """Platform error against the reference at each sample time (m)."""
-    errs = []
-    for k, p in sorted(true_p.items()):
-        ref = task.sample(k * period)[0]
-        errs.append(math.dist(p, ref))
-    if not errs:
+def tracking_errors(task: Task, period: float, true_p: dict[int, tuple[float, float, float]]
+                    ) -> list[float]:
+    """Platform error against the reference at each sample time (m), by sample number."""
+    return [math.dist(p, task.sample(k * period)[0]) for k, p in sorted(true_p.items())]
+
+
+def error_stats(errs: list[float] | np.ndarray) -> dict[str, float]:
+    """Max and RMS of tracking errors (m)."""
+    a = np.asarray(errs, dtype=float)
+    if a.size == 0:
         return {"max": math.nan, "rms": math.nan}
-    a = np.asarray(errs)
     return {"max": float(a.max()), "rms": float(np.sqrt((a * a).mean()))}
 
 
@@ -46,8 +47,9 @@ def build_report(
     task: Task,
     cmd_ns: list[int],
     sample_ns: list[int],
-    commands: list[float],
-    true_p: dict[int, tuple[float, float, float]],
+    digest: str,
+    torque_max: float,
+    tracking_errors: list[float] | np.ndarray,
     business: dict[str, float],
     deadline_misses: int,
     skipped: int,
@@ -70,7 +72,6 @@ def build_report(
     t_par = tq["p50"] if rc.pipeline == 1 else pq["p50"]
     eff = t1_s / (t_par * processors) if t_par and t_par > 0 else math.nan
     speedup = t1_s / t_par if t_par and t_par > 0 else math.nan
-    tau = np.asarray(commands).reshape(-1, 3) if len(commands) else np.zeros((0, 3))
     graph = plan.graph
     central_s = sum(v for k, v in per_block_s.items() if not graph.block(k).per_axis)
     axis_s = sum(v for k, v in per_block_s.items() if graph.block(k).per_axis)
@@ -107,10 +108,10 @@ def build_report(
         "t_s_model_s": t_s,
         "t_p_model_s": t_p,
         "block_cost_s": per_block_s,
-        "tracking_error_m": tracking(task, rc.period, true_p) if rc.clock != "freerun"
+        "tracking_error_m": error_stats(tracking_errors) if rc.clock != "freerun"
         else {"max": math.nan, "rms": math.nan},
-        "torque_nm": {"max": float(np.abs(tau).max()) if tau.size else math.nan},
-        "command_digest": command_digest(commands),
+        "torque_nm": {"max": torque_max if len(cmd_ns) else math.nan},
+        "command_digest": digest,
         "rejected_messages": rejected,
         "cost_model_error_s": cost_error_s,
         "wall_s": wall_s,
