@@ -118,11 +118,11 @@ def test_ctrl_c_leaves_no_process_behind():
             proc.kill()
 
 
-def test_realtime_at_3ms_tracks_without_fault(tmp_path):
-    """A period this machine sustains: the loop stays closed and tracks."""
+def test_realtime_at_6ms_tracks_without_fault(tmp_path):
+    """A period this shared 2-core machine sustains with margin: the loop stays closed."""
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",
-                                "realtime", "--period", "3ms", tag="rt3")
+                                "realtime", "--period", "6ms", tag="rt6")
     assert code == 0, out
-    print(f"realtime 3 ms depth 2: misses {rep['deadline_misses']}, tracking max "
+    print(f"realtime 6 ms depth 2: misses {rep['deadline_misses']}, tracking max "
           f"{rep['tracking_error_m']['max'] * 1e3:.2f} mm")
     assert rep["tracking_error_m"]["max"] < 0.02
