@@ -91,10 +91,8 @@ def make_config(
         if lowlatency:
             conf.insert_json5("transport/unicast/lowlatency", "true")
             conf.insert_json5("transport/unicast/qos/enabled", "false")
-    if listen is not None:
-        conf.insert_json5("listen/endpoints", json.dumps(listen))
-    elif not config_file:
-        conf.insert_json5("listen/endpoints", "[]")
+    # listen only where asked (Zenoh's default would open a port on every interface)
+    conf.insert_json5("listen/endpoints", json.dumps(listen or []))
     if connect is not None:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
     return conf
