@@ -66,7 +66,7 @@ def cli() -> None:
 NUMERIC = {"ignore_unknown_options": True}  # so that -0.35 is a number, not an option
 
 
-@cli.command(context_settings=NUMERIC)
+@cli.command(context_settings=NUMERIC, short_help="Inverse kinematics: joint angles of a point.")
 @click.argument("x", type=float)
 @click.argument("y", type=float)
 @click.argument("z", type=float)
@@ -94,7 +94,8 @@ def ik(x: float, y: float, z: float, deg: bool, as_json: bool, params_file: str 
     _emit(data, as_json, text)
 
 
-@cli.command(context_settings=NUMERIC)
+@cli.command(context_settings=NUMERIC,
+             short_help="Forward kinematics: platform position of joint angles.")
 @click.argument("q1", type=float)
 @click.argument("q2", type=float)
 @click.argument("q3", type=float)
@@ -157,7 +158,7 @@ def trajectory_summary(params: DeltaParams, name: str, *, samples: int = 2001) -
     }
 
 
-@cli.command()
+@cli.command(short_help="Figures of a task: length, duration, peaks, joint range.")
 @click.argument("name")
 @click.option("--json", "as_json", is_flag=True, help="JSON on stdout.")
 @params_option
@@ -186,7 +187,7 @@ def trajectory(name: str, as_json: bool, params_file: str | None) -> None:
     _emit(data, as_json, "\n".join(lines))
 
 
-@cli.command()
+@cli.command(short_help="Workspace maps (Fig. 28-29) and the usable workspace.")
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Write the maps.")
 @click.option("--json", "as_json", is_flag=True, help="JSON on stdout.")
 @click.option("--grid", type=click.IntRange(11, 401), default=61, show_default=True,

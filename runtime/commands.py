@@ -381,7 +381,7 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
                f"in {rep['wall_s']:.0f} s")
 
 
-@cli.command()
+@cli.command(short_help="Where the time goes; recommend and write a placement.")
 @click.argument("source", type=click.Path(exists=True, dir_okay=False))
 @click.option("--write", "out", type=click.Path(dir_okay=False), default="placement.json",
               show_default=True, help="Placement file to write.")
