@@ -45,7 +45,7 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for x in r["runs"]:
-        if x["tag"] == "thesis":
+        if x["tag"] in ("thesis", "record"):
             continue
         busy = ", ".join(f"{k.replace('peripheral_', 'p')} {v * 100:.0f}%"
                          for k, v in x["business"].items() if v is not None)
@@ -86,6 +86,12 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
                      f"{_us(whole1['period_s']['p50'])} us) |")
     lines.append(f"| sampling period | {t['period_1_us']} us on 1, {t['period_4_us']} us on 4"
                  " | see the sweep |")
+    rc_ = r.get("recording_cost")
+    if rc_:
+        lines += ["", "## What recording costs", "",
+                  f"{rc_['config']}: period p50 {_us(rc_['period_p50_without_s'])} us without "
+                  f"--record, {_us(rc_['period_p50_with_s'])} us with it: "
+                  f"{(rc_['ratio'] - 1) * 100:+.1f} % (target: at most +10 %)."]
     lines += ["", "## Figures", ""]
     for f in r.get("figures", []):
         lines.append(f"![{f}]({f})")

@@ -48,11 +48,13 @@ class Config:
     cost_scale: float = 1.0
     law: str = "resolved-acceleration"
     tag: str = "sweep"
+    record: bool = False
 
     @property
     def key(self) -> str:
         return (f"{self.tag}:{self.law}:n{self.peripherals}:d{self.pipeline}:"
-                f"{self.cost_model}x{self.cost_scale:g}:{self.clock}:{self.period:g}")
+                f"{self.cost_model}x{self.cost_scale:g}:{self.clock}:{self.period:g}"
+                f"{':record' if self.record else ''}")
 
 
 def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) -> list[Config]:
@@ -64,6 +66,9 @@ def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) ->
     for per in realtime_periods:
         for d in (1, 2):
             out.append(Config(3, d, "native", "realtime", per, tag="realtime"))
+    # what recording costs: the same freerun configuration with and without --record
+    for rec in (False, True):
+        out.append(Config(3, 2, "native", tag="record", record=rec))
     # the thesis comparison: T-800 arithmetic scaled so that it outweighs the messages
     # as it did in 1994 (Zenoh here: ~200 us a round; a T-800 link: tens of us)
     for law in ("resolved-acceleration", "kinematics"):
@@ -85,14 +90,18 @@ def cycles_for(cfg: Config, quick: bool) -> int:
     return 300 if quick else 2000
 
 
-def run_one(cfg: Config, cycles: int) -> tuple[dict[str, Any], Any]:
-    rc = RunConfig(peripherals=cfg.peripherals, pipeline=cfg.pipeline, clock=cfg.clock,
+def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str, Any], Any]:
+    record = str(tmp / f"rec-{random.randrange(1 << 30)}.mcap") if cfg.record and tmp else None
+    rc = RunConfig(record=record, peripherals=cfg.peripherals, pipeline=cfg.pipeline,
+                   clock=cfg.clock,
                    period=cfg.period, cost_model=cfg.cost_model, cost_scale=cfg.cost_scale,
                    law=cfg.law, cycles=cycles, max_error=1.0, t1_cycles=200,
                    unit=f"bench-{os.getpid()}-{random.randrange(1 << 30)}")
     inspect: dict[str, Any] = {}
     code, rep = start(rc, echo=lambda m: None, inspect=inspect)
     rep["exit_code"] = code
+    if record:
+        Path(record).unlink(missing_ok=True)
     return rep, inspect.get("central")
 
 
@@ -171,7 +180,8 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
         for cfg in order:
             if progress:
                 progress(cfg.key, done, total)
-            rep, central = run_one(cfg, cycles_for(cfg, quick))
+            rep, central = run_one(cfg, cycles_for(cfg, quick) * (3 if cfg.tag == "record"
+                                                                  else 1), out)
             results[cfg.key].append(rep)
             done += 1
             if central is not None and rep_i == 0:
@@ -184,8 +194,17 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
                 if cfg.tag == "thesis" and cfg.peripherals == 3 and cfg.law != "kinematics":
                     gantt[f"depth {cfg.pipeline}"] = _gantt_window(central.spans)
     runs = [summarise(results[c.key], c) for c in configs]
+    rec_on = next(r for r, c in zip(runs, configs) if c.tag == "record" and c.record)
+    rec_off = next(r for r, c in zip(runs, configs) if c.tag == "record" and not c.record)
+    recording_cost = {
+        "period_p50_without_s": rec_off["period_s"]["p50"],
+        "period_p50_with_s": rec_on["period_s"]["p50"],
+        "ratio": rec_on["period_s"]["p50"] / rec_off["period_s"]["p50"],
+        "config": "freerun, n = 3, depth 2, native; interleaved with the sweep",
+    }
     report = {
         "machine": machine_info(), "floor": fl, "runs": runs, "thesis_1994": THESIS,
+        "recording_cost": recording_cost,
         "quick": quick, "repeats": repeats, "cost_scale_thesis_runs": scale,
         "wall_s": time.monotonic() - t_start,
         "method": {

@@ -35,6 +35,9 @@ def test_quick_bench_writes_reports_and_figures_in_time(tmp_path):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
     md = (out / "report.md").read_text()
     assert "57 %" in md and "Transport floor" in md
+    cost = rep["recording_cost"]  # a benchmark figure, reported (not a timed assertion)
+    assert cost["period_p50_with_s"] > 0 and cost["period_p50_without_s"] > 0
+    print(f"recording cost on the freerun period: {(cost['ratio'] - 1) * 100:+.1f} %")
 
 
 def test_t800_cost_model_emulates_the_1994_single_processor_time(tmp_path):
