@@ -405,8 +405,12 @@ def balance(source: str, out: str, as_json: bool) -> None:
         "  business " + ", ".join(f"{k} {v * 100:.0f} %" for k, v in a["business"].items()),
         f"  round trip {a['round_trip_s'] * 1e6:.0f} us, central overhead "
         f"{a['central_overhead_s'] * 1e6:.0f} us per interval",
-        f"  now: predicted depth-2 period {a['current']['period_depth2_s'] * 1e6:.0f} us, "
-        f"measured period {a['measured']['period_s'] * 1e6:.0f} us",
+        (f"  now: predicted depth-1 traversal {a['current']['traversal_depth1_s'] * 1e6:.0f} us"
+         f", measured {a['measured']['traversal_s'] * 1e6:.0f} us; predicted depth-2 period "
+         f"{a['current']['period_depth2_s'] * 1e6:.0f} us")
+        if a["pipeline"] == 1 else
+        (f"  now: predicted depth-2 period {a['current']['period_depth2_s'] * 1e6:.0f} us, "
+         f"measured {a['measured']['period_s'] * 1e6:.0f} us"),
     ]
     lines += [f"  recommendation: {r}" for r in a["recommendations"]]
     lines.append(f"  with the new placement: predicted depth-2 period "
