@@ -76,18 +76,19 @@ def analyse(report: dict[str, Any], *, round_trip_s: float | None = None) -> dic
     measured_period = (report.get("period_s") or {}).get("p50") or math.nan
     measured_trav = (report.get("traversal_s") or {}).get("p50") or math.nan
     business = report.get("business") or {}
+    # the central's per-interval cost beyond its blocks (codec, Zenoh), from its business
+    c_busy = business.get("central", math.nan) * measured_period
+    base = predict(plan, costs, 0.0)
+    overhead = max(0.0, c_busy - base.central_s) if math.isfinite(c_busy) else 0.0
     if round_trip_s is None:
-        # what the rounds cost beyond the arithmetic, from the measured depth-1 traversal
-        base = predict(plan, costs, 0.0)
+        # what each round costs beyond the arithmetic and the central's own overhead, from
+        # the measured depth-1 traversal (at depth 2 the traversal includes queueing)
+        with_overhead = predict(plan, costs, 0.0, overhead)
         if plan.round_trips and math.isfinite(measured_trav) and report.get("pipeline") == 1:
-            round_trip_s = max(0.0, (measured_trav - base.traversal_depth1_s) /
+            round_trip_s = max(0.0, (measured_trav - with_overhead.traversal_depth1_s) /
                                plan.round_trips)
         else:
             round_trip_s = 250e-6
-    # the central's per-interval cost beyond its blocks (codec, Zenoh), from its business
-    c_busy = business.get("central", math.nan) * measured_period
-    base = predict(plan, costs, round_trip_s)
-    overhead = max(0.0, c_busy - base.central_s) if math.isfinite(c_busy) else 0.0
     current = predict(plan, costs, round_trip_s, overhead)
     # recommendations
     recs: list[str] = []
