@@ -63,6 +63,8 @@ class InFlight:
     deadline_ns: int = 0
     handed_off: bool = False
     started: bool = False
+    late_ns: int = 0  # realtime: when this round's data is late (its share of the deadline)
+    dropped: set[int] = field(default_factory=set)  # peripherals whose replies were held
 
 
 @dataclass
@@ -158,6 +160,11 @@ class Central:
         self.rss_warm = -1
         self.rss_end = -1
         self.rss_series: list[tuple[int, int]] = []
+        self.last_vals: dict[str, list[Any]] = {}
+        self.late_per_axis = [0, 0, 0]
+        self.held: set[tuple[int, int, int]] = set()
+        self.last_reply_ns = [0] * self.n
+        self.late_policy = self._late_policies()
         self.cycle_spans: dict[int, list[tuple[str, int, int]]] = {}
         self.child_check: Callable[[], tuple[str, int] | None] | None = None
         self._next_child_check = 0.0
@@ -212,6 +219,8 @@ class Central:
             for f in self.inflight.values():
                 if f.waiting:
                     wait_until = min(wait_until, f.deadline_ns)
+                    if f.late_ns:
+                        wait_until = min(wait_until, f.late_ns)
             t0 = time.monotonic_ns()
             try:
                 ev = self.node.events.get(timeout=max(0.0, (wait_until - now) / 1e9))
@@ -220,6 +229,7 @@ class Central:
             self.wait_ns += time.monotonic_ns() - t0
             if ev is not None:
                 self._handle(ev)
+            self._check_late(time.monotonic_ns())
             self._check_deadlines(timeout_ns)
             self._check_children()
         self.t_end_ns = time.monotonic_ns()
@@ -282,6 +292,13 @@ class Central:
 
     def _check_deadlines(self, timeout_ns: int) -> None:
         now = time.monotonic_ns()
+        if self.rc.clock == "realtime" and self.done:
+            for k, t in enumerate(self.last_reply_ns):  # alive, even when its data is held
+                if t and now - t > timeout_ns and any(k in f.dropped or k in f.waiting
+                                                      for f in self.inflight.values()):
+                    raise Fault(f"peripheral {k + 1} has not answered for "
+                                f"{(now - t) / 1e6:.1f} ms", process=f"peripheral-{k + 1}",
+                                code=EXIT_PERIPHERAL)
         for f in self.inflight.values():
             if f.waiting and now > f.deadline_ns:
                 k = min(f.waiting)
@@ -311,6 +328,50 @@ class Central:
             name, rc = dead
             code = EXIT_PLANT if name == "plant" else EXIT_PERIPHERAL
             raise Fault(f"{name} exited (status {rc})", process=name, code=code)
+
+    # -- late data (realtime) -------------------------------------------------------------
+
+    def _late_policies(self) -> dict[int, str]:
+        """Policy per round: the strictest of its blocks' (fault > hold > wait)."""
+        order = {"wait": 0, "hold": 1, "fault": 2}
+        out = {}
+        for r in self.plan.rounds:
+            pols = [self.rc.late.get(b.name, self.rc.late_policy) for b in r.blocks]
+            out[r.index] = max(pols, key=lambda p: order[p]) if pols else "wait"
+        return out
+
+    def _check_late(self, now: int) -> None:
+        if self.rc.clock != "realtime":
+            return
+        for f in list(self.inflight.values()):
+            if not f.waiting or f.round is None or not f.late_ns or now < f.late_ns:
+                continue
+            policy = self.late_policy[f.round.index]
+            if policy == "wait":
+                f.late_ns = 0
+                continue
+            k = min(f.waiting)
+            late = [b.name for b in f.round.blocks]
+            if policy == "fault":
+                raise Fault(f"late data: peripheral {k + 1} missed the deadline of round "
+                            f"{f.round.index} ({', '.join(late)}) of cycle {f.cycle}",
+                            process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
+            # hold: the last values of the missing peripherals' axes
+            if not all(name in self.last_vals for name in f.round.recv):
+                f.late_ns = 0  # nothing to hold yet: wait
+                continue
+            for p in sorted(f.waiting):
+                axes = self.plan.placement.axes[p]
+                held = {name: [self.last_vals[name][a] for a in axes] for name in f.round.recv}
+                Engine.merge(f.ctx, held, axes)
+                for a in axes:
+                    self.late_per_axis[a] += 1
+                f.dropped.add(p)
+                self.held.add((f.cycle, f.round.index, p))
+                if len(self.held) > 1024:
+                    self.held.discard(min(self.held))
+            f.waiting.clear()
+            self._advance(f)
 
     # -- events -----------------------------------------------------------------------
 
@@ -385,7 +446,13 @@ class Central:
             return
         f = self.inflight.get(msg["cycle"])
         if f is None or f.round is None or msg["stage"] != f.round.index or k not in f.waiting:
-            self.node.reject("unexpected_reply")
+            key = (msg["cycle"], msg["stage"], k)
+            if key in self.held:  # its values were replaced by the last ones (hold)
+                self.held.discard(key)
+                self.last_reply_ns[k] = rx
+                self.node.reject("late_reply")
+            else:
+                self.node.reject("unexpected_reply")
             return
         axes = self.plan.placement.axes[k]
         try:
@@ -402,6 +469,11 @@ class Central:
         if self.on_message is not None:
             self.on_message("in", self.node.keys.reply(k + 1), f.cycle, f.round.index, data, rx)
         Engine.merge(f.ctx, vals, axes)
+        self.last_reply_ns[k] = rx
+        for name, v in vals.items():
+            slot = self.last_vals.setdefault(name, [None, None, None])
+            for j, a in enumerate(axes):
+                slot[a] = v[j]
         self.periph_busy_ns[k] += span[1] - span[0]
         self._span(f"peripheral_{k + 1}", f.cycle, span[0], span[1])
         f.waiting.discard(k)
@@ -475,6 +547,9 @@ class Central:
         f.round = rnd
         f.waiting = set(range(self.n))
         f.deadline_ns = time.monotonic_ns() + self._timeout_ns()
+        if self.rc.clock == "realtime" and self.plan.round_trips:
+            share = (rnd.index + 1) / self.plan.round_trips
+            f.late_ns = f.sample_ns + int(self.depth * self.rc.period * share * 1e9)
         payload = encode(self.node.unit, f.cycle, rnd.index,
                          vals=Engine.request_vals(rnd, f.ctx, (0, 1, 2)))
         self.pub_req.put(payload)

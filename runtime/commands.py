@@ -71,6 +71,12 @@ def run_options(fn: Any) -> Any:
         click.option("--zenoh-config", type=click.Path(dir_okay=False), default=None),
         click.option("--timeout", default="2s", show_default=True, callback=_duration,
                      help="Reply timeout in lockstep and freerun (realtime: 3 periods)."),
+        click.option("--late-policy", type=click.Choice(["wait", "hold", "fault"]),
+                     default="wait", show_default=True,
+                     help="Realtime: a peripheral's late reply is waited for, replaced by "
+                     "its last values (hold), or a fault."),
+        click.option("--late", "late_items", multiple=True, metavar="BLOCK=POLICY",
+                     help="Late-data policy for one block (overrides --late-policy)."),
         click.option("--max-error", default=0.02, type=click.FloatRange(1e-5, 1.0),
                      show_default=True, help="Tracking error (m) beyond which the unit "
                      "stops the robot (a fault)."),
@@ -112,6 +118,13 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
         rc.pin = kw.get("pin") or None
         return rc
     unit = kw.pop("unit", None)
+    late: dict[str, str] = {}
+    for item in kw.pop("late_items", ()) or ():
+        block, _, pol = item.partition("=")
+        if not block or not pol:
+            raise ConfigError(f"--late {item!r}: expected BLOCK=POLICY (wait, hold, fault)")
+        late[block] = pol
+    kw["late"] = late
     rc = RunConfig(**{k: v for k, v in kw.items() if k in RunConfig.__dataclass_fields__})
     rc.plant_lag = kw.get("plant_lag", 0.0)
     rc.listen, rc.connect = listen, connect

@@ -8,6 +8,10 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 CLOCKS = ("lockstep", "realtime", "freerun")
+LATE_POLICIES = ("wait", "hold", "fault")
+"""Realtime, a peripheral's reply past its round's share of the deadline: ``wait`` for it
+(the plant counts the miss), ``hold`` the peripheral's last values for its axes, or treat
+it as a ``fault``."""
 
 # exit codes, one per fault class
 EXIT_OK = 0
@@ -80,6 +84,8 @@ class RunConfig:
     cpus: str | None = None
     max_error: float = 0.02
     cost_scale: float = 1.0
+    late_policy: str = "wait"
+    late: dict[str, str] = field(default_factory=dict)
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS
@@ -112,6 +118,12 @@ class RunConfig:
         if self.cpus not in (None, "same", "split"):
             raise bad("cpus", "same (every role on CPU 0) or split (central on 0, the rest "
                       "on 1)")
+        if self.late_policy not in LATE_POLICIES:
+            raise bad("late_policy", ", ".join(LATE_POLICIES))
+        for block, pol in self.late.items():
+            if pol not in LATE_POLICIES:
+                raise ConfigError(f"late = {block}={pol}: the policy must be one of "
+                                  f"{', '.join(LATE_POLICIES)}")
         if not 0.01 <= self.cost_scale <= 1000.0:
             raise bad("cost_scale", "0.01 to 1000")
         if not 1e-5 <= self.max_error <= 1.0:

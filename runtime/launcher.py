@@ -311,7 +311,7 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         interrupted = code == EXIT_INTERRUPTED
         try:
             central.stop(reason="done" if fault is None else fault["message"],
-                         wait=1.0 if fault is None else (0.1 if interrupted else 0.5))
+                         wait=2.0 if fault is None else (0.1 if interrupted else 0.5))
         finally:
             end_children(children, grace=0.3 if interrupted else 1.0)
             node.close()
@@ -324,6 +324,8 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
             echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
     report = finish_report(setup, central, fault)
     report["zenoh"] = zenoh_ids
+    report["late"] = {"policy": rc.late_policy, "blocks": dict(rc.late),
+                      "misses_per_axis": list(central.late_per_axis)}
     report["memory_kb"] = {"central": {"warm": central.rss_warm,
                                        "end": central.rss_end if central.rss_end > 0
                                        else rss_kb(), "series": central.rss_series}}

@@ -90,6 +90,10 @@ def run_unit(tmp_path, unit: str, fuzz: bool) -> tuple[int, dict, str]:
                        keys.reply(3), keys.hello, keys.control]
             rng = random.Random(7)
             with zenoh.open(make_config(connect=eps)) as s:
+                t0 = time.monotonic()  # connected to all five processes before fuzzing
+                while len(list(s.info.peers_zid())) < 5 and time.monotonic() - t0 < 10:
+                    time.sleep(0.05)
+                assert len(list(s.info.peers_zid())) == 5
                 pubs = [s.declare_publisher(k) for k in targets]
                 time.sleep(0.5)
                 for i in range(N_FUZZ):

@@ -1,0 +1,58 @@
+"""Late data in realtime: a per-block policy (hold the last values, or fault) and miss
+counts per axis."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from runner import kill_unit, unit_id
+from test_faults import role_pid
+
+pytestmark = pytest.mark.zenoh
+
+
+def freeze_briefly(tmp_path, policy: str) -> tuple[int, dict, str]:
+    unit = unit_id(f"late{policy}")
+    report, status = tmp_path / f"{policy}.json", tmp_path / f"{policy}.status"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
+         "realtime", "--period", "10ms", "--cycles", "150", "--late-policy", policy,
+         "--max-error", "1", "--report", str(report), "--status-file", str(status)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            if status.exists() and int(status.read_text() or 0) >= 40:
+                break
+            time.sleep(0.01)
+        pid = role_pid(unit, "peripheral", 2)
+        os.kill(pid, signal.SIGSTOP)  # 15 ms: past the round deadlines (5 and 10 ms after
+        time.sleep(0.015)             # the sample), short of the 30 ms liveness limit
+        os.kill(pid, signal.SIGCONT)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+    return proc.returncode, json.loads(report.read_text()) if report.exists() else {}, out
+
+
+def test_hold_policy_keeps_running_and_counts_misses_per_axis(tmp_path):
+    code, rep, out = freeze_briefly(tmp_path, "hold")
+    assert code == 0, out
+    misses = rep["late"]["misses_per_axis"]
+    print(f"hold: misses per axis {misses}, rejected {rep['rejected_messages']}")
+    assert misses[1] > 0  # peripheral 2 owns axis 1
+    assert misses[0] == misses[2] == 0
+
+
+def test_fault_policy_names_the_late_peripheral(tmp_path):
+    code, _, out = freeze_briefly(tmp_path, "fault")
+    assert code == 3, out
+    assert "late data: peripheral 2" in out
