@@ -199,7 +199,17 @@ def _progress(show: bool) -> tuple[Any, Any]:
 @click.option("--index", type=click.IntRange(1, 3), required=True)
 def peripheral(index: int, **kw: Any) -> None:
     """Run peripheral K of a unit (connects to the central's endpoint)."""
-    from .launcher import make_setup, run_peripheral
+    from .launcher import run_peripheral
+
+    setup, conf = _role_setup(kw)
+    if index > setup.placement.peripherals:
+        _fail(f"--index {index} is outside [1, {setup.placement.peripherals}]", EXIT_CONFIG)
+    sys.exit(_quiet(lambda: run_peripheral(setup, index, conf)))
+
+
+def _role_setup(kw: dict[str, Any]) -> tuple[Any, Any]:
+    """Setup and Zenoh configuration of a single role (exits on a configuration error)."""
+    from .launcher import make_setup
     from .zsession import make_config, pin_cpus
 
     rc = make_rc(kw)
@@ -207,29 +217,18 @@ def peripheral(index: int, **kw: Any) -> None:
         setup = make_setup(rc)
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), EXIT_CONFIG)
-        return
-    if index > setup.placement.peripherals:
-        _fail(f"--index {index} is outside [1, {setup.placement.peripherals}]", EXIT_CONFIG)
     pin_cpus(rc.pin)
-    conf = make_config(listen=rc.listen, connect=rc.connect, config_file=rc.zenoh_config)
-    sys.exit(_quiet(lambda: run_peripheral(setup, index, conf)))
+    return setup, make_config(listen=rc.listen, connect=rc.connect,
+                              config_file=rc.zenoh_config)
 
 
 @cli.command()
 @run_options
 def plant(**kw: Any) -> None:
     """Run the simulated Delta as a Zenoh node (connects to the central's endpoint)."""
-    from .launcher import make_setup, run_plant
-    from .zsession import make_config, pin_cpus
+    from .launcher import run_plant
 
-    rc = make_rc(kw)
-    try:
-        setup = make_setup(rc)
-    except (ConfigError, ValueError) as exc:
-        _fail(str(exc), EXIT_CONFIG)
-        return
-    pin_cpus(rc.pin)
-    conf = make_config(listen=rc.listen, connect=rc.connect, config_file=rc.zenoh_config)
+    setup, conf = _role_setup(kw)
     sys.exit(_quiet(lambda: run_plant(setup, conf)))
 
 

@@ -57,3 +57,16 @@ def start_json(tmp_path: Path, *args: str, timeout: float = 300.0, tag: str = "r
         kill_unit(unit)
     data = json.loads(report.read_text()) if report.exists() else {}
     return res.returncode, data, res.stdout + res.stderr
+
+
+def wait_status(path: Path, at_least: int, *, timeout: float = 60.0) -> int:
+    """Wait until a run's --status-file says at least ``at_least`` intervals are done."""
+    deadline = time.monotonic() + timeout
+    done = 0
+    while time.monotonic() < deadline:
+        if path.exists():
+            done = int(path.read_text() or 0)
+            if done >= at_least:
+                break
+        time.sleep(0.01)
+    return done

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 from ctrlunit.runtime.recording import read
-from runner import kill_unit, pids_of, unit_id
+from runner import kill_unit, pids_of, unit_id, wait_status
 
 pytestmark = pytest.mark.zenoh
 
@@ -36,11 +36,7 @@ def run_and_break(tmp_path: Path, how: str, role: str, index: int | None, *,
          "--status-file", str(status), "--max-error", "1", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            if status.exists() and int(status.read_text() or 0) >= 300:
-                break
-            time.sleep(0.05)
+        wait_status(status, 300)
         pid = role_pid(unit, role, index)
         t0 = time.monotonic()
         os.kill(pid, signal.SIGKILL if how == "kill" else signal.SIGSTOP)

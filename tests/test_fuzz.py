@@ -67,7 +67,7 @@ def run_unit(tmp_path, unit: str, fuzz: bool) -> tuple[int, dict, str]:
     ports = [free_port() for _ in range(5)]
     eps = [f"tcp/127.0.0.1:{p}" for p in ports]
     report, status = tmp_path / f"{unit}.json", tmp_path / f"{unit}.status"
-    common = ["--unit", unit, "--clock", "lockstep", "--cycles", "1200", "--peripherals", "3"]
+    common = ["--unit", unit, "--clock", "lockstep", "--cycles", "3000", "--peripherals", "3"]
     cli = [sys.executable, "-m", "ctrlunit.runtime.cli"]
     central = subprocess.Popen(cli + ["central", *common, "--listen", eps[0], "--report",
                                       str(report), "--status-file", str(status)],

@@ -11,7 +11,7 @@ import sys
 import time
 
 import pytest
-from runner import kill_unit, unit_id
+from runner import kill_unit, unit_id, wait_status
 from test_faults import role_pid
 
 pytestmark = pytest.mark.zenoh
@@ -26,11 +26,7 @@ def freeze_briefly(tmp_path, policy: str) -> tuple[int, dict, str]:
          "--max-error", "1", "--report", str(report), "--status-file", str(status)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            if status.exists() and int(status.read_text() or 0) >= 40:
-                break
-            time.sleep(0.01)
+        wait_status(status, 40)
         pid = role_pid(unit, "peripheral", 2)
         os.kill(pid, signal.SIGSTOP)  # 15 ms: past the round deadlines (5 and 10 ms after
         time.sleep(0.015)             # the sample), short of the 30 ms liveness limit

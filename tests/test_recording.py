@@ -14,7 +14,7 @@ import pytest
 from ctrlunit.runtime.recording import read
 from ctrlunit.runtime.replay import verify
 from mcap.reader import make_reader
-from runner import ctrlunit, kill_unit, pids_of, start_json, unit_id
+from runner import ctrlunit, kill_unit, pids_of, start_json, unit_id, wait_status
 
 pytestmark = pytest.mark.zenoh
 CYCLES = int(os.environ.get("CTRLUNIT_RECORD_CYCLES", "10000"))
@@ -92,11 +92,7 @@ def test_kill_9_of_the_central_leaves_a_salvageable_recording(tmp_path):
          "--status-file", str(status)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            if status.exists() and int(status.read_text() or 0) >= 3000:
-                break
-            time.sleep(0.1)
+        wait_status(status, 3000)
         os.kill(proc.pid, signal.SIGSTOP)  # freeze it to read how far it got
         done = int(status.read_text())
         os.kill(proc.pid, signal.SIGKILL)

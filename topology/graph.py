@@ -142,6 +142,16 @@ def _observer_blocks(iterations: int, observer: str) -> list[Block]:
     return out
 
 
+def _state_blocks() -> list[Block]:
+    """Per-axis kinematics at the observed state: q_i, the J^-1 row and its derivative
+    times pdot (Eq. V.16-V.30)."""
+    return [
+        _b("ik", AXIS, "ik", "p", "ax_i q_i", "V.16-V.21"),
+        _b("jinv", AXIS, "jinv", "ax_i", "row_i", "V.24-V.26"),
+        _b("jdot", AXIS, "jdot", "ax_i row_i pd", "qd_i jdp_i", "V.28-V.30"),
+    ]
+
+
 def _reference_joint_blocks() -> list[Block]:
     """Joint-space reference q_c, qdot_c, qddot_c from the operational one (per axis)."""
     return [
@@ -186,9 +196,7 @@ def stage_graph(
     if law == "resolved-acceleration":
         blocks = ref + _observer_blocks(iterations, observer) + [
             _b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14"),
-            _b("ik", AXIS, "ik", "p", "ax_i q_i", "V.16-V.21"),
-            _b("jinv", AXIS, "jinv", "ax_i", "row_i", "V.24-V.26"),
-            _b("jdot", AXIS, "jdot", "ax_i row_i pd", "qd_i jdp_i", "V.28-V.30"),
+            *_state_blocks(),
             _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
             _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qdd_i pdd", "tauq_i f_i",
                "V.50 joint part (qA qddot + qg + coupling)"),
@@ -198,9 +206,7 @@ def stage_graph(
     elif law == KINEMATICS:
         blocks = ref + _observer_blocks(iterations, observer) + [
             _b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14"),
-            _b("ik", AXIS, "ik", "p", "ax_i q_i", "V.16-V.21"),
-            _b("jinv", AXIS, "jinv", "ax_i", "row_i", "V.24-V.26"),
-            _b("jdot", AXIS, "jdot", "ax_i row_i pd", "qd_i jdp_i", "V.28-V.30"),
+            *_state_blocks(),
             _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
             _b("collect", CENTRAL, "collect", "qdd_i", "tau", "joint accelerations out",
                (("taufb_i", "qdd_i"),)),
@@ -209,10 +215,7 @@ def stage_graph(
         blocks = ref + _reference_joint_blocks() + [
             _b("joint_law", AXIS, "joint_law", "qc_i qdc_i qddc_i qmeas_i qdmeas_i",
                "qddcmd_i", "Fig. 18 (qddot* = qddot_c + kp q~ + kd q~dot)"),
-        ] + _observer_blocks(iterations, observer) + [
-            _b("ik", AXIS, "ik", "p", "ax_i q_i", "V.16-V.21"),
-            _b("jinv", AXIS, "jinv", "ax_i", "row_i", "V.24-V.26"),
-            _b("jdot", AXIS, "jdot", "ax_i row_i pd", "qd_i jdp_i", "V.28-V.30"),
+        ] + _observer_blocks(iterations, observer) + _state_blocks() + [
             _b("task_accel", CENTRAL, "task_accel", "row_i qddcmd_i jdp_i", "pdd",
                "pddot = J (qddot* - dJ^-1/dt pdot)"),
             _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qddcmd_i pdd", "tauq_i f_i",
