@@ -117,3 +117,35 @@ def test_kill_9_of_the_central_leaves_a_salvageable_recording(tmp_path):
     assert res.returncode == 0 and "salvaged" in res.stderr
     n, div = verify(rec)
     assert div is None and n >= 0.99 * done
+
+
+def test_replay_republishes_on_zenoh_with_rate_and_topics(tmp_path):
+    import queue as q
+
+    import zenoh
+    from ctrlunit.runtime.zsession import make_config
+    from test_fuzz import free_port
+
+    path = tmp_path / "short.mcap"
+    code, _, out = start_json(tmp_path, "--peripherals", "1", "--clock", "lockstep",
+                              "--cycles", "200", "--record", str(path), tag="short")
+    assert code == 0, out
+    port, unit = free_port(), unit_id("replay")
+    got: q.SimpleQueue = q.SimpleQueue()
+    with zenoh.open(make_config(listen=[f"tcp/127.0.0.1:{port}"])) as s:
+        sub = s.declare_subscriber(f"ctrlunit/{unit}/**", lambda x: got.put(str(x.key_expr)))
+        t0 = time.monotonic()
+        res = ctrlunit("replay", str(path), "--unit", unit, "--rate", "5", "--topics",
+                       "/plant/command", "--connect", f"tcp/127.0.0.1:{port}")
+        wall = time.monotonic() - t0
+        time.sleep(0.3)
+        sub.undeclare()
+    assert res.returncode == 0, res.stderr
+    keys = []
+    while not got.empty():
+        keys.append(got.get())
+    assert len(keys) >= 190 and set(keys) == {f"ctrlunit/{unit}/plant/command"}
+    rec = read(path)
+    span_s = (rec.topics["/plant/command"][-1][0] - rec.topics["/plant/command"][0][0]) / 1e9
+    print(f"republished {len(keys)} commands in {wall:.2f} s (recorded span {span_s:.2f} s, "
+          "rate 5)")
