@@ -88,6 +88,8 @@ def run_options(fn: Any) -> Any:
                      show_default=True),
         click.option("--plant-lag", default="0s", callback=_duration_or_zero,
                      help="Actuator time constant (Eq. IV.6)."),
+        click.option("--plant-friction", type=click.FloatRange(0.0, 100.0), default=0.0,
+                     show_default=True, help="Viscous friction on each joint (N m s/rad)."),
         click.option("--belt", is_flag=True, help="Simulate the elastic belt (§ V.6.3)."),
         click.option("--spec", type=click.Path(dir_okay=False), default=None,
                      help="Run configuration written by ctrlunit start (internal)."),

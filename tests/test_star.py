@@ -126,3 +126,15 @@ def test_realtime_at_6ms_tracks_without_fault(tmp_path):
     print(f"realtime 6 ms depth 2: misses {rep['deadline_misses']}, tracking max "
           f"{rep['tracking_error_m']['max'] * 1e3:.2f} mm")
     assert rep["tracking_error_m"]["max"] < 0.02
+
+
+def test_plant_options_reach_the_plant(tmp_path):
+    """Lag and friction the model does not know make tracking worse (lockstep: exact)."""
+    args = ("--peripherals", "1", "--clock", "lockstep", "--cycles", "300")
+    _, ideal, _ = start_json(tmp_path, *args, tag="ideal")
+    code, real, out = start_json(tmp_path, *args, "--plant-lag", "2ms", "--plant-friction",
+                                 "0.05", tag="lag")
+    assert code == 0, out
+    print(f"tracking: ideal plant {ideal['tracking_error_m']['max'] * 1e3:.3f} mm, 2 ms lag "
+          f"+ friction {real['tracking_error_m']['max'] * 1e3:.3f} mm")
+    assert real["tracking_error_m"]["max"] > 1.5 * ideal["tracking_error_m"]["max"]
