@@ -92,18 +92,6 @@ def shape_of(name: str) -> tuple[int, ...]:
     return (3,)  # positions, velocities, accelerations, torques
 
 
-def check_value(x: Any, name: str) -> Any:
-    """Validate a value against :func:`shape_of` ``(name)``."""
-    shape = shape_of(name)
-    if shape == ():
-        return check_float(x, name)
-    if len(shape) == 1:
-        return check_vector(x, shape[0], name)
-    if not isinstance(x, list) or len(x) != shape[0]:
-        raise BadMessage("bad_value", f"{name} must be {shape[0]} rows")
-    return [check_vector(r, shape[1], name) for r in x]
-
-
 _SHAPES: dict[str, tuple[int, ...]] = {}
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import statistics
 from typing import Any
 
 import numpy as np
@@ -156,7 +155,3 @@ def summary(r: dict[str, Any]) -> str:
         f = r["fault"]
         lines.append(f"  FAULT in {f['process']}: {f['message']} (exit {f['code']})")
     return "\n".join(lines)
-
-
-def median(xs: list[float]) -> float:
-    return statistics.median(xs) if xs else math.nan
