@@ -62,10 +62,10 @@ def _zenoh_child(endpoint: str, index: int, unit: str) -> None:
     from ctrlunit.runtime.node import Node
     from ctrlunit.runtime.zsession import make_config
 
-    node = Node(make_config(connect=[endpoint]), unit, f"floor-{index}")
-    node.subscribe(f"ctrlunit/{unit}/floor/req", "req")
-    pub = node.publisher(f"ctrlunit/{unit}/floor/rep/{index}")
-    hello = node.publisher(f"ctrlunit/{unit}/floor/hello")
+    node = Node(make_config(connect=[endpoint]), unit, f"floor-{index}", inbox="peripheral")
+    node.route(node.keys.request, "req")
+    pub = node.publisher(node.keys.reply(index + 1))
+    hello = node.publisher(node.keys.hello)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         try:
@@ -80,7 +80,8 @@ def _zenoh_child(endpoint: str, index: int, unit: str) -> None:
 
 
 def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[float]:
-    """Per-round times (s) of the same scatter/gather over Zenoh (the unit's settings)."""
+    """Per-round times (s) of the same scatter/gather over Zenoh (the unit's settings, keys
+    and inboxes)."""
     from ctrlunit.runtime.node import Node
     from ctrlunit.runtime.zsession import make_config
 
@@ -88,9 +89,10 @@ def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[f
     endpoint = f"unixsock-stream/{run_dir}/c.sock"
     unit = f"floor{os.getpid()}"
     node = Node(make_config(listen=[endpoint]), unit, "central")
-    node.subscribe(f"ctrlunit/{unit}/floor/rep/*", "rep")
-    node.subscribe(f"ctrlunit/{unit}/floor/hello", "hello")
-    pub = node.publisher(f"ctrlunit/{unit}/floor/req")
+    for k in range(n):
+        node.route(node.keys.reply(k + 1), "rep", k)
+    node.route(node.keys.hello, "hello")
+    pub = node.publisher(node.keys.request)
     ctx = mp.get_context("spawn")
     procs = [ctx.Process(target=_zenoh_child, args=(endpoint, k, unit), daemon=True)
              for k in range(n)]

@@ -131,12 +131,12 @@ class Central:
         keys = node.keys
         self.pub_req = node.publisher(keys.request) if self.n else None
         self.pub_cmd = node.publisher(keys.command)
-        self.pub_ctl = node.publisher(keys.control)
+        self.pub_ctl = [node.publisher(keys.control(r)) for r in ("peripheral", "plant")]
         for k in range(self.n):
-            node.subscribe(keys.reply(k + 1), "reply", k)
-        node.subscribe(keys.hello, "hello")
+            node.route(keys.reply(k + 1), "reply", k)
+        node.route(keys.hello, "hello")
         if rc.clock != "freerun":
-            node.subscribe(keys.sample, "sample")
+            node.route(keys.sample, "sample")
         self.log = CycleLog()
         self.inflight: OrderedDict[int, InFlight] = OrderedDict()
         self.samples: dict[int, tuple[list[int], int]] = {}
@@ -202,7 +202,10 @@ class Central:
         self.say("go")
 
     def say(self, stage: str, **extra: Any) -> None:
-        self.pub_ctl.put(encode(self.node.unit, 0, stage, **extra))
+        """Publish a control order (go, start, stop) to every other role."""
+        payload = encode(self.node.unit, 0, stage, **extra)
+        for pub in self.pub_ctl:
+            pub.put(payload)
 
     # -- the loop ---------------------------------------------------------------------
 

@@ -24,7 +24,7 @@ ALL_AXES = (0, 1, 2)
 def declare(node: Node, index: int) -> Any:
     """Declare the request subscriber and the reply publisher (before the handshake, so
     that nothing the central sends after ``go`` can be missed)."""
-    node.subscribe(node.keys.request, "request")
+    node.route(node.keys.request, "request")
     return node.publisher(node.keys.reply(index + 1))
 
 

@@ -36,7 +36,7 @@ class PlantServer:
         self.plant = plant
         self.depth = depth
         self.pub = node.publisher(node.keys.sample)
-        node.subscribe(node.keys.command, "command")
+        node.route(node.keys.command, "command")
         self.commands: dict[int, list[float]] = {}
         self.applied_cycle = -1
         self.plant.set_command(initial)

@@ -2,8 +2,9 @@
 
 Channels
 --------
-``msgpack`` (raw bytes exactly as on the wire; log time = send or receive time, ns):
-  ``/plant/sample``, ``/plant/command``, ``/peripheral/K/request``, ``/peripheral/K/reply``.
+``msgpack`` (raw bytes exactly as on the wire; log time = send or receive time, ns), named
+  by their Zenoh key without ``ctrlunit/<unit>`` (keys are addressed by destination):
+  ``/central/sample``, ``/plant/command``, ``/peripheral/request``, ``/central/reply/K``.
 ``msgpack``: ``/timing/spans`` (per interval: ``[[process, t0, t1], ...]``),
   ``/faults/rejected`` (rejection counters, every 500 intervals and at the end),
   ``/faults/deadline`` (deadline misses and skipped samples as they change).

@@ -99,7 +99,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     rc = RunConfig(**cfg)
     rc.record = rc.report = None
     setup = make_setup(rc)
-    samples = {m["cycle"]: m for _, m in rec.decoded("/plant/sample")}
+    samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
     cmd_ns, sample_ns, commands = [], [], []
     true_p: dict[int, tuple[float, float, float]] = {}
     for t, m in rec.decoded("/plant/command"):

@@ -48,15 +48,16 @@ def _setup(rec: Recording) -> Any:
     return make_setup(rc)
 
 
-def _index(rec: Recording, topic_prefix: str) -> dict[tuple[int, int, Any], dict]:
-    """(peripheral, cycle, stage) -> reply, or (cycle, stage) -> request."""
+def _index(rec: Recording, kind: str) -> dict[tuple[int, ...], dict]:
+    """``kind`` "request": (cycle, stage) -> request; "reply": (peripheral, cycle, stage)
+    -> reply."""
     out: dict[tuple[int, ...], dict] = {}
     for topic in rec.topics:
-        if topic == "/peripheral/request" and topic_prefix == "/request":
+        if topic == "/peripheral/request" and kind == "request":
             for _, m in rec.decoded(topic):
                 out[(m["cycle"], m["stage"])] = m
-        elif topic.startswith("/peripheral/") and topic.endswith(topic_prefix):
-            k = int(topic.split("/")[2]) - 1
+        elif topic.startswith("/central/reply/") and kind == "reply":
+            k = int(topic.split("/")[3]) - 1
             for _, m in rec.decoded(topic):
                 out[(k, m["cycle"], m["stage"])] = m
     return out
@@ -70,7 +71,7 @@ def _plain(v: Any) -> Any:
 
 def cycles_in_order(rec: Recording) -> list[tuple[int, list[int]]]:
     """Started intervals in order with their encoder counts (from the commands' cycles)."""
-    samples = {m["cycle"]: m["counts"] for _, m in rec.decoded("/plant/sample")}
+    samples = {m["cycle"]: m["counts"] for _, m in rec.decoded("/central/sample")}
     out = []
     for _, m in rec.decoded("/plant/command"):
         k = m["cycle"]
@@ -124,7 +125,7 @@ def verify(
     ctl = Controller(engine, setup.rc.period, setup.params.increment, tuple(setup.task.start()))
     hand = handoff_step(plan)
     round_step = {s.round.index: k for k, s in enumerate(plan.steps) if s.round is not None}
-    requests, replies = _index(rec, "/request"), _index(rec, "/reply")
+    requests, replies = _index(rec, "request"), _index(rec, "reply")
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
     central_trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
     current = {"cycle": -1}

@@ -30,7 +30,9 @@ def check_unit_id(unit: str) -> str:
 
 @dataclass(frozen=True)
 class Keys:
-    """Key expressions of one unit."""
+    """Key expressions of one unit, addressed by destination: every key a role receives
+    lies under its inbox ``ctrlunit/<unit>/<role>/`` (``central``, ``peripheral``,
+    ``plant``), so that each role reads all of its traffic from one subscriber."""
 
     unit: str
 
@@ -38,33 +40,37 @@ class Keys:
     def root(self) -> str:
         return f"ctrlunit/{self.unit}"
 
+    def inbox(self, role: str) -> str:
+        """The key prefix of everything ``role`` (central, peripheral, plant) receives."""
+        return f"{self.root}/{role}"
+
     @property
     def sample(self) -> str:
-        return f"{self.root}/plant/sample"
-
-    @property
-    def command(self) -> str:
-        return f"{self.root}/plant/command"
-
-    @property
-    def request(self) -> str:
-        """One request per round for every peripheral (each reads its own axes)."""
-        return f"{self.root}/peripheral/request"
+        """Plant -> central: encoder counts of one sample."""
+        return f"{self.root}/central/sample"
 
     def reply(self, k: int) -> str:
-        return f"{self.root}/peripheral/{k}/reply"
+        """Peripheral k -> central: the values of one round."""
+        return f"{self.root}/central/reply/{k}"
 
     @property
     def hello(self) -> str:
-        return f"{self.root}/control/hello"
+        """Any role -> central: hello and bye."""
+        return f"{self.root}/central/hello"
 
     @property
-    def control(self) -> str:
-        return f"{self.root}/control/central"
+    def request(self) -> str:
+        """Central -> every peripheral: one request per round (each reads its own axes)."""
+        return f"{self.root}/peripheral/request"
 
     @property
-    def all_keys(self) -> str:
-        return f"{self.root}/**"
+    def command(self) -> str:
+        """Central -> plant: the torques of one interval."""
+        return f"{self.root}/plant/command"
+
+    def control(self, role: str) -> str:
+        """Central -> ``role`` (peripheral or plant): go, start, stop."""
+        return f"{self.root}/{role}/control"
 
 
 def make_config(

@@ -87,7 +87,8 @@ def run_unit(tmp_path, unit: str, fuzz: bool) -> tuple[int, dict, str]:
                 time.sleep(0.05)
             keys = Keys(unit)
             targets = [keys.sample, keys.command, keys.request, keys.reply(1), keys.reply(2),
-                       keys.reply(3), keys.hello, keys.control]
+                       keys.reply(3), keys.hello, keys.control("peripheral"),
+                       keys.control("plant")]
             rng = random.Random(7)
             with zenoh.open(make_config(connect=eps)) as s:
                 t0 = time.monotonic()  # connected to all five processes before fuzzing

@@ -22,15 +22,15 @@ def freeze_briefly(tmp_path, policy: str) -> tuple[int, dict, str]:
     report, status = tmp_path / f"{policy}.json", tmp_path / f"{policy}.status"
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
-         "realtime", "--period", "10ms", "--cycles", "150", "--late-policy", policy,
+         "realtime", "--period", "20ms", "--cycles", "120", "--late-policy", policy,
          "--max-error", "1", "--report", str(report), "--status-file", str(status)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         wait_status(status, 40)
         pid = role_pid(unit, "peripheral", 2)
-        os.kill(pid, signal.SIGSTOP)  # 15 ms: past the round deadlines (5 and 10 ms after
-        time.sleep(0.015)             # the sample), short of the 30 ms liveness limit
-        os.kill(pid, signal.SIGCONT)
+        os.kill(pid, signal.SIGSTOP)  # 30 ms: past the round deadlines (10 and 20 ms after
+        time.sleep(0.030)             # the sample), short of the 60 ms liveness limit; the
+        os.kill(pid, signal.SIGCONT)  # 10 ms margin keeps this VM's hiccups from others' axes
         out, _ = proc.communicate(timeout=120)
     finally:
         kill_unit(unit)
