@@ -14,7 +14,14 @@ from dataclasses import dataclass
 
 from ..kernels import kinematics as kin
 from ..kernels.dynamics import ModelCoefficients, axis_dynamics, coefficients, operational_force
-from ..kernels.laws import Gains, joint_command, joint_pd, nominal_joint_inertia, saturate
+from ..kernels.laws import (
+    Gains,
+    joint_command,
+    joint_pd,
+    nominal_joint_inertia,
+    operational_command,
+    saturate,
+)
 from ..kernels.params import DeltaParams
 from ..kernels.trajectory import Task
 from ..topology.graph import Block
@@ -176,8 +183,6 @@ def k_velocity(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
 
 
 def k_law(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
-    from ..kernels.laws import operational_command
-
     c[n["pdd"]] = operational_command(cfg.gains, c[n["pc"]], c[n["vc"]], c[n["ac"]], c[n["p"]],
                                       c[n["pd"]])
 

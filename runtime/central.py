@@ -9,6 +9,13 @@ one interval while the peripherals work on the other. Every message carries its 
 round; a reply for anything else is counted and dropped. Every wait is bounded: a missing
 reply or sample is a detected fault, never a hang.
 
+Fused exchanges: rounds that are ready at the same moment go out as the parts of one
+request (and come back as the parts of one reply per peripheral). At depth 2 the second
+round of interval k and the first round of k+1 are ready together (Fig. 24: the
+peripherals work on both halves at once), so an interval costs one exchange instead of
+two, with the same arithmetic. In ``realtime`` the second half of k waits for sample k+1
+(at most a quarter period past its expected time) so that the exchange is fused there too.
+
 Clocks
 ------
 ``lockstep`` and ``realtime``: interval k starts from plant sample k (``realtime`` skips
@@ -32,10 +39,10 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..kernels.kinematics import inverse_kinematics
+from ..kernels.kinematics import ik_axis, inverse_kinematics
 from ..topology.plan import Round
 from .blocks import ObserverDiverged
-from .codec import BadMessage, check_vals, check_vector, encode
+from .codec import BadMessage, check_span, check_vals, check_vector, encode, parts_of
 from .config import EXIT_LINK, EXIT_OBSERVER, EXIT_OK, EXIT_PERIPHERAL, EXIT_PLANT, RunConfig
 from .controller import Controller, handoff_step
 from .engine import CostModel, Engine
@@ -64,6 +71,8 @@ class InFlight:
     handed_off: bool = False
     started: bool = False
     late_ns: int = 0  # realtime: when this round's data is late (its share of the deadline)
+    queued: bool = False  # its next round is ready but not sent yet (fused exchanges)
+    finishing: bool = False  # every exchange done; its last central steps are pending
     dropped: set[int] = field(default_factory=set)  # peripherals whose replies were held
 
 
@@ -168,6 +177,10 @@ class Central:
         self.cycle_spans: dict[int, list[tuple[str, int, int]]] = {}
         self.child_check: Callable[[], tuple[str, int] | None] | None = None
         self._next_child_check = 0.0
+        self.outbox: list[InFlight] = []  # intervals whose next round waits to be sent
+        self.exchanges = 0  # requests sent (each may carry several rounds)
+        self.period_ns = int(rc.period * 1e9)
+        self.last_round = self.plan.rounds[-1].index if self.plan.rounds else -1
 
     # -- start-up ---------------------------------------------------------------------
 
@@ -218,7 +231,10 @@ class Central:
                                                and not self.inflight):
             self._start_ready()
             now = time.monotonic_ns()
+            hold_until = self._flush(now)
             wait_until = now + timeout_ns
+            if hold_until:
+                wait_until = min(wait_until, hold_until)
             for f in self.inflight.values():
                 if f.waiting:
                     wait_until = min(wait_until, f.deadline_ns)
@@ -265,8 +281,9 @@ class Central:
             except (StopIteration, ObserverDiverged):
                 return
             cycle = self.WARMUP_BASE + i
-            payload = encode(self.node.unit, cycle, rnd.index,
-                             vals=Engine.request_vals(rnd, ctx, (0, 1, 2)))
+            payload = encode(self.node.unit, cycle, rnd.index, parts=[
+                {"cycle": cycle, "stage": rnd.index,
+                 "vals": Engine.request_vals(rnd, ctx, (0, 1, 2))}])
             waiting = set(range(self.n))
             deadline = time.monotonic() + self.rc.startup_timeout
             resend = 0.0
@@ -309,8 +326,8 @@ class Central:
                     f"peripheral {k + 1} did not answer round {f.round.index if f.round else '?'}"
                     f" of cycle {f.cycle} within {timeout_ns / 1e6:.1f} ms",
                     process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
-        if (self.rc.clock != "freerun" and not self.inflight and not self.samples
-                and self.next_cycle < self.cycles):
+        if (self.rc.clock != "freerun" and not self.samples and self.next_cycle < self.cycles
+                and not any(f.waiting for f in self.inflight.values())):
             last = self.last_sample_ns or self.t_start_ns
             if now - last > timeout_ns + (int(self.rc.period * 1e9) if
                                           self.rc.clock == "realtime" else 0):
@@ -447,46 +464,72 @@ class Central:
         msg = self.node.decode(data)
         if msg is None:
             return
-        f = self.inflight.get(msg["cycle"])
-        if f is None or f.round is None or msg["stage"] != f.round.index or k not in f.waiting:
-            key = (msg["cycle"], msg["stage"], k)
-            if key in self.held:  # its values were replaced by the last ones (hold)
-                self.held.discard(key)
-                self.last_reply_ns[k] = rx
-                self.node.reject("late_reply")
-            else:
-                self.node.reject("unexpected_reply")
-            return
-        axes = self.plan.placement.axes[k]
         try:
-            vals = check_vals(msg.get("vals"), f.round.recv, len(axes))
-            if "trace" in msg and not isinstance(msg["trace"], dict):
-                raise BadMessage("bad_value", "trace")
-            span = msg.get("span")
-            if not (isinstance(span, list) and len(span) == 2 and all(
-                    isinstance(x, int) and not isinstance(x, bool) for x in span)):
-                raise BadMessage("bad_value", "span")
+            parts = parts_of(msg)
         except BadMessage as exc:
             self.node.reject(exc.reason)
             return
-        if self.on_message is not None:
-            self.on_message("in", self.node.keys.reply(k + 1), f.cycle, f.round.index, data, rx)
-        Engine.merge(f.ctx, vals, axes)
+        axes = self.plan.placement.axes[k]
+        complete = []
+        accepted = False
+        for part in parts:
+            f = self.inflight.get(part["cycle"])
+            if (f is None or f.round is None or part["stage"] != f.round.index
+                    or k not in f.waiting):
+                key = (part["cycle"], part["stage"], k)
+                if key in self.held:  # its values were replaced by the last ones (hold)
+                    self.held.discard(key)
+                    self.last_reply_ns[k] = rx
+                    self.node.reject("late_reply")
+                else:
+                    self.node.reject("unexpected_reply")
+                continue
+            try:
+                vals = check_vals(part.get("vals"), f.round.recv, len(axes))
+                if "trace" in part and not isinstance(part["trace"], dict):
+                    raise BadMessage("bad_value", "trace")
+                span = check_span(part.get("span"))
+            except BadMessage as exc:
+                self.node.reject(exc.reason)
+                continue
+            accepted = True
+            Engine.merge(f.ctx, vals, axes)
+            for name, v in vals.items():
+                slot = self.last_vals.setdefault(name, [None, None, None])
+                for j, a in enumerate(axes):
+                    slot[a] = v[j]
+            self.periph_busy_ns[k] += span[1] - span[0]
+            self._span(f"peripheral_{k + 1}", f.cycle, span[0], span[1])
+            f.waiting.discard(k)
+            if not f.waiting:
+                complete.append(f)
+        if not accepted:
+            return
         self.last_reply_ns[k] = rx
-        for name, v in vals.items():
-            slot = self.last_vals.setdefault(name, [None, None, None])
-            for j, a in enumerate(axes):
-                slot[a] = v[j]
-        self.periph_busy_ns[k] += span[1] - span[0]
-        self._span(f"peripheral_{k + 1}", f.cycle, span[0], span[1])
-        f.waiting.discard(k)
-        if not f.waiting:
-            self._advance(f)
+        if self.on_message is not None:
+            self.on_message("in", self.node.keys.reply(k + 1), msg["cycle"], msg["stage"],
+                            data, rx)
+        # depth 2: intervals with more rounds first; those whose last round this was
+        # finish after the next request is out (their last central blocks, command,
+        # recording and progress overlap the peripherals' work)
+        finishing = [f for f in complete if f.round is not None
+                     and f.round.index == self.last_round] if self.depth > 1 else []
+        for f in complete:
+            if f not in finishing:
+                self._advance(f)
+        if finishing:
+            for f in finishing:
+                f.finishing = True
+            self._start_ready()
+            self._flush(time.monotonic_ns())
+            for f in finishing:
+                self._advance(f)
 
     # -- intervals --------------------------------------------------------------------
 
     def _may_start(self) -> bool:
-        if len(self.inflight) >= self.depth or self.next_cycle >= self.cycles:
+        live = sum(1 for f in self.inflight.values() if not f.finishing)
+        if live >= self.depth or self.next_cycle >= self.cycles:
             return False
         if self.inflight:
             last = next(reversed(self.inflight.values()))
@@ -526,8 +569,9 @@ class Central:
 
     def _synthetic_sample(self, k: int) -> list[int]:
         p = self.engine.cfg.task.sample(k * self.rc.period)[0]  # type: ignore[union-attr]
-        inc = self.engine.cfg.params.increment
-        return [round(q / inc) for q in inverse_kinematics(self.engine.cfg.params, p)]
+        params = self.engine.cfg.params
+        x, y, z = float(p[0]), float(p[1]), float(p[2])
+        return [round(ik_axis(params, i, x, y, z).q / params.increment) for i in range(3)]
 
     def _advance(self, f: InFlight) -> None:
         """Run the interval's central steps up to its next round (or its end)."""
@@ -543,23 +587,60 @@ class Central:
         if not f.handed_off and (rnd is None or self.round_step[rnd.index] > self.hand):
             self.ctl.handoff(f.ctx)
             f.handed_off = True
-            self._check_state(f)
         if rnd is None:
             self._finish(f)
             return
         f.round = rnd
-        f.waiting = set(range(self.n))
-        f.deadline_ns = time.monotonic_ns() + self._timeout_ns()
-        if self.rc.clock == "realtime" and self.plan.round_trips:
-            share = (rnd.index + 1) / self.plan.round_trips
-            f.late_ns = f.sample_ns + int(self.depth * self.rc.period * share * 1e9)
-        payload = encode(self.node.unit, f.cycle, rnd.index,
-                         vals=Engine.request_vals(rnd, f.ctx, (0, 1, 2)))
-        self.pub_req.put(payload)
-        if self.on_message is not None:
-            self.on_message("out", self.node.keys.request, f.cycle, rnd.index, payload,
-                            time.monotonic_ns())
+        f.queued = True
+        self.outbox.append(f)
         self._span("central", f.cycle, f.start_ns, time.monotonic_ns())
+
+    def _flush(self, now: int) -> int:
+        """Send every queued round as the parts of one request; returns, when a round is
+        held back to be fused with the next interval's first round (realtime, depth 2),
+        the time until which it is held, else 0."""
+        if not self.outbox:
+            return 0
+        hold_until = self._hold_until()
+        if hold_until and now < hold_until:
+            return hold_until
+        timeout_ns = self._timeout_ns()
+        parts = []
+        for f in self.outbox:
+            rnd = f.round
+            assert rnd is not None
+            f.queued = False
+            f.waiting = set(range(self.n))
+            f.deadline_ns = now + timeout_ns
+            if self.rc.clock == "realtime" and self.plan.round_trips:
+                share = (rnd.index + 1) / self.plan.round_trips
+                f.late_ns = f.sample_ns + int(self.depth * self.period_ns * share)
+            parts.append({"cycle": f.cycle, "stage": rnd.index,
+                          "vals": Engine.request_vals(rnd, f.ctx, (0, 1, 2))})
+        self.outbox.clear()
+        payload = encode(self.node.unit, parts[0]["cycle"], parts[0]["stage"], parts=parts)
+        self.pub_req.put(payload)
+        self.exchanges += 1
+        if self.on_message is not None:
+            self.on_message("out", self.node.keys.request, parts[0]["cycle"],
+                            parts[0]["stage"], payload, time.monotonic_ns())
+        return 0
+
+    def _hold_until(self) -> int:
+        """Depth 2 with a plant: a lone round of an interval past its hand-off waits for
+        the next interval's first round, so that both go in one exchange. In realtime the
+        next sample is due one period after this interval's; the round waits at most a
+        quarter period past that (a late or lost sample). In lockstep the next sample
+        follows the command just sent; the plant's silence is a fault after
+        ``--timeout``."""
+        if self.rc.clock == "freerun" or self.depth < 2 or len(self.outbox) != 1:
+            return 0
+        f = self.outbox[0]
+        if not f.handed_off or self.next_cycle > f.cycle + 1 or self.next_cycle >= self.cycles:
+            return 0
+        if self.rc.clock == "realtime":
+            return f.sample_ns + self.period_ns + self.period_ns // 4
+        return time.monotonic_ns() + self._timeout_ns()
 
     def _check_state(self, f: InFlight) -> None:
         """The observed state must track the reference and stay in the usable workspace
@@ -590,6 +671,7 @@ class Central:
         raise Fault(f"cycle {f.cycle}: {why}{hint}", process="central", code=EXIT_OBSERVER)
 
     def _finish(self, f: InFlight) -> None:
+        self._check_state(f)  # here, after the next request is out: off the critical path
         cmd = f.ctx["cmd"]
         payload = encode(self.node.unit, f.cycle, "command", tau=[float(x) for x in cmd])
         self.pub_cmd.put(payload)

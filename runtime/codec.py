@@ -11,9 +11,10 @@ from typing import Any
 
 import msgpack
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: requests and replies carry ``parts``
 MAX_MESSAGE_BYTES = 64 * 1024
 MAX_CYCLE = 2**62
+MAX_PARTS = 4
 
 
 class BadMessage(ValueError):
@@ -60,6 +61,45 @@ def decode(data: bytes, unit: str) -> dict[str, Any]:
     if isinstance(stage, bool) or not isinstance(stage, int | str):
         raise BadMessage("bad_stage", repr(stage)[:40])
     return msg
+
+
+def parts_of(msg: dict[str, Any]) -> list[dict[str, Any]]:
+    """The parts of a request or reply.
+
+    A part is one round of one interval: a map with its own ``cycle``, ``stage`` (the
+    round) and ``vals`` (a reply part also ``span`` and, when recording, ``trace``). At
+    pipeline depth 2 one exchange carries two parts, the second half of interval k and
+    the first half of k+1 (§ IV.7.2, Fig. 24). The envelope's ``cycle`` and ``stage`` are
+    those of the first part.
+
+    Raises
+    ------
+    BadMessage
+        On a missing or malformed parts list, or a part without a valid cycle or stage.
+    """
+    parts = msg.get("parts")
+    if type(parts) is not list or not 1 <= len(parts) <= MAX_PARTS:
+        raise BadMessage("bad_parts", f"parts must be a list of 1 to {MAX_PARTS} maps")
+    for part in parts:
+        if type(part) is not dict:
+            raise BadMessage("bad_parts", "a part must be a map")
+        cycle = part.get("cycle")
+        if isinstance(cycle, bool) or not isinstance(cycle, int) or not 0 <= cycle < MAX_CYCLE:
+            raise BadMessage("bad_cycle", repr(cycle)[:40])
+        stage = part.get("stage")
+        if isinstance(stage, bool) or not isinstance(stage, int):
+            raise BadMessage("bad_stage", repr(stage)[:40])
+    if parts[0]["cycle"] != msg["cycle"] or parts[0]["stage"] != msg["stage"]:
+        raise BadMessage("bad_parts", "the envelope must name the first part")
+    return parts
+
+
+def check_span(span: Any) -> list[int]:
+    """A compute span ``[t0, t1]`` in integer nanoseconds."""
+    if not (type(span) is list and len(span) == 2 and all(
+            isinstance(x, int) and not isinstance(x, bool) for x in span)):
+        raise BadMessage("bad_value", "span must be two integers")
+    return span
 
 
 def check_float(x: Any, what: str) -> float:

@@ -414,6 +414,7 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         deadline_misses=central.plant_misses, skipped=central.skipped, rejected=rejected,
         t1_s=t1, per_block_s=per_block, fault=fault,
         wall_s=(central.t_end_ns - central.t_start_ns) / 1e9, cost_error_s=cost_err,
+        exchanges=central.exchanges if setup.placement.peripherals else None,
     )
 
 

@@ -1,8 +1,10 @@
 """The peripheral role: runs the per-axis blocks of its axes on request.
 
-Each request carries the cycle, the round (``stage``) and exactly the values the round's
-blocks need; the reply carries the values the central needs and the compute span
-``(t0, t1)`` on the host's monotonic clock. Values from earlier rounds of the same cycle
+Each request carries one or more parts (at pipeline depth 2, the second round of interval
+k and the first of k+1 in one message); a part names its cycle, its round (``stage``) and
+holds exactly the values the round's blocks need. The reply has one part per request
+part: the values the central needs and the compute span ``(t0, t1)`` on the host's
+monotonic clock. Values from earlier rounds of the same cycle
 stay here (a few cycles at most). Bad or foreign requests are counted and dropped.
 """
 
@@ -12,7 +14,7 @@ import queue
 import time
 from typing import Any
 
-from .codec import BadMessage, check_vals, encode
+from .codec import BadMessage, check_vals, encode, parts_of
 from .engine import Engine, _plain
 from .node import WARM_RSS_AT, Node, is_stop, rss_kb
 
@@ -67,48 +69,54 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
         if msg is None:
             continue
         node.last_heard_ns = ev[3]
-        rnd = rounds.get(msg["stage"]) if isinstance(msg["stage"], int) else None
-        if rnd is None:
-            node.reject("bad_stage")
-            continue
-        t0 = time.monotonic_ns()
         try:
-            vals = check_vals(msg.get("vals"), rnd.send, 3)
+            parts = []
+            for part in parts_of(msg):
+                rnd = rounds.get(part["stage"])
+                if rnd is None:
+                    raise BadMessage("bad_stage")
+                parts.append((part["cycle"], rnd, check_vals(part.get("vals"), rnd.send, 3)))
         except BadMessage as exc:
             node.reject(exc.reason)
             continue
-        cycle = msg["cycle"]
-        ctx = ctxs.get(cycle)
-        if cycle >= WARMUP_BASE:  # a throw-away warm-up interval: keep nothing
-            ctx = {n: [None, None, None] for n in engine.axis_names}
-        elif ctx is None:
-            if rnd.index != 0 and engine.plan.round_trips > 1:
-                # a later round of a cycle this peripheral never saw (restart, loss): the
-                # values of earlier rounds are missing
-                node.reject("unknown_cycle")
+        out = []
+        for cycle, rnd, vals in parts:
+            t0 = time.monotonic_ns()
+            ctx = ctxs.get(cycle)
+            if cycle >= WARMUP_BASE:  # a throw-away warm-up interval: keep nothing
+                ctx = {n: [None, None, None] for n in engine.axis_names}
+            elif ctx is None:
+                if rnd.index != 0 and engine.plan.round_trips > 1:
+                    # a later round of a cycle this peripheral never saw (restart, loss):
+                    # the values of earlier rounds are missing
+                    node.reject("unknown_cycle")
+                    continue
+                ctx = {n: [None, None, None] for n in engine.axis_names}
+                ctxs[cycle] = ctx
+                if len(ctxs) > MAX_KEPT_CYCLES:
+                    del ctxs[min(ctxs)]
+            Engine.merge(ctx, vals, ALL_AXES)
+            try:
+                engine.run_round(rnd, ctx, axes)
+            except Exception as exc:
+                node.reject(f"kernel_error:{type(exc).__name__}")
                 continue
-            ctx = {n: [None, None, None] for n in engine.axis_names}
-            ctxs[cycle] = ctx
-            if len(ctxs) > MAX_KEPT_CYCLES:
-                del ctxs[min(ctxs)]
-        Engine.merge(ctx, vals, ALL_AXES)
-        try:
-            engine.run_round(rnd, ctx, axes)
-        except Exception as exc:
-            node.reject(f"kernel_error:{type(exc).__name__}")
-            continue
-        out = Engine.reply_vals(rnd, ctx, axes)
-        extra = {}
-        if trace:  # recording: every intermediate value too, for replay --verify
-            extra["trace"] = {n: [_plain(ctx[n][i]) for i in axes] for n in trace_names[rnd.index]}
-        t1 = time.monotonic_ns()
-        reply.put(encode(node.unit, cycle, rnd.index, vals=out, span=[t0, t1], **extra))
-        busy_ns += t1 - t0
-        served += 1
-        if served == 2 * WARM_RSS_AT:
-            rss_warm = rss_kb()
-        if rnd.index == engine.plan.round_trips - 1:
-            ctxs.pop(cycle, None)
+            part = {"cycle": cycle, "stage": rnd.index,
+                    "vals": Engine.reply_vals(rnd, ctx, axes)}
+            if trace:  # recording: every intermediate value too, for replay --verify
+                part["trace"] = {n: [_plain(ctx[n][i]) for i in axes]
+                                 for n in trace_names[rnd.index]}
+            t1 = time.monotonic_ns()
+            part["span"] = [t0, t1]
+            out.append(part)
+            busy_ns += t1 - t0
+            served += 1
+            if served == 2 * WARM_RSS_AT:
+                rss_warm = rss_kb()
+            if rnd.index == engine.plan.round_trips - 1:
+                ctxs.pop(cycle, None)
+        if out:
+            reply.put(encode(node.unit, out[0]["cycle"], out[0]["stage"], parts=out))
     return {"exit": "stop", "served": served, "busy_ns": busy_ns,
             "wall_ns": time.monotonic_ns() - t_start, "rejected": dict(node.rejected),
             "rss_kb": {"warm": rss_warm, "end": rss_kb()}}

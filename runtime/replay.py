@@ -49,17 +49,19 @@ def _setup(rec: Recording) -> Any:
 
 
 def _index(rec: Recording, kind: str) -> dict[tuple[int, ...], dict]:
-    """``kind`` "request": (cycle, stage) -> request; "reply": (peripheral, cycle, stage)
-    -> reply."""
+    """``kind`` "request": (cycle, stage) -> request part; "reply": (peripheral, cycle,
+    stage) -> reply part (a fused exchange holds several parts)."""
     out: dict[tuple[int, ...], dict] = {}
     for topic in rec.topics:
         if topic == "/peripheral/request" and kind == "request":
             for _, m in rec.decoded(topic):
-                out[(m["cycle"], m["stage"])] = m
+                for part in m.get("parts") or []:
+                    out[(part["cycle"], part["stage"])] = part
         elif topic.startswith("/central/reply/") and kind == "reply":
             k = int(topic.split("/")[3]) - 1
             for _, m in rec.decoded(topic):
-                out[(k, m["cycle"], m["stage"])] = m
+                for part in m.get("parts") or []:
+                    out[(k, part["cycle"], part["stage"])] = part
     return out
 
 

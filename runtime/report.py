@@ -58,6 +58,7 @@ def build_report(
     fault: dict[str, Any] | None,
     wall_s: float,
     cost_error_s: dict[str, Any] | None = None,
+    exchanges: int | None = None,
 ) -> dict[str, Any]:
     """Assemble the report (see the brief's "Interfaces" for the keys)."""
     n = plan.placement.peripherals
@@ -91,6 +92,8 @@ def build_report(
         "cost_scale": rc.cost_scale,
         "unit": rc.unit,
         "round_trips": plan.round_trips,
+        "exchanges_per_interval": (exchanges / len(cmd_ns)) if exchanges is not None
+        and len(cmd_ns) else None,
         "placement": plan.placement.to_dict(),
         "period_s": pq,
         "jitter_s": {"std": jitter, "p99_minus_p50": pq["p99"] - pq["p50"]},
@@ -132,7 +135,11 @@ def summary(r: dict[str, Any]) -> str:
         f"ctrlunit: {r['cycles']} intervals, {r['peripherals']} peripheral(s), pipeline depth "
         f"{r['pipeline']}, clock {r['clock']}, {r['law']} + {r['model']} model, task "
         f"{r['task']}, cost model {r['cost_model']}",
-        f"  round trips per interval  {r['round_trips']}",
+        f"  round trips per interval  {r['round_trips']}" + (
+            f"   exchanges per interval {r['exchanges_per_interval']:.2f}" + (
+                " (rounds of consecutive intervals fused)"
+                if r["exchanges_per_interval"] < r["round_trips"] - 0.01 else "")
+            if r.get("exchanges_per_interval") else ""),
         f"  period      p50 {us(r['period_s']['p50'])}  p99 {us(r['period_s']['p99'])}  "
         f"max {us(r['period_s']['max'])}",
         f"  traversal   p50 {us(r['traversal_s']['p50'])}  p99 {us(r['traversal_s']['p99'])}  "

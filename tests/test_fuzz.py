@@ -14,6 +14,7 @@ import time
 import msgpack
 import pytest
 import zenoh
+from ctrlunit.runtime.codec import SCHEMA_VERSION
 from ctrlunit.runtime.zsession import Keys, make_config
 from runner import kill_unit, unit_id
 
@@ -29,15 +30,15 @@ def free_port() -> int:
 
 def fuzz_payloads(unit: str, rng: random.Random, key: str) -> bytes:
     """One malformed payload; never a well-formed message for the current cycle."""
-    kind = rng.randrange(9)
-    good = {"v": 1, "unit": unit, "cycle": rng.randrange(50), "stage": "command",
+    kind = rng.randrange(10)
+    good = {"v": SCHEMA_VERSION, "unit": unit, "cycle": rng.randrange(50), "stage": "command",
             "tau": [0.1, 0.2, 0.3]}
     if kind == 0:
         return rng.randbytes(rng.randrange(0, 300))
     if kind == 1:
         return msgpack.packb(good)[: rng.randrange(1, 20)]  # truncated
     if kind == 2:
-        return msgpack.packb({**good, "v": rng.choice([0, 2, 99, "1", None])})
+        return msgpack.packb({**good, "v": rng.choice([0, SCHEMA_VERSION + 1, 99, "1", None])})
     if kind == 3:
         return msgpack.packb({**good, "unit": "someone-else"})
     if kind == 4:
@@ -50,14 +51,22 @@ def fuzz_payloads(unit: str, rng: random.Random, key: str) -> bytes:
     if kind == 7:
         return msgpack.packb({**good, "tau": "abc", "vals": 3, "counts": {"a": 1},
                               "stage": [1, 2]})
+    if kind == 8:  # malformed parts of a fused exchange
+        c = good["cycle"]
+        return msgpack.packb({**good, "stage": 0, "parts": rng.choice([
+            "x", [], [1, 2], [{"cycle": -1, "stage": 0}], [{"cycle": c, "stage": "a"}],
+            [{"cycle": c, "stage": 0, "vals": {}}] * 5, [{"cycle": c + 1, "stage": 0}],
+            [{"cycle": c, "stage": 0, "vals": {"p": [math.inf] * 3}, "span": "s"}]])})
     # stale or future cycles with otherwise plausible content (not on request/control keys)
     if key.endswith("request") or "control" in key:
         return msgpack.packb({**good, "v": 7})
-    return msgpack.packb({**good, "cycle": rng.choice([0, 1, 10**9]), "stage":
+    cycle = rng.choice([0, 1, 10**9])
+    return msgpack.packb({**good, "cycle": cycle, "stage":
                           "sample" if "sample" in key else ("command" if "command" in key
                                                             else 1),
                           "counts": [1, 2, 3], "t_ns": 1, "p": [0.0, 0.0, -0.4],
-                          "span": [1, 2], "vals": {}})
+                          "span": [1, 2], "parts": [{"cycle": cycle, "stage": 1, "vals": {},
+                                                     "span": [1, 2]}]})
 
 
 def run_unit(tmp_path, unit: str, fuzz: bool) -> tuple[int, dict, str]:
