@@ -16,6 +16,13 @@ peripherals work on both halves at once), so an interval costs one exchange inst
 two, with the same arithmetic. In ``realtime`` the second half of k waits for sample k+1
 (at most a quarter period past its expected time) so that the exchange is fused there too.
 
+Replies to a fused request: one per peripheral with every part (``fused``), or one per part
+as soon as it is computed, first rounds first (``each``): then the central works on the
+middle of interval k+1 while the peripherals work on the second round of k. ``auto``
+(:meth:`Central.choose_replies`) takes ``each`` when the central's work between two
+rounds exceeds the round trip measured at warm-up: the overlap then gains more than the
+extra reply costs.
+
 Clocks
 ------
 ``lockstep`` and ``realtime``: interval k starts from plant sample k (``realtime`` skips
@@ -181,6 +188,9 @@ class Central:
         self.exchanges = 0  # requests sent (each may carry several rounds)
         self.period_ns = int(rc.period * 1e9)
         self.last_round = self.plan.rounds[-1].index if self.plan.rounds else -1
+        self.reply_each = False
+        self.replies_info: dict[str, Any] = {"mode": "fused"}
+        self.warm_rtt_s: list[float] = []
 
     # -- start-up ---------------------------------------------------------------------
 
@@ -287,9 +297,14 @@ class Central:
             waiting = set(range(self.n))
             deadline = time.monotonic() + self.rc.startup_timeout
             resend = 0.0
+            sends = 0
+            compute_s = 0.0
+            t_sent = time.perf_counter()
             while waiting:
                 if time.monotonic() >= resend:  # the first requests may race the routes
+                    t_sent = time.perf_counter()
                     self.pub_req.put(payload)
+                    sends += 1
                     resend = time.monotonic() + 0.2
                 left = deadline - time.monotonic()
                 if left <= 0:
@@ -305,10 +320,64 @@ class Central:
                     msg = self.node.decode(ev[2])
                     if msg is not None and msg["cycle"] == cycle:
                         waiting.discard(ev[1])
+                        try:  # the exchange alone: less the peripheral's compute span
+                            span = check_span(parts_of(msg)[0].get("span"))
+                            compute_s = max(compute_s, (span[1] - span[0]) / 1e9)
+                        except BadMessage:
+                            pass
+                        if not waiting and sends == 1:
+                            self.warm_rtt_s.append(time.perf_counter() - t_sent - compute_s)
                 elif ev[0] == "sample":
                     self._on_sample(ev[2], ev[3])
                 elif ev[0] == "hello":
                     self._handle(ev)
+
+    def choose_replies(self) -> dict[str, Any]:
+        """Decide how peripherals answer fused requests (``--replies``); see the module
+        notes. Returns what was decided and from which figures (for the report)."""
+        mode = self.rc.replies
+        info: dict[str, Any] = {"asked": mode}
+        if self.depth < 2 or self.n == 0:
+            mode = "fused"
+            info["why"] = "one interval per exchange"
+        elif mode == "auto":
+            rtt = statistics.median(self.warm_rtt_s) if self.warm_rtt_s else math.inf
+            between = self.central_between_rounds_s()  # round trip: the exchange alone
+            mode = "each" if between > rtt else "fused"
+            info.update(round_trip_s=rtt, central_between_rounds_s=between,
+                        why="each if the central's work between two rounds exceeds a "
+                            "round trip")
+        info["mode"] = mode
+        self.reply_each = mode == "each"
+        self.replies_info = info
+        return info
+
+    def central_between_rounds_s(self, *, repeat: int = 20) -> float:
+        """The central's work from the end of one round to the send of the next interval's
+        first round: every central step except those after the last round. T-800 costs
+        from the cost model; native costs measured here on throw-away intervals."""
+        steps = self.plan.steps
+        last = max((k for k, st in enumerate(steps) if st.round is not None), default=-1)
+        names = [st.block.name for st in steps[:last] if st.block is not None]
+        graph = self.plan.graph
+        if self.engine.cost.name == "t800":
+            return sum(graph.block(b).t800_us * (3 if graph.block(b).per_axis else 1)
+                       for b in names) * self.engine.cost.scale * 1e-6
+        acc: dict[str, list[int]] = {}
+        old = self.engine.span
+        self.engine.span = lambda name, t0, t1: acc.setdefault(name, []).append(t1 - t0)
+        try:
+            est = self.ctl.est
+            for _ in range(repeat):
+                ctx = self.engine.new_ctx(0.0, est, [0.0] * 3, [0.0] * 3)
+                ctx["qmeas_i"] = [float(q) for q in
+                                  inverse_kinematics(self.engine.cfg.params, est[0])]
+                self.engine.run_local(ctx)
+        except ObserverDiverged:
+            pass
+        finally:
+            self.engine.span = old
+        return sum(statistics.median(acc[b]) for b in names if b in acc) / 1e9
 
     def _check_deadlines(self, timeout_ns: int) -> None:
         now = time.monotonic_ns()
@@ -618,7 +687,9 @@ class Central:
             parts.append({"cycle": f.cycle, "stage": rnd.index,
                           "vals": Engine.request_vals(rnd, f.ctx, (0, 1, 2))})
         self.outbox.clear()
-        payload = encode(self.node.unit, parts[0]["cycle"], parts[0]["stage"], parts=parts)
+        extra = {"each": True} if self.reply_each and len(parts) > 1 else {}
+        payload = encode(self.node.unit, parts[0]["cycle"], parts[0]["stage"], parts=parts,
+                         **extra)
         self.pub_req.put(payload)
         self.exchanges += 1
         if self.on_message is not None:

@@ -80,6 +80,13 @@ def run_options(fn: Any) -> Any:
         click.option("--max-error", default=0.02, type=click.FloatRange(1e-5, 1.0),
                      show_default=True, help="Tracking error (m) beyond which the unit "
                      "stops the robot (a fault)."),
+        click.option("--replies", type=click.Choice(["auto", "fused", "each"]), default="auto",
+                     show_default=True,
+                     help="Depth 2: peripherals answer a fused request in one reply "
+                     "(fused), or each round as soon as it is computed, first rounds first, "
+                     "so the central works on one interval while they work on the other "
+                     "(each); auto: each when the central's work between two rounds "
+                     "exceeds a round trip measured at warm-up."),
         click.option("--pin", default=None, help="CPUs for this process, e.g. 0 or 0,1."),
         click.option("--cpus", type=click.Choice(["same", "split"]), default=None,
                      help="start: pin every role on CPU 0 (same), or the central on 0 and "

@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 CLOCKS = ("lockstep", "realtime", "freerun")
+REPLY_MODES = ("auto", "fused", "each")
 LATE_POLICIES = ("wait", "hold", "fault")
 """Realtime, a peripheral's reply past its round's share of the deadline: ``wait`` for it
 (the plant counts the miss), ``hold`` the peripheral's last values for its axes, or treat
@@ -86,6 +87,7 @@ class RunConfig:
     cost_scale: float = 1.0
     late_policy: str = "wait"
     late: dict[str, str] = field(default_factory=dict)
+    replies: str = "auto"
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS
@@ -126,6 +128,8 @@ class RunConfig:
                                   f"{', '.join(LATE_POLICIES)}")
         if not 0.01 <= self.cost_scale <= 1000.0:
             raise bad("cost_scale", "0.01 to 1000")
+        if self.replies not in REPLY_MODES:
+            raise bad("replies", ", ".join(REPLY_MODES))
         if not 1e-5 <= self.max_error <= 1.0:
             raise bad("max_error", "10 um to 1 m")
         if not 1 <= self.plant_substeps <= 1000:

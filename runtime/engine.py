@@ -23,12 +23,14 @@ class CostModel:
 
     ``t800``: each block, after computing its real result, adds its T-800 time (per axis
     for axis blocks) to the time the process owes; before the process sends anything
-    (:meth:`settle`) it sleeps until the debt is paid, the last 80 us by spinning so that
-    the emulated time is exact to a few microseconds whatever the sleep granularity.
-    The measured error of every settle is kept (``errors_ns``).
+    (:meth:`settle`) it sleeps until the debt is paid, the last stretch by spinning so that
+    the emulated time is exact to a few microseconds whatever the sleep granularity. The
+    spun stretch adapts to how late this machine's sleeps wake (twice their running mean
+    overshoot, 50 us to 1 ms). The measured error of every settle is kept (``errors_ns``).
     """
 
-    SPIN_NS = 80_000
+    SPIN_MIN_NS = 50_000
+    SPIN_MAX_NS = 1_000_000
 
     def __init__(self, name: str = "native", *, scale: float = 1.0) -> None:
         if name not in ("native", "t800"):
@@ -39,6 +41,11 @@ class CostModel:
         self.scale = scale
         self.errors_ns: list[int] = []
         self.deadline = 0
+        self.overshoot_ns = 40_000.0  # running mean of how late a sleep wakes
+
+    @property
+    def spin_ns(self) -> int:
+        return int(min(self.SPIN_MAX_NS, max(self.SPIN_MIN_NS, 2.0 * self.overshoot_ns)))
 
     def occupy(self, t800_us: float, count: int, t0_ns: int) -> None:
         if self.name == "native":
@@ -50,9 +57,13 @@ class CostModel:
         if self.name == "native" or not self.deadline:
             return
         target = self.deadline
-        remaining = target - time.monotonic_ns()
-        if remaining > self.SPIN_NS:
-            time.sleep((remaining - self.SPIN_NS) / 1e9)
+        spin = self.spin_ns
+        now = time.monotonic_ns()
+        if target - now > spin:
+            wake = target - spin
+            time.sleep((wake - now) / 1e9)
+            late = time.monotonic_ns() - wake
+            self.overshoot_ns += 0.1 * (late - self.overshoot_ns)
         while time.monotonic_ns() < target:
             pass
         if len(self.errors_ns) < 100_000:

@@ -293,6 +293,7 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         central.child_check = check
         central.handshake()
         central.warm_up()
+        central.choose_replies()
         central.say("start")
         central.run()
     except Fault as exc:
@@ -400,7 +401,8 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         if errs:
             cost_err = {"p50": errs[len(errs) // 2] / 1e9,
                         "p99": errs[int(len(errs) * 0.99)] / 1e9, "max": errs[-1] / 1e9,
-                        "method": "sleep to 80 us before the T-800 deadline, then spin; "
+                        "method": "sleep to twice the mean sleep overshoot (50 us to 1 ms) "
+                                  "before the T-800 deadline, then spin; "
                                   "one settle per message sent"}
     rejected = dict(central.node.rejected)
     for role, rep in central.role_reports.items():
@@ -415,6 +417,7 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         t1_s=t1, per_block_s=per_block, fault=fault,
         wall_s=(central.t_end_ns - central.t_start_ns) / 1e9, cost_error_s=cost_err,
         exchanges=central.exchanges if setup.placement.peripherals else None,
+        replies=central.replies_info if setup.placement.peripherals else None,
     )
 
 

@@ -70,6 +70,9 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
             continue
         node.last_heard_ns = ev[3]
         try:
+            each = msg.get("each", False)
+            if type(each) is not bool:
+                raise BadMessage("bad_value", "each must be true or false")
             parts = []
             for part in parts_of(msg):
                 rnd = rounds.get(part["stage"])
@@ -79,6 +82,8 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
         except BadMessage as exc:
             node.reject(exc.reason)
             continue
+        if each:  # first rounds first, each answered at once (see central.py)
+            parts.sort(key=lambda x: x[1].index)
         out = []
         for cycle, rnd, vals in parts:
             t0 = time.monotonic_ns()
@@ -115,6 +120,9 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
                 rss_warm = rss_kb()
             if rnd.index == engine.plan.round_trips - 1:
                 ctxs.pop(cycle, None)
+            if each:
+                reply.put(encode(node.unit, cycle, rnd.index, parts=out))
+                out = []
         if out:
             reply.put(encode(node.unit, out[0]["cycle"], out[0]["stage"], parts=out))
     return {"exit": "stop", "served": served, "busy_ns": busy_ns,

@@ -59,6 +59,7 @@ def build_report(
     wall_s: float,
     cost_error_s: dict[str, Any] | None = None,
     exchanges: int | None = None,
+    replies: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Assemble the report (see the brief's "Interfaces" for the keys)."""
     n = plan.placement.peripherals
@@ -94,8 +95,10 @@ def build_report(
         "round_trips": plan.round_trips,
         "exchanges_per_interval": (exchanges / len(cmd_ns)) if exchanges is not None
         and len(cmd_ns) else None,
+        "replies": replies,
         "placement": plan.placement.to_dict(),
         "period_s": pq,
+        "period_mean_s": float(period.mean()) if period.size else math.nan,
         "jitter_s": {"std": jitter, "p99_minus_p50": pq["p99"] - pq["p50"]},
         "traversal_s": tq,
         "deadline_misses": deadline_misses,
@@ -139,9 +142,10 @@ def summary(r: dict[str, Any]) -> str:
             f"   exchanges per interval {r['exchanges_per_interval']:.2f}" + (
                 " (rounds of consecutive intervals fused)"
                 if r["exchanges_per_interval"] < r["round_trips"] - 0.01 else "")
-            if r.get("exchanges_per_interval") else ""),
+            if r.get("exchanges_per_interval") else "") + (
+            "; replies per round" if (r.get("replies") or {}).get("mode") == "each" else ""),
         f"  period      p50 {us(r['period_s']['p50'])}  p99 {us(r['period_s']['p99'])}  "
-        f"max {us(r['period_s']['max'])}",
+        f"max {us(r['period_s']['max'])}  mean {us(r.get('period_mean_s', math.nan))}",
         f"  traversal   p50 {us(r['traversal_s']['p50'])}  p99 {us(r['traversal_s']['p99'])}  "
         f"max {us(r['traversal_s']['max'])}",
         f"  jitter      std {us(r['jitter_s']['std'])}",
