@@ -1,6 +1,8 @@
 """Multi-host: plant, central and peripherals each in its own network namespace, joined by
-veth links in a star (as the Transputers), over TCP; then with tc/netem delay and a
-20 Mbit/s rate on every link. Skips where network namespaces cannot be made."""
+veth links in a star (as the Transputers), over TCP; then with a 1 ms delay each way and a
+20 Mbit/s rate on every link: tc netem where the kernel has it, else a tc tbf rate and the
+user-space delay line of ``ctrlunit.bench.linkdelay`` on each link. Skips where network
+namespaces cannot be made."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -70,7 +73,10 @@ def star():
             sh("ip", "netns", "del", ns, check=False)
 
 
-def run_star(tmp_path, central: str, hosts: list[str], tag: str) -> dict:
+def run_star(tmp_path, central: str, hosts: list[str], tag: str,
+             endpoints: list[str] | None = None) -> dict:
+    """One lockstep session across the namespaces; ``endpoints[k]`` is what role k connects
+    to (default: the central's address on its veth link)."""
     unit = f"mh-{tag}-{os.getpid()}"
     report = tmp_path / f"{tag}.json"
     common = ["--unit", unit, "--clock", "lockstep", "--cycles", "300", "--peripherals", "3",
@@ -83,7 +89,8 @@ def run_star(tmp_path, central: str, hosts: list[str], tag: str) -> dict:
         args = ["plant"] if role == "plant" else ["peripheral", "--index", role[-1]]
         procs.append(subprocess.Popen(
             ["ip", "netns", "exec", ns, *py, *args, *common, "--connect",
-             f"tcp/10.77.{k}.1:7447"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+             endpoints[k - 1] if endpoints else f"tcp/10.77.{k}.1:7447"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
     try:
         out, _ = procs[0].communicate(timeout=300)
         for p in procs[1:]:
@@ -96,11 +103,28 @@ def run_star(tmp_path, central: str, hosts: list[str], tag: str) -> dict:
     return json.loads(report.read_text())
 
 
+def delay_lines(hosts: list[str], delay: str) -> tuple[list[subprocess.Popen], list[str]]:
+    """A delay line in each role's namespace, from 127.0.0.1:7600 to the central."""
+    relays, endpoints = [], []
+    for k, ns in enumerate(hosts, start=1):
+        relays.append(subprocess.Popen(
+            ["ip", "netns", "exec", ns, sys.executable, "-m", "ctrlunit.bench.linkdelay",
+             "--listen", "127.0.0.1:7600", "--to", f"10.77.{k}.1:7447", "--delay", delay],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        endpoints.append("tcp/127.0.0.1:7600")
+    for ns in hosts:  # listening before any role connects
+        for _ in range(100):
+            if "127.0.0.1:7600" in sh("ip", "netns", "exec", ns, "ss", "-ltn",
+                                      check=False).stdout:
+                break
+            time.sleep(0.05)
+    return relays, endpoints
+
+
 def test_each_role_on_its_own_host_with_and_without_link_limits(tmp_path, star):
     central, hosts, links = star
     plain = run_star(tmp_path, central, hosts, "plain")
-    # a Transputer-like link: 20 Mbit/s, and 1 ms each way where the kernel has netem
-    # (where it has only tbf, the rate alone)
+    # a Transputer-like link: 20 Mbit/s and 1 ms each way
     netem = True
     for ns_c, a, ns_r, b in links:
         for ns, dev in ((ns_c, a), (ns_r, b)):
@@ -110,28 +134,80 @@ def test_each_role_on_its_own_host_with_and_without_link_limits(tmp_path, star):
                 netem = False
                 sh("ip", "netns", "exec", ns, "tc", "qdisc", "add", "dev", dev, "root", "tbf",
                    "rate", "20mbit", "burst", "4kbit", "latency", "100ms")
-    limit = "netem 1 ms + 20 Mbit/s" if netem else "tbf 20 Mbit/s (no netem in this kernel)"
-    slow = run_star(tmp_path, central, hosts, "limited")
-    if not netem:
-        # 20 Mbit/s alone hardly shows (a few hundred bytes per message, far below the
-        # rate): 256 kbit/s makes the serialisation time of every message count
-        for ns_c, a, ns_r, b in links:
-            for ns, dev in ((ns_c, a), (ns_r, b)):
-                sh("ip", "netns", "exec", ns, "tc", "qdisc", "replace", "dev", dev, "root",
-                   "tbf", "rate", "256kbit", "burst", "1600", "latency", "500ms")
-        slow_1m = run_star(tmp_path, central, hosts, "256kbit")
-        print(f"tbf 256 kbit/s: period p50 {slow_1m['period_s']['p50'] * 1e3:.2f} ms, "
-              f"efficiency {slow_1m['efficiency'] * 100:.2f} %")
-    for name, r in (("plain veth", plain), (limit, slow)):
+    relays: list[subprocess.Popen] = []
+    try:
+        endpoints = None
+        if not netem:
+            relays, endpoints = delay_lines(hosts, "1ms")
+        limit = ("netem 1 ms + 20 Mbit/s" if netem else
+                 "tbf 20 Mbit/s + 1 ms delay line each way (no netem in this kernel)")
+        slow = run_star(tmp_path, central, hosts, "limited", endpoints)
+    finally:
+        for r in relays:
+            r.kill()
+            r.wait(timeout=5)
+    # 20 Mbit/s alone hardly shows (a few hundred bytes per message): 256 kbit/s makes the
+    # serialisation time of every message count
+    for ns_c, a, ns_r, b in links:
+        for ns, dev in ((ns_c, a), (ns_r, b)):
+            sh("ip", "netns", "exec", ns, "tc", "qdisc", "replace", "dev", dev, "root",
+               "tbf", "rate", "256kbit", "burst", "1600", "latency", "500ms")
+    narrow = run_star(tmp_path, central, hosts, "256kbit")
+    for name, r in (("plain veth", plain), (limit, slow), ("tbf 256 kbit/s", narrow)):
         print(f"{name}: period p50 {r['period_s']['p50'] * 1e3:.2f} ms, traversal p50 "
               f"{r['traversal_s']['p50'] * 1e3:.2f} ms, efficiency "
               f"{r['efficiency'] * 100:.2f} % (N = {r['efficiency_n']})")
-    assert plain["cycles"] == slow["cycles"] == 300
-    assert plain["command_digest"] == slow["command_digest"]  # lockstep: same arithmetic
-    # two round trips and the plant's exchange cross the limited links: with netem each
-    # crossing adds 2 ms; with the rate alone (256 kbit/s), each message waits its
-    # serialisation time (a few hundred bytes: several ms per crossing)
-    limited = slow if netem else slow_1m
-    assert limited["command_digest"] == plain["command_digest"]
-    assert limited["period_s"]["p50"] > plain["period_s"]["p50"] + 2e-3
-    assert limited["efficiency"] < plain["efficiency"]
+    assert plain["cycles"] == slow["cycles"] == narrow["cycles"] == 300
+    # lockstep: the links change the timing, never the arithmetic
+    assert plain["command_digest"] == slow["command_digest"] == narrow["command_digest"]
+    # lockstep depth 1: each interval crosses the plant's link twice (command, sample) and
+    # a peripheral's link four times (two round trips): 6 one-way delays of 1 ms
+    assert slow["period_s"]["p50"] > plain["period_s"]["p50"] + 4e-3
+    assert narrow["period_s"]["p50"] > plain["period_s"]["p50"] + 2e-3
+    assert slow["efficiency"] < plain["efficiency"]
+    assert narrow["efficiency"] < plain["efficiency"]
+
+
+def test_delay_line_holds_each_direction_for_its_delay():
+    """The user-space delay line (for kernels without netem) on loopback: an echo through
+    it takes two delays, and the bytes come back unchanged."""
+    import socket
+    import threading
+
+    from ctrlunit.bench.linkdelay import serve
+
+    echo = socket.create_server(("127.0.0.1", 0))
+    echo_port = echo.getsockname()[1]
+
+    def run_echo() -> None:
+        conn, _ = echo.accept()
+        with conn:
+            while data := conn.recv(4096):
+                conn.sendall(data)
+
+    threading.Thread(target=run_echo, daemon=True).start()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    ready, stop = threading.Event(), threading.Event()
+    threading.Thread(target=serve, args=(f"127.0.0.1:{port}", f"127.0.0.1:{echo_port}", 0.005),
+                     kwargs={"ready": ready, "stop": stop}, daemon=True).start()
+    assert ready.wait(5)
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as c:
+            rtts = []
+            for k in range(10):
+                msg = bytes([k]) * 100
+                t0 = time.monotonic()
+                c.sendall(msg)
+                got = b""
+                while len(got) < len(msg):
+                    got += c.recv(4096)
+                rtts.append(time.monotonic() - t0)
+                assert got == msg
+        rtts.sort()
+        print(f"delay line 5 ms each way: echo round trip p50 {rtts[5] * 1e3:.2f} ms")
+        assert 0.010 <= rtts[0] and rtts[5] < 0.030
+    finally:
+        stop.set()
+        echo.close()
