@@ -250,6 +250,12 @@ class Central:
                     wait_until = min(wait_until, f.deadline_ns)
                     if f.late_ns:
                         wait_until = min(wait_until, f.late_ns)
+                    if self.rc.clock == "realtime":  # liveness: wake when it would fail
+                        for k in f.waiting:
+                            if self.last_reply_ns[k]:
+                                wait_until = min(wait_until, self.last_reply_ns[k] + timeout_ns)
+            if self.rc.clock == "realtime" and self.last_sample_ns:
+                wait_until = min(wait_until, self.last_sample_ns + timeout_ns)
             t0 = time.monotonic_ns()
             try:
                 ev = self.node.events.get(timeout=max(0.0, (wait_until - now) / 1e9))
@@ -266,71 +272,86 @@ class Central:
 
     def _timeout_ns(self) -> int:
         """How long a reply or a sample may be missing before it is a fault: the
-        ``--timeout`` in lockstep and freerun; in realtime three periods, but never less
-        than 20 ms (a late reply is lateness, counted as a miss by the plant; silence for
-        that long is a failed process)."""
+        ``--timeout`` in lockstep and freerun; in realtime ``--fault-periods`` periods
+        (default 3). A reply later than its deadline but within that is lateness (a miss
+        at the plant, or the late-data policy); silence for that long is a failed
+        process or link."""
         if self.rc.clock == "realtime":
-            return int(max(3 * self.rc.period, 0.020) * 1e9)
+            return int(self.rc.fault_periods * self.rc.period * 1e9)
         return int(self.rc.timeout * 1e9)
 
     WARMUP_BASE = 1 << 40
 
-    def warm_up(self, rounds: int = 50) -> None:
-        """Exercise the request/reply path before measuring (Zenoh routes, code paths),
-        with round 0 of a throw-away interval; the replies are checked and discarded."""
+    def warm_up(self, intervals: int = 30) -> None:
+        """Exercise the request/reply path before measuring (Zenoh routes, every round's
+        code path on every process) with whole throw-away intervals; the replies are
+        checked, merged and discarded. Each round trip less the peripherals' compute is
+        kept (:attr:`warm_rtt_s`)."""
         if self.n == 0 or not self.plan.rounds:
             return
         est = self.ctl.est
-        for i in range(rounds):
+        for i in range(intervals):
             ctx = self.engine.new_ctx(0.0, est, [0.0] * 3, [0.0] * 3)
             ctx["qmeas_i"] = [float(q) for q in
                               inverse_kinematics(self.engine.cfg.params, est[0])]
             gen = self.engine.cycle(ctx)
+            cycle = self.WARMUP_BASE + i
             try:
                 rnd = next(gen)
+                while True:
+                    self._warm_round(cycle, rnd, ctx)
+                    rnd = gen.send(None)
             except (StopIteration, ObserverDiverged):
-                return
-            cycle = self.WARMUP_BASE + i
-            payload = encode(self.node.unit, cycle, rnd.index, parts=[
-                {"cycle": cycle, "stage": rnd.index,
-                 "vals": Engine.request_vals(rnd, ctx, (0, 1, 2))}])
-            waiting = set(range(self.n))
-            deadline = time.monotonic() + self.rc.startup_timeout
-            resend = 0.0
-            sends = 0
-            compute_s = 0.0
-            t_sent = time.perf_counter()
-            while waiting:
-                if time.monotonic() >= resend:  # the first requests may race the routes
-                    t_sent = time.perf_counter()
-                    self.pub_req.put(payload)
-                    sends += 1
-                    resend = time.monotonic() + 0.2
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    k = min(waiting)
-                    raise Fault(f"peripheral {k + 1} did not answer during warm-up",
-                                process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
-                try:
-                    ev = self.node.events.get(timeout=min(left, 0.1))
-                except queue.Empty:
-                    self._check_children()
+                continue
+
+    def _warm_round(self, cycle: int, rnd: Round, ctx: dict) -> None:
+        payload = encode(self.node.unit, cycle, rnd.index, parts=[
+            {"cycle": cycle, "stage": rnd.index,
+             "vals": Engine.request_vals(rnd, ctx, (0, 1, 2))}])
+        waiting = set(range(self.n))
+        deadline = time.monotonic() + self.rc.startup_timeout
+        resend = 0.0
+        sends = 0
+        compute_s = 0.0
+        t_sent = time.perf_counter()
+        while waiting:
+            if time.monotonic() >= resend:  # the first requests may race the routes
+                t_sent = time.perf_counter()
+                self.pub_req.put(payload)
+                sends += 1
+                resend = time.monotonic() + 0.2
+            left = deadline - time.monotonic()
+            if left <= 0:
+                k = min(waiting)
+                raise Fault(f"peripheral {k + 1} did not answer during warm-up",
+                            process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
+            try:
+                ev = self.node.events.get(timeout=min(left, 0.1))
+            except queue.Empty:
+                self._check_children()
+                continue
+            if ev[0] == "reply":
+                msg = self.node.decode(ev[2])
+                if msg is None or msg["cycle"] != cycle or ev[1] not in waiting:
                     continue
-                if ev[0] == "reply":
-                    msg = self.node.decode(ev[2])
-                    if msg is not None and msg["cycle"] == cycle:
-                        waiting.discard(ev[1])
-                        try:  # the exchange alone: less the peripheral's compute span
-                            span = check_span(parts_of(msg)[0].get("span"))
-                            compute_s = max(compute_s, (span[1] - span[0]) / 1e9)
-                        except BadMessage:
-                            pass
-                        if not waiting and sends == 1:
-                            self.warm_rtt_s.append(time.perf_counter() - t_sent - compute_s)
-                elif ev[0] == "sample":
-                    self._on_sample(ev[2], ev[3])
-                elif ev[0] == "hello":
-                    self._handle(ev)
+                try:
+                    part = parts_of(msg)[0]
+                    if part["stage"] != rnd.index:
+                        continue
+                    axes = self.plan.placement.axes[ev[1]]
+                    Engine.merge(ctx, check_vals(part.get("vals"), rnd.recv, len(axes)), axes)
+                    span = check_span(part.get("span"))
+                except BadMessage:
+                    continue
+                waiting.discard(ev[1])
+                # the exchange alone: less the slowest peripheral's compute span
+                compute_s = max(compute_s, (span[1] - span[0]) / 1e9)
+                if not waiting and sends == 1 and rnd.index == 0:
+                    self.warm_rtt_s.append(time.perf_counter() - t_sent - compute_s)
+            elif ev[0] == "sample":
+                self._on_sample(ev[2], ev[3])
+            elif ev[0] == "hello":
+                self._handle(ev)
 
     def choose_replies(self) -> dict[str, Any]:
         """Decide how peripherals answer fused requests (``--replies``); see the module
@@ -386,23 +407,27 @@ class Central:
                 if t and now - t > timeout_ns and any(k in f.dropped or k in f.waiting
                                                       for f in self.inflight.values()):
                     raise Fault(f"peripheral {k + 1} has not answered for "
-                                f"{(now - t) / 1e6:.1f} ms", process=f"peripheral-{k + 1}",
+                                f"{(now - t) / 1e6:.1f} ms (limit {timeout_ns / 1e6:.1f} ms)"
+                                f"{self._overload_hint()}",
+                                process=f"peripheral-{k + 1}",
                                 code=EXIT_PERIPHERAL)
         for f in self.inflight.values():
             if f.waiting and now > f.deadline_ns:
                 k = min(f.waiting)
+                silent = (now - f.deadline_ns + timeout_ns) / 1e6
                 raise Fault(
                     f"peripheral {k + 1} did not answer round {f.round.index if f.round else '?'}"
-                    f" of cycle {f.cycle} within {timeout_ns / 1e6:.1f} ms",
+                    f" of cycle {f.cycle}: silent for {silent:.1f} ms (limit "
+                    f"{timeout_ns / 1e6:.1f} ms){self._overload_hint()}",
                     process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
         if (self.rc.clock != "freerun" and not self.samples and self.next_cycle < self.cycles
                 and not any(f.waiting for f in self.inflight.values())):
             last = self.last_sample_ns or self.t_start_ns
-            if now - last > timeout_ns + (int(self.rc.period * 1e9) if
-                                          self.rc.clock == "realtime" else 0):
+            if now - last > timeout_ns:
                 raise Fault(f"no sample from the plant for {(now - last) / 1e6:.1f} ms "
                             f"(cycle {self.next_cycle} awaited, newest seen "
-                            f"{self.newest_sample})", process="plant", code=EXIT_PLANT)
+                            f"{self.newest_sample}){self._overload_hint()}", process="plant",
+                            code=EXIT_PLANT)
 
     def _check_children(self) -> None:
         """Fault at once when a role process this central started has died."""
@@ -732,14 +757,20 @@ class Central:
                 why = f"the robot left the usable workspace: {chk.reason}"
         if why is None:
             return
+        raise Fault(f"cycle {f.cycle}: {why}{self._overload_hint()}", process="central",
+                    code=EXIT_OBSERVER)
+
+    def _overload_hint(self) -> str:
+        """In realtime, when most deadlines were missed: say that the machine, not a
+        process, is the likely cause."""
+        periods = max(1, self.next_cycle)
         late = self.plant_misses + self.skipped
-        hint = ""
-        if self.rc.clock == "realtime" and late > max(5, f.cycle // 10):
-            hint = (f"; {self.plant_misses} commands missed their deadline and "
-                    f"{self.skipped} samples were skipped in {f.cycle + 1} periods: this "
-                    f"machine does not sustain a {self.rc.period * 1e3:g} ms period with "
-                    f"{self.n} peripheral(s) (try a longer --period, or --clock lockstep)")
-        raise Fault(f"cycle {f.cycle}: {why}{hint}", process="central", code=EXIT_OBSERVER)
+        if self.rc.clock != "realtime" or late <= max(5, periods // 10):
+            return ""
+        return (f"; {self.plant_misses} commands missed their deadline and {self.skipped} "
+                f"samples were skipped in {periods} periods: this machine does not sustain "
+                f"a {self.rc.period * 1e3:g} ms period with {self.n} peripheral(s) (try a "
+                "longer --period or --fault-periods, or --clock lockstep)")
 
     def _finish(self, f: InFlight) -> None:
         self._check_state(f)  # here, after the next request is out: off the critical path

@@ -70,7 +70,10 @@ def run_options(fn: Any) -> Any:
         click.option("--connect", multiple=True, help="Zenoh endpoint to connect to."),
         click.option("--zenoh-config", type=click.Path(dir_okay=False), default=None),
         click.option("--timeout", default="2s", show_default=True, callback=_duration,
-                     help="Reply timeout in lockstep and freerun (realtime: 3 periods)."),
+                     help="Reply timeout in lockstep and freerun (realtime: --fault-periods)."),
+        click.option("--fault-periods", default=3.0, type=click.FloatRange(1.0, 1000.0),
+                     show_default=True, help="Realtime: a peripheral, the plant or a link "
+                     "silent for this many periods is a fault (the robot is stopped)."),
         click.option("--late-policy", type=click.Choice(["wait", "hold", "fault"]),
                      default="wait", show_default=True,
                      help="Realtime: a peripheral's late reply is waited for, replaced by "

@@ -88,6 +88,7 @@ class RunConfig:
     late_policy: str = "wait"
     late: dict[str, str] = field(default_factory=dict)
     replies: str = "auto"
+    fault_periods: float = 3.0
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS
@@ -128,6 +129,8 @@ class RunConfig:
                                   f"{', '.join(LATE_POLICIES)}")
         if not 0.01 <= self.cost_scale <= 1000.0:
             raise bad("cost_scale", "0.01 to 1000")
+        if not 1.0 <= self.fault_periods <= 1000.0:
+            raise bad("fault_periods", "1 to 1000 periods")
         if self.replies not in REPLY_MODES:
             raise bad("replies", ", ".join(REPLY_MODES))
         if not 1e-5 <= self.max_error <= 1.0:

@@ -87,10 +87,8 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
         out = []
         for cycle, rnd, vals in parts:
             t0 = time.monotonic_ns()
-            ctx = ctxs.get(cycle)
-            if cycle >= WARMUP_BASE:  # a throw-away warm-up interval: keep nothing
-                ctx = {n: [None, None, None] for n in engine.axis_names}
-            elif ctx is None:
+            ctx = ctxs.get(cycle)  # warm-up intervals (cycle >= WARMUP_BASE) are alike
+            if ctx is None:
                 if rnd.index != 0 and engine.plan.round_trips > 1:
                     # a later round of a cycle this peripheral never saw (restart, loss):
                     # the values of earlier rounds are missing

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -72,9 +73,15 @@ def test_killed_plant_is_named_with_its_own_exit_code(tmp_path):
     assert len(read(rec).topics["/plant/command"]) >= 300
 
 
-def test_frozen_peripheral_in_realtime_is_detected_quickly(tmp_path):
-    code, out, detected, _ = run_and_break(tmp_path, "stop", "peripheral", 1, clock="realtime",
-                                           extra=("--period", "5ms"))
-    print(f"realtime 5 ms, peripheral 1 frozen: exit {code} after {detected * 1e3:.0f} ms")
-    assert code == 3, out
-    assert detected < 2.0
+@pytest.mark.parametrize("role,index,code", [("peripheral", 1, 3), ("plant", None, 4)])
+def test_frozen_role_in_realtime_is_detected_within_three_periods(tmp_path, role, index, code):
+    # 20 ms: this shared VM stalls for up to ~20 ms now and then, which three periods of
+    # 5 ms would already call a failure before the process is frozen
+    got, out, _, _ = run_and_break(tmp_path, "stop", role, index, clock="realtime",
+                                   extra=("--period", "20ms"))
+    silent = [float(m) for m in re.findall(r"for ([0-9.]+) ms", out)]
+    print(f"realtime 20 ms, {role} frozen: exit {got}, detected after {silent} ms of silence")
+    assert got == code, out
+    assert silent, out
+    # three periods (60 ms) plus the time the central takes to wake and look
+    assert 60.0 <= silent[0] < 60.0 + 5.0, out

@@ -66,9 +66,11 @@ def test_resolved_acceleration_tracks_pick_place_far_better_than_pd(tmp_path):
 def test_realtime_at_1ms_reports_misses(tmp_path, depth):
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", str(depth),
                                 "--clock", "realtime", "--period", "1ms", "--cycles", "600",
-                                tag=f"rt{depth}")
+                                "--fault-periods", "50", tag=f"rt{depth}")
     # Either it keeps up, or it stops the robot safely and says that deadlines were missed
-    # (on a 2-core machine five Python processes do not sustain 1 ms).
+    # (on a 2-core machine five Python processes do not sustain 1 ms). The liveness limit
+    # is widened so that this VM's multi-millisecond stalls let the misses be counted
+    # (with the default 3 periods they stop the unit first, tests/test_faults.py).
     assert code in (0, 5), out
     assert isinstance(rep["deadline_misses"], int)
     if code == 0:
