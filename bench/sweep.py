@@ -137,6 +137,7 @@ def summarise(reps: list[dict[str, Any]], cfg: Config) -> dict[str, Any]:
         "processors": first.get("processors"), "round_trips": first.get("round_trips"),
         "repeats": len(ok),
         "period_s": {k: med(lambda r, k=k: r["period_s"][k]) for k in ("p50", "p99", "max")},
+        "period_mean_s": med(lambda r: r.get("period_mean_s", math.nan)),
         "traversal_s": {k: med(lambda r, k=k: r["traversal_s"][k])
                         for k in ("p50", "p99", "max")},
         "t1_s": med(lambda r: r["t1_s"]),
@@ -212,7 +213,8 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
                             "medians over repeats with the min..max spread of efficiency",
             "t800": "each block computes its real result and the process then owes the "
                     "block's 1994 T-800 time (per axis for per-axis blocks); before sending "
-                    "it sleeps until 80 us before the debt is paid and spins the rest",
+                    "it sleeps until twice its mean sleep overshoot (50 us to 1 ms) before "
+                    "the debt is paid and spins the rest",
             "efficiency": "Eq. IV.23: t_1 / (t_parallel x N), N = processors taking part "
                           "(central included); t_parallel = traversal p50 at depth 1, "
                           "period p50 at depth 2",

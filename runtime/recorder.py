@@ -104,6 +104,7 @@ class Recorder:
         self.last_cmd_ns: int | None = None
         self.last_misses = -1
         self.closed = False
+        self.pending: list[tuple[str, int, bytes]] = []
         rc = setup.rc
         meta = {
             "config": json.dumps(rc.to_dict()),
@@ -149,12 +150,19 @@ class Recorder:
 
     def on_message(self, direction: str, key: str, cycle: int, stage: Any, data: bytes,
                    t_ns: int) -> None:
-        """Every exchange, raw (``key`` is the Zenoh key; the topic drops the unit id)."""
-        topic = "/" + key.split("/", 2)[2]
-        self._add(topic, t_ns, data)
+        """Every exchange, raw (``key`` is the Zenoh key; the topic drops the unit id).
+        Only noted here, on the central's critical path; written at the interval's end."""
+        self.pending.append((key, t_ns, data))
+
+    def _drain(self) -> None:
+        for key, t_ns, data in self.pending:
+            self._add("/" + key.split("/", 2)[2], t_ns, data)
+        self.pending.clear()
 
     def on_cycle(self, central: Any, cycle: int, ctx: dict) -> None:
-        """After each interval: spans, signals, deadline and rejection events."""
+        """After each interval (at depth 2 once the next request is out): the exchanges
+        noted since the last one, spans, signals, deadline and rejection events."""
+        self._drain()
         now = central.log.cmd_ns[-1]
         spans = [s for s in central.spans_of(cycle)]
         self._add("/timing/spans", now, msgpack.packb({"cycle": cycle, "spans": spans}))
@@ -195,6 +203,7 @@ class Recorder:
         """Write the last counters (the report follows in :meth:`write_report`)."""
         if self.closed:
             return
+        self._drain()
         now = time.monotonic_ns()
         self._add("/faults/rejected", now, msgpack.packb(dict(central.node.rejected)))
         self._add("/faults/deadline", now, msgpack.packb(
