@@ -156,7 +156,7 @@ def summarise(reps: list[dict[str, Any]], cfg: Config) -> dict[str, Any]:
 
 
 def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = None,
-          realtime_periods: list[float] | None = None, scale: float = 10.0,
+          realtime_periods: list[float] | None = None, scale: float = 30.0,
           progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
     """Run the sweep and write the reports into ``out_dir``."""
     out = Path(out_dir)

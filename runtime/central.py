@@ -236,9 +236,9 @@ class Central:
         """Run ``cycles`` intervals. Raises :class:`Fault` on a detected fault."""
         self.zenoh_identity()  # note the peers connected now (others may leave before the end)
         self.t_start_ns = time.monotonic_ns()
-        timeout_ns = self._timeout_ns()
         while self.done < self.cycles and not (self.next_cycle >= self.cycles
                                                and not self.inflight):
+            timeout_ns = self._timeout_ns()
             self._start_ready()
             now = time.monotonic_ns()
             hold_until = self._flush(now)
@@ -273,12 +273,20 @@ class Central:
     def _timeout_ns(self) -> int:
         """How long a reply or a sample may be missing before it is a fault: the
         ``--timeout`` in lockstep and freerun; in realtime ``--fault-periods`` periods
-        (default 3). A reply later than its deadline but within that is lateness (a miss
-        at the plant, or the late-data policy); silence for that long is a failed
-        process or link."""
+        (default 3; during the first 20 intervals at least 20 ms). A reply later than its
+        deadline but within that is lateness (a miss at the plant, or the late-data
+        policy); silence for that long is a failed process or link."""
         if self.rc.clock == "realtime":
-            return int(self.rc.fault_periods * self.rc.period * 1e9)
+            limit = self.rc.fault_periods * self.rc.period
+            if self.done < self.STARTUP_INTERVALS:  # first real intervals: start-up
+                limit = max(limit, self.STARTUP_LIMIT_S)
+            return int(limit * 1e9)
         return int(self.rc.timeout * 1e9)
+
+    STARTUP_INTERVALS = 20
+    STARTUP_LIMIT_S = 0.020
+    """Realtime: until this many intervals are done the silence limit is at least
+    ``STARTUP_LIMIT_S`` (first samples, first real values through every process)."""
 
     WARMUP_BASE = 1 << 40
 

@@ -383,8 +383,10 @@ def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
 @click.option("--repeats", type=click.IntRange(1, 20), default=None)
 @click.option("--realtime-period", "rt_periods", multiple=True, default=("3ms",),
               show_default=True, help="Realtime periods to include (repeatable).")
-@click.option("--thesis-scale", type=click.FloatRange(1.0, 1000.0), default=10.0,
-              show_default=True, help="T-800 time scale of the runs compared with 1994.")
+@click.option("--thesis-scale", type=click.FloatRange(1.0, 1000.0), default=30.0,
+              show_default=True, help="T-800 time scale of the runs compared with 1994: "
+              "large enough that an exchange weighs on the arithmetic about as a "
+              "Transputer link did (README, bench).")
 def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str, ...],
           thesis_scale: float) -> None:
     """Sweep n x depth x cost model, measure the floor, write reports and figures."""

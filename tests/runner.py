@@ -70,3 +70,13 @@ def wait_status(path: Path, at_least: int, *, timeout: float = 60.0) -> int:
                 break
         time.sleep(0.01)
     return done
+
+
+def slow_task(tmp_path: Path) -> str:
+    """Pick & place at 2 m/s^2 instead of 80 (about 0.9 s a move): a task a unit sampled
+    at 20 ms can follow, for realtime tests run at long periods on this noisy VM."""
+    path = tmp_path / "slow-pick-place.json"
+    path.write_text(json.dumps({"name": "slow-pick-place", "dwell": 0.05, "segments": [
+        {"type": "half-ellipse", "start": [0.125, 0.0, -0.35], "top": [0.0, 0.0, -0.31],
+         "end": [-0.125, 0.0, -0.35], "accel": 2.0}]}))
+    return str(path)

@@ -11,7 +11,7 @@ import sys
 import time
 
 import pytest
-from runner import kill_unit, unit_id, wait_status
+from runner import kill_unit, slow_task, unit_id, wait_status
 from test_faults import role_pid
 
 pytestmark = pytest.mark.zenoh
@@ -22,7 +22,8 @@ def freeze_briefly(tmp_path, policy: str) -> tuple[int, dict, str]:
     report, status = tmp_path / f"{policy}.json", tmp_path / f"{policy}.status"
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
-         "realtime", "--period", "20ms", "--cycles", "120", "--late-policy", policy,
+         "realtime", "--period", "20ms", "--cycles", "120", "--task", slow_task(tmp_path),
+         "--late-policy", policy,
          "--max-error", "1", "--report", str(report), "--status-file", str(status)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
