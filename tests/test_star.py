@@ -121,9 +121,13 @@ def test_ctrl_c_leaves_no_process_behind():
 
 
 def test_realtime_at_6ms_tracks_without_fault(tmp_path):
-    """A period this shared 2-core machine sustains with margin: the loop stays closed."""
+    """A period this shared 2-core machine sustains with margin: the loop stays closed.
+    (The silence limit is widened to 10 periods: this VM stalls for 20 ms now and then,
+    which 3 periods of 6 ms would call a failed process; tests/test_faults.py checks the
+    3-period detection itself.)"""
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",
-                                "realtime", "--period", "6ms", tag="rt6")
+                                "realtime", "--period", "6ms", "--fault-periods", "10",
+                                tag="rt6")
     assert code == 0, out
     print(f"realtime 6 ms depth 2: misses {rep['deadline_misses']}, tracking max "
           f"{rep['tracking_error_m']['max'] * 1e3:.2f} mm")
