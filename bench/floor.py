@@ -10,6 +10,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import queue
+import shutil
 import statistics
 import tempfile
 import time
@@ -132,6 +133,7 @@ def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[f
             if p.is_alive():
                 p.kill()
         node.close()
+        shutil.rmtree(run_dir, ignore_errors=True)
     return out
 
 

@@ -13,6 +13,7 @@ import ctypes
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -323,6 +324,10 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         if p.returncode not in (0, None) and fault is None and p.returncode != -15:
             log = (run_dir / f"{name}.log").read_text(errors="replace")[-2000:]
             echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
+    if code == EXIT_OK:  # the run directory (spec, socket, role logs) is for diagnosis
+        shutil.rmtree(run_dir, ignore_errors=True)
+    else:
+        echo(f"ctrlunit: the roles' logs are kept in {run_dir}")
     report = finish_report(setup, central, fault)
     report["zenoh"] = zenoh_ids
     report["late"] = {"policy": rc.late_policy, "blocks": dict(rc.late),

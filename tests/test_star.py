@@ -144,3 +144,21 @@ def test_plant_options_reach_the_plant(tmp_path):
     print(f"tracking: ideal plant {ideal['tracking_error_m']['max'] * 1e3:.3f} mm, 2 ms lag "
           f"+ friction {real['tracking_error_m']['max'] * 1e3:.3f} mm")
     assert real["tracking_error_m"]["max"] > 1.5 * ideal["tracking_error_m"]["max"]
+
+
+def test_a_finished_run_leaves_no_run_directory(tmp_path):
+    """The run directory (spec, socket, role logs) goes when the run ends well and stays,
+    named on stderr, when it fails."""
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    cli = [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit_id("rdir"),
+           "--peripherals", "1", "--clock", "lockstep"]
+    ok = subprocess.run([*cli, "--cycles", "30"], env=env, capture_output=True, text=True,
+                        timeout=120)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    assert not list(tmp_path.glob("ctrlunit-*"))
+    # a fault: a tracking limit no run can meet
+    bad = subprocess.run([*cli, "--cycles", "300", "--max-error", "1e-5"], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 5, bad.stdout + bad.stderr
+    kept = list(tmp_path.glob("ctrlunit-*"))
+    assert len(kept) == 1 and str(kept[0]) in bad.stderr
