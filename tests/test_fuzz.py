@@ -104,7 +104,9 @@ def run_unit(tmp_path, unit: str, fuzz: bool) -> tuple[int, dict, str]:
                 while len(list(s.info.peers_zid())) < 5 and time.monotonic() - t0 < 10:
                     time.sleep(0.05)
                 assert len(list(s.info.peers_zid())) == 5
-                pubs = [s.declare_publisher(k) for k in targets]
+                # BLOCK: a payload Zenoh drops in transit would prove nothing either way
+                pubs = [s.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
+                        for k in targets]
                 time.sleep(0.5)
                 for i in range(N_FUZZ):
                     k = i % len(targets)
