@@ -19,7 +19,6 @@ from .engine import Engine, _plain
 from .node import WARM_RSS_AT, Node, is_stop, rss_kb
 
 MAX_KEPT_CYCLES = 8
-WARMUP_BASE = 1 << 40  # cycles from here on are the central's warm-up
 ALL_AXES = (0, 1, 2)
 
 
@@ -87,7 +86,7 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
         out = []
         for cycle, rnd, vals in parts:
             t0 = time.monotonic_ns()
-            ctx = ctxs.get(cycle)  # warm-up intervals (cycle >= WARMUP_BASE) are alike
+            ctx = ctxs.get(cycle)  # the central's warm-up intervals are kept alike
             if ctx is None:
                 if rnd.index != 0 and engine.plan.round_trips > 1:
                     # a later round of a cycle this peripheral never saw (restart, loss):
