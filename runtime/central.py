@@ -13,8 +13,18 @@ Fused exchanges: rounds that are ready at the same moment go out as the parts of
 request (and come back as the parts of one reply per peripheral). At depth 2 the second
 round of interval k and the first round of k+1 are ready together (Fig. 24: the
 peripherals work on both halves at once), so an interval costs one exchange instead of
-two, with the same arithmetic. In ``realtime`` the second half of k waits for sample k+1
-(at most a quarter period past its expected time) so that the exchange is fused there too.
+two, with the same arithmetic. The second half of k therefore waits for the first round of
+k+1: in ``realtime`` for sample k+1 (at most a quarter period past its expected time), in
+``lockstep`` and ``freerun`` for k+1's slot. Sent alone, it would queue on the peripherals
+ahead of the next first round, which is on the observer's chain from one interval to the
+next.
+
+Running ahead: at depth 2 the next interval's leading steps that need no sample (the plan's
+``presample_steps``: the reference and the observer's prediction) run as soon as the
+newest interval has handed off its estimate (:meth:`Central._prime`). When the slot frees
+and the sample is here, the first round goes out at once instead of after them: the
+peripherals are not left idle while the central computes what it could have computed
+while they worked (Fig. 24's processors are never idle for want of ready work).
 
 Replies to a fused request: one per peripheral with every part (``fused``), or one per part
 as soon as it is computed, first rounds first (``each``): then the central works on the
@@ -185,6 +195,7 @@ class Central:
         self.child_check: Callable[[], tuple[str, int] | None] | None = None
         self._next_child_check = 0.0
         self.outbox: list[InFlight] = []  # intervals whose next round waits to be sent
+        self.primed: tuple[int, dict] | None = None  # next interval, sample-free steps run
         self.exchanges = 0  # requests sent (each may carry several rounds)
         self.period_ns = int(rc.period * 1e9)
         self.last_round = self.plan.rounds[-1].index if self.plan.rounds else -1
@@ -242,6 +253,8 @@ class Central:
             self._start_ready()
             now = time.monotonic_ns()
             hold_until = self._flush(now)
+            if self._prime():
+                continue  # the primed interval may have its slot and sample already
             wait_until = now + timeout_ns
             if hold_until:
                 wait_until = min(wait_until, hold_until)
@@ -383,11 +396,13 @@ class Central:
 
     def central_between_rounds_s(self, *, repeat: int = 20) -> float:
         """The central's work from the end of one round to the send of the next interval's
-        first round: every central step except those after the last round. T-800 costs
-        from the cost model; native costs measured here on throw-away intervals."""
+        first round: every central step except those after the last round and, at depth
+        2, the sample-free ones run ahead (:meth:`_prime`). T-800 costs from the cost
+        model; native costs measured here on throw-away intervals."""
         steps = self.plan.steps
         last = max((k for k, st in enumerate(steps) if st.round is not None), default=-1)
-        names = [st.block.name for st in steps[:last] if st.block is not None]
+        first = self.engine.presample if self.depth > 1 else 0  # primed ahead (_prime)
+        names = [st.block.name for st in steps[first:last] if st.block is not None]
         graph = self.plan.graph
         if self.engine.cost.name == "t800":
             return sum(graph.block(b).t800_us * (3 if graph.block(b).per_axis else 1)
@@ -661,13 +676,43 @@ class Central:
                 counts, t_ns = self.samples.pop(k)
             self.next_cycle = k + 1
             t0 = time.monotonic_ns()
-            ctx = self.ctl.sources(k, counts)
+            primed, self.primed = self.primed, None
+            if primed is not None and primed[0] == k:  # its sample-free steps are done
+                ctx = primed[1]
+                self.ctl.measure(ctx, k, counts)
+                gen = self.engine.cycle(ctx, skip_prefix=True)
+            else:
+                ctx = self.ctl.sources(k, counts)
+                gen = self.engine.cycle(ctx)
             if len(self.t1_inputs) < self.rc.t1_cycles:
                 self.t1_inputs.append((ctx["t"], ctx["est"], list(ctx["qmeas_i"]),
                                        list(ctx["qdmeas_i"])))
-            f = InFlight(k, self.engine.cycle(ctx), ctx, t_ns, t0)
+            f = InFlight(k, gen, ctx, t_ns, t0)
             self.inflight[k] = f
             self._advance(f)
+
+    def _prime(self) -> bool:
+        """Depth 2: run the next interval's sample-free leading steps (the plan's
+        ``presample_steps``: for resolved acceleration the reference and the observer's
+        prediction) as soon as the newest interval has handed off its estimate, before
+        the next interval has a slot or its sample. They would otherwise sit between one
+        interval's last reply and the next request, with the peripherals idle. Same
+        arithmetic: the estimate they use is final at the hand-off. Returns whether it
+        ran them."""
+        if self.depth < 2 or self.primed is not None or self.next_cycle >= self.cycles:
+            return False
+        if self.inflight and not next(reversed(self.inflight.values())).handed_off:
+            return False
+        k = self.next_cycle
+        t0 = time.monotonic_ns()
+        ctx = self.ctl.context(k)
+        try:
+            self.engine.prefix(ctx)
+        except ObserverDiverged as exc:
+            raise Fault(f"cycle {k}: {exc}", process="central", code=EXIT_OBSERVER) from None
+        self.primed = (k, ctx)
+        self._span("central", k, t0, time.monotonic_ns())
+        return True
 
     def _synthetic_sample(self, k: int) -> list[int]:
         p = self.engine.cfg.task.sample(k * self.rc.period)[0]  # type: ignore[union-attr]
@@ -737,7 +782,7 @@ class Central:
         quarter period past that (a late or lost sample). In lockstep the next sample
         follows the command just sent; the plant's silence is a fault after
         ``--timeout``."""
-        if self.rc.clock == "freerun" or self.depth < 2 or len(self.outbox) != 1:
+        if self.depth < 2 or len(self.outbox) != 1:
             return 0
         f = self.outbox[0]
         if not f.handed_off or self.next_cycle > f.cycle + 1 or self.next_cycle >= self.cycles:

@@ -70,6 +70,18 @@ class Controller:
 
     def sources(self, cycle: int, counts: list[int]) -> dict:
         """Context of interval ``cycle`` from its encoder counts."""
+        ctx = self.context(cycle)
+        self.measure(ctx, cycle, counts)
+        return ctx
+
+    def context(self, cycle: int) -> dict:
+        """Context of interval ``cycle`` before its sample: time and the estimate handed
+        off by the previous interval (enough for the plan's sample-free leading steps)."""
+        return self.engine.new_ctx(cycle * self.period, self.est, (0.0,) * 3, (0.0,) * 3)
+
+    def measure(self, ctx: dict, cycle: int, counts: list[int]) -> None:
+        """Put sample ``cycle``'s angles and backward-difference rates into ``ctx``
+        (samples must come in increasing cycle order)."""
         q = [c * self.increment for c in counts]
         if self.q_prev is None or cycle <= self.k_prev:
             qd = [0.0, 0.0, 0.0]
@@ -78,7 +90,8 @@ class Controller:
             qd = [(q[i] - self.q_prev[i]) / dt for i in range(3)]
         self.q_prev = q
         self.k_prev = cycle
-        return self.engine.new_ctx(cycle * self.period, self.est, q, qd)
+        ctx["qmeas_i"] = q
+        ctx["qdmeas_i"] = qd
 
     def handoff(self, ctx: dict) -> None:
         """Take the observer's estimate from an interval at its hand-off point."""

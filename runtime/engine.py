@@ -102,6 +102,7 @@ class Engine:
             names.update(b.inputs)
             names.update(b.outputs)
         self.axis_names = sorted(n for n in names if n.endswith("_i"))
+        self.presample = plan.presample_steps
         # bind kernels once
         self._bound: dict[str, tuple[Any, dict[str, str], float, bool]] = {}
         for b in plan.graph.blocks:
@@ -143,9 +144,19 @@ class Engine:
             self._run_block(b.name, c, axes)
         self.cost.settle()
 
-    def cycle(self, c: Ctx) -> Generator[Round, None, Ctx]:
-        """Run the interval on the central, yielding at each round."""
-        for step in self.plan.steps:
+    def prefix(self, c: Ctx) -> None:
+        """Run the interval's leading steps that need no sample
+        (:attr:`~ctrlunit.topology.plan.ExchangePlan.presample_steps`); then
+        ``cycle(c, skip_prefix=True)`` runs the rest."""
+        for step in self.plan.steps[:self.presample]:
+            assert step.block is not None
+            self._run_block(step.block.name, c, (0, 1, 2))
+        self.cost.settle()
+
+    def cycle(self, c: Ctx, *, skip_prefix: bool = False) -> Generator[Round, None, Ctx]:
+        """Run the interval on the central, yielding at each round (without the leading
+        sample-free steps when ``skip_prefix``: :meth:`prefix` ran them)."""
+        for step in self.plan.steps[self.presample if skip_prefix else 0:]:
             if step.round is not None:
                 self.cost.settle()
                 yield step.round

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from ctrlunit.topology.graph import LAWS, stage_graph
+from ctrlunit.topology.graph import KINEMATICS, LAWS, MEASURED, stage_graph
 from ctrlunit.topology.placement import (
     Placement,
     PlacementError,
@@ -27,6 +27,25 @@ def test_resolved_acceleration_needs_two_rounds_with_predicted_observer():
     assert exchange_plan(stage_graph(), default_placement(3)).round_trips == 2
     thesis = stage_graph(observer="previous")  # n_s = 2 from the previous estimate
     assert exchange_plan(thesis, default_placement(3)).round_trips == 3
+
+
+@pytest.mark.parametrize("law", (*LAWS, KINEMATICS))
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_sample_free_steps_are_central_and_need_nothing_measured(law, n):
+    plan = exchange_plan(stage_graph(law), default_placement(n))
+    k = plan.presample_steps
+    assert k >= 1  # the reference never needs the sample
+    for step in plan.steps[:k]:
+        assert step.round is None and step.block is not None
+        assert not set(step.block.inputs) & set(MEASURED), step.block.name
+    nxt = plan.steps[k]  # the first step left needs the sample or is a round
+    assert nxt.round is not None or set(nxt.block.inputs) & set(MEASURED)
+
+
+def test_resolved_acceleration_runs_reference_and_prediction_before_its_sample():
+    plan = exchange_plan(stage_graph(), default_placement(3))
+    assert [s.block.name for s in plan.steps[:plan.presample_steps]] == [
+        "reference", "predict"]
 
 
 def test_single_processor_plan_has_no_round():

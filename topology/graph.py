@@ -24,6 +24,9 @@ KINEMATICS = "kinematics"
 (observer, J^-1, d/dt(J^-1) pdot, acceleration mapper), for the thesis's 'all kinematics'
 efficiency (1320 us on one T-800, 582 us on four)."""
 OBSERVERS = ("predict", "previous")
+MEASURED = ("qmeas_i", "qdmeas_i")
+"""The sources that come from the plant's sample (the others, ``t`` and ``est``, are known
+before the sample arrives)."""
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .graph import AXIS, Block, StageGraph
+from .graph import AXIS, MEASURED, Block, StageGraph
 from .placement import Placement
 
 
@@ -56,6 +56,23 @@ class ExchangePlan:
     @property
     def rounds(self) -> list[Round]:
         return [s.round for s in self.steps if s.round is not None]
+
+    @property
+    def presample_steps(self) -> int:
+        """How many leading steps run on the central without the sample: they need neither
+        the measured sources (:data:`~ctrlunit.topology.graph.MEASURED`) nor anything made
+        from them, and come before the first round. At depth 2 an interval runs them as soon
+        as the previous interval has handed off, before its sample is here (the reference
+        and the observer's prediction, for resolved acceleration)."""
+        tainted = set(MEASURED)
+        count = 0
+        for s in self.steps:
+            if s.round is not None or s.block is None:
+                break
+            if any(v in tainted for v in s.block.inputs):
+                break
+            count += 1
+        return count
 
     @property
     def round_trips(self) -> int:
