@@ -1,151 +1,238 @@
 """``ctrlunit balance``: where the time goes and how to rebalance (§ IV.7.2).
 
-From a run's report (``--report`` JSON) or a recording, with the measured per-block costs:
+From a run's report (``--report`` JSON; a recording gives the same report without the
+central's message costs):
 
-* ``t_s`` (Eq. IV.24): every block on one processor;
-* ``t_p`` (Eq. IV.25): the central's blocks plus the per-axis blocks divided over n;
-* a predicted depth-2 period: the larger of the central's time per interval and a
-  peripheral's time per interval plus its rounds' transport, each from the block costs and
-  the measured round trip (the thesis's argument: at depth 2 the central and the
-  peripherals work on different intervals, so the slower side sets the period);
-* recommendations: when the central is under 50 % busy, move the lightest per-axis block
-  of the last round to the central (it then needs no exchange of its own); when the central
-  is the bottleneck, give the peripherals more (move central-placed blocks back) or group
-  two peripherals' work; the resulting placement is written for ``--placement``.
+* ``t_s`` (Eq. IV.24): every block on one processor; ``t_p`` (Eq. IV.25): the central's
+  blocks plus the per-axis blocks divided over n; the business of each process;
+* the schedule model (:mod:`ctrlunit.bench.schedule`) calibrated on the run: block costs
+  from its single-processor measurement, the central's costs per request, per reply and
+  per run of steps as measured by the central, and the one-way message latency fitted so
+  that the model gives the run's own mean period. It predicts the period at depth 1 and 2
+  of any placement, with its Gantt chart;
+* recommendations by the thesis's rules, each candidate judged by its predicted period at
+  the run's depth: when the central is under 50 % busy, move per-axis work to it (one
+  block, or a whole round, which then needs no exchange); when the central is busy and
+  the peripherals are under-used, group two peripherals' work (n - 1) or give moved
+  blocks back. The best candidate is recommended when it is predicted at least
+  :data:`MARGIN` faster; its placement is written for ``ctrlunit start --placement``;
+* :func:`compare`: a re-run with that placement against the prediction.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..topology.graph import stage_graph
+from ..topology.graph import StageGraph, stage_graph
 from ..topology.placement import Placement, default_placement, save_placement
 from ..topology.plan import ExchangePlan, exchange_plan
+from .schedule import Costs, Schedule, fit_latency, simulate
+
+MARGIN = 0.05
+"""A candidate placement is recommended when its predicted period is at least this much
+shorter than the current one (the model's error on this machine is a few per cent)."""
+
+INTERVALS = 160
 
 
-@dataclass
-class Prediction:
-    central_s: float
-    peripheral_s: float
-    transport_s: float
-    period_depth2_s: float
-    traversal_depth1_s: float
-    round_trips: int
-
-
-def predict(plan: ExchangePlan, block_cost_s: dict[str, float], round_trip_s: float,
-            central_overhead_s: float = 0.0) -> Prediction:
-    """Predicted times for ``plan`` from per-block costs (each block's cost for all three
-    axes, as measured by the single-processor run)."""
-    n = plan.placement.peripherals
-    axes_max = max((len(g) for g in plan.placement.axes), default=3)
-    central = central_overhead_s
-    periph = 0.0
-    for b in plan.graph.blocks:
-        c = block_cost_s.get(b.name, 0.0)
-        remote = b.per_axis and n > 0 and b.name not in plan.placement.central_blocks
-        if remote:
-            periph += c * axes_max / 3.0
-        else:
-            central += c
-    rt = plan.round_trips
-    transport = rt * round_trip_s
-    period2 = max(central, periph + transport, (central + periph + transport) / 2.0)
-    trav1 = central + periph + transport
-    return Prediction(central, periph, transport, period2, trav1, rt)
-
-
-def analyse(report: dict[str, Any], *, round_trip_s: float | None = None) -> dict[str, Any]:
-    """Balance analysis of one run's report; returns the analysis and a placement."""
-    law, model = report.get("law", "resolved-acceleration"), report.get("model", "complete")
-    graph = stage_graph(law, model)
+def placement_of(report: dict[str, Any]) -> Placement:
     pl = report.get("placement") or {}
-    placement = Placement(tuple(tuple(g) for g in pl.get("axes", [])),
-                          frozenset(pl.get("central_blocks", [])))
+    return Placement(tuple(tuple(g) for g in pl.get("axes", [])),
+                     frozenset(pl.get("central_blocks", [])))
+
+
+def _replies_mode(plan: ExchangePlan, costs: Costs, depth: int, asked: str) -> str:
+    """What ``--replies auto`` would pick (central.py): ``each`` when the central's work
+    between two rounds exceeds a round trip."""
+    if depth < 2 or plan.placement.peripherals == 0:
+        return "fused"
+    if asked in ("fused", "each"):
+        return asked
+    last = max((k for k, st in enumerate(plan.steps) if st.round is not None), default=-1)
+    between = sum(costs.block_s.get(st.block.name, 0.0)
+                  for st in plan.steps[plan.presample_steps:last] if st.block is not None)
+    rtt = costs.send_s + costs.reply_s + 2 * costs.latency_s
+    return "each" if between > rtt else "fused"
+
+
+def _asked_replies(report: dict[str, Any]) -> str:
+    return ((report.get("replies") or {}).get("asked")) or "auto"
+
+
+def model_costs(report: dict[str, Any], plan: ExchangePlan) -> Costs:
+    """The model's costs from a report, the latency not yet fitted."""
+    block = {k: float(v) for k, v in (report.get("block_cost_s") or {}).items()}
+    cc = report.get("central_costs_s") or {}
+    send, reply = float(cc.get("send") or 0.0), float(cc.get("reply") or 0.0)
+    start, finish = float(cc.get("start") or 0.0), float(cc.get("finish") or 0.0)
+    busy = float(cc.get("busy_per_interval") or 0.0)
+    step = 0.0
+    if busy > 0:  # the rest of the central's busy time, per run of steps
+        central_blocks = sum(block.get(st.block.name, 0.0) for st in plan.steps
+                             if st.block is not None)
+        exchanges = report.get("exchanges_per_interval") or 0.0
+        replies = float(cc.get("replies_per_interval") or 0.0)
+        runs = plan.round_trips + 1 + (1 if report.get("pipeline") == 2 else 0)
+        step = max(0.0, busy - central_blocks - exchanges * send - replies * reply - start
+                   - finish) / runs
+    return Costs(block, send, reply, step, 0.0, start, finish)
+
+
+def calibrate(report: dict[str, Any]) -> tuple[StageGraph, Costs, dict[str, Any]]:
+    """The model calibrated on a run: costs, and the latency that gives its mean period."""
+    graph = stage_graph(report.get("law", "resolved-acceleration"),
+                        report.get("model", "complete"))
+    plan = exchange_plan(graph, placement_of(report))
+    costs = model_costs(report, plan)
+    depth = int(report.get("pipeline") or 1)
+    measured = report.get("period_mean_s")
+    if not measured or not math.isfinite(measured):
+        measured = (report.get("period_s") or {}).get("p50") or math.nan
+    latency = 0.0
+    if plan.round_trips and math.isfinite(measured):
+        mode = (report.get("replies") or {}).get("mode") or "fused"
+        latency = fit_latency(plan, costs, measured, depth=depth, replies=mode)
+    costs = costs.with_latency(latency)
+    return graph, costs, {"measured_period_s": measured, "depth": depth}
+
+
+def predict(graph: StageGraph, placement: Placement, costs: Costs, *, depth: int,
+            replies: str = "auto") -> tuple[Schedule, str]:
+    """The model's schedule for ``placement`` at ``depth``; returns it and the replies mode."""
     plan = exchange_plan(graph, placement)
-    costs = {k: float(v) for k, v in (report.get("block_cost_s") or {}).items()}
-    t_s = sum(costs.values())
+    mode = _replies_mode(plan, costs, depth, replies)
+    return simulate(plan, costs, depth=depth, replies=mode, intervals=INTERVALS), mode
+
+
+def candidates(graph: StageGraph, placement: Placement, business: dict[str, float],
+               arithmetic: float) -> list[tuple[str, Placement]]:
+    """Placements the thesis's rules (§ IV.7.2) suggest from this one, with the rule.
+
+    ``arithmetic`` is the central's share of the period spent in its blocks: the thesis's
+    "busy" (a Transputer's links moved data alongside its CPU; here messages cost the
+    central's CPU too, which ``business`` includes and the model charges separately)."""
     n = placement.peripherals
-    central_s = sum(v for k, v in costs.items() if not graph.block(k).per_axis)
-    axis_s = t_s - central_s
-    t_p = central_s + axis_s / max(n, 1)
-    measured_period = (report.get("period_s") or {}).get("p50") or math.nan
-    measured_trav = (report.get("traversal_s") or {}).get("p50") or math.nan
+    central = business.get("central", math.nan)
+    periph = max((v for k, v in business.items() if k.startswith("peripheral")),
+                 default=math.nan)
+    out: list[tuple[str, Placement]] = []
+    if n == 0 or not math.isfinite(central):
+        return out
+    plan = exchange_plan(graph, placement)
+    if arithmetic < 0.5:
+        why = (f"the central computes {arithmetic * 100:.0f} % of the time (< 50 %; "
+               f"{central * 100:.0f} % busy with its messages): ")
+        for r in plan.rounds:
+            names = [b.name for b in r.blocks]
+            if len(names) > 1:
+                out.append((why + f"move round {r.index} ({', '.join(names)}) to the central "
+                            "(no exchange for it)",
+                            Placement(placement.axes, placement.central_blocks | set(names))))
+            for b in names:
+                out.append((why + f"move the block '{b}' to the central",
+                            Placement(placement.axes, placement.central_blocks | {b})))
+    if central >= 0.5 and (not math.isfinite(periph) or central > periph):
+        why = (f"the central is {central * 100:.0f} % busy and the peripherals "
+               f"{periph * 100:.0f} %: ")
+        if n > 1:
+            grouped = default_placement(n - 1)
+            out.append((why + f"group two peripherals' work (n = {n - 1})",
+                        Placement(grouped.axes, placement.central_blocks)))
+        for b in sorted(placement.central_blocks):
+            out.append((why + f"give the block '{b}' back to the peripherals",
+                        Placement(placement.axes, placement.central_blocks - {b})))
+    return out
+
+
+def analyse(report: dict[str, Any]) -> dict[str, Any]:
+    """Balance analysis of one run's report; returns the analysis and a placement."""
+    graph, costs, cal = calibrate(report)
+    placement = placement_of(report)
+    depth = cal["depth"]
+    asked = _asked_replies(report)
+    block = costs.block_s
+    t_s = sum(block.values())
+    central_s = sum(v for k, v in block.items() if not graph.block(k).per_axis)
+    n = placement.peripherals
+    t_p = central_s + (t_s - central_s) / max(n, 1)
     business = report.get("business") or {}
-    # the central's per-interval cost beyond its blocks (codec, Zenoh), from its business
-    c_busy = business.get("central", math.nan) * measured_period
-    base = predict(plan, costs, 0.0)
-    overhead = max(0.0, c_busy - base.central_s) if math.isfinite(c_busy) else 0.0
-    if round_trip_s is None:
-        # what each round costs beyond the arithmetic and the central's own overhead, from
-        # the measured depth-1 traversal (at depth 2 the traversal includes queueing)
-        with_overhead = predict(plan, costs, 0.0, overhead)
-        if plan.round_trips and math.isfinite(measured_trav) and report.get("pipeline") == 1:
-            round_trip_s = max(0.0, (measured_trav - with_overhead.traversal_depth1_s) /
-                               plan.round_trips)
-        else:
-            round_trip_s = 250e-6
-    current = predict(plan, costs, round_trip_s, overhead)
-    # recommendations
+    now, _ = predict(graph, placement, costs, depth=depth, replies=asked)
+    ranked = []
+    central_blocks = sum(v for k, v in block.items() if n == 0 or not graph.block(k).per_axis
+                         or k in placement.central_blocks)
+    measured = cal["measured_period_s"]
+    arithmetic = central_blocks / measured if measured and math.isfinite(measured) else math.nan
+    for why, cand in candidates(graph, placement, business, arithmetic):
+        sched, mode = predict(graph, cand, costs, depth=depth, replies=asked)
+        ranked.append({"why": why, "placement": cand.to_dict(), "replies": mode,
+                       "period_s": sched.period_mean_s})
+    ranked.sort(key=lambda c: c["period_s"])
     recs: list[str] = []
     new = placement
-    central_busy = business.get("central", math.nan)
-    depth = report.get("pipeline") or 1
+    if ranked and ranked[0]["period_s"] < (1.0 - MARGIN) * now.period_mean_s:
+        best = ranked[0]
+        new = placement_of(best)
+        recs.append(f"{best['why']}: predicted period {best['period_s'] * 1e6:.0f} us "
+                    f"against {now.period_mean_s * 1e6:.0f} us now (depth {depth})")
+    elif ranked:
+        recs.append(f"no placement the rules suggest is predicted {MARGIN * 100:.0f} % faster "
+                    f"(best: {ranked[0]['why']}, {ranked[0]['period_s'] * 1e6:.0f} us "
+                    f"against {now.period_mean_s * 1e6:.0f} us): keep the placement")
+    else:
+        recs.append("the rules suggest no move (central busy "
+                    f"{business.get('central', math.nan) * 100:.0f} %): keep the placement")
+    after = {d: predict(graph, new, costs, depth=d, replies=asked)[0] for d in (1, 2)}
+    current = {d: predict(graph, placement, costs, depth=d, replies=asked)[0] for d in (1, 2)}
 
-    def score(p: Prediction) -> float:
-        return p.period_depth2_s if depth == 2 else p.traversal_depth1_s
+    def figures(s: Schedule) -> dict[str, Any]:
+        return {"period_s": s.period_mean_s, "traversal_s": s.traversal_s,
+                "exchanges_per_interval": s.exchanges_per_interval,
+                "business": s.business()}
 
-    if n > 0 and math.isfinite(central_busy) and central_busy < 0.5:
-        # every single per-axis block that could move to the central, judged by the
-        # predicted time of the plan it gives (a move that splits a round costs a round trip)
-        best, best_score = None, score(current)
-        for b in (b for r in plan.rounds for b in r.blocks):
-            cand = Placement(placement.axes, placement.central_blocks | {b.name})
-            p = predict(exchange_plan(graph, cand), costs, round_trip_s, overhead)
-            if score(p) < best_score - 1e-9:
-                best, best_score = (b, cand), score(p)
-        if best is not None:
-            b, new = best
-            recs.append(f"the central is {central_busy * 100:.0f} % busy (< 50 %): move the "
-                        f"block '{b.name}' ({costs.get(b.name, 0) * 1e6:.1f} us for 3 axes) "
-                        f"to the central (predicted {best_score * 1e6:.0f} us against "
-                        f"{score(current) * 1e6:.0f} us)")
-        else:
-            recs.append(f"the central is {central_busy * 100:.0f} % busy (< 50 %), but no "
-                        "single block moved to it shortens the predicted period (each move "
-                        "would add a round trip or load the central more)")
-    elif n > 1 and math.isfinite(central_busy) and central_busy >= 0.9:
-        if placement.central_blocks:
-            new = Placement(placement.axes, frozenset())
-            recs.append("the central is the bottleneck: run every per-axis block on the "
-                        "peripherals again")
-        else:
-            new = default_placement(n - 1)
-            recs.append(f"the central is the bottleneck ({central_busy * 100:.0f} % busy): "
-                        f"group two peripherals' work (n = {n - 1})")
-    if new == placement:
-        recs.append("the load is balanced as far as these rules go: keep the placement")
-    new_plan = exchange_plan(graph, new)
-    predicted = predict(new_plan, costs, round_trip_s, overhead)
     return {
-        "law": law, "model": model, "peripherals": n, "pipeline": report.get("pipeline"),
-        "block_cost_s": costs, "t_s_s": t_s, "t_p_s": t_p, "business": business,
-        "round_trip_s": round_trip_s, "central_overhead_s": overhead,
-        "current": current.__dict__, "measured": {"period_s": measured_period,
-                                                   "traversal_s": measured_trav},
-        "recommendations": recs, "placement": new.to_dict(),
-        "predicted": predicted.__dict__,
+        "law": graph.law, "model": graph.model, "peripherals": n, "pipeline": depth,
+        "block_cost_s": dict(block), "t_s_s": t_s, "t_p_s": t_p, "business": business,
+        "central_arithmetic_share": arithmetic,
+        "model_costs_s": {"send": costs.send_s, "reply": costs.reply_s,
+                          "step": costs.step_s, "start": costs.start_s,
+                          "finish": costs.finish_s, "latency": costs.latency_s,
+                          "latency_is": "fitted to the run's mean period"},
+        "measured": {"period_s": cal["measured_period_s"],
+                     "traversal_s": (report.get("traversal_s") or {}).get("p50"),
+                     "gantt_ms": report.get("gantt_ms") or []},
+        "current": {f"depth{d}": figures(s) for d, s in current.items()}
+        | {"gantt_ms": now.window()},
+        "candidates": ranked,
+        "recommendations": recs,
+        "placement": new.to_dict(),
+        "predicted": {f"depth{d}": figures(s) for d, s in after.items()}
+        | {"gantt_ms": after[depth].window(), "period_s": after[depth].period_mean_s},
     }
 
 
+def compare(analysis: dict[str, Any], rerun: dict[str, Any]) -> dict[str, Any]:
+    """A re-run with the written placement against the analysis's prediction."""
+    pl = rerun.get("placement") or {}
+    if (pl.get("axes") != analysis["placement"]["axes"]
+            or sorted(pl.get("central_blocks", [])) != sorted(
+                analysis["placement"]["central_blocks"])):
+        raise ValueError(f"the re-run's placement {pl} is not the one balance wrote "
+                         f"{analysis['placement']}")
+    depth = int(rerun.get("pipeline") or 1)
+    predicted = analysis["predicted"][f"depth{depth}"]["period_s"]
+    measured = rerun.get("period_mean_s") or math.nan
+    before = analysis["measured"]["period_s"]
+    return {"depth": depth, "predicted_period_s": predicted, "measured_period_s": measured,
+            "error": measured / predicted - 1.0 if predicted else math.nan,
+            "before_period_s": before, "gain": 1.0 - measured / before if before else math.nan,
+            "gantt_ms": rerun.get("gantt_ms") or []}
+
+
 def write_placement(analysis: dict[str, Any], path: str | Path) -> None:
-    pl = analysis["placement"]
-    save_placement(Placement(tuple(tuple(g) for g in pl["axes"]),
-                             frozenset(pl["central_blocks"])), path)
+    save_placement(placement_of(analysis), path)
 
 
 def load_report(path: str | Path) -> dict[str, Any]:

@@ -81,11 +81,21 @@ def _distributions(out: Path, samples: dict[str, dict]) -> str:
 
 
 def _gantt(out: Path, gantt: dict[str, list]) -> str:
-    fig, axes = plt.subplots(len(gantt), 1, figsize=(12, 2.6 * len(gantt)),
-                             constrained_layout=True)
-    if len(gantt) == 1:
-        axes = [axes]
-    for ax, (title, spans) in zip(axes, sorted(gantt.items())):
+    path = out / "gantt.png"
+    gantt_figure(path, {f"n = 3, {k} (measured)": v for k, v in sorted(gantt.items())})
+    return path.name
+
+
+def gantt_figure(path: Path, panels: dict[str, list]) -> None:
+    """One Gantt chart per panel: spans ``(process, cycle, t0_ms, t1_ms)``, labelled with
+    the cycle mod 100 (the measured or predicted counterparts of the thesis's Fig. 22-24)."""
+    panels = {k: v for k, v in panels.items() if v}
+    if not panels:
+        return
+    fig, axes = plt.subplots(len(panels), 1, figsize=(12, 2.6 * len(panels)),
+                             constrained_layout=True, squeeze=False)
+    span_ms = max(b for spans in panels.values() for *_, b in spans)
+    for ax, (title, spans) in zip(axes[:, 0], panels.items()):
         procs = sorted({p for p, *_ in spans}, key=lambda p: (p != "central", p))
         for y, proc in enumerate(procs):
             for p, c, a, b in spans:
@@ -94,10 +104,9 @@ def _gantt(out: Path, gantt: dict[str, list]) -> str:
                                    color=COLORS.get(p, "#999999"))
                     ax.text(a, y, str(c % 100), fontsize=6, va="center")
         ax.set_yticks(range(len(procs)), procs)
+        ax.set_xlim(0, span_ms * 1.02)
         ax.set_xlabel("time (ms)")
-        ax.set_title(f"Gantt chart, n = 3, {title} (measured; labels: cycle mod 100) - "
-                     "cf. thesis Fig. 22-24")
-    path = out / "gantt.png"
+        ax.set_title(f"Gantt chart, {title} - labels: cycle mod 100; cf. thesis Fig. 22-24",
+                     fontsize=9)
     fig.savefig(path, dpi=90)
     plt.close(fig)
-    return path.name

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..runtime.config import RunConfig
 from ..runtime.launcher import start
+from ..runtime.report import gantt_window
 from .floor import floor
 
 THESIS = {
@@ -193,7 +194,7 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
                 samples[cfg.key] = {"period_s": (np.diff(c[warm:]) / 1e9).tolist(),
                                     "traversal_s": ((c[warm:] - s[warm:]) / 1e9).tolist()}
                 if cfg.tag == "thesis" and cfg.peripherals == 3 and cfg.law != "kinematics":
-                    gantt[f"depth {cfg.pipeline}"] = _gantt_window(central.spans)
+                    gantt[f"depth {cfg.pipeline}"] = gantt_window(central.spans)
     runs = [summarise(results[c.key], c) for c in configs]
     rec_on = next(r for r, c in zip(runs, configs) if c.tag == "record" and c.record)
     rec_off = next(r for r, c in zip(runs, configs) if c.tag == "record" and not c.record)
@@ -228,21 +229,6 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     (out / "report.json").write_text(json.dumps(_safe(report), indent=2))
     write_markdown(out / "report.md", report)
     return report
-
-
-def _gantt_window(spans: list[tuple[str, int, int, int]], *, intervals: int = 4) -> list:
-    """Spans of a few intervals after warm-up, as (process, cycle, t0_ms, t1_ms)."""
-    cycles = sorted({c for _, c, _, _ in spans})
-    if len(cycles) < 20:
-        chosen = set(cycles[:intervals])
-    else:
-        mid = len(cycles) // 2
-        chosen = set(cycles[mid:mid + intervals])
-    sel = [s for s in spans if s[1] in chosen]
-    if not sel:
-        return []
-    t0 = min(s[2] for s in sel)
-    return [(p, c, (a - t0) / 1e6, (b - t0) / 1e6) for p, c, a, b in sel]
 
 
 def _safe(x: Any) -> Any:

@@ -197,6 +197,11 @@ class Central:
         self.outbox: list[InFlight] = []  # intervals whose next round waits to be sent
         self.primed: tuple[int, dict] | None = None  # next interval, sample-free steps run
         self.exchanges = 0  # requests sent (each may carry several rounds)
+        self.send_ns = 0  # time spent sending requests (encode, put)
+        self.reply_ns = 0  # time spent on replies (decode, check, merge), not what follows
+        self.reply_msgs = 0
+        self.admit_ns = 0  # starting intervals (sample, context), not their steps
+        self.finish_ns = 0  # finishing them (checks, command, logs, progress)
         self.period_ns = int(rc.period * 1e9)
         self.last_round = self.plan.rounds[-1].index if self.plan.rounds else -1
         self.reply_each = False
@@ -578,6 +583,7 @@ class Central:
             self.on_message("in", self.node.keys.sample, cycle, "sample", data, rx)
 
     def _on_reply(self, k: int, data: bytes, rx: int) -> None:
+        t_in = time.perf_counter_ns()
         msg = self.node.decode(data)
         if msg is None:
             return
@@ -622,6 +628,8 @@ class Central:
                 complete.append(f)
         if not accepted:
             return
+        self.reply_ns += time.perf_counter_ns() - t_in
+        self.reply_msgs += 1
         self.last_reply_ns[k] = rx
         if self.on_message is not None:
             self.on_message("in", self.node.keys.reply(k + 1), msg["cycle"], msg["stage"],
@@ -656,6 +664,7 @@ class Central:
 
     def _start_ready(self) -> None:
         while self._may_start():
+            t_in = time.perf_counter_ns()
             k = self.next_cycle
             if self.rc.clock == "freerun":
                 counts, t_ns = self._synthetic_sample(k), time.monotonic_ns()
@@ -689,6 +698,7 @@ class Central:
                                        list(ctx["qdmeas_i"])))
             f = InFlight(k, gen, ctx, t_ns, t0)
             self.inflight[k] = f
+            self.admit_ns += time.perf_counter_ns() - t_in
             self._advance(f)
 
     def _prime(self) -> bool:
@@ -751,6 +761,7 @@ class Central:
         hold_until = self._hold_until()
         if hold_until and now < hold_until:
             return hold_until
+        t_in = time.perf_counter_ns()
         timeout_ns = self._timeout_ns()
         parts = []
         for f in self.outbox:
@@ -770,6 +781,7 @@ class Central:
                          **extra)
         self.pub_req.put(payload)
         self.exchanges += 1
+        self.send_ns += time.perf_counter_ns() - t_in
         if self.on_message is not None:
             self.on_message("out", self.node.keys.request, parts[0]["cycle"],
                             parts[0]["stage"], payload, time.monotonic_ns())
@@ -826,6 +838,7 @@ class Central:
                 "longer --period or --fault-periods, or --clock lockstep)")
 
     def _finish(self, f: InFlight) -> None:
+        t_in = time.perf_counter_ns()
         self._check_state(f)  # here, after the next request is out: off the critical path
         cmd = f.ctx["cmd"]
         payload = encode(self.node.unit, f.cycle, "command", tau=[float(x) for x in cmd])
@@ -850,12 +863,28 @@ class Central:
             self.cycle_spans.pop(f.cycle, None)
             for c in [c for c in self.cycle_spans if c < f.cycle - 8]:
                 del self.cycle_spans[c]
+        self.finish_ns += time.perf_counter_ns() - t_in
 
     def _span(self, proc: str, cycle: int, t0: int, t1: int) -> None:
         if len(self.spans) < self.max_spans:
             self.spans.append((proc, cycle, t0, t1))
         if self.on_cycle is not None:
             self.cycle_spans.setdefault(cycle, []).append((proc, t0, t1))
+
+    def costs(self) -> dict[str, float]:
+        """The central's own time, for the schedule model (:mod:`ctrlunit.bench.schedule`):
+        per request sent, per reply message handled, per interval to start and to finish
+        it, and busy (not waiting) per interval."""
+        wall = max(1, self.t_end_ns - self.t_start_ns)
+        done = max(1, self.done)
+        return {
+            "start": self.admit_ns / done / 1e9,
+            "finish": self.finish_ns / done / 1e9,
+            "send": self.send_ns / max(1, self.exchanges) / 1e9,
+            "reply": self.reply_ns / max(1, self.reply_msgs) / 1e9,
+            "replies_per_interval": self.reply_msgs / max(1, self.done),
+            "busy_per_interval": (wall - self.wait_ns) / done / 1e9,
+        }
 
     def spans_of(self, cycle: int) -> list[tuple[str, int, int]]:
         """The spans recorded for ``cycle`` (each process's compute time)."""

@@ -411,35 +411,74 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
 @click.argument("source", type=click.Path(exists=True, dir_okay=False))
 @click.option("--write", "out", type=click.Path(dir_okay=False), default="placement.json",
               show_default=True, help="Placement file to write.")
+@click.option("--compare", "rerun", type=click.Path(exists=True, dir_okay=False),
+              help="Report of a re-run with the written placement: measured against the "
+                   "prediction.")
+@click.option("--figure", type=click.Path(dir_okay=False),
+              help="PNG: measured and predicted Gantt charts side by side.")
 @click.option("--json", "as_json", is_flag=True)
-def balance(source: str, out: str, as_json: bool) -> None:
-    """Block costs, t_s (Eq. IV.24), t_p (Eq. IV.25), business and the predicted depth-2
-    period from a run's --report JSON or a recording; recommends and writes a placement."""
-    from ..bench.balance import analyse, load_report, write_placement
+def balance(source: str, out: str, rerun: str | None, figure: str | None,
+            as_json: bool) -> None:
+    """Block costs, t_s (Eq. IV.24), t_p (Eq. IV.25), business, and the period predicted by
+    a schedule model calibrated on a run (--report JSON or a recording); recommends a
+    placement by the rules of § IV.7.2 and writes it."""
+    from pathlib import Path
 
-    a = analyse(load_report(source))
-    write_placement(a, out)
-    if as_json:
-        click.echo(json.dumps(_json_safe(a)))
+    from ..bench.balance import analyse, compare, load_report, write_placement
+
+    try:
+        a = analyse(load_report(source))
+        cmp = compare(a, load_report(rerun)) if rerun else None
+    except (ValueError, KeyError, OSError) as exc:
+        _fail(f"balance: {exc}", EXIT_CONFIG)
         return
-    lines = [f"balance of {source} ({a['law']}, n = {a['peripherals']}, depth "
-             f"{a['pipeline']})", "  block costs (3 axes):"]
+    write_placement(a, out)
+    if figure:
+        from ..bench.figures import gantt_figure
+
+        d = a["pipeline"]
+        panels = {f"depth {d}, measured": a["measured"]["gantt_ms"],
+                  f"depth {d}, model of the same run": a["current"]["gantt_ms"],
+                  f"depth {d}, predicted with the new placement": a["predicted"]["gantt_ms"]}
+        if cmp is not None:
+            panels[f"depth {cmp['depth']}, re-run with the new placement (measured)"] = \
+                cmp["gantt_ms"]
+        gantt_figure(Path(figure), panels)
+    if as_json:
+        click.echo(json.dumps(_json_safe(a | ({"compare": cmp} if cmp else {}))))
+        return
+
+    def us(x: float | None) -> str:
+        return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:.0f} us"
+
+    mc = a["model_costs_s"]
+    d = a["pipeline"]
+    lines = [f"balance of {source} ({a['law']}, n = {a['peripherals']}, depth {d})",
+             "  block costs (3 axes):"]
     for k, v in sorted(a["block_cost_s"].items(), key=lambda kv: -kv[1]):
         lines.append(f"    {k:16s} {v * 1e6:8.1f} us")
     lines += [
-        f"  t_s (Eq. IV.24) {a['t_s_s'] * 1e6:.1f} us   t_p (Eq. IV.25) {a['t_p_s'] * 1e6:.1f} us",
+        f"  t_s (Eq. IV.24) {us(a['t_s_s'])}   t_p (Eq. IV.25) {us(a['t_p_s'])}",
         "  business " + ", ".join(f"{k} {v * 100:.0f} %" for k, v in a["business"].items()),
-        f"  round trip {a['round_trip_s'] * 1e6:.0f} us, central overhead "
-        f"{a['central_overhead_s'] * 1e6:.0f} us per interval",
-        (f"  now: predicted depth-1 traversal {a['current']['traversal_depth1_s'] * 1e6:.0f} us"
-         f", measured {a['measured']['traversal_s'] * 1e6:.0f} us; predicted depth-2 period "
-         f"{a['current']['period_depth2_s'] * 1e6:.0f} us")
-        if a["pipeline"] == 1 else
-        (f"  now: predicted depth-2 period {a['current']['period_depth2_s'] * 1e6:.0f} us, "
-         f"measured {a['measured']['period_s'] * 1e6:.0f} us"),
+        f"  model: central {us(mc['send'])} per request, {us(mc['reply'])} per reply, "
+        f"{us(mc['step'])} per run of steps, {us(mc['start'])} + {us(mc['finish'])} to start "
+        f"and finish an interval; latency {us(mc['latency'])} one way (fitted)",
+        f"  now: measured period {us(a['measured']['period_s'])} (mean); model depth 1 "
+        f"{us(a['current']['depth1']['period_s'])}, depth 2 "
+        f"{us(a['current']['depth2']['period_s'])}",
     ]
+    for c in a["candidates"][:6]:
+        lines.append(f"  candidate: {c['why']}: {us(c['period_s'])}")
     lines += [f"  recommendation: {r}" for r in a["recommendations"]]
-    lines.append(f"  with the new placement: predicted depth-2 period "
-                 f"{a['predicted']['period_depth2_s'] * 1e6:.0f} us; written to {out} "
+    lines.append(f"  with the new placement: predicted period depth 1 "
+                 f"{us(a['predicted']['depth1']['period_s'])}, depth 2 "
+                 f"{us(a['predicted']['depth2']['period_s'])}; written to {out} "
                  f"(ctrlunit start --placement {out})")
+    if cmp is not None:
+        lines.append(f"  re-run (depth {cmp['depth']}): measured {us(cmp['measured_period_s'])} "
+                     f"against {us(cmp['predicted_period_s'])} predicted "
+                     f"({cmp['error'] * 100:+.1f} %); before {us(cmp['before_period_s'])} "
+                     f"(gain {cmp['gain'] * 100:+.1f} %)")
+    if figure:
+        lines.append(f"  Gantt charts: {figure}")
     click.echo("\n".join(lines))

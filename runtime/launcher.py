@@ -46,7 +46,7 @@ from .config import (
 from .controller import Controller, initial_angles, initial_command
 from .engine import CostModel, Engine
 from .node import Node, rss_kb
-from .report import build_report
+from .report import build_report, gantt_window
 from .zsession import default_endpoint, make_config, pin_cpus
 
 
@@ -423,6 +423,7 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         wall_s=(central.t_end_ns - central.t_start_ns) / 1e9, cost_error_s=cost_err,
         exchanges=central.exchanges if setup.placement.peripherals else None,
         replies=central.replies_info if setup.placement.peripherals else None,
+        central_costs=central.costs(), gantt=gantt_window(central.spans),
     )
 
 

@@ -39,6 +39,23 @@ def error_stats(errs: list[float] | np.ndarray) -> dict[str, float]:
     return {"max": float(a.max()), "rms": float(np.sqrt((a * a).mean()))}
 
 
+def gantt_window(spans: list[tuple[str, int, int, int]], *, intervals: int = 4
+                 ) -> list[tuple[str, int, float, float]]:
+    """Spans ``(process, cycle, t0_ns, t1_ns)`` of a few intervals after the start-up, as
+    ``(process, cycle, t0_ms, t1_ms)`` from the first (Gantt charts)."""
+    cycles = sorted({c for _, c, _, _ in spans})
+    if len(cycles) < 20:
+        chosen = set(cycles[:intervals])
+    else:
+        mid = len(cycles) // 2
+        chosen = set(cycles[mid:mid + intervals])
+    sel = [s for s in spans if s[1] in chosen]
+    if not sel:
+        return []
+    t0 = min(s[2] for s in sel)
+    return [(p, c, (a - t0) / 1e6, (b - t0) / 1e6) for p, c, a, b in sel]
+
+
 def build_report(
     *,
     rc: Any,
@@ -60,6 +77,8 @@ def build_report(
     cost_error_s: dict[str, Any] | None = None,
     exchanges: int | None = None,
     replies: dict[str, Any] | None = None,
+    central_costs: dict[str, float] | None = None,
+    gantt: list[tuple[str, int, float, float]] | None = None,
 ) -> dict[str, Any]:
     """Assemble the report (see the brief's "Interfaces" for the keys)."""
     n = plan.placement.peripherals
@@ -70,7 +89,11 @@ def build_report(
     period = np.diff(c) / 1e9 if c.size > 1 else np.array([])
     trav = (c - s) / 1e9 if c.size else np.array([])
     pq, tq = quantiles(period), quantiles(trav)
-    t_par = tq["p50"] if rc.pipeline == 1 else pq["p50"]
+    # depth 1: one interval at a time, its traversal; depth 2: the time per interval (the
+    # mean period: when two intervals share one exchange their commands come in pairs and
+    # the median period is either the short or the long gap, not the rate)
+    period_mean = float(period.mean()) if period.size else math.nan
+    t_par = tq["p50"] if rc.pipeline == 1 else period_mean
     eff = t1_s / (t_par * processors) if t_par and t_par > 0 else math.nan
     speedup = t1_s / t_par if t_par and t_par > 0 else math.nan
     graph = plan.graph
@@ -98,7 +121,7 @@ def build_report(
         "replies": replies,
         "placement": plan.placement.to_dict(),
         "period_s": pq,
-        "period_mean_s": float(period.mean()) if period.size else math.nan,
+        "period_mean_s": period_mean,
         "jitter_s": {"std": jitter, "p99_minus_p50": pq["p99"] - pq["p50"]},
         "traversal_s": tq,
         "deadline_misses": deadline_misses,
@@ -106,7 +129,7 @@ def build_report(
         "business": business,
         "t1_s": t1_s,
         "t_parallel_s": t_par,
-        "t_parallel_is": "traversal p50" if rc.pipeline == 1 else "period p50",
+        "t_parallel_is": "traversal p50" if rc.pipeline == 1 else "period mean",
         "efficiency": eff,
         "efficiency_n": processors,
         "speedup": speedup,
@@ -119,6 +142,8 @@ def build_report(
         "command_digest": digest,
         "rejected_messages": rejected,
         "cost_model_error_s": cost_error_s,
+        "central_costs_s": central_costs,
+        "gantt_ms": gantt or [],
         "wall_s": wall_s,
         "fault": fault,
         "zenoh": {},
