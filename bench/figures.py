@@ -20,6 +20,10 @@ def write_figures(out: Path, report: dict[str, Any], samples: dict[str, dict],
     files = [_efficiency(out, report), _distributions(out, samples)]
     if gantt:
         files.append(_gantt(out, gantt))
+    panels = (report.get("balance") or {}).get("gantt")
+    if panels:
+        gantt_figure(out / "balance_gantt.png", panels)
+        files.append("balance_gantt.png")
     return [f for f in files if f]
 
 

@@ -12,9 +12,9 @@ def _us(x: Any) -> str:
         f"{x * 1e6:.0f}")
 
 
-def _pct(x: Any) -> str:
+def _pct(x: Any, *, sign: bool = False) -> str:
     return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else (
-        f"{x * 100:.1f} %")
+        f"{x * 100:+.1f} %" if sign else f"{x * 100:.1f} %")
 
 
 def write_markdown(path: Path, r: dict[str, Any]) -> None:
@@ -93,6 +93,28 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
                   f"{rc_['config']}: period p50 {_us(rc_['period_p50_without_s'])} us without "
                   f"--record, {_us(rc_['period_p50_with_s'])} us with it: "
                   f"{(rc_['ratio'] - 1) * 100:+.1f} % (target: at most +10 %)."]
+    bal = r.get("balance") or {}
+    if bal.get("native"):
+        lines += ["", "## Load balancing (§ IV.7.2): ctrlunit balance, then a re-run", "",
+                  "balance calibrates its schedule model on the first n = 3 native freerun "
+                  "run of each depth and recommends a placement; it is re-run alternately "
+                  "with the default one (mean periods, medians over repeats).", "",
+                  "| depth | recommendation | model of the run | predicted | before | after "
+                  "| after vs predicted | gain |", "|---|---|---|---|---|---|---|---|"]
+        for e in bal["native"]:
+            lines.append(
+                f"| {e['depth']} | {e['recommendations'][0]} | {_us(e['model_now_s'])} us | "
+                f"{_us(e['predicted_period_s'])} us | {_us(e.get('measured_before_s'))} us | "
+                f"{_us(e.get('measured_after_s'))} us | {_pct(e.get('error'), sign=True)} | "
+                f"{_pct(e.get('gain'), sign=True)} |")
+        t8 = bal.get("t800_depth2_from_depth1")
+        if t8:
+            m, pr = t8["measured_period_s"], t8["predicted_period_s"]
+            err = m / pr - 1 if m and pr else math.nan
+            lines += ["", f"The model calibrated on the t800 depth-1 run predicts its depth-2 "
+                      f"period as {_us(pr)} us; measured {_us(m)} us "
+                      f"({_pct(err, sign=True)}). Balance there: "
+                      f"{t8['recommendations'][0]}."]
     lines += ["", "## Figures", ""]
     for f in r.get("figures", []):
         lines.append(f"![{f}]({f})")

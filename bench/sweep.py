@@ -50,12 +50,13 @@ class Config:
     law: str = "resolved-acceleration"
     tag: str = "sweep"
     record: bool = False
+    placement: str | None = None  # a placement file (the balance stage)
 
     @property
     def key(self) -> str:
         return (f"{self.tag}:{self.law}:n{self.peripherals}:d{self.pipeline}:"
                 f"{self.cost_model}x{self.cost_scale:g}:{self.clock}:{self.period:g}"
-                f"{':record' if self.record else ''}")
+                f"{':record' if self.record else ''}{':placed' if self.placement else ''}")
 
 
 def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) -> list[Config]:
@@ -97,6 +98,7 @@ def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str
                    clock=cfg.clock,
                    period=cfg.period, cost_model=cfg.cost_model, cost_scale=cfg.cost_scale,
                    law=cfg.law, cycles=cycles, max_error=1.0, t1_cycles=200,
+                   placement=cfg.placement,
                    unit=f"bench-{os.getpid()}-{random.randrange(1 << 30)}")
     inspect: dict[str, Any] = {}
     code, rep = start(rc, echo=lambda m: None, inspect=inspect)
@@ -104,6 +106,64 @@ def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str
     if record:
         Path(record).unlink(missing_ok=True)
     return rep, inspect.get("central")
+
+
+def _balance_stage(results: dict[str, list[dict]], configs: list[Config], out: Path, *,
+                   quick: bool, repeats: int, progress: Callable[[str, int, int], None] | None,
+                   done: int, total: int) -> dict[str, Any]:
+    """§ IV.7.2 in the report: balance's recommendation for n = 3 (native, freerun, depth 1
+    and 2), re-run against the default placement alternately, predicted against measured;
+    and the model calibrated on the thesis's depth-1 t800 run, against its depth-2 run."""
+    from .balance import analyse, compare, write_placement
+
+    stage: dict[str, Any] = {"native": []}
+    for d in (1, 2):
+        base = next(c for c in configs if c.tag == "sweep" and c.peripherals == 3
+                    and c.pipeline == d and c.cost_model == "native")
+        first = results[base.key][0]
+        a = analyse(first)
+        path = out / f"placement-depth{d}.json"
+        write_placement(a, path)
+        placed = Config(3, d, "native", tag="balance", placement=str(path))
+        before_cfg = Config(3, d, "native", tag="balance")
+        before, after = [], []
+        for _ in range(repeats):
+            for cfg, acc in ((before_cfg, before), (placed, after)):
+                if progress:
+                    progress(cfg.key, done, total)
+                rep, _central = run_one(cfg, cycles_for(cfg, quick), out)
+                acc.append(rep)
+                done += 1
+        ok_b = [r["period_mean_s"] for r in before if r.get("exit_code") == 0]
+        ok_a = [r for r in after if r.get("exit_code") == 0]
+        entry: dict[str, Any] = {"depth": d, "recommendations": a["recommendations"],
+                                 "placement": a["placement"],
+                                 "predicted_period_s": a["predicted"][f"depth{d}"]["period_s"],
+                                 "model_now_s": a["current"][f"depth{d}"]["period_s"]}
+        if ok_b and ok_a:
+            mid = sorted(ok_a, key=lambda r: r["period_mean_s"])[len(ok_a) // 2]
+            cmp = compare(a | {"measured": a["measured"] | {
+                "period_s": statistics.median(ok_b)}}, mid)
+            entry.update(measured_before_s=cmp["before_period_s"],
+                         measured_after_s=cmp["measured_period_s"], error=cmp["error"],
+                         gain=cmp["gain"])
+            if d == 2:
+                stage["gantt"] = {
+                    "n = 3, depth 2, default placement (measured)": first.get("gantt_ms") or [],
+                    "balance's placement (predicted)": a["predicted"]["gantt_ms"],
+                    "balance's placement, re-run (measured)": mid.get("gantt_ms") or []}
+        stage["native"].append(entry)
+    th1 = next((c for c in configs if c.tag == "thesis" and c.peripherals == 3
+                and c.pipeline == 1 and c.law == "resolved-acceleration"), None)
+    th2 = next((c for c in configs if c.tag == "thesis" and c.peripherals == 3
+                and c.pipeline == 2 and c.law == "resolved-acceleration"), None)
+    if th1 and th2 and results[th1.key] and results[th2.key]:
+        a = analyse(results[th1.key][0])
+        stage["t800_depth2_from_depth1"] = {
+            "predicted_period_s": a["current"]["depth2"]["period_s"],
+            "measured_period_s": results[th2.key][0].get("period_mean_s"),
+            "recommendations": a["recommendations"]}
+    return stage
 
 
 def machine_info() -> dict[str, Any]:
@@ -168,7 +228,7 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     results: dict[str, list[dict]] = {c.key: [] for c in configs}
     samples: dict[str, dict[str, list[float]]] = {}
     gantt: dict[str, list] = {}
-    total = len(configs) * repeats + 1
+    total = len(configs) * repeats + 1 + 2 * 2 * repeats
     done = 0
     t_start = time.monotonic()
     rng = random.Random(1994)
@@ -196,6 +256,8 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
                 if cfg.tag == "thesis" and cfg.peripherals == 3 and cfg.law != "kinematics":
                     gantt[f"depth {cfg.pipeline}"] = gantt_window(central.spans)
     runs = [summarise(results[c.key], c) for c in configs]
+    balance = _balance_stage(results, configs, out, quick=quick, repeats=repeats,
+                             progress=progress, done=done, total=total)
     rec_on = next(r for r, c in zip(runs, configs) if c.tag == "record" and c.record)
     rec_off = next(r for r, c in zip(runs, configs) if c.tag == "record" and not c.record)
     recording_cost = {
@@ -206,7 +268,7 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     }
     report = {
         "machine": machine_info(), "floor": fl, "runs": runs, "thesis_1994": THESIS,
-        "recording_cost": recording_cost,
+        "recording_cost": recording_cost, "balance": balance,
         "quick": quick, "repeats": repeats, "cost_scale_thesis_runs": scale,
         "wall_s": time.monotonic() - t_start,
         "method": {
@@ -218,7 +280,11 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
                     "the debt is paid and spins the rest",
             "efficiency": "Eq. IV.23: t_1 / (t_parallel x N), N = processors taking part "
                           "(central included); t_parallel = traversal p50 at depth 1, "
-                          "period p50 at depth 2",
+                          "mean period at depth 2",
+            "balance": "ctrlunit balance on the first n = 3 native freerun run of each depth "
+                       "(model calibrated on it); the placement it writes is re-run "
+                       "alternately with the default one; predicted against measured mean "
+                       "period",
         },
     }
     from .figures import write_figures
