@@ -166,9 +166,10 @@ class Engine:
         self.cost.settle()
         return c
 
-    def run_local(self, c: Ctx) -> Ctx:
-        """Run the whole interval in this process, rounds included (no exchange)."""
-        gen = self.cycle(c)
+    def run_local(self, c: Ctx, *, skip_prefix: bool = False) -> Ctx:
+        """Run the whole interval in this process, rounds included (no exchange); without
+        its leading sample-free steps when ``skip_prefix`` (:meth:`prefix` ran them)."""
+        gen = self.cycle(c, skip_prefix=skip_prefix)
         try:
             rnd = next(gen)
             while True:
