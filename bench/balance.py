@@ -181,6 +181,8 @@ def analyse(report: dict[str, Any]) -> dict[str, Any]:
         recs.append(f"no placement the rules suggest is predicted {MARGIN * 100:.0f} % faster "
                     f"(best: {ranked[0]['why']}, {ranked[0]['period_s'] * 1e6:.0f} us "
                     f"against {now.period_mean_s * 1e6:.0f} us): keep the placement")
+    elif n == 0:
+        recs.append("one processor (n = 0): nothing to place; keep the placement")
     else:
         recs.append("the rules suggest no move (central busy "
                     f"{business.get('central', math.nan) * 100:.0f} %): keep the placement")
