@@ -313,7 +313,7 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         interrupted = code == EXIT_INTERRUPTED
         try:
             central.stop(reason="done" if fault is None else fault["message"],
-                         wait=2.0 if fault is None else (0.1 if interrupted else 0.5))
+                         wait=5.0 if fault is None else (0.1 if interrupted else 0.5))
         finally:
             end_children(children, grace=0.3 if interrupted else 1.0)
             node.close()
