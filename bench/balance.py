@@ -51,9 +51,7 @@ def _replies_mode(plan: ExchangePlan, costs: Costs, depth: int, asked: str) -> s
         return "fused"
     if asked in ("fused", "each"):
         return asked
-    last = max((k for k, st in enumerate(plan.steps) if st.round is not None), default=-1)
-    between = sum(costs.block_s.get(st.block.name, 0.0)
-                  for st in plan.steps[plan.presample_steps:last] if st.block is not None)
+    between = sum(costs.block_s.get(b, 0.0) for b in plan.middle_blocks(ahead=True))
     rtt = costs.send_s + costs.reply_s + 2 * costs.latency_s
     return "each" if between > rtt else "fused"
 

@@ -88,7 +88,6 @@ class InFlight:
     handed_off: bool = False
     started: bool = False
     late_ns: int = 0  # realtime: when this round's data is late (its share of the deadline)
-    queued: bool = False  # its next round is ready but not sent yet (fused exchanges)
     finishing: bool = False  # every exchange done; its last central steps are pending
     dropped: set[int] = field(default_factory=set)  # peripherals whose replies were held
 
@@ -315,11 +314,8 @@ class Central:
         kept (:attr:`warm_rtt_s`)."""
         if self.n == 0 or not self.plan.rounds:
             return
-        est = self.ctl.est
         for i in range(intervals):
-            ctx = self.engine.new_ctx(0.0, est, [0.0] * 3, [0.0] * 3)
-            ctx["qmeas_i"] = [float(q) for q in
-                              inverse_kinematics(self.engine.cfg.params, est[0])]
+            ctx = self._throwaway_ctx()
             gen = self.engine.cycle(ctx)
             cycle = self.WARMUP_BASE + i
             try:
@@ -329,6 +325,13 @@ class Central:
                     rnd = gen.send(None)
             except (StopIteration, ObserverDiverged):
                 continue
+
+    def _throwaway_ctx(self) -> dict:
+        """A context at the current estimate, measured there exactly (warm-up, timing)."""
+        est = self.ctl.est
+        ctx = self.engine.new_ctx(0.0, est, [0.0] * 3, [0.0] * 3)
+        ctx["qmeas_i"] = [float(q) for q in inverse_kinematics(self.engine.cfg.params, est[0])]
+        return ctx
 
     def _warm_round(self, cycle: int, rnd: Round, ctx: dict) -> None:
         payload = encode(self.node.unit, cycle, rnd.index, parts=[
@@ -404,24 +407,16 @@ class Central:
         first round: every central step except those after the last round and, at depth
         2, the sample-free ones run ahead (:meth:`_prime`). T-800 costs from the cost
         model; native costs measured here on throw-away intervals."""
-        steps = self.plan.steps
-        last = max((k for k, st in enumerate(steps) if st.round is not None), default=-1)
-        first = self.engine.presample if self.depth > 1 else 0  # primed ahead (_prime)
-        names = [st.block.name for st in steps[first:last] if st.block is not None]
-        graph = self.plan.graph
+        names = self.plan.middle_blocks(ahead=self.depth > 1)
         if self.engine.cost.name == "t800":
-            return sum(graph.block(b).t800_us * (3 if graph.block(b).per_axis else 1)
-                       for b in names) * self.engine.cost.scale * 1e-6
+            graph = self.plan.graph
+            return sum(graph.block(b).t800_s(self.engine.cost.scale) for b in names)
         acc: dict[str, list[int]] = {}
         old = self.engine.span
         self.engine.span = lambda name, t0, t1: acc.setdefault(name, []).append(t1 - t0)
         try:
-            est = self.ctl.est
             for _ in range(repeat):
-                ctx = self.engine.new_ctx(0.0, est, [0.0] * 3, [0.0] * 3)
-                ctx["qmeas_i"] = [float(q) for q in
-                                  inverse_kinematics(self.engine.cfg.params, est[0])]
-                self.engine.run_local(ctx)
+                self.engine.run_local(self._throwaway_ctx())
         except ObserverDiverged:
             pass
         finally:
@@ -552,10 +547,7 @@ class Central:
             if isinstance(t_ns, bool) or not isinstance(t_ns, int):
                 raise BadMessage("bad_value", "t_ns")
             p = check_vector(msg.get("p"), 3, "p")
-            span = msg.get("span")
-            if not (isinstance(span, list) and len(span) == 2 and all(
-                    isinstance(x, int) for x in span)):
-                raise BadMessage("bad_value", "span")
+            span = check_span(msg.get("span"))
         except BadMessage as exc:
             self.node.reject(exc.reason)
             return
@@ -748,7 +740,6 @@ class Central:
             self._finish(f)
             return
         f.round = rnd
-        f.queued = True
         self.outbox.append(f)
         self._span("central", f.cycle, f.start_ns, time.monotonic_ns())
 
@@ -767,7 +758,6 @@ class Central:
         for f in self.outbox:
             rnd = f.round
             assert rnd is not None
-            f.queued = False
             f.waiting = set(range(self.n))
             f.deadline_ns = now + timeout_ns
             if self.rc.clock == "realtime" and self.plan.round_trips:

@@ -399,8 +399,7 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
     cost_err = None
     if rc.cost_model == "t800":
         # block costs are the emulated T-800 times; the emulation's error is measured
-        per_block = {b.name: b.t800_us * 1e-6 * rc.cost_scale * (3 if b.per_axis else 1)
-                     for b in setup.plan.graph.blocks}
+        per_block = {b.name: b.t800_s(rc.cost_scale) for b in setup.plan.graph.blocks}
         errs = sorted(central.engine.cost.errors_ns + [e for g in t1_engines
                                                        for e in g.cost.errors_ns])
         if errs:

@@ -11,7 +11,7 @@ from ctrlunit.topology.placement import Placement, default_placement
 from ctrlunit.topology.plan import exchange_plan
 
 GRAPH = stage_graph()
-T800 = {b.name: b.t800_us * 1e-6 * (3 if b.per_axis else 1) for b in GRAPH.blocks}
+T800 = {b.name: b.t800_s() for b in GRAPH.blocks}
 ROUND0 = frozenset({"ik_obs0", "jinv_obs0", "residual0"})
 
 

@@ -57,6 +57,10 @@ class Block:
     def per_axis(self) -> bool:
         return self.kind == AXIS
 
+    def t800_s(self, scale: float = 1.0) -> float:
+        """T-800 time of the block for all the axes it runs on, seconds, times ``scale``."""
+        return self.t800_us * (3 if self.per_axis else 1) * scale * 1e-6
+
 
 @dataclass(frozen=True)
 class StageGraph:
@@ -81,7 +85,7 @@ class StageGraph:
 
     def t_single_t800_us(self) -> float:
         """T-800 time of the whole interval on one processor."""
-        return sum(b.t800_us * (3 if b.per_axis else 1) for b in self.blocks)
+        return sum(b.t800_s() for b in self.blocks) * 1e6
 
 
 # T-800 costs (us). errata.md: IK 240 us for 3 axes; IK + J^-1 380 us; LU 24 us;

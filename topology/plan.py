@@ -74,6 +74,14 @@ class ExchangePlan:
             count += 1
         return count
 
+    def middle_blocks(self, *, ahead: bool) -> list[str]:
+        """The central's blocks from the end of one round to the send of the next interval's
+        first round: every central step before the last round, less the sample-free ones
+        when they run ahead (depth 2)."""
+        last = max((k for k, st in enumerate(self.steps) if st.round is not None), default=-1)
+        first = self.presample_steps if ahead else 0
+        return [st.block.name for st in self.steps[first:last] if st.block is not None]
+
     @property
     def round_trips(self) -> int:
         """Round trips per interval (each is one request and one reply per peripheral)."""
