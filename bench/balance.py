@@ -157,7 +157,8 @@ def analyse(report: dict[str, Any]) -> dict[str, Any]:
     n = placement.peripherals
     t_p = central_s + (t_s - central_s) / max(n, 1)
     business = report.get("business") or {}
-    now, _ = predict(graph, placement, costs, depth=depth, replies=asked)
+    current = {d: predict(graph, placement, costs, depth=d, replies=asked)[0] for d in (1, 2)}
+    now = current[depth]
     ranked = []
     central_blocks = sum(v for k, v in block.items() if n == 0 or not graph.block(k).per_axis
                          or k in placement.central_blocks)
@@ -184,8 +185,8 @@ def analyse(report: dict[str, Any]) -> dict[str, Any]:
     else:
         recs.append("the rules suggest no move (central busy "
                     f"{business.get('central', math.nan) * 100:.0f} %): keep the placement")
-    after = {d: predict(graph, new, costs, depth=d, replies=asked)[0] for d in (1, 2)}
-    current = {d: predict(graph, placement, costs, depth=d, replies=asked)[0] for d in (1, 2)}
+    after = current if new == placement else {
+        d: predict(graph, new, costs, depth=d, replies=asked)[0] for d in (1, 2)}
 
     def figures(s: Schedule) -> dict[str, Any]:
         return {"period_s": s.period_mean_s, "traversal_s": s.traversal_s,
