@@ -15,7 +15,10 @@ from ctrlunit.kernels.workspace import (
     require_point,
     slice_map,
     stiffness_eigenvalues,
+    sym3_eigenvalues,
 )
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 
 def test_eigenvalues_equal_w_x2_wt_form():
@@ -24,6 +27,30 @@ def test_eigenvalues_equal_w_x2_wt_form():
 
     ji = inverse_jacobian(P, p) * P.l_a
     assert np.allclose(stiffness_eigenvalues(P, p), np.linalg.eigvalsh(ji.T @ ji))
+
+
+finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.lists(finite, min_size=6, max_size=6), st.sampled_from([0, 1, 2, 3]))
+def test_closed_form_eigenvalues_match_eigvalsh(a, degenerate):
+    """Also with repeated eigenvalues (diagonal, identity multiples, rank one), where the
+    trigonometric form is only good to about sqrt(eps) of the largest magnitude."""
+    m = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
+    if degenerate == 1:
+        m = np.diag([a[0], a[0], a[3]])
+    elif degenerate == 2:
+        m = a[0] * np.eye(3)
+    elif degenerate == 3:
+        v = np.array(a[:3])
+        m = np.outer(v, v)
+    got = sym3_eigenvalues(m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2])
+    ref = np.linalg.eigvalsh(m)
+    scale = max(1.0, float(np.abs(ref).max()))
+    assert np.all(np.diff(got) >= -1e-12 * scale)
+    separated = np.diff(ref).min() > 1e-2 * scale
+    assert np.allclose(got, ref, rtol=0, atol=(1e-12 if separated else 1e-7) * scale)
 
 
 def test_circle_leaves_joint_box_but_stays_usable():
