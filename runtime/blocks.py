@@ -245,6 +245,7 @@ def names_for(block: Block) -> dict[str, str]:
 
     class _Default(dict):
         def __missing__(self, key: str) -> str:
+            self[key] = key  # the next lookup is a plain hit
             return key
 
     d = _Default()

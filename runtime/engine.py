@@ -124,7 +124,8 @@ class Engine:
 
     def _run_block(self, name: str, c: Ctx, axes: Iterable[int]) -> None:
         fn, n, cost_us, per_axis = self._bound[name]
-        t0 = time.monotonic_ns()
+        timed = self.span is not None or self.cost.name != "native"
+        t0 = time.monotonic_ns() if timed else 0
         if per_axis:
             count = 0
             for i in axes:
@@ -133,9 +134,10 @@ class Engine:
         else:
             fn(c, self.cfg, n)
             count = 1
-        self.cost.occupy(cost_us, count, t0)
-        if self.span is not None:
-            self.span(name, t0, time.monotonic_ns())
+        if timed:
+            self.cost.occupy(cost_us, count, t0)
+            if self.span is not None:
+                self.span(name, t0, time.monotonic_ns())
 
     def run_round(self, rnd: Round, c: Ctx, axes: Iterable[int]) -> None:
         """Run a round's per-axis blocks for ``axes`` on context ``c``."""
