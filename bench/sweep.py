@@ -208,6 +208,8 @@ def summarise(reps: list[dict[str, Any]], cfg: Config) -> dict[str, Any]:
         "deadline_misses": med(lambda r: r["deadline_misses"]),
         "business": {k: med(lambda r, k=k: r["business"].get(k, math.nan))
                      for k in busy_keys},
+        "cpu_per_interval_s": med(lambda r: (r.get("cpu_per_interval_s") or {}).get("total")),
+        "cpu_bound_period_s": med(lambda r: r.get("cpu_bound_period_s")),
         "t_s_model_s": med(lambda r: r["t_s_model_s"]),
         "t_p_model_s": med(lambda r: r["t_p_model_s"]),
         "tracking_error_m": {"max": med(lambda r: r["tracking_error_m"]["max"])},

@@ -175,6 +175,7 @@ class Central:
         self.wait_ns = 0
         self.t_start_ns = 0
         self.t_end_ns = 0
+        self.cpu_s: float | None = None  # CPU of this process (all threads) during run()
         self.role_reports: dict[str, dict] = {}
         self.spans: list[tuple[str, int, int, int]] = []  # (process, cycle, t0, t1), bounded
         self.max_spans = 4_000  # the first few hundred intervals: Gantt charts
@@ -251,6 +252,16 @@ class Central:
         """Run ``cycles`` intervals. Raises :class:`Fault` on a detected fault."""
         self.zenoh_identity()  # note the peers connected now (others may leave before the end)
         self.t_start_ns = time.monotonic_ns()
+        cpu0 = time.process_time()
+        try:
+            self._loop()
+        finally:  # a fault too: where the CPU went is part of its diagnosis
+            self.cpu_s = time.process_time() - cpu0
+        self.t_end_ns = time.monotonic_ns()
+        self.rss_end = rss_kb()
+
+    def _loop(self) -> None:
+        """The event loop of :meth:`run`."""
         while self.done < self.cycles and not (self.next_cycle >= self.cycles
                                                and not self.inflight):
             timeout_ns = self._timeout_ns()
@@ -284,8 +295,6 @@ class Central:
             self._check_late(time.monotonic_ns())
             self._check_deadlines(timeout_ns)
             self._check_children()
-        self.t_end_ns = time.monotonic_ns()
-        self.rss_end = rss_kb()
 
     def _timeout_ns(self) -> int:
         """How long a reply or a sample may be missing before it is a fault: the

@@ -257,6 +257,7 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     spec.write_text(json.dumps({"run": rc.to_dict()}))
     endpoint = rc.listen[0] if rc.listen else default_endpoint(run_dir)
     connect_ep = endpoint  # the children always connect to their own central
+    cores = _unit_cores(rc) if spawn else None  # before this process pins itself
     pin_cpus(rc.pin or ("0" if rc.cpus and cpu_ok(0) else None))
     # --connect joins the central to another Zenoh network (e.g. another unit's)
     node = Node(make_config(listen=[endpoint], connect=rc.connect,
@@ -338,12 +339,48 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     for role, rep in central.role_reports.items():
         if isinstance(rep.get("rss_kb"), dict):
             report["memory_kb"][role] = rep["rss_kb"]
+    report.update(cpu_budget(central, _child_names(rc, setup), cores))
     if inspect is not None:
         inspect["central"] = central
         inspect["setup"] = setup
     if recorder is not None:
         recorder.write_report(report)
     return code, report
+
+
+def _unit_cores(rc: RunConfig) -> int:
+    """How many CPUs the roles started on this host can use together."""
+    try:
+        mine = os.sched_getaffinity(0)
+    except OSError:
+        return os.cpu_count() or 1
+    if rc.cpus == "same":
+        return 1
+    if rc.cpus == "split":
+        return len({c for c in (0, 1) if c in mine})
+    return len(mine)
+
+
+def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[str, Any]:
+    """CPU time per interval of every process (all its threads, Zenoh's included) between
+    the central's ``start`` and ``stop``, and what it implies: on ``cores`` CPUs, the
+    freerun period cannot be shorter than the total divided by ``cores``, whatever the
+    schedule. ``cpu_bound_period_s`` is None unless every role ran on this host and
+    reported (``ctrlunit central`` alone does not know the other hosts' cores)."""
+    done = max(1, central.done)
+    per: dict[str, float] = {}
+    if central.cpu_s is not None:
+        per["central"] = central.cpu_s / done
+    for role in roles:
+        cpu = (central.role_reports.get(role) or {}).get("cpu_s")
+        if isinstance(cpu, (int, float)) and not isinstance(cpu, bool) and cpu >= 0:
+            per[role.replace("-", "_")] = cpu / done
+    complete = len(per) == len(roles) + 1
+    total = sum(per.values())
+    return {"cpu_per_interval_s": {**per, "total": total} if per else {},
+            "cpu_cores": cores,
+            "cpu_bound_period_s": total / cores if cores and complete and central.done
+            else None}
 
 
 def _child_names(rc: RunConfig, setup: Setup) -> list[str]:

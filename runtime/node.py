@@ -182,6 +182,8 @@ class Node:
                             on_unknown=self.reject)
         self.last_heard_ns = time.monotonic_ns()
         self.stop_msg: dict[str, Any] | None = None
+        self.cpu_start_s: float | None = None
+        """This process's CPU time (every thread) when the central said ``start``."""
 
     def route(self, key: str, kind: str, index: int = 0) -> None:
         """Deliver messages on ``key`` (under this role's inbox) as ``(kind, index, ...)``
@@ -262,14 +264,23 @@ WARM_RSS_AT = 1000  # intervals after which memory counts as warmed up
 
 
 def is_stop(node: Node, ev: Event) -> bool:
-    """True if ``ev`` is a stop order from the central (and note that it spoke)."""
+    """True if ``ev`` is a stop order from the central (and note that it spoke, and when
+    it said ``start``: see :func:`cpu_used`)."""
     if ev[0] != "control":
         return False
     msg = node.decode(ev[2])
     if msg is None:
         return False
     node.last_heard_ns = time.monotonic_ns()
+    if msg["stage"] == "start" and node.cpu_start_s is None:
+        node.cpu_start_s = time.process_time()
     if msg["stage"] == "stop":
         node.stop_msg = msg
         return True
     return False
+
+
+def cpu_used(node: Node) -> float | None:
+    """CPU seconds this process (all its threads: Zenoh's too) spent since the central's
+    ``start`` order, or None if it never came."""
+    return None if node.cpu_start_s is None else time.process_time() - node.cpu_start_s

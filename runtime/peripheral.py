@@ -16,7 +16,7 @@ from typing import Any
 
 from .codec import BadMessage, check_vals, encode, parts_of
 from .engine import Engine, _plain
-from .node import WARM_RSS_AT, Node, is_stop, rss_kb
+from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb
 
 MAX_KEPT_CYCLES = 8
 ALL_AXES = (0, 1, 2)
@@ -124,4 +124,4 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
             reply.put(encode(node.unit, out[0]["cycle"], out[0]["stage"], parts=out))
     return {"exit": "stop", "served": served, "busy_ns": busy_ns,
             "wall_ns": time.monotonic_ns() - t_start, "rejected": dict(node.rejected),
-            "rss_kb": {"warm": rss_warm, "end": rss_kb()}}
+            "rss_kb": {"warm": rss_warm, "end": rss_kb()}, "cpu_s": cpu_used(node)}

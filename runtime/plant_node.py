@@ -25,7 +25,7 @@ from typing import Any
 
 from ..plant.simulator import Plant
 from .codec import BadMessage, check_vector, encode
-from .node import WARM_RSS_AT, Node, is_stop, rss_kb
+from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb
 
 
 class PlantServer:
@@ -123,6 +123,7 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
                 node.last_heard_ns = time.monotonic_ns()
                 if msg["stage"] == "stop":
                     return _result(server, "stop", time.monotonic_ns())
+                node.cpu_start_s = time.process_time()
                 break
     t_start = time.monotonic_ns()
     server.publish_sample((t_start, t_start))
@@ -191,4 +192,5 @@ def _result(server: PlantServer, reason: str, t_start: int) -> dict[str, Any]:
     return {"exit": reason, "samples": server.sample_no, "misses": server.misses,
             "busy_ns": server.busy_ns, "wall_ns": time.monotonic_ns() - t_start,
             "rejected": dict(server.node.rejected),
-            "rss_kb": {"warm": server.rss_warm, "end": rss_kb()}}
+            "rss_kb": {"warm": server.rss_warm, "end": rss_kb()},
+            "cpu_s": cpu_used(server.node)}

@@ -33,6 +33,8 @@ from typing import Any
 import msgpack
 from mcap.writer import CompressionType, Writer
 
+from .report import CPU_KEYS
+
 SIGNALS_SCHEMA = {
     "title": "ctrlunit.State",
     "type": "object",
@@ -227,6 +229,7 @@ class Recorder:
             "busy": json.dumps(getattr(self, "busy", {})),
             "fault": json.dumps(report.get("fault")),
             "rejected": json.dumps(report.get("rejected_messages") or {}),
+            "cpu": json.dumps({k: report.get(k) for k in CPU_KEYS}),
         })
         self.w.finish()
         self.fh.close()

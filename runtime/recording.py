@@ -16,6 +16,8 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata
 from mcap.stream_reader import StreamReader
 
+from .report import CPU_KEYS
+
 
 @dataclass
 class Recording:
@@ -160,4 +162,6 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
         skipped=skipped, rejected=rejected, t1_s=t1, per_block_s=per_block, fault=fault,
         wall_s=wall / 1e9,
     )
+    cpu = json.loads(result.get("cpu", "{}") or "{}")  # per process: only the run knew
+    rep.update({k: cpu.get(k) for k in CPU_KEYS if k in cpu})
     return rep

@@ -10,6 +10,10 @@ import numpy as np
 
 from ..kernels.trajectory import Task
 
+CPU_KEYS = ("cpu_per_interval_s", "cpu_cores", "cpu_bound_period_s")
+"""Report keys of the CPU budget (``launcher.cpu_budget``): only the live run measures
+them; a recording keeps them for ``ctrlunit report``."""
+
 
 def quantiles(values: list[float] | np.ndarray) -> dict[str, float]:
     """p50, p99 and max (NaN when empty)."""
@@ -150,6 +154,23 @@ def build_report(
     }
 
 
+def _cpu_lines(r: dict[str, Any]) -> list[str]:
+    """CPU per interval of each process and the period it allows (when measured)."""
+    cpu = dict(r.get("cpu_per_interval_s") or {})
+    if not cpu:
+        return []
+    total = cpu.pop("total", math.nan)
+    line = ("  CPU / interval " + "  ".join(f"{k} {v * 1e6:.0f} us" for k, v in cpu.items())
+            + f"  total {total * 1e6:.0f} us")
+    bound = r.get("cpu_bound_period_s")
+    if bound is not None and r.get("cpu_cores"):
+        mean = r.get("period_mean_s", math.nan)
+        line += (f"; on {r['cpu_cores']} core(s) no period below {bound * 1e6:.0f} us"
+                 + (f" (the mean period is {mean / bound:.2f}x that)"
+                    if r.get("clock") == "freerun" and mean and math.isfinite(mean) else ""))
+    return [line]
+
+
 def summary(r: dict[str, Any]) -> str:
     """The human summary printed at the end of a run."""
 
@@ -176,6 +197,7 @@ def summary(r: dict[str, Any]) -> str:
         f"  jitter      std {us(r['jitter_s']['std'])}",
         f"  deadline misses {r['deadline_misses']}   skipped samples {r['skipped_samples']}",
         "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
+        *_cpu_lines(r),
         f"  t_1 (one process, no exchange) {us(r['t1_s'])}   t_s {us(r['t_s_model_s'])}   "
         f"t_p {us(r['t_p_model_s'])}",
         f"  efficiency (Eq. IV.23, N = {r['efficiency_n']}, t_parallel = {r['t_parallel_is']}) "

@@ -55,7 +55,8 @@ def test_report_from_file_equals_live_report(recorded, tmp_path):
     assert res.returncode == 0, res.stderr
     again = json.loads((tmp_path / "r.json").read_text())
     for key in ("cycles", "period_s", "traversal_s", "business", "t1_s", "efficiency",
-                "speedup", "deadline_misses", "round_trips", "command_digest", "torque_nm"):
+                "speedup", "deadline_misses", "round_trips", "command_digest", "torque_nm",
+                "cpu_per_interval_s", "cpu_cores", "cpu_bound_period_s"):
         assert again[key] == live[key], key
 
 

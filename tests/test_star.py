@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -91,8 +92,20 @@ def test_freerun_depth_two_completes_and_reports_round_trips(tmp_path):
     assert rep["cycles"] == cycles
     assert rep["round_trips"] == 2
     assert rep["period_s"]["p50"] > 0
-    print(f"freerun n=3 depth 2: period p50 {rep['period_s']['p50'] * 1e6:.0f} us over "
-          f"{cycles} intervals")
+    # CPU per interval of every process; all of it fits in cores x wall time, so the bound
+    # it sets cannot exceed the period measured (5 %: the roles' windows run from start
+    # to stop, a little longer than the central's intervals)
+    cpu = rep["cpu_per_interval_s"]
+    assert set(cpu) == {"central", "peripheral_1", "peripheral_2", "peripheral_3", "total"}
+    assert all(v > 0 for v in cpu.values())
+    assert math.isclose(cpu["total"], sum(v for k, v in cpu.items() if k != "total"))
+    assert rep["cpu_cores"] >= 1
+    assert rep["cpu_bound_period_s"] == pytest.approx(cpu["total"] / rep["cpu_cores"])
+    assert rep["cpu_bound_period_s"] <= 1.05 * rep["period_mean_s"]
+    print(f"freerun n=3 depth 2: period p50 {rep['period_s']['p50'] * 1e6:.0f} us, mean "
+          f"{rep['period_mean_s'] * 1e6:.0f} us over {cycles} intervals; CPU per interval "
+          f"{cpu['total'] * 1e6:.0f} us on {rep['cpu_cores']} cores: bound "
+          f"{rep['cpu_bound_period_s'] * 1e6:.0f} us")
 
 
 def test_ctrl_c_leaves_no_process_behind():
