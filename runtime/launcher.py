@@ -117,15 +117,15 @@ def _die_with_parent() -> None:  # runs in the child between fork and exec
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
-def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Path
-               ) -> subprocess.Popen:
-    """Start one role as a child process (``ctrlunit plant|peripheral --spec``)."""
+def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Path, *,
+               pin: str | None = None) -> subprocess.Popen:
+    """Start one role as a child process (``ctrlunit plant|peripheral --spec``), pinned to
+    ``pin`` (see :func:`role_cpus`) if given."""
     run = json.loads(spec.read_text())["run"]
     args = [sys.executable, "-m", "ctrlunit.runtime.cli", role, "--spec", str(spec),
             "--connect", endpoint, "--unit", run["unit"]]  # the unit id names it in ps
-    cpu = {"same": "0", "split": "1"}.get(run.get("cpus") or "")
-    if cpu is not None and cpu_ok(int(cpu)):
-        args += ["--pin", cpu]
+    if pin:
+        args += ["--pin", pin]
     if index is not None:
         args += ["--index", str(index)]
     out = open(log, "wb")
@@ -133,12 +133,29 @@ def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Pat
                             preexec_fn=_die_with_parent)
 
 
-def cpu_ok(cpu: int) -> bool:
-    """Is ``cpu`` available to this process?"""
+def role_cpus(rc: RunConfig) -> tuple[str | None, str | None]:
+    """``(central, others)``: the CPUs the launcher pins itself (the central) and the roles
+    it starts to, as ``--pin`` strings, or None to leave an affinity alone.
+
+    ``--cpus same``: every role on CPU 0; ``--cpus split``: the central on 0, the others
+    on 1; ``--pin`` alone pins the central only. Read before the central pins itself: the
+    children are given their CPUs explicitly, since they would otherwise inherit the
+    central's. A CPU this process may not use is replaced by every CPU it may use.
+    """
     try:
-        return cpu in os.sched_getaffinity(0)
+        mine = sorted(os.sched_getaffinity(0))
     except OSError:
-        return False
+        return rc.pin, None
+    every = ",".join(map(str, mine))
+
+    def only(cpu: int) -> str:
+        return str(cpu) if cpu in mine else every
+
+    if rc.cpus == "same":
+        return rc.pin or only(0), only(0)
+    if rc.cpus == "split":
+        return rc.pin or only(0), only(1)
+    return rc.pin, (every if rc.pin else None)
 
 
 def end_children(children: list[subprocess.Popen], *, grace: float = 1.0) -> None:
@@ -258,7 +275,8 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     endpoint = rc.listen[0] if rc.listen else default_endpoint(run_dir)
     connect_ep = endpoint  # the children always connect to their own central
     cores = _unit_cores(rc) if spawn else None  # before this process pins itself
-    pin_cpus(rc.pin or ("0" if rc.cpus and cpu_ok(0) else None))
+    central_pin, child_pin = role_cpus(rc)
+    pin_cpus(central_pin)
     # --connect joins the central to another Zenoh network (e.g. another unit's)
     node = Node(make_config(listen=[endpoint], connect=rc.connect,
                             config_file=rc.zenoh_config), rc.unit, "central")
@@ -280,10 +298,11 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         if not spawn:
             pass
         elif rc.clock != "freerun":
-            children.append(spawn_role(spec, "plant", None, connect_ep, run_dir / "plant.log"))
+            children.append(spawn_role(spec, "plant", None, connect_ep, run_dir / "plant.log",
+                                       pin=child_pin))
         for k in range(setup.placement.peripherals if spawn else 0):
             children.append(spawn_role(spec, "peripheral", k + 1, connect_ep,
-                                       run_dir / f"peripheral-{k + 1}.log"))
+                                       run_dir / f"peripheral-{k + 1}.log", pin=child_pin))
         names = _child_names(rc, setup) if spawn else []
 
         def check() -> tuple[str, int] | None:
@@ -349,16 +368,17 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
 
 
 def _unit_cores(rc: RunConfig) -> int:
-    """How many CPUs the roles started on this host can use together."""
+    """How many CPUs the roles started on this host can use together (:func:`role_cpus`)."""
     try:
         mine = os.sched_getaffinity(0)
     except OSError:
         return os.cpu_count() or 1
-    if rc.cpus == "same":
-        return 1
-    if rc.cpus == "split":
-        return len({c for c in (0, 1) if c in mine})
-    return len(mine)
+
+    def cpus(spec: str | None) -> set[int]:
+        return set(mine) if spec is None else {int(c) for c in spec.split(",") if c}
+
+    central, others = role_cpus(rc)
+    return len(cpus(central) | cpus(others))
 
 
 def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[str, Any]:

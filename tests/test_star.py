@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from ctrlunit.kernels.laws import Gains
@@ -131,6 +133,44 @@ def test_ctrl_c_leaves_no_process_behind():
         kill_unit(unit)
         if proc.poll() is None:
             proc.kill()
+
+
+def _threads_cpus(pid: int) -> set[frozenset[int]]:
+    """The CPU sets of every thread of ``pid`` (Zenoh's included)."""
+    out = set()
+    for t in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):
+            out.add(frozenset(os.sched_getaffinity(int(t.name))))
+    return out
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2 or not {0, 1} <= os.sched_getaffinity(0),
+                    reason="needs CPUs 0 and 1")
+@pytest.mark.parametrize(("cpus", "central", "others"), [("split", {0}, {1}),
+                                                         ("same", {0}, {0})])
+def test_cpus_option_pins_the_central_and_the_other_roles(cpus, central, others):
+    """--cpus split: every thread of the central on CPU 0, every thread of the plant and
+    the peripherals on CPU 1 (they once inherited the central's CPU 0)."""
+    unit = unit_id(f"cpus-{cpus}")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
+         "lockstep", "--duration", "600s", "--cpus", cpus],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30
+        while len(pids_of(unit)) < 5 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        pids = pids_of(unit)
+        assert len(pids) == 5  # launcher (central) + plant + 3 peripherals
+        time.sleep(1.0)  # running: every Zenoh thread exists
+        for pid in pids:
+            want = central if pid == proc.pid else others
+            assert _threads_cpus(pid) == {frozenset(want)}, (pid, pid == proc.pid)
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=5)
 
 
 def test_realtime_at_6ms_tracks_without_fault(tmp_path):
