@@ -19,6 +19,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -117,20 +118,31 @@ def _die_with_parent() -> None:  # runs in the child between fork and exec
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
+def _child_setup(cpus: set[int] | None) -> Callable[[], None]:
+    """What a role's process does between fork and exec: die with its parent, and take
+    its CPUs before its first instruction (threads it starts later, numpy's and Zenoh's,
+    inherit them)."""
+    def setup() -> None:
+        _die_with_parent()
+        if cpus:
+            os.sched_setaffinity(0, cpus)
+
+    return setup
+
+
 def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Path, *,
                pin: str | None = None) -> subprocess.Popen:
-    """Start one role as a child process (``ctrlunit plant|peripheral --spec``), pinned to
-    ``pin`` (see :func:`role_cpus`) if given."""
+    """Start one role as a child process (``ctrlunit plant|peripheral --spec``), on the
+    CPUs ``pin`` (see :func:`role_cpus`) if given."""
     run = json.loads(spec.read_text())["run"]
     args = [sys.executable, "-m", "ctrlunit.runtime.cli", role, "--spec", str(spec),
             "--connect", endpoint, "--unit", run["unit"]]  # the unit id names it in ps
-    if pin:
-        args += ["--pin", pin]
     if index is not None:
         args += ["--index", str(index)]
     out = open(log, "wb")
+    cpus = {int(c) for c in pin.split(",") if c} if pin else None
     return subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                            preexec_fn=_die_with_parent)
+                            preexec_fn=_child_setup(cpus))
 
 
 def role_cpus(rc: RunConfig) -> tuple[str | None, str | None]:

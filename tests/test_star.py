@@ -18,7 +18,7 @@ from ctrlunit.kernels.trajectory import pick_place_task
 from ctrlunit.runtime.controller import simulate
 from ctrlunit.runtime.report import command_digest
 from ctrlunit.topology.graph import LAWS
-from runner import kill_unit, pids_of, start_json, unit_id
+from runner import kill_unit, pids_of, start_json, unit_id, wait_status
 
 pytestmark = pytest.mark.zenoh
 CYCLES = 150
@@ -148,21 +148,19 @@ def _threads_cpus(pid: int) -> set[frozenset[int]]:
                     reason="needs CPUs 0 and 1")
 @pytest.mark.parametrize(("cpus", "central", "others"), [("split", {0}, {1}),
                                                          ("same", {0}, {0})])
-def test_cpus_option_pins_the_central_and_the_other_roles(cpus, central, others):
+def test_cpus_option_pins_the_central_and_the_other_roles(cpus, central, others, tmp_path):
     """--cpus split: every thread of the central on CPU 0, every thread of the plant and
     the peripherals on CPU 1 (they once inherited the central's CPU 0)."""
     unit = unit_id(f"cpus-{cpus}")
+    status = tmp_path / "status"
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
-         "lockstep", "--duration", "600s", "--cpus", cpus],
+         "lockstep", "--duration", "600s", "--cpus", cpus, "--status-file", str(status)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        deadline = time.monotonic() + 30
-        while len(pids_of(unit)) < 5 and time.monotonic() < deadline:
-            time.sleep(0.1)
+        assert wait_status(status, 20) >= 20  # running: every role's threads exist
         pids = pids_of(unit)
         assert len(pids) == 5  # launcher (central) + plant + 3 peripherals
-        time.sleep(1.0)  # running: every Zenoh thread exists
         for pid in pids:
             want = central if pid == proc.pid else others
             assert _threads_cpus(pid) == {frozenset(want)}, (pid, pid == proc.pid)
