@@ -398,7 +398,12 @@ def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[st
     the central's ``start`` and ``stop``, and what it implies: on ``cores`` CPUs, the
     freerun period cannot be shorter than the total divided by ``cores``, whatever the
     schedule. ``cpu_bound_period_s`` is None unless every role ran on this host and
-    reported (``ctrlunit central`` alone does not know the other hosts' cores)."""
+    reported (``ctrlunit central`` alone does not know the other hosts' cores).
+
+    The CPU is averaged over every interval of the run, its first ones included (the
+    period's figures leave those out), so a short run shows a higher figure. When units
+    run inside another program (``ctrlunit bench``), the central's share also counts
+    that program's other threads."""
     done = max(1, central.done)
     per: dict[str, float] = {}
     if central.cpu_s is not None:
