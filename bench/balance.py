@@ -56,7 +56,7 @@ def _replies_mode(plan: ExchangePlan, costs: Costs, depth: int, asked: str) -> s
     return "each" if between > rtt else "fused"
 
 
-def _asked_replies(report: dict[str, Any]) -> str:
+def asked_replies(report: dict[str, Any]) -> str:
     return ((report.get("replies") or {}).get("asked")) or "auto"
 
 
@@ -150,7 +150,7 @@ def analyse(report: dict[str, Any]) -> dict[str, Any]:
     graph, costs, cal = calibrate(report)
     placement = placement_of(report)
     depth = cal["depth"]
-    asked = _asked_replies(report)
+    asked = asked_replies(report)
     block = costs.block_s
     t_s = sum(block.values())
     central_s = sum(v for k, v in block.items() if not graph.block(k).per_axis)
