@@ -125,7 +125,12 @@ def candidates(graph: StageGraph, placement: Placement, business: dict[str, floa
                f"{central * 100:.0f} % busy with its messages): ")
         for r in plan.rounds:
             names = [b.name for b in r.blocks]
-            if len(names) > 1:
+            if len(plan.rounds) == 1:  # the last round: peripherals left with nothing to do
+                out.append((why + f"move the last round ({', '.join(names)}) to the central: "
+                            "one processor (n = 0) runs the interval with no exchange; the "
+                            "star does not pay on this machine",
+                            default_placement(0)))
+            elif len(names) > 1:
                 out.append((why + f"move round {r.index} ({', '.join(names)}) to the central "
                             "(no exchange for it)",
                             Placement(placement.axes, placement.central_blocks | set(names))))
@@ -201,6 +206,9 @@ def analyse(report: dict[str, Any]) -> dict[str, Any]:
                           "step": costs.step_s, "start": costs.start_s,
                           "finish": costs.finish_s, "latency": costs.latency_s,
                           "latency_is": "fitted to the run's mean period"},
+        "cpu": {"per_interval_s": report.get("cpu_per_interval_s") or {},
+                "cores": report.get("cpu_cores"),
+                "bound_period_s": report.get("cpu_bound_period_s")},
         "measured": {"period_s": cal["measured_period_s"],
                      "traversal_s": (report.get("traversal_s") or {}).get("p50"),
                      "gantt_ms": report.get("gantt_ms") or []},

@@ -467,13 +467,22 @@ def balance(source: str, out: str, rerun: str | None, figure: str | None,
         f"{us(a['current']['depth1']['period_s'])}, depth 2 "
         f"{us(a['current']['depth2']['period_s'])}",
     ]
+    cpu = a.get("cpu") or {}
+    if cpu.get("bound_period_s"):
+        per = cpu["per_interval_s"]
+        lines.append(
+            f"  CPU: {us(per.get('total'))} per interval (central {us(per.get('central'))}) "
+            f"on {cpu['cores']} core(s): no period below {us(cpu['bound_period_s'])}, the "
+            f"measured mean is {a['measured']['period_s'] / cpu['bound_period_s']:.2f}x that "
+            "(the model does not charge the cores the processes share)")
     for c in a["candidates"][:6]:
         lines.append(f"  candidate: {c['why']}: {us(c['period_s'])}")
     lines += [f"  recommendation: {r}" for r in a["recommendations"]]
     lines.append(f"  with the new placement: predicted period depth 1 "
                  f"{us(a['predicted']['depth1']['period_s'])}, depth 2 "
                  f"{us(a['predicted']['depth2']['period_s'])}; written to {out} "
-                 f"(ctrlunit start --placement {out})")
+                 f"(ctrlunit start --peripherals {a['placement']['peripherals']} "
+                 f"--placement {out})")
     if cmp is not None:
         lines.append(f"  re-run (depth {cmp['depth']}): measured {us(cmp['measured_period_s'])} "
                      f"against {us(cmp['predicted_period_s'])} predicted "

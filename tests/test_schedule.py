@@ -84,3 +84,21 @@ def test_bad_arguments_are_refused_with_the_allowed_values():
     with pytest.raises(ValueError, match="replies must be fused or each"):
         simulate(_plan(), Costs(T800), replies="some")
     assert math.isfinite(simulate(_plan(), Costs(T800), intervals=10).period_mean_s)
+
+
+def test_moving_the_last_round_recommends_one_processor_not_idle_peripherals():
+    """With every other per-axis block already on the central, the rules' move of the last
+    round leaves the peripherals nothing: the candidate is n = 0, said in words."""
+    from ctrlunit.bench.balance import candidates
+
+    placement = Placement(default_placement(3).axes, ROUND0)
+    business = {"central": 0.6, "peripheral_1": 0.08, "peripheral_2": 0.08,
+                "peripheral_3": 0.08}
+    found = candidates(GRAPH, placement, business, arithmetic=0.05)
+    last = [(why, p) for why, p in found if "last round" in why]
+    assert len(last) == 1
+    why, p = last[0]
+    assert p.peripherals == 0 and "n = 0" in why
+    # the earlier round of the default placement is still moved as a round, peripherals kept
+    first = candidates(GRAPH, default_placement(3), business, arithmetic=0.05)
+    assert all(p.peripherals == 3 for why, p in first if "round 0" in why)
