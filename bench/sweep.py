@@ -129,7 +129,9 @@ def _balance_stage(results: dict[str, list[dict]], configs: list[Config], out: P
         a = analyse(first)
         path = out / f"placement-depth{d}.json"
         write_placement(a, path)
-        placed = Config(3, d, "native", tag="balance", placement=str(path))
+        # the placement says how many peripherals it needs (balance may group them)
+        placed = Config(int(a["placement"]["peripherals"]), d, "native", tag="balance",
+                        placement=str(path))
         before_cfg = Config(3, d, "native", tag="balance")
         before, after = [], []
         for _ in range(repeats):
