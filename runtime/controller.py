@@ -66,7 +66,9 @@ class Controller:
     k_prev: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
-        self.est = (tuple(self.p0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        # plain floats: a numpy scalar here would make every value computed from the
+        # estimate a numpy scalar too, and the kernels several times slower (messaging.md)
+        self.est = (tuple(float(x) for x in self.p0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
     def sources(self, cycle: int, counts: list[int]) -> dict:
         """Context of interval ``cycle`` from its encoder counts."""
