@@ -148,7 +148,7 @@ def _balance_stage(results: dict[str, list[dict]], configs: list[Config], out: P
         entry: dict[str, Any] = {"depth": d, "recommendations": a["recommendations"],
                                  "placement": a["placement"],
                                  "predicted_from_sweep_s": a["predicted"][f"depth{d}"]["period_s"],
-                                 "predicted_period_s": a["predicted"][f"depth{d}"]["period_s"],
+                                 "predicted_period_s": math.nan,  # from the re-runs, below
                                  "model_now_s": a["current"][f"depth{d}"]["period_s"]}
         if ok_b and ok_a:
             mid_b, mid = ok_b[len(ok_b) // 2], ok_a[len(ok_a) // 2]
@@ -297,9 +297,9 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
                           "(central included); t_parallel = traversal p50 at depth 1, "
                           "mean period at depth 2",
             "balance": "ctrlunit balance on the first n = 3 native freerun run of each depth "
-                       "(model calibrated on it); the placement it writes is re-run "
-                       "alternately with the default one; predicted against measured mean "
-                       "period",
+                       "recommends a placement; it is re-run alternately with the default "
+                       "one; its predicted period, from the model calibrated again on the "
+                       "median default re-run, against the measured mean period",
         },
     }
     from .figures import write_figures

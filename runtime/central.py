@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..kernels.kinematics import ik_axis, inverse_kinematics
+from ..kernels.workspace import check_point
 from ..topology.plan import Round
 from .blocks import ObserverDiverged
 from .codec import BadMessage, check_span, check_vals, check_vector, encode, parts_of
@@ -814,8 +815,6 @@ class Central:
             why = (f"tracking error {err * 1e3:.1f} mm exceeds --max-error "
                    f"{self.rc.max_error * 1e3:.1f} mm")
         elif f.cycle % 10 == 0:
-            from ..kernels.workspace import check_point
-
             chk = check_point(self.engine.cfg.params, p)
             if not chk.ok:
                 why = f"the robot left the usable workspace: {chk.reason}"
@@ -895,7 +894,6 @@ class Central:
         """Gravity-holding torques at the last estimated position (the first stage of the
         safe stop); zeros if that position is not usable."""
         from ..kernels.dynamics import gravity_torques
-        from ..kernels.workspace import check_point
 
         p = self.ctl.est[0]
         try:

@@ -48,7 +48,7 @@ from .controller import Controller, initial_angles, initial_command
 from .engine import CostModel, Engine
 from .node import Node, rss_kb
 from .report import build_report, gantt_window
-from .zsession import default_endpoint, make_config, pin_cpus
+from .zsession import default_endpoint, make_config
 
 
 @dataclass
@@ -131,43 +131,42 @@ def _child_setup(cpus: set[int] | None) -> Callable[[], None]:
 
 
 def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Path, *,
-               pin: str | None = None) -> subprocess.Popen:
-    """Start one role as a child process (``ctrlunit plant|peripheral --spec``), on the
-    CPUs ``pin`` (see :func:`role_cpus`) if given."""
+               cpus: set[int] | None = None) -> subprocess.Popen:
+    """Start one role as a child process (``ctrlunit plant|peripheral --spec``), on
+    ``cpus`` (see :func:`role_cpus`) if given."""
     run = json.loads(spec.read_text())["run"]
     args = [sys.executable, "-m", "ctrlunit.runtime.cli", role, "--spec", str(spec),
             "--connect", endpoint, "--unit", run["unit"]]  # the unit id names it in ps
     if index is not None:
         args += ["--index", str(index)]
     out = open(log, "wb")
-    cpus = {int(c) for c in pin.split(",") if c} if pin else None
     return subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                             preexec_fn=_child_setup(cpus))
 
 
-def role_cpus(rc: RunConfig) -> tuple[str | None, str | None]:
+def role_cpus(rc: RunConfig) -> tuple[set[int] | None, set[int] | None]:
     """``(central, others)``: the CPUs the launcher pins itself (the central) and the roles
-    it starts to, as ``--pin`` strings, or None to leave an affinity alone.
+    it starts to, or None to leave an affinity alone.
 
     ``--cpus same``: every role on CPU 0; ``--cpus split``: the central on 0, the others
     on 1; ``--pin`` alone pins the central only. Read before the central pins itself: the
     children are given their CPUs explicitly, since they would otherwise inherit the
     central's. A CPU this process may not use is replaced by every CPU it may use.
     """
+    pin = {int(c) for c in rc.pin.split(",") if c.strip()} if rc.pin else None
     try:
-        mine = sorted(os.sched_getaffinity(0))
+        mine = set(os.sched_getaffinity(0))
     except OSError:
-        return rc.pin, None
-    every = ",".join(map(str, mine))
+        return pin, None
 
-    def only(cpu: int) -> str:
-        return str(cpu) if cpu in mine else every
+    def only(cpu: int) -> set[int]:
+        return {cpu} if cpu in mine else mine
 
     if rc.cpus == "same":
-        return rc.pin or only(0), only(0)
+        return pin or only(0), only(0)
     if rc.cpus == "split":
-        return rc.pin or only(0), only(1)
-    return rc.pin, (every if rc.pin else None)
+        return pin or only(0), only(1)
+    return pin, (mine if pin else None)
 
 
 def end_children(children: list[subprocess.Popen], *, grace: float = 1.0) -> None:
@@ -287,8 +286,9 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     endpoint = rc.listen[0] if rc.listen else default_endpoint(run_dir)
     connect_ep = endpoint  # the children always connect to their own central
     cores = _unit_cores(rc) if spawn else None  # before this process pins itself
-    central_pin, child_pin = role_cpus(rc)
-    pin_cpus(central_pin)
+    central_cpus, child_cpus = role_cpus(rc)
+    if central_cpus:
+        os.sched_setaffinity(0, central_cpus)  # before zenoh.open: its threads inherit it
     # --connect joins the central to another Zenoh network (e.g. another unit's)
     node = Node(make_config(listen=[endpoint], connect=rc.connect,
                             config_file=rc.zenoh_config), rc.unit, "central")
@@ -311,10 +311,10 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
             pass
         elif rc.clock != "freerun":
             children.append(spawn_role(spec, "plant", None, connect_ep, run_dir / "plant.log",
-                                       pin=child_pin))
+                                       cpus=child_cpus))
         for k in range(setup.placement.peripherals if spawn else 0):
             children.append(spawn_role(spec, "peripheral", k + 1, connect_ep,
-                                       run_dir / f"peripheral-{k + 1}.log", pin=child_pin))
+                                       run_dir / f"peripheral-{k + 1}.log", cpus=child_cpus))
         names = _child_names(rc, setup) if spawn else []
 
         def check() -> tuple[str, int] | None:
@@ -382,15 +382,11 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
 def _unit_cores(rc: RunConfig) -> int:
     """How many CPUs the roles started on this host can use together (:func:`role_cpus`)."""
     try:
-        mine = os.sched_getaffinity(0)
+        mine = set(os.sched_getaffinity(0))
     except OSError:
         return os.cpu_count() or 1
-
-    def cpus(spec: str | None) -> set[int]:
-        return set(mine) if spec is None else {int(c) for c in spec.split(",") if c}
-
     central, others = role_cpus(rc)
-    return len(cpus(central) | cpus(others))
+    return len((central or mine) | (others or mine))
 
 
 def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[str, Any]:
