@@ -18,7 +18,7 @@ from ctrlunit.kernels.trajectory import pick_place_task
 from ctrlunit.runtime.controller import simulate
 from ctrlunit.runtime.report import command_digest
 from ctrlunit.topology.graph import LAWS
-from runner import kill_unit, pids_of, start_json, unit_id, wait_status
+from runner import kill_unit, pids_of, slow_task, start_json, unit_id, wait_status
 
 pytestmark = pytest.mark.zenoh
 CYCLES = 150
@@ -172,17 +172,20 @@ def test_cpus_option_pins_the_central_and_the_other_roles(cpus, central, others,
 
 
 def test_realtime_at_6ms_tracks_without_fault(tmp_path):
-    """A period this shared 2-core machine sustains with margin: the loop stays closed.
-    (The silence limit is widened to 10 periods: this VM stalls for 20 ms now and then,
-    which 3 periods of 6 ms would call a failed process; tests/test_faults.py checks the
-    3-period detection itself.)"""
+    """A period this shared 2-core machine sustains: the loop stays closed for a whole move.
+
+    The task is the slow pick & place (2 m/s^2): the 80 m/s^2 one sampled at 6 ms tracks
+    within 10 mm of the 20 mm fault limit, so one of this VM's 45 ms stalls (seen in CI:
+    14 late commands in 41 periods) ended the run. The silence limit is widened to 10
+    periods for the same reason; tests/test_faults.py checks the 3-period detection."""
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",
                                 "realtime", "--period", "6ms", "--fault-periods", "10",
-                                tag="rt6")
+                                "--task", slow_task(tmp_path), tag="rt6")
     assert code == 0, out
     print(f"realtime 6 ms depth 2: misses {rep['deadline_misses']}, tracking max "
           f"{rep['tracking_error_m']['max'] * 1e3:.2f} mm")
-    assert rep["tracking_error_m"]["max"] < 0.02
+    assert rep["cycles"] >= 300  # the whole move and its dwell, not a cut-short run
+    assert rep["tracking_error_m"]["max"] < 0.01  # about 0.5 mm; a 45 ms stall adds ~2
 
 
 def test_plant_options_reach_the_plant(tmp_path):
