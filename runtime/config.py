@@ -74,7 +74,7 @@ class RunConfig:
     timeout: float = 2.0
     startup_timeout: float = 30.0
     pin: str | None = None
-    plant_substeps: int = 10
+    plant_substeps: int | None = None
     plant_lag: float = 0.0
     plant_friction: float = 0.0
     belt: bool = False
@@ -135,7 +135,7 @@ class RunConfig:
             raise bad("replies", ", ".join(REPLY_MODES))
         if not 1e-5 <= self.max_error <= 1.0:
             raise bad("max_error", "10 um to 1 m")
-        if not 1 <= self.plant_substeps <= 1000:
+        if self.plant_substeps is not None and not 1 <= self.plant_substeps <= 1000:
             raise bad("plant_substeps", "1 to 1000")
         from .zsession import check_unit_id
 
