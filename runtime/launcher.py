@@ -393,8 +393,8 @@ def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[st
     """CPU time per interval of every process (all its threads, Zenoh's included) between
     the central's ``start`` and ``stop``, and what it implies: on ``cores`` CPUs, the
     freerun period cannot be shorter than the total divided by ``cores``, whatever the
-    schedule. ``cpu_bound_period_s`` is None unless every role ran on this host and
-    reported (``ctrlunit central`` alone does not know the other hosts' cores).
+    schedule. ``total`` and ``cpu_bound_period_s`` are there only when every role ran on
+    this host and reported (not after a fault, nor for ``ctrlunit central`` alone).
 
     The CPU is averaged over every interval of the run, its first ones included (the
     period's figures leave those out), so a short run shows a higher figure. When units
@@ -410,7 +410,9 @@ def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[st
             per[role.replace("-", "_")] = cpu / done
     complete = len(per) == len(roles) + 1
     total = sum(per.values())
-    return {"cpu_per_interval_s": {**per, "total": total} if per else {},
+    if complete:  # a total of the roles that reported would pass for the unit's
+        per["total"] = total
+    return {"cpu_per_interval_s": per,
             "cpu_cores": cores,
             "cpu_bound_period_s": total / cores if cores and complete and central.done
             else None}

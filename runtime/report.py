@@ -159,9 +159,10 @@ def _cpu_lines(r: dict[str, Any]) -> list[str]:
     cpu = dict(r.get("cpu_per_interval_s") or {})
     if not cpu:
         return []
-    total = cpu.pop("total", math.nan)
+    total = cpu.pop("total", None)
     line = ("  CPU / interval " + "  ".join(f"{k} {v * 1e6:.0f} us" for k, v in cpu.items())
-            + f"  total {total * 1e6:.0f} us")
+            + (f"  total {total * 1e6:.0f} us" if total is not None
+               else "  (no total: not every role reported)"))
     bound = r.get("cpu_bound_period_s")
     if bound is not None and r.get("cpu_cores"):
         mean = r.get("period_mean_s", math.nan)

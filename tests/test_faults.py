@@ -83,6 +83,7 @@ def test_failed_peripheral_is_named_and_stops_the_unit(tmp_path, how):
     assert code == 3, out
     assert "peripheral-2" in out or "peripheral 2" in out
     assert detected < 3.0
+    assert "(no total: not every role reported)" in out  # not the others' sum as a total
     r = read(rec)
     assert not r.salvaged  # the central closed its recording properly
     assert len(r.topics["/plant/command"]) >= 300
