@@ -60,7 +60,15 @@ from ..kernels.kinematics import ik_axis, inverse_kinematics
 from ..kernels.workspace import check_point
 from ..topology.plan import Round
 from .blocks import ObserverDiverged
-from .codec import BadMessage, check_span, check_vals, check_vector, encode, parts_of
+from .codec import (
+    BadMessage,
+    check_span,
+    check_vals,
+    check_vector,
+    encode,
+    parts_of,
+    short_text,
+)
 from .config import EXIT_LINK, EXIT_OBSERVER, EXIT_OK, EXIT_PERIPHERAL, EXIT_PLANT, RunConfig
 from .controller import Controller, handoff_step
 from .engine import CostModel, Engine
@@ -915,6 +923,9 @@ class Central:
         expected = self.expected_roles()
         deadline = time.monotonic() + wait
         hold = self.hold_torques()
+        # a fault's message is long; whole, it made the order undecodable (the roles then
+        # ran on, and the plant made no safe stop, until the launcher ended them)
+        reason = short_text(reason)
         self.say("stop", reason=reason, hold=hold)
         next_say = time.monotonic() + 0.1
         while set(self.role_reports) < expected and time.monotonic() < deadline:

@@ -15,6 +15,8 @@ SCHEMA_VERSION = 2  # 2: requests and replies carry ``parts``
 MAX_MESSAGE_BYTES = 64 * 1024
 MAX_CYCLE = 2**62
 MAX_PARTS = 4
+MAX_STR_BYTES = 256
+"""Longest string (UTF-8 bytes) a message may hold; a longer one makes it undecodable."""
 
 
 class BadMessage(ValueError):
@@ -32,6 +34,13 @@ def encode(unit: str, cycle: int, stage: int | str, **fields: Any) -> bytes:
     return msgpack.packb(msg, use_bin_type=True, use_single_float=False)
 
 
+def short_text(text: str, limit: int = MAX_STR_BYTES) -> str:
+    """``text`` cut to at most ``limit`` UTF-8 bytes (on a character boundary), so that a
+    message carrying it stays decodable."""
+    raw = text.encode()
+    return text if len(raw) <= limit else raw[: limit - 3].decode(errors="ignore") + "..."
+
+
 def decode(data: bytes, unit: str) -> dict[str, Any]:
     """Decode and check the envelope of a message for ``unit``.
 
@@ -45,7 +54,7 @@ def decode(data: bytes, unit: str) -> dict[str, Any]:
         raise BadMessage("too_large", f"{len(data)} bytes")
     try:
         msg = msgpack.unpackb(data, raw=False, strict_map_key=True, max_array_len=64,
-                              max_map_len=64, max_str_len=256, max_bin_len=0)
+                              max_map_len=64, max_str_len=MAX_STR_BYTES, max_bin_len=0)
     except Exception as exc:  # msgpack raises several unrelated types
         raise BadMessage("undecodable", type(exc).__name__) from None
     if not isinstance(msg, dict):

@@ -371,6 +371,9 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         if isinstance(rep.get("rss_kb"), dict):
             report["memory_kb"][role] = rep["rss_kb"]
     report.update(cpu_budget(central, _child_names(rc, setup), cores))
+    if rc.clock != "freerun":  # the plant's own word that it held and braked
+        stop = (central.role_reports.get("plant") or {}).get("safe_stop")
+        report["safe_stop"] = stop if isinstance(stop, dict) else None
     if inspect is not None:
         inspect["central"] = central
         inspect["setup"] = setup

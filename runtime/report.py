@@ -172,6 +172,16 @@ def _cpu_lines(r: dict[str, Any]) -> list[str]:
     return [line]
 
 
+def _safe_stop_line(stop: Any) -> str:
+    """What the plant reported of its safe stop (gravity hold with braking, then zero
+    torque), or that it reported nothing."""
+    try:
+        return (f"  safe stop   the plant held and braked for {stop['hold_s'] * 1e3:.0f} ms "
+                f"(moved {stop['drift_m'] * 1e3:.2f} mm), then zero torque")
+    except (TypeError, KeyError, ValueError):
+        return "  safe stop   NOT confirmed: the plant did not report one"
+
+
 def summary(r: dict[str, Any]) -> str:
     """The human summary printed at the end of a run."""
 
@@ -213,4 +223,6 @@ def summary(r: dict[str, Any]) -> str:
     if r.get("fault"):
         f = r["fault"]
         lines.append(f"  FAULT in {f['process']}: {f['message']} (exit {f['code']})")
+        if "safe_stop" in r:
+            lines.append(_safe_stop_line(r["safe_stop"]))
     return "\n".join(lines)

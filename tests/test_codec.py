@@ -6,7 +6,14 @@ import math
 
 import msgpack
 import pytest
-from ctrlunit.runtime.codec import BadMessage, check_vals, decode, encode
+from ctrlunit.runtime.codec import (
+    MAX_STR_BYTES,
+    BadMessage,
+    check_vals,
+    decode,
+    encode,
+    short_text,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -54,3 +61,19 @@ def test_nan_and_wrong_lengths_are_rejected():
         check_vals({"row_i": [[1.0, 2.0]]}, ["row_i"], 1)
     with pytest.raises(BadMessage):
         check_vals({"row_i": [[1.0, 2.0, 3.0]]}, ["row_i"], 2)
+
+
+@pytest.mark.parametrize("text", ["done", "x" * 300, "silent for 3.1 ms; " * 30, "µ" * 200])
+def test_a_stop_order_with_any_reason_stays_decodable(text):
+    """A fault's message (300-600 characters with its hint) once made the stop order
+    undecodable to the roles: they ran on and the plant made no safe stop."""
+    with pytest.raises(BadMessage):
+        if len(text.encode()) > MAX_STR_BYTES:
+            decode(encode("u1", 0, "stop", reason=text), "u1")
+        else:
+            raise BadMessage("fits")
+    short = short_text(text)
+    assert len(short.encode()) <= MAX_STR_BYTES
+    assert text.startswith(short.removesuffix("..."))
+    assert decode(encode("u1", 0, "stop", reason=short, hold=[0.1, 0.2, 0.3]),
+                  "u1")["reason"] == short

@@ -84,6 +84,8 @@ def test_failed_peripheral_is_named_and_stops_the_unit(tmp_path, how):
     assert "peripheral-2" in out or "peripheral 2" in out
     assert detected < 3.0
     assert "(no total: not every role reported)" in out  # not the others' sum as a total
+    # the stop order reached the plant (a long fault message once made it undecodable)
+    assert "safe stop   the plant held and braked" in out, out
     r = read(rec)
     assert not r.salvaged  # the central closed its recording properly
     assert len(r.topics["/plant/command"]) >= 300
@@ -109,3 +111,7 @@ def test_frozen_role_in_realtime_is_detected_within_three_periods(tmp_path, role
     assert silent, out
     # three periods (60 ms) plus the time the central takes to wake and look
     assert 60.0 <= silent[0] < 60.0 + 5.0, out
+    if role == "plant":  # frozen: it cannot confirm, and the summary must not pretend
+        assert "safe stop   NOT confirmed" in out, out
+    else:
+        assert "safe stop   the plant held and braked" in out, out
