@@ -177,7 +177,8 @@ def _safe_stop_line(stop: Any) -> str:
     torque), or that it reported nothing."""
     try:
         return (f"  safe stop   the plant held and braked for {stop['hold_s'] * 1e3:.0f} ms "
-                f"(moved {stop['drift_m'] * 1e3:.2f} mm), then zero torque")
+                f"(moved {stop['drift_m'] * 1e3:.1f} mm, left at "
+                f"{stop['speed_m_s'] * 1e3:.1f} mm/s), then zero torque")
     except (TypeError, KeyError, ValueError):
         return "  safe stop   NOT confirmed: the plant did not report one"
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import copy
+import math
 import os
 import re
 import signal
@@ -74,6 +76,46 @@ def _run_and_break(tmp_path: Path, how: str, role: str, index: int | None, *,
         if proc.poll() is None:
             proc.kill()
     return proc.returncode, out, detected, rec
+
+
+@pytest.mark.parametrize("period", [1e-3, 20e-3])
+def test_safe_stop_brings_a_fast_robot_to_rest(period):
+    """From the fastest point of pick & place (lockstep, 1 ms), the plant's safe stop
+    leaves the platform nearly at rest, at any control period (the drive's own loop)."""
+    from ctrlunit.kernels.dynamics import gravity_torques
+    from ctrlunit.kernels.laws import Gains
+    from ctrlunit.kernels.params import DELTA_IA as P
+    from ctrlunit.kernels.trajectory import pick_place_task
+    from ctrlunit.plant.simulator import Plant, PlantConfig
+    from ctrlunit.runtime import controller as ctl_mod
+    from ctrlunit.runtime.launcher import safe_stop
+
+    task = pick_place_task()
+    task.align(0.0005)
+    eng = ctl_mod.build_engine(P, task, law="resolved-acceleration", model="complete",
+                         gains=Gains.from_bandwidth(20.0), period=1e-3, observer="predict",
+                         depth=1)
+    plant = Plant(P, PlantConfig(), q0=ctl_mod.initial_angles(P, task), p_guess=tuple(task.start()))
+    ctl = ctl_mod.Controller(eng, 1e-3, P.increment, tuple(task.start()))
+    plant.set_command(ctl_mod.initial_command(P, task))
+    fastest = (0.0, None)
+    for k in range(150):
+        ctx = eng.run_local(ctl.sources(k, plant.encoder_counts()))
+        ctl.handoff(ctx)
+        plant.set_command(ctx["cmd"])
+        plant.step()
+        speed = math.hypot(*plant.state.pd)
+        if speed > fastest[0]:
+            fastest = (speed, copy.deepcopy(plant.state))
+    stopped = Plant(P, PlantConfig(period=period))
+    stopped.state = fastest[1]
+    stopped.set_command([float(x) for x in gravity_torques(P, stopped.state.p)])
+    res = safe_stop(stopped)
+    print(f"period {period * 1e3:.0f} ms: from {fastest[0]:.2f} m/s, moved "
+          f"{res['drift_m'] * 1e3:.1f} mm, left at {res['speed_m_s'] * 1e3:.2f} mm/s")
+    assert fastest[0] > 2.0  # it was moving fast
+    assert res["speed_m_s"] < 0.01
+    assert res["drift_m"] < 0.06
 
 
 @pytest.mark.parametrize("how", ["kill", "stop"])
