@@ -250,10 +250,15 @@ def safe_stop(plant: Plant, *, hold_s: float = 0.05, damping: float = 5.0,
     Returns the hold time, the distance moved and the platform speed at the end of it."""
     p0 = list(plant.state.p)
     hold = list(plant.command)
+    # integrated with sub-steps no longer than the plant's own (the belt needs 0.1 ms)
+    inner = max(1, math.ceil(drive_period * plant.config.n_substeps / plant.config.period
+                             - 1e-9))
     for _ in range(max(1, round(hold_s / drive_period))):
-        qd = plant.state.qd
+        # a drive damps what its encoder sees: the motor, behind a belt
+        qd = plant.state.motor_d if plant.config.belt else plant.state.qd
         plant.set_command([hold[i] - damping * qd[i] for i in range(3)])
-        plant.substep(drive_period)
+        for _ in range(inner):
+            plant.substep(drive_period / inner)
         plant.project()
     plant.set_command([0.0, 0.0, 0.0])
     return {"hold_s": hold_s, "drift_m": math.dist(p0, plant.state.p),

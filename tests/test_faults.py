@@ -78,8 +78,8 @@ def _run_and_break(tmp_path: Path, how: str, role: str, index: int | None, *,
     return proc.returncode, out, detected, rec
 
 
-@pytest.mark.parametrize("period", [1e-3, 20e-3])
-def test_safe_stop_brings_a_fast_robot_to_rest(period):
+@pytest.mark.parametrize(("period", "belt"), [(1e-3, False), (20e-3, False), (1e-3, True)])
+def test_safe_stop_brings_a_fast_robot_to_rest(period, belt):
     """From the fastest point of pick & place (lockstep, 1 ms), the plant's safe stop
     leaves the platform nearly at rest, at any control period (the drive's own loop)."""
     from ctrlunit.kernels.dynamics import gravity_torques
@@ -107,11 +107,13 @@ def test_safe_stop_brings_a_fast_robot_to_rest(period):
         speed = math.hypot(*plant.state.pd)
         if speed > fastest[0]:
             fastest = (speed, copy.deepcopy(plant.state))
-    stopped = Plant(P, PlantConfig(period=period))
+    stopped = Plant(P, PlantConfig(period=period, belt=belt))
     stopped.state = fastest[1]
+    if belt:  # the motors where the arms are, the belt unstretched
+        stopped.state.motor, stopped.state.motor_d = list(stopped.state.q), list(stopped.state.qd)
     stopped.set_command([float(x) for x in gravity_torques(P, stopped.state.p)])
     res = safe_stop(stopped)
-    print(f"period {period * 1e3:.0f} ms: from {fastest[0]:.2f} m/s, moved "
+    print(f"period {period * 1e3:.0f} ms, belt {belt}: from {fastest[0]:.2f} m/s, moved "
           f"{res['drift_m'] * 1e3:.1f} mm, left at {res['speed_m_s'] * 1e3:.2f} mm/s")
     assert fastest[0] > 2.0  # it was moving fast
     assert res["speed_m_s"] < 0.01
