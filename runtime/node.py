@@ -105,6 +105,7 @@ class Inbox:
                  on_unknown: Callable[[str], None], capacity: int = 4096) -> None:
         self._routes: dict[str, tuple[str, int]] = {}
         self._on_unknown = on_unknown
+        self._held: zenoh.Sample | None = None  # taken by pending(), given by get()
         self._sub = session.declare_subscriber(f"{prefix}/**",
                                                zenoh.handlers.FifoChannel(capacity))
         self._tick_key = f"{prefix}/tick"
@@ -128,8 +129,16 @@ class Inbox:
             self._on_unknown("unexpected_key")
         return None  # a tick: look at the clock again
 
+    def pending(self) -> bool:
+        """Whether a message is waiting (it stays for the next :meth:`get`)."""
+        if self._held is None:
+            self._held = self._sub.try_recv()
+        return self._held is not None
+
     def get(self, timeout: float | None = None) -> Event:
-        s = self._sub.try_recv()
+        s, self._held = self._held, None
+        if s is None:
+            s = self._sub.try_recv()
         end = None
         while True:
             if s is not None:
