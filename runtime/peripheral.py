@@ -15,7 +15,7 @@ import time
 from typing import Any
 
 from .codec import BadMessage, check_vals, encode, parts_of
-from .engine import Engine, _plain
+from .engine import Engine
 from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb
 
 MAX_KEPT_CYCLES = 8
@@ -106,7 +106,7 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
             part = {"cycle": cycle, "stage": rnd.index,
                     "vals": Engine.reply_vals(rnd, ctx, axes)}
             if trace:  # recording: every intermediate value too, for replay --verify
-                part["trace"] = {n: [_plain(ctx[n][i]) for i in axes]
+                part["trace"] = {n: [ctx[n][i] for i in axes]
                                  for n in trace_names[rnd.index]}
             t1 = time.monotonic_ns()
             part["span"] = [t0, t1]

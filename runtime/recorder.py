@@ -69,12 +69,6 @@ FLUSH_EVERY_NS = 20_000_000
 CHUNK_SIZE = 16 * 1024
 
 
-def _plain(v: Any) -> Any:
-    if isinstance(v, tuple | list):
-        return [_plain(x) for x in v]
-    return v
-
-
 def _num(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
@@ -188,7 +182,7 @@ class Recorder:
         }
         self._add("/signals/state", now, json.dumps(sig).encode(), json_signals=True)
         self._add("/trace/central", now, msgpack.packb(
-            {"cycle": cycle, "vals": {n: _plain(ctx[n]) for n in self.central_outputs
+            {"cycle": cycle, "vals": {n: ctx[n] for n in self.central_outputs
                                       if n in ctx}}, use_single_float=False))
         misses = central.plant_misses + central.skipped
         if misses != self.last_misses:
