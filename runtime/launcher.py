@@ -297,8 +297,8 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     spec.write_text(json.dumps({"run": rc.to_dict()}))
     endpoint = rc.listen[0] if rc.listen else default_endpoint(run_dir)
     connect_ep = endpoint  # the children always connect to their own central
-    cores = _unit_cores(rc) if spawn else None  # before this process pins itself
-    central_cpus, child_cpus = role_cpus(rc)
+    central_cpus, child_cpus = role_cpus(rc)  # before this process pins itself
+    cores = _unit_cores(central_cpus, child_cpus) if spawn else None
     if central_cpus:
         os.sched_setaffinity(0, central_cpus)  # before zenoh.open: its threads inherit it
     # --connect joins the central to another Zenoh network (e.g. another unit's)
@@ -394,13 +394,13 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     return code, report
 
 
-def _unit_cores(rc: RunConfig) -> int:
-    """How many CPUs the roles started on this host can use together (:func:`role_cpus`)."""
+def _unit_cores(central: set[int] | None, others: set[int] | None) -> int:
+    """How many CPUs the roles started on this host can use together, given
+    :func:`role_cpus` (read before the central pins itself)."""
     try:
         mine = set(os.sched_getaffinity(0))
     except OSError:
         return os.cpu_count() or 1
-    central, others = role_cpus(rc)
     return len((central or mine) | (others or mine))
 
 

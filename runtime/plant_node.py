@@ -117,14 +117,10 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
             if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
                 return _result(server, "watchdog", time.monotonic_ns())
             continue
-        if ev[0] == "control":
-            msg = node.decode(ev[2])
-            if msg is not None and msg["stage"] in ("start", "stop"):
-                node.last_heard_ns = time.monotonic_ns()
-                if msg["stage"] == "stop":
-                    return _result(server, "stop", time.monotonic_ns())
-                node.cpu_start_s = time.process_time()
-                break
+        if is_stop(node, ev):
+            return _result(server, "stop", time.monotonic_ns())
+        if node.cpu_start_s is not None:  # is_stop noted the start order
+            break
     t_start = time.monotonic_ns()
     server.publish_sample((t_start, t_start))
     exit_reason = "done"
