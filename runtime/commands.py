@@ -94,6 +94,13 @@ def run_options(fn: Any) -> Any:
         click.option("--cpus", type=click.Choice(["same", "split"]), default=None,
                      help="start: pin every role on CPU 0 (same), or the central on 0 and "
                      "the others on 1 (split); default: no pinning."),
+        click.option("--rt-priority", type=click.IntRange(0, 99), default=0,
+                     show_default=True,
+                     help="SCHED_FIFO priority of every role of the unit (the roles "
+                     "inherit it from start); 0: leave the policy as it is. Needs root, "
+                     "CAP_SYS_NICE or ulimit -r. Use it at a period the machine sustains: "
+                     "when overloaded, the kernel's RT throttling freezes the unit for up "
+                     "to 50 ms a second."),
         click.option("--plant-substeps", type=click.IntRange(1, 1000), default=None,
                      help="RK4 sub-steps of the plant per period; default: the fewest of "
                      "at most 0.25 ms (0.1 ms with --belt)."),
@@ -223,6 +230,7 @@ def peripheral(index: int, **kw: Any) -> None:
 def _role_setup(kw: dict[str, Any]) -> tuple[Any, Any]:
     """Setup and Zenoh configuration of a single role (exits on a configuration error)."""
     from .launcher import make_setup
+    from .sched import RtPermissionError, apply_rt
     from .zsession import make_config, pin_cpus
 
     rc = make_rc(kw)
@@ -231,6 +239,10 @@ def _role_setup(kw: dict[str, Any]) -> tuple[Any, Any]:
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), EXIT_CONFIG)
     pin_cpus(rc.pin)
+    try:  # before zenoh.open: its threads inherit it
+        apply_rt(rc.rt_priority)
+    except RtPermissionError as exc:
+        _fail(str(exc), EXIT_CONFIG)
     return setup, make_config(listen=rc.listen, connect=rc.connect,
                               config_file=rc.zenoh_config)
 

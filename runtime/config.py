@@ -89,6 +89,7 @@ class RunConfig:
     late: dict[str, str] = field(default_factory=dict)
     replies: str = "auto"
     fault_periods: float = 3.0
+    rt_priority: int = 0
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS
@@ -137,6 +138,12 @@ class RunConfig:
             raise bad("max_error", "10 um to 1 m")
         if self.plant_substeps is not None and not 1 <= self.plant_substeps <= 1000:
             raise bad("plant_substeps", "1 to 1000")
+        from .sched import check_priority
+
+        try:
+            check_priority(self.rt_priority)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
         from .zsession import check_unit_id
 
         try:

@@ -34,6 +34,7 @@ from ..plant.simulator import Plant, PlantConfig
 from ..topology.graph import stage_graph
 from ..topology.placement import Placement, default_placement, load_placement
 from ..topology.plan import ExchangePlan, exchange_plan
+from . import sched
 from .blocks import BlockConfig
 from .central import Central, Fault, measure_t1
 from .config import (
@@ -198,6 +199,7 @@ def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
         node.wait_for_go(timeout=setup.rc.startup_timeout)
         res = serve(node, setup.engine(), index - 1, reply,
                     watchdog=max(5.0, 3 * setup.rc.timeout), trace=setup.rc.trace)
+        res["sched"] = sched.policy_name()
         _bye(node, res)
         return EXIT_OK if res["exit"] == "stop" else EXIT_LINK
     except TimeoutError as exc:
@@ -228,6 +230,7 @@ def run_plant(setup: Setup, conf: Any) -> int:
                 isinstance(x, float) and math.isfinite(x) for x in hold):
             plant.set_command(hold)
         res["safe_stop"] = safe_stop(plant)
+        res["sched"] = sched.policy_name()
         _bye(node, res)
         return EXIT_OK if res["exit"] in ("stop", "done") else EXIT_LINK
     except TimeoutError as exc:
@@ -285,10 +288,22 @@ def central_only(rc: RunConfig) -> tuple[int, dict]:
 def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool = True,
           inspect: dict | None = None) -> tuple[int, dict]:
     """Run a whole unit on this host; returns ``(exit code, report)``. ``inspect``, if
-    given, receives the central (spans, logs) for benchmarks."""
+    given, receives the central (spans, logs) for benchmarks. This process's scheduling
+    policy is what it was before when it returns (see :mod:`.sched`)."""
+    saved = sched.current()
+    try:
+        return _start(rc, echo=echo, progress=progress, spawn=spawn, inspect=inspect)
+    finally:
+        sched.restore(saved)
+
+
+def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
+           inspect: dict | None) -> tuple[int, dict]:
     try:
         setup = make_setup(rc)
-    except (ConfigError, ValueError) as exc:
+        # before zenoh.open and the children: Zenoh's threads and the roles inherit it
+        policy = sched.apply_rt(rc.rt_priority)
+    except (ConfigError, ValueError, sched.RtPermissionError) as exc:
         return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
                                        "code": EXIT_CONFIG}}
     rc.trace = bool(rc.record)
@@ -383,6 +398,9 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         if isinstance(rep.get("rss_kb"), dict):
             report["memory_kb"][role] = rep["rss_kb"]
     report.update(cpu_budget(central, _child_names(rc, setup), cores))
+    report["scheduling"] = {"central": policy} | {
+        name.replace("-", "_"): (central.role_reports.get(name) or {}).get("sched")
+        for name in (_child_names(rc, setup) if spawn else [])}
     if rc.clock != "freerun":  # the plant's own word that it held and braked
         stop = (central.role_reports.get("plant") or {}).get("safe_stop")
         report["safe_stop"] = stop if isinstance(stop, dict) else None

@@ -172,6 +172,17 @@ def _cpu_lines(r: dict[str, Any]) -> list[str]:
     return [line]
 
 
+def _sched_lines(r: dict[str, Any]) -> list[str]:
+    """The scheduling policy of each role: one phrase when they share it."""
+    pol = r.get("scheduling") or {}
+    if not pol:
+        return []
+    values = set(pol.values())
+    if len(values) == 1:
+        return [f"  scheduling  {next(iter(values))}, every role"]
+    return ["  scheduling  " + "  ".join(f"{k} {v or 'not reported'}" for k, v in pol.items())]
+
+
 def _safe_stop_line(stop: Any) -> str:
     """What the plant reported of its safe stop (gravity hold with braking, then zero
     torque), or that it reported nothing."""
@@ -210,6 +221,7 @@ def summary(r: dict[str, Any]) -> str:
         f"  deadline misses {r['deadline_misses']}   skipped samples {r['skipped_samples']}",
         "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
         *_cpu_lines(r),
+        *_sched_lines(r),
         f"  t_1 (one process, no exchange) {us(r['t1_s'])}   t_s {us(r['t_s_model_s'])}   "
         f"t_p {us(r['t_p_model_s'])}",
         f"  efficiency (Eq. IV.23, N = {r['efficiency_n']}, t_parallel = {r['t_parallel_is']}) "
