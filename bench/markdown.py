@@ -99,6 +99,26 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
                   f"{rc_['config']}: period p50 {_us(rc_['period_p50_without_s'])} us without "
                   f"--record, {_us(rc_['period_p50_with_s'])} us with it: "
                   f"{(rc_['ratio'] - 1) * 100:+.1f} % (target: at most +10 %)."]
+    tg = r.get("target") or {}
+    if tg.get("variants"):
+        target_us = _us(tg["target_s"])
+        lines += ["", f"## The {target_us} us target: freerun period at n = 3, depth 2", "",
+                  f"{tg['config']}; mean period (median over repeats, min..max), CPU of "
+                  "every process per interval. SCHED_FIFO: every role under --rt-priority "
+                  "(at equal priority no role preempts another on wake-up)."
+                  + ("" if tg["fifo_permitted"] else " SCHED_FIFO is not permitted to "
+                     "this process: those variants were not run."), "",
+                  "| placement | scheduling | exchanges / interval | mean period (us) | "
+                  "spread (us) | CPU / interval (us) | target |",
+                  "|---|---|---|---|---|---|---|"]
+        for v in tg["variants"]:
+            sp = v["period_mean_spread_s"]
+            met = v["period_mean_s"] <= tg["target_s"]
+            lines.append(
+                f"| {v['placement']} | {v['scheduling']} | "
+                f"{(v['exchanges_per_interval'] or 0):.2f} | {_us(v['period_mean_s'])} | "
+                + (f"{_us(sp[0])}..{_us(sp[1])}" if sp else "n/a")
+                + f" | {_us(v['cpu_per_interval_s'])} | {'met' if met else 'missed'} |")
     bal = r.get("balance") or {}
     if bal.get("native"):
         lines += ["", "## Load balancing (§ IV.7.2): ctrlunit balance, then a re-run", "",

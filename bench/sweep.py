@@ -16,6 +16,8 @@ import os
 import platform
 import random
 import statistics
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -51,12 +53,14 @@ class Config:
     tag: str = "sweep"
     record: bool = False
     placement: str | None = None  # a placement file (the balance stage)
+    rt_priority: int = 0  # SCHED_FIFO for every role (the target stage)
 
     @property
     def key(self) -> str:
         return (f"{self.tag}:{self.law}:n{self.peripherals}:d{self.pipeline}:"
                 f"{self.cost_model}x{self.cost_scale:g}:{self.clock}:{self.period:g}"
-                f"{':record' if self.record else ''}{':placed' if self.placement else ''}")
+                f"{':record' if self.record else ''}{':placed' if self.placement else ''}"
+                f"{f':fifo{self.rt_priority}' if self.rt_priority else ''}")
 
 
 def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) -> list[Config]:
@@ -98,7 +102,7 @@ def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str
                    clock=cfg.clock,
                    period=cfg.period, cost_model=cfg.cost_model, cost_scale=cfg.cost_scale,
                    law=cfg.law, cycles=cycles, max_error=1.0, t1_cycles=200,
-                   placement=cfg.placement,
+                   placement=cfg.placement, rt_priority=cfg.rt_priority,
                    unit=f"bench-{os.getpid()}-{random.randrange(1 << 30)}")
     inspect: dict[str, Any] = {}
     code, rep = start(rc, echo=lambda m: None, inspect=inspect)
@@ -179,6 +183,61 @@ def _balance_stage(results: dict[str, list[dict]], configs: list[Config], out: P
     return stage
 
 
+TARGET_PERIOD_S = 0.5e-3
+"""Issue 4's benchmark target: the freerun period at n = 3, depth 2."""
+TARGET_RT_PRIORITY = 10
+
+
+def _fifo_permitted() -> bool:
+    """Whether this process may use SCHED_FIFO (tried in a child interpreter: the bench's
+    own policy changes only while a unit runs in it)."""
+    code = ("import os\ntry:\n os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
+            "\nexcept PermissionError:\n raise SystemExit(1)")
+    return subprocess.run([sys.executable, "-c", code], timeout=30).returncode == 0
+
+
+def _target_stage(out: Path, *, quick: bool, repeats: int,
+                  progress: Callable[[str, int, int], None] | None, done: int,
+                  total: int) -> dict[str, Any]:
+    """The freerun period at n = 3, depth 2 against the 0.5 ms target: the default
+    placement and balance's depth-2 placement, each under the default scheduling policy
+    and under SCHED_FIFO for every role (``--rt-priority``), run one after the other in
+    each repeat so that the four see the same machine."""
+    placement = out / "placement-depth2.json"
+    permitted = _fifo_permitted()
+    variants = []
+    for placed in [None] + ([str(placement)] if placement.exists() else []):
+        n = int(json.loads(placement.read_text())["peripherals"]) if placed else 3
+        for rt in (0, TARGET_RT_PRIORITY) if permitted else (0,):
+            variants.append(Config(n, 2, "native", tag="target", placement=placed,
+                                   rt_priority=rt))
+    runs: dict[str, list[dict]] = {v.key: [] for v in variants}
+    for _ in range(repeats):
+        for cfg in variants:
+            if progress:
+                progress(cfg.key, done, total)
+            rep, _central = run_one(cfg, cycles_for(cfg, quick) * 3, out)
+            runs[cfg.key].append(rep)
+            done += 1
+    rows = []
+    for cfg in variants:
+        ok = [r for r in runs[cfg.key] if r.get("exit_code") == 0]
+        means = [r["period_mean_s"] for r in ok]
+        cpu = [(r.get("cpu_per_interval_s") or {}).get("total") for r in ok]
+        cpu = [c for c in cpu if c]
+        rows.append({
+            "placement": "balance's (depth 2)" if cfg.placement else "default",
+            "scheduling": f"SCHED_FIFO {cfg.rt_priority}" if cfg.rt_priority else "default",
+            "period_mean_s": statistics.median(means) if means else math.nan,
+            "period_mean_spread_s": [min(means), max(means)] if means else [],
+            "cpu_per_interval_s": statistics.median(cpu) if cpu else math.nan,
+            "exchanges_per_interval": ok[0].get("exchanges_per_interval") if ok else None,
+            "runs": len(runs[cfg.key]), "ok": len(ok)})
+    return {"target_s": TARGET_PERIOD_S, "fifo_permitted": permitted,
+            "config": "freerun, n = 3, depth 2, native; the variants alternate in each "
+                      "repeat", "variants": rows}
+
+
 def machine_info() -> dict[str, Any]:
     import zenoh
 
@@ -243,7 +302,7 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     results: dict[str, list[dict]] = {c.key: [] for c in configs}
     samples: dict[str, dict[str, list[float]]] = {}
     gantt: dict[str, list] = {}
-    total = len(configs) * repeats + 1 + 2 * 2 * repeats
+    total = len(configs) * repeats + 1 + 2 * 2 * repeats + 4 * repeats
     done = 0
     t_start = time.monotonic()
     rng = random.Random(1994)
@@ -273,6 +332,9 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     runs = [summarise(results[c.key], c) for c in configs]
     balance = _balance_stage(results, configs, out, quick=quick, repeats=repeats,
                              progress=progress, done=done, total=total)
+    done += 2 * 2 * repeats
+    target = _target_stage(out, quick=quick, repeats=repeats, progress=progress, done=done,
+                           total=total)
     rec_on = next(r for r, c in zip(runs, configs) if c.tag == "record" and c.record)
     rec_off = next(r for r, c in zip(runs, configs) if c.tag == "record" and not c.record)
     recording_cost = {
@@ -283,7 +345,7 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     }
     report = {
         "machine": machine_info(), "floor": fl, "runs": runs, "thesis_1994": THESIS,
-        "recording_cost": recording_cost, "balance": balance,
+        "recording_cost": recording_cost, "balance": balance, "target": target,
         "quick": quick, "repeats": repeats, "cost_scale_thesis_runs": scale,
         "wall_s": time.monotonic() - t_start,
         "method": {
