@@ -399,7 +399,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             report["memory_kb"][role] = rep["rss_kb"]
     report.update(cpu_budget(central, _child_names(rc, setup), cores))
     report["scheduling"] = {"central": policy} | {
-        name.replace("-", "_"): (central.role_reports.get(name) or {}).get("sched")
+        name.replace("-", "_"): _text_or_none((central.role_reports.get(name) or {}).get("sched"))
         for name in (_child_names(rc, setup) if spawn else [])}
     if rc.clock != "freerun":  # the plant's own word that it held and braked
         stop = (central.role_reports.get("plant") or {}).get("safe_stop")
@@ -410,6 +410,11 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     if recorder is not None:
         recorder.write_report(report)
     return code, report
+
+
+def _text_or_none(x: Any) -> str | None:
+    """A role's word as text, or None when it said nothing usable."""
+    return x if isinstance(x, str) else None
 
 
 def _unit_cores(central: set[int] | None, others: set[int] | None) -> int:
