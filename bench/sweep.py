@@ -16,8 +16,6 @@ import os
 import platform
 import random
 import statistics
-import subprocess
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -29,6 +27,7 @@ import numpy as np
 from ..runtime.config import RunConfig
 from ..runtime.launcher import start
 from ..runtime.report import gantt_window
+from ..runtime.sched import fifo_permitted
 from .floor import floor
 
 THESIS = {
@@ -188,14 +187,6 @@ TARGET_PERIOD_S = 0.5e-3
 TARGET_RT_PRIORITY = 10
 
 
-def _fifo_permitted() -> bool:
-    """Whether this process may use SCHED_FIFO (tried in a child interpreter: the bench's
-    own policy changes only while a unit runs in it)."""
-    code = ("import os\ntry:\n os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
-            "\nexcept PermissionError:\n raise SystemExit(1)")
-    return subprocess.run([sys.executable, "-c", code], timeout=30).returncode == 0
-
-
 def _target_stage(out: Path, *, quick: bool, repeats: int,
                   progress: Callable[[str, int, int], None] | None, done: int,
                   total: int) -> dict[str, Any]:
@@ -204,7 +195,7 @@ def _target_stage(out: Path, *, quick: bool, repeats: int,
     and under SCHED_FIFO for every role (``--rt-priority``), run one after the other in
     each repeat so that the four see the same machine."""
     placement = out / "placement-depth2.json"
-    permitted = _fifo_permitted()
+    permitted = fifo_permitted()
     variants = []
     for placed in [None] + ([str(placement)] if placement.exists() else []):
         n = int(json.loads(placement.read_text())["peripherals"]) if placed else 3

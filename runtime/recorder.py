@@ -95,7 +95,6 @@ class Recorder:
         self.w = LeanWriter(self.fh, chunk_size=CHUNK_SIZE)
         self.w.start(profile="", library=f"ctrlunit {version('ctrlunit')}")
         self.channels: dict[str, int] = {}
-        self.key_channels: dict[str, int] = {}  # Zenoh key -> channel id
         self.seq = 0
         self.last_flush = time.monotonic_ns()
         self.last_cmd_ns: int | None = None
@@ -152,15 +151,8 @@ class Recorder:
         self.pending.append((key, t_ns, data))
 
     def _drain(self) -> None:
-        if self.closed:
-            return
-        key_channels, add = self.key_channels, self.w.add_message
         for key, t_ns, data in self.pending:
-            cid = key_channels.get(key)
-            if cid is None:  # the topic drops ``ctrlunit/<unit>``
-                cid = key_channels[key] = self.channel("/" + key.split("/", 2)[2])
-            self.seq += 1
-            add(cid, t_ns, data, t_ns, self.seq)
+            self._add("/" + key.split("/", 2)[2], t_ns, data)
         self.pending.clear()
 
     def on_cycle(self, central: Any, cycle: int, ctx: dict) -> None:

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import subprocess
+import sys
 
 MAX_PRIORITY = 99
 
@@ -48,6 +50,14 @@ def _set_all(policy: int, priority: int) -> None:
     for tid in _threads():
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.sched_setscheduler(tid, policy, param)
+
+
+def fifo_permitted() -> bool:
+    """Whether a process started like this one may use SCHED_FIFO (tried in a child
+    interpreter, so that this process's policy is left alone)."""
+    code = ("import os\ntry:\n os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
+            "\nexcept PermissionError:\n raise SystemExit(1)")
+    return subprocess.run([sys.executable, "-c", code], timeout=30).returncode == 0
 
 
 def policy_name(tid: int = 0) -> str:

@@ -22,16 +22,6 @@ def _child(code: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _fifo_permitted() -> bool:
-    return _child(
-        "import json, os\n"
-        "try:\n"
-        "    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1)); ok = True\n"
-        "except PermissionError:\n"
-        "    ok = False\n"
-        "print(json.dumps({'ok': ok}))")["ok"]
-
-
 def test_priority_outside_0_to_99_is_refused_with_the_range() -> None:
     with pytest.raises(ConfigError, match=r"rt_priority = 120: allowed 0 .* to 99"):
         RunConfig(rt_priority=120).validate()
@@ -56,7 +46,7 @@ def test_refused_fifo_is_an_error_that_says_what_it_needs(monkeypatch) -> None:
 def test_policy_reaches_threads_started_later_and_is_restored() -> None:
     """Every thread (Zenoh's are started later, by the thread that opens the session)
     runs under the unit's policy; restore() puts every one back."""
-    if not _fifo_permitted():
+    if not sched.fifo_permitted():
         pytest.skip("this process may not use SCHED_FIFO")
     got = _child(
         "import json, threading, os\n"
@@ -81,7 +71,7 @@ def test_policy_reaches_threads_started_later_and_is_restored() -> None:
 
 def test_zero_leaves_a_policy_given_from_outside_alone() -> None:
     """``chrt -f 5 ctrlunit start`` keeps its policy: 0 changes nothing."""
-    if not _fifo_permitted():
+    if not sched.fifo_permitted():
         pytest.skip("this process may not use SCHED_FIFO")
     got = _child(
         "import json, os\n"
@@ -95,7 +85,7 @@ def test_zero_leaves_a_policy_given_from_outside_alone() -> None:
 def test_every_role_of_a_unit_reports_the_launchers_policy(tmp_path) -> None:
     """The roles inherit the launcher's policy; the report names each role's. Without
     the option nothing changes (the default policy)."""
-    permitted = _fifo_permitted()
+    permitted = sched.fifo_permitted()
     code, rep, out = start_json(tmp_path, "--peripherals", "2", "--pipeline", "2", "--clock",
                                 "freerun", "--cycles", "300", "--rt-priority",
                                 "7" if permitted else "0", tag="rt")
@@ -113,7 +103,7 @@ def test_every_role_of_a_unit_reports_the_launchers_policy(tmp_path) -> None:
 def test_a_unit_run_inside_a_longer_process_leaves_its_policy_as_it_was() -> None:
     """``ctrlunit bench`` runs units in its own process: after each, every thread of it
     (Zenoh's runtime threads outlive the session) is back to the policy it had."""
-    if not _fifo_permitted():
+    if not sched.fifo_permitted():
         pytest.skip("this process may not use SCHED_FIFO")
     got = _child(
         "import json, os\n"
