@@ -553,8 +553,12 @@ class Central:
                 return
             if msg.get("stage") == "hello":
                 self.say("go")  # a role that missed go asks again
-            elif msg.get("stage") == "bye" and isinstance(msg.get("role"), str):
-                self.role_reports[msg["role"]] = msg.get("report") or {}
+            elif msg.get("stage") == "bye" and msg.get("role") in self.expected_roles():
+                report = msg.get("report")
+                if type(report) is not dict:
+                    self.node.reject("bad_value")
+                    return
+                self.role_reports[msg["role"]] = role_report(report)
         else:
             self.node.reject("unexpected_key")
 
@@ -949,6 +953,29 @@ class Central:
             if time.monotonic() > next_say:
                 self.say("stop", reason=reason, hold=hold)
                 next_say = time.monotonic() + 0.1
+
+
+ROLE_REPORT_FIELDS: dict[str, tuple[type, ...]] = {
+    "exit": (str,), "sched": (str,), "served": (int,), "samples": (int,), "misses": (int,),
+    "busy_ns": (int,), "wall_ns": (int,), "cpu_s": (int, float), "rejected": (dict,),
+    "rss_kb": (dict,), "safe_stop": (dict,),
+}
+"""What a role's ``bye`` report may hold, by field; anything else is left out."""
+
+
+def role_report(report: dict[str, Any]) -> dict[str, Any]:
+    """The fields of a role's final report that have the type the report reader expects
+    (:data:`ROLE_REPORT_FIELDS`; ``rejected`` keeps only counts by text reason), so that
+    a malformed or forged ``bye`` cannot break the run's report."""
+    out: dict[str, Any] = {}
+    for name, types in ROLE_REPORT_FIELDS.items():
+        v = report.get(name)
+        if isinstance(v, bool) or not isinstance(v, types):
+            continue
+        if name == "rejected":
+            v = {k: n for k, n in v.items() if isinstance(k, str) and type(n) is int}
+        out[name] = v
+    return out
 
 
 def measure_t1(engine_factory: Callable[[], Engine], inputs: list[tuple], *, repeat: int = 1

@@ -6,7 +6,6 @@ it; a bad one raises :class:`BadMessage`, which the receiver counts and drops.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import msgpack
@@ -111,18 +110,35 @@ def check_span(span: Any) -> list[int]:
     return span
 
 
+MAX_ABS = 1e12
+"""Largest magnitude a value may have. Every quantity of the unit (positions in metres,
+speeds, accelerations, Jacobian entries, torques) is many orders of magnitude below it; a
+larger one is refused like a NaN, so that no arithmetic downstream overflows."""
+
+
+def _number(y: Any, what: str) -> float:
+    """``y`` as a float if it is a finite int or float with ``|y| <= MAX_ABS``.
+
+    ``bool`` is not a number here (``True`` is an ``int`` to Python, not to the unit).
+    """
+    t = type(y)
+    if t is not float and t is not int:
+        raise BadMessage("bad_value", f"{what} must be a number, not {t.__name__}")
+    if not -MAX_ABS <= y <= MAX_ABS:  # NaN fails both comparisons
+        raise BadMessage("bad_value", f"{what} must be finite with magnitude <= {MAX_ABS:g}")
+    return float(y)
+
+
 def check_float(x: Any, what: str) -> float:
-    """A finite float (ints accepted)."""
-    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-        raise BadMessage("bad_value", f"{what} must be a finite number")
-    return float(x)
+    """A finite float (ints accepted, bools not)."""
+    return _number(x, what)
 
 
 def check_vector(x: Any, n: int, what: str) -> list[float]:
     """A list of ``n`` finite floats."""
-    if not isinstance(x, list) or len(x) != n:
+    if type(x) is not list or len(x) != n:
         raise BadMessage("bad_value", f"{what} must be a list of {n} numbers")
-    return [check_float(v, what) for v in x]
+    return [_number(v, what) for v in x]
 
 
 def shape_of(name: str) -> tuple[int, ...]:
@@ -145,28 +161,25 @@ _SHAPES: dict[str, tuple[int, ...]] = {}
 
 
 def _finite_floats(x: Any, n: int, name: str) -> list[float]:
-    """``x`` must be a list of ``n`` finite floats (ints are converted)."""
+    """``x`` must be a list of ``n`` numbers (see :func:`_number`); ints become floats."""
     if type(x) is not list or len(x) != n:
         raise BadMessage("bad_value", f"{name} must be a list of {n} numbers")
-    for y in x:
-        if type(y) is not float:
-            if isinstance(y, bool) or not isinstance(y, int):
-                raise BadMessage("bad_value", f"{name} must hold numbers")
-            x = [float(v) if not isinstance(v, bool) else v for v in x]
-            break
-    # NaN and inf propagate through the sum; a finite overflow is refused as well
-    if not math.isfinite(sum(x)):
-        raise BadMessage("bad_value", f"{name} must be finite")
-    return x
+    out = x
+    for i, y in enumerate(x):
+        if type(y) is float and -MAX_ABS <= y <= MAX_ABS:
+            continue  # the common case, without a call
+        v = _number(y, name)
+        if out is x:
+            out = list(x)
+        out[i] = v
+    return out
 
 
 def _check_shaped(x: Any, shape: tuple[int, ...], name: str) -> Any:
     if not shape:
-        if type(x) is float:
-            if x - x != 0.0:  # NaN or inf
-                raise BadMessage("bad_value", f"{name} must be finite")
+        if type(x) is float and -MAX_ABS <= x <= MAX_ABS:
             return x
-        return check_float(x, name)
+        return _number(x, name)
     if len(shape) == 1:
         return _finite_floats(x, shape[0], name)
     if type(x) is not list or len(x) != shape[0]:

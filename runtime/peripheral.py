@@ -4,22 +4,133 @@ Each request carries one or more parts (at pipeline depth 2, the second round of
 k and the first of k+1 in one message); a part names its cycle, its round (``stage``) and
 holds exactly the values the round's blocks need. The reply has one part per request
 part: the values the central needs and the compute span ``(t0, t1)`` on the host's
-monotonic clock. Values from earlier rounds of the same cycle
-stay here (a few cycles at most). Bad or foreign requests are counted and dropped.
+monotonic clock. Values from earlier rounds of the same cycle stay here (a few cycles at
+most).
+
+:class:`Peripheral` is the role without its transport (bytes in, bytes out), so that what
+it does with any payload can be checked without Zenoh; :func:`serve` is its loop on a
+:class:`~.node.Node`. A payload that fails validation in any way is counted under a
+reason and dropped: no payload ends the role.
 """
 
 from __future__ import annotations
 
 import queue
 import time
+from collections import Counter
 from typing import Any
 
-from .codec import BadMessage, check_vals, encode, parts_of
+from .codec import BadMessage, check_vals, decode, encode, parts_of
 from .engine import Engine
 from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb
 
 MAX_KEPT_CYCLES = 8
 ALL_AXES = (0, 1, 2)
+
+
+class Peripheral:
+    """The per-axis work of peripheral ``index`` (0-based) for unit ``unit``.
+
+    Parameters
+    ----------
+    engine : the engine built from the same plan as the central's.
+    index : 0-based peripheral index; its axes are ``engine.plan.placement.axes[index]``.
+    unit : the unit id every message must carry.
+    trace : also return every intermediate value (recording, ``replay --verify``).
+    rejected : the counter that rejections are added to (the node's, so that the role's
+        report has them all); a fresh one by default.
+    """
+
+    def __init__(self, engine: Engine, index: int, unit: str, *, trace: bool = False,
+                 rejected: Counter[str] | None = None) -> None:
+        self.engine = engine
+        self.unit = unit
+        self.axes = engine.plan.placement.axes[index]
+        self.trace = trace
+        self.rejected: Counter[str] = rejected if rejected is not None else Counter()
+        self._rounds = {r.index: r for r in engine.plan.rounds}
+        self._trace_names = {r.index: [o for b in r.blocks for o in b.outputs
+                                       if o not in r.recv] for r in engine.plan.rounds}
+        self._ctxs: dict[int, dict] = {}
+        self.served = 0
+        self.busy_ns = 0
+        self.rss_warm = -1
+
+    def _parts(self, data: bytes) -> tuple[list[tuple[int, Any, dict]], bool]:
+        """Decode and validate a whole request: ``([(cycle, round, vals)], each)``.
+
+        Raises
+        ------
+        BadMessage
+            On anything the request may not hold; nothing of it is used then.
+        """
+        msg = decode(data, self.unit)
+        each = msg.get("each", False)
+        if type(each) is not bool:
+            raise BadMessage("bad_value", "each must be true or false")
+        parts = []
+        for part in parts_of(msg):
+            rnd = self._rounds.get(part["stage"])
+            if rnd is None:
+                raise BadMessage("bad_stage")
+            parts.append((part["cycle"], rnd, check_vals(part.get("vals"), rnd.send, 3)))
+        return parts, each
+
+    def on_request(self, data: bytes) -> list[bytes]:
+        """Answer one request: the reply payloads to publish, in order (none when the
+        request was rejected). Never raises for anything in ``data``."""
+        try:
+            parts, each = self._parts(data)
+        except BadMessage as exc:
+            self.rejected[exc.reason] += 1
+            return []
+        except Exception as exc:  # a validation gap must not end the role: count it
+            self.rejected[f"invalid:{type(exc).__name__}"] += 1
+            return []
+        if each:  # first rounds first, each answered at once (see central.py)
+            parts.sort(key=lambda x: x[1].index)
+        replies: list[bytes] = []
+        out: list[dict[str, Any]] = []
+        engine = self.engine
+        for cycle, rnd, vals in parts:
+            t0 = time.monotonic_ns()
+            ctx = self._ctxs.get(cycle)  # the central's warm-up intervals are kept alike
+            if ctx is None:
+                if rnd.index != 0 and engine.plan.round_trips > 1:
+                    # a later round of a cycle this peripheral never saw (restart, loss):
+                    # the values of earlier rounds are missing
+                    self.rejected["unknown_cycle"] += 1
+                    continue
+                ctx = {n: [None, None, None] for n in engine.axis_names}
+                self._ctxs[cycle] = ctx
+                if len(self._ctxs) > MAX_KEPT_CYCLES:
+                    del self._ctxs[min(self._ctxs)]
+            Engine.merge(ctx, vals, ALL_AXES)
+            try:
+                engine.run_round(rnd, ctx, self.axes)
+            except Exception as exc:
+                self.rejected[f"kernel_error:{type(exc).__name__}"] += 1
+                continue
+            part: dict[str, Any] = {"cycle": cycle, "stage": rnd.index,
+                                    "vals": Engine.reply_vals(rnd, ctx, self.axes)}
+            if self.trace:  # recording: every intermediate value too, for replay --verify
+                part["trace"] = {n: [ctx[n][i] for i in self.axes]
+                                 for n in self._trace_names[rnd.index]}
+            t1 = time.monotonic_ns()
+            part["span"] = [t0, t1]
+            out.append(part)
+            self.busy_ns += t1 - t0
+            self.served += 1
+            if self.served == 2 * WARM_RSS_AT:
+                self.rss_warm = rss_kb()
+            if rnd.index == engine.plan.round_trips - 1:
+                self._ctxs.pop(cycle, None)
+            if each:
+                replies.append(encode(self.unit, cycle, rnd.index, parts=out))
+                out = []
+        if out:
+            replies.append(encode(self.unit, out[0]["cycle"], out[0]["stage"], parts=out))
+        return replies
 
 
 def declare(node: Node, index: int) -> Any:
@@ -41,87 +152,29 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
     reply : the publisher from :func:`declare`.
     watchdog : seconds of silence from the central after which the role exits.
     """
-    axes = engine.plan.placement.axes[index]
-    rounds = {r.index: r for r in engine.plan.rounds}
-    trace_names = {r.index: [o for b in r.blocks for o in b.outputs if o not in r.recv]
-                   for r in engine.plan.rounds}
-    ctxs: dict[int, dict] = {}
-    served = 0
-    rss_warm = -1
-    busy_ns = 0
+    role = Peripheral(engine, index, node.unit, trace=trace, rejected=node.rejected)
     t_start = time.monotonic_ns()
+
+    def result(exit_reason: str) -> dict[str, Any]:
+        return {"exit": exit_reason, "served": role.served, "busy_ns": role.busy_ns,
+                "wall_ns": time.monotonic_ns() - t_start, "rejected": dict(node.rejected),
+                "rss_kb": {"warm": role.rss_warm, "end": rss_kb()}, "cpu_s": cpu_used(node)}
+
     while True:
         try:
             ev = node.events.get(timeout=0.2)
         except queue.Empty:
             if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
-                return {"exit": "watchdog", "served": served, "busy_ns": busy_ns,
-                        "rejected": dict(node.rejected)}
+                return result("watchdog")
             continue
         if ev[0] == "control":
             if is_stop(node, ev):
-                break
+                return result("stop")
             continue
         if ev[0] != "request":
             continue
-        msg = node.decode(ev[2])
-        if msg is None:
-            continue
-        node.last_heard_ns = ev[3]
-        try:
-            each = msg.get("each", False)
-            if type(each) is not bool:
-                raise BadMessage("bad_value", "each must be true or false")
-            parts = []
-            for part in parts_of(msg):
-                rnd = rounds.get(part["stage"])
-                if rnd is None:
-                    raise BadMessage("bad_stage")
-                parts.append((part["cycle"], rnd, check_vals(part.get("vals"), rnd.send, 3)))
-        except BadMessage as exc:
-            node.reject(exc.reason)
-            continue
-        if each:  # first rounds first, each answered at once (see central.py)
-            parts.sort(key=lambda x: x[1].index)
-        out = []
-        for cycle, rnd, vals in parts:
-            t0 = time.monotonic_ns()
-            ctx = ctxs.get(cycle)  # the central's warm-up intervals are kept alike
-            if ctx is None:
-                if rnd.index != 0 and engine.plan.round_trips > 1:
-                    # a later round of a cycle this peripheral never saw (restart, loss):
-                    # the values of earlier rounds are missing
-                    node.reject("unknown_cycle")
-                    continue
-                ctx = {n: [None, None, None] for n in engine.axis_names}
-                ctxs[cycle] = ctx
-                if len(ctxs) > MAX_KEPT_CYCLES:
-                    del ctxs[min(ctxs)]
-            Engine.merge(ctx, vals, ALL_AXES)
-            try:
-                engine.run_round(rnd, ctx, axes)
-            except Exception as exc:
-                node.reject(f"kernel_error:{type(exc).__name__}")
-                continue
-            part = {"cycle": cycle, "stage": rnd.index,
-                    "vals": Engine.reply_vals(rnd, ctx, axes)}
-            if trace:  # recording: every intermediate value too, for replay --verify
-                part["trace"] = {n: [ctx[n][i] for i in axes]
-                                 for n in trace_names[rnd.index]}
-            t1 = time.monotonic_ns()
-            part["span"] = [t0, t1]
-            out.append(part)
-            busy_ns += t1 - t0
-            served += 1
-            if served == 2 * WARM_RSS_AT:
-                rss_warm = rss_kb()
-            if rnd.index == engine.plan.round_trips - 1:
-                ctxs.pop(cycle, None)
-            if each:
-                reply.put(encode(node.unit, cycle, rnd.index, parts=out))
-                out = []
-        if out:
-            reply.put(encode(node.unit, out[0]["cycle"], out[0]["stage"], parts=out))
-    return {"exit": "stop", "served": served, "busy_ns": busy_ns,
-            "wall_ns": time.monotonic_ns() - t_start, "rejected": dict(node.rejected),
-            "rss_kb": {"warm": rss_warm, "end": rss_kb()}, "cpu_s": cpu_used(node)}
+        replies = role.on_request(ev[2])
+        if replies:  # a request that passed validation: the central is alive
+            node.last_heard_ns = ev[3]
+        for payload in replies:
+            reply.put(payload)

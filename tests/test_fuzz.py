@@ -14,8 +14,11 @@ import time
 import msgpack
 import pytest
 import zenoh
-from ctrlunit.runtime.codec import SCHEMA_VERSION
+from ctrlunit.runtime.codec import SCHEMA_VERSION, shape_of
 from ctrlunit.runtime.zsession import Keys, make_config
+from ctrlunit.topology.graph import stage_graph
+from ctrlunit.topology.placement import default_placement
+from ctrlunit.topology.plan import exchange_plan
 from runner import kill_unit, unit_id, wait_status
 
 pytestmark = pytest.mark.zenoh
@@ -28,9 +31,48 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def fuzz_payloads(unit: str, rng: random.Random, key: str) -> bytes:
-    """One malformed payload; never a well-formed message for the current cycle."""
-    kind = rng.randrange(10)
+PLAN = exchange_plan(stage_graph("resolved-acceleration", "complete"), default_placement(3))
+SPOILERS = ("x", True, None, math.nan, math.inf, 2**63 - 1, [1.0], {"a": 1.0})
+
+
+def spoiled_vals(rng: random.Random, names: list[str], n_axes: int) -> dict:
+    """A round's exact value names with plausible values, one element of one value
+    spoiled (a string, a bool, a NaN, a huge integer, a nested list or map)."""
+    def plausible(shape: tuple[int, ...]) -> object:
+        return 0.1 if not shape else [plausible(shape[1:]) for _ in range(shape[0])]
+
+    vals = {n: [plausible(shape_of(n)) for _ in range(n_axes)] if n.endswith("_i")
+            else plausible(shape_of(n)) for n in names}
+    name = rng.choice(names)
+    v = vals[name]
+    bad = rng.choice(SPOILERS)
+    if type(v[0]) is list:
+        v[rng.randrange(len(v))] = [0.1, bad, 0.3]
+    else:
+        v[rng.randrange(len(v))] = bad
+    return vals
+
+
+def plan_payload(unit: str, rng: random.Random, key: str, cycle: int) -> bytes:
+    """A request or reply with a round's exact value names, one value spoiled: the
+    payloads that reach the per-field checks (random maps never name a real value)."""
+    rnd = rng.choice(PLAN.rounds)
+    reply = "reply" in key
+    names = list(rnd.recv if reply else rnd.send)
+    part = {"cycle": cycle, "stage": rnd.index,
+            "vals": spoiled_vals(rng, names, 1 if reply else 3)}
+    if reply:
+        part["span"] = [1, 2]
+    return msgpack.packb({"v": SCHEMA_VERSION, "unit": unit, "cycle": cycle,
+                          "stage": rnd.index, "parts": [part]})
+
+
+def fuzz_payloads(unit: str, rng: random.Random, key: str, near: int = 0) -> bytes:
+    """One malformed payload; never a well-formed message for the current cycle. ``near``:
+    a cycle the unit is at, for payloads aimed at the intervals in flight."""
+    kind = rng.randrange(12)
+    if kind >= 10 and ("request" in key or "reply" in key):
+        return plan_payload(unit, rng, key, near + rng.randrange(4))
     good = {"v": SCHEMA_VERSION, "unit": unit, "cycle": rng.randrange(50), "stage": "command",
             "tau": [0.1, 0.2, 0.3]}
     if kind == 0:
@@ -111,11 +153,13 @@ def run_unit(tmp_path, unit: str, fuzz: bool, cycles: int) -> tuple[int, dict, s
                         for k in targets]
                 # past cycle 1: a stale sample for cycle 0 or 1 must not be a real one
                 wait_status(status, 100)
+                near = 100
                 for i in range(N_FUZZ):
                     k = i % len(targets)
-                    pubs[k].put(fuzz_payloads(unit, rng, targets[k]))
+                    pubs[k].put(fuzz_payloads(unit, rng, targets[k], near))
                     if i % 200 == 0:
                         time.sleep(0.01)
+                        near = int(status.read_text() or near)
                 done_at_end = int(status.read_text() or 0)
                 time.sleep(0.5)
         out, _ = central.communicate(timeout=300)

@@ -1,0 +1,150 @@
+"""Validation is a contract: a payload built from the exchange plan's own value names, with
+any one field wrong (type, shape, element type, magnitude), is a counted rejection, never
+an exception, and leaves the peripheral answering the next good request exactly as an
+undisturbed one does."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import msgpack
+import pytest
+from ctrlunit.kernels.kinematics import inverse_kinematics
+from ctrlunit.kernels.laws import Gains
+from ctrlunit.kernels.params import DELTA_IA as P
+from ctrlunit.kernels.trajectory import pick_place_task
+from ctrlunit.runtime.central import role_report
+from ctrlunit.runtime.codec import MAX_ABS, SCHEMA_VERSION, BadMessage, check_vals, decode, encode
+from ctrlunit.runtime.controller import Controller, build_engine
+from ctrlunit.runtime.engine import Engine
+from ctrlunit.runtime.peripheral import Peripheral
+from ctrlunit.topology.graph import LAWS
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+UNIT = "t-validation"
+
+
+def real_requests(law: str) -> tuple[Engine, list[dict[str, Any]]]:
+    """The engine of a 3-peripheral unit and the parts of every round of its first interval,
+    as the central would send them (each part: cycle, stage, vals)."""
+    task = pick_place_task()
+    engine = build_engine(P, task, law=law, model="complete", gains=Gains.from_bandwidth(20.0),
+                          period=1e-3, peripherals=3)
+    ctl = Controller(engine, 1e-3, P.increment, tuple(task.start()))
+    q = inverse_kinematics(P, task.start())
+    ctx = ctl.sources(0, [round(float(x) / P.increment) + 3 for x in q])
+    parts = []
+    gen = engine.cycle(ctx)
+    try:
+        rnd = next(gen)
+        while True:
+            parts.append({"cycle": 0, "stage": rnd.index,
+                          "vals": Engine.request_vals(rnd, ctx, (0, 1, 2))})
+            engine.run_round(rnd, ctx, (0, 1, 2))
+            rnd = gen.send(None)
+    except StopIteration:
+        pass
+    assert parts, law
+    return engine, parts
+
+
+def request(part: dict[str, Any], **envelope: Any) -> bytes:
+    return encode(UNIT, part["cycle"], part["stage"], parts=[part], **envelope)
+
+
+def replies_vals(payloads: list[bytes]) -> list[Any]:
+    """The values of replies, without their compute spans."""
+    return [[p["vals"] for p in decode(b, UNIT)["parts"]] for b in payloads]
+
+
+def answers_of_a_good_interval(per: Peripheral, parts: list[dict[str, Any]]) -> list[Any]:
+    return [replies_vals(per.on_request(request(p))) for p in parts]
+
+
+ENGINE_BY_LAW = {law: real_requests(law) for law in LAWS}
+ENGINE, PARTS = ENGINE_BY_LAW["resolved-acceleration"]
+
+
+@pytest.mark.parametrize("bad", [[0, "x", 0.0], [1, True, 2.0], [True, 1.0, 2.0],
+                                 [1.0, None, 2.0], [1.0, 2**63 - 1, 0.0], [1.0, math.inf, 0.0],
+                                 [1.0, 2.0], [[1.0], 2.0, 3.0]])
+def test_a_round_with_a_wrong_element_is_counted_not_raised(bad):
+    """The request that once ended a peripheral (a string in ``p_lin0``) and its kin."""
+    part = PARTS[0]
+    assert "p_lin0" in part["vals"], "the real round 0 sends p_lin0"
+    per = Peripheral(ENGINE, 0, UNIT)
+    assert per.on_request(request({**part, "vals": {**part["vals"], "p_lin0": bad}})) == []
+    assert per.rejected == {"bad_value": 1}
+    assert per.served == 0
+
+
+def test_bool_is_not_a_number_anywhere():
+    with pytest.raises(BadMessage, match="not bool"):
+        check_vals({"p": [1, True, 2.0]}, ["p"], 1)
+    with pytest.raises(BadMessage, match="not bool"):
+        check_vals({"q_i": [0.0, False, 1.0]}, ["q_i"], 3)
+    assert check_vals({"p": [1, 2, 3.5]}, ["p"], 1) == {"p": [1.0, 2.0, 3.5]}
+
+
+WRONG = st.one_of(
+    st.booleans(), st.none(), st.text(max_size=4),
+    st.floats(allow_nan=True, allow_infinity=True).filter(lambda x: not abs(x) <= MAX_ABS),
+    st.integers(min_value=int(MAX_ABS) + 1, max_value=2**64 - 1),
+    st.integers(max_value=-int(MAX_ABS) - 1, min_value=-(2**63)),
+    st.dictionaries(st.text(max_size=3), st.integers(-(2**63), 2**64 - 1), max_size=2),
+    st.lists(st.floats(allow_nan=False, allow_infinity=False, width=32), max_size=4),
+)
+
+
+def spoil(value: Any, data: st.DataObject) -> Any:
+    """``value`` with one element (or the whole) replaced by something it may not hold,
+    or its shape changed."""
+    if type(value) is not list or not value or data.draw(st.integers(0, 4)) == 0:
+        return data.draw(WRONG)
+    how = data.draw(st.integers(0, 2))
+    if how == 0:  # one element wrong, maybe a nested one
+        i = data.draw(st.integers(0, len(value) - 1))
+        return [*value[:i], spoil(value[i], data), *value[i + 1:]]
+    if how == 1:  # one element too many or too few
+        return [*value, 0.0] if data.draw(st.booleans()) else value[:-1]
+    return {"x": value}  # not a list at all
+
+
+@pytest.mark.parametrize("law", LAWS)
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_a_plan_derived_payload_with_one_wrong_field_is_a_counted_rejection(law, data):
+    engine, parts = ENGINE_BY_LAW[law]
+    index = data.draw(st.integers(0, 2))
+    per, undisturbed = Peripheral(engine, index, UNIT), Peripheral(engine, index, UNIT)
+    part = parts[data.draw(st.integers(0, len(parts) - 1))]
+    where = data.draw(st.sampled_from(["value", "envelope", "part"]))
+    if where == "value":
+        name = data.draw(st.sampled_from(sorted(part["vals"])))
+        bad = request({**part, "vals": {**part["vals"], name: spoil(part["vals"][name], data)}})
+    elif where == "envelope":
+        field = data.draw(st.sampled_from(["each", "parts", "v", "cycle"]))
+        msg = {"v": SCHEMA_VERSION, "unit": UNIT, "cycle": part["cycle"],
+               "stage": part["stage"], "parts": [part]}
+        msg[field] = data.draw(WRONG.filter(lambda x: field != "each" or type(x) is not bool))
+        bad = msgpack.packb(msg, use_bin_type=True)
+    else:
+        field = data.draw(st.sampled_from(["vals", "stage", "cycle"]))
+        # a part's cycle may be any number in [0, 2**62): the envelope names it too
+        bad = request({**part, field: data.draw(WRONG.filter(
+            lambda x: field != "cycle" or not (type(x) is int and 0 <= x < 2**62)))})
+    try:
+        assert per.on_request(bad) == []
+    except BadMessage:
+        pytest.fail("a BadMessage escaped the role")
+    assert sum(per.rejected.values()) == 1, per.rejected
+    assert answers_of_a_good_interval(per, parts) == answers_of_a_good_interval(undisturbed,
+                                                                                 parts)
+
+
+def test_a_forged_role_report_keeps_only_well_typed_fields():
+    forged = {"cpu_s": True, "rejected": {"a": 1, "b": "x", "c": True}, "sched": ["x"],
+              "rss_kb": {"warm": 1}, "safe_stop": 3, "exit": "stop", "extra": 1}
+    assert role_report(forged) == {"rejected": {"a": 1}, "rss_kb": {"warm": 1}, "exit": "stop"}
