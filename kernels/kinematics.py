@@ -103,7 +103,8 @@ def ik_axis(params: DeltaParams, axis: int, x: float, y: float, z: float) -> Axi
     n2 = a * a + ipz * ipz
     l_c = (l_a * l_a - l_b * l_b + n2 + ipy * ipy) / (2.0 * l_a)  # Eq. V.17
     disc = n2 - l_c * l_c
-    if disc < 0.0 or n2 == 0.0:
+    # not (disc >= 0): also a NaN, when a point so far away overflows the squares
+    if not 0.0 <= disc < math.inf or n2 == 0.0:
         raise UnreachableError(
             f"point ({x:.6g}, {y:.6g}, {z:.6g}) m is out of reach of chain {axis + 1}: "
             f"the forearm (l_b = {l_b} m) cannot close the loop"

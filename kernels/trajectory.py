@@ -295,6 +295,17 @@ def pick_place_task() -> Task:
 TASKS = {"circle": circle_task, "pick-place": pick_place_task}
 
 
+MAX_COORD_M = 10.0
+"""Largest coordinate a task file may give (m): far beyond any Delta's reach, so that a
+path out of reach is refused by the workspace check with its point and bound, and a
+typing slip (1e308) never reaches the arithmetic."""
+
+
+def _is_number(x: object) -> bool:
+    """A finite int or float from JSON (``true`` is not a number)."""
+    return type(x) in (int, float) and math.isfinite(x)
+
+
 def task_from_json(path: str | FsPath) -> Task:
     """Load a task from a JSON file.
 
@@ -327,13 +338,14 @@ def task_from_json(path: str | FsPath) -> Task:
             if (
                 not isinstance(v, list)
                 or len(v) != 3
-                or not all(isinstance(x, int | float) and math.isfinite(x) for x in v)
+                or not all(_is_number(x) and abs(x) <= MAX_COORD_M for x in v)
             ):
-                raise ValueError(f"{where}.{key} must be a list of 3 finite numbers (m)")
+                raise ValueError(f"{where}.{key} must be a list of 3 numbers within "
+                                 f"+-{MAX_COORD_M:g} m, got {v!r}"[:300])
             return (float(v[0]), float(v[1]), float(v[2]))
 
         accel = s.get("accel")
-        if not isinstance(accel, int | float) or not 0.0 < accel <= 1000.0:
+        if not _is_number(accel) or not 0.0 < accel <= 1000.0:
             raise ValueError(f"{where}.accel must be in (0, 1000] m/s^2, got {accel!r}")
         kind = s.get("type")
         if kind == "line":
@@ -348,7 +360,7 @@ def task_from_json(path: str | FsPath) -> Task:
     if not segs:
         raise ValueError(f"{path}: a task needs at least one segment")
     dwell = data.get("dwell", 0.05)
-    if not isinstance(dwell, int | float) or not 0.0 <= dwell <= 60.0:
+    if not _is_number(dwell) or not 0.0 <= dwell <= 60.0:
         raise ValueError(f"{path}: dwell must be in [0, 60] s, got {dwell!r}")
     return Task(str(data.get("name", FsPath(path).stem)), segs, float(dwell))
 

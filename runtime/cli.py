@@ -107,17 +107,31 @@ def fk(q1: float, q2: float, q3: float, deg: bool, as_json: bool, params_file: s
     from ..kernels.forward import fk_closed_form, fk_newton
     from ..kernels.kinematics import UnreachableError
 
+    unit = "deg" if deg else "rad"
+    bound = 180.0 if deg else math.pi
+    for name, v in (("Q1", q1), ("Q2", q2), ("Q3", q3)):
+        if not -bound <= v <= bound:  # NaN too
+            _fail(f"{name} = {v:g} {unit} is outside [{-bound:g}, {bound:g}] {unit} "
+                  "(an arm angle)")
     q = np.array([q1, q2, q3], dtype=float)
     if deg:
         q = np.radians(q)
     try:
         params = _params(params_file)
+    except ParameterError as exc:
+        _fail(str(exc))
+        return
+    no_pose = (f"joint angles [{q1:g}, {q2:g}, {q3:g}] {unit} give no platform position: "
+               f"the forearms (l_b = {params.l_b} m) cannot close the three loops")
+    try:
         p0 = fk_closed_form(params, q)
         # refine with the Newton-Raphson observer to one encoder increment
         p = np.array(fk_newton(params, q, p0, tol=1e-12).p)
-    except (UnreachableError, ParameterError, ValueError, ZeroDivisionError) as exc:
-        _fail(str(exc) if str(exc) else f"joint angles {q.tolist()} rad are singular")
+    except (UnreachableError, ValueError, ZeroDivisionError, FloatingPointError):
+        _fail(no_pose)
         return
+    if not np.all(np.isfinite(p)):
+        _fail(no_pose)
     _emit({"p": p.tolist()}, as_json, "p = [" + ", ".join(f"{v:.9g}" for v in p) + "] m")
 
 

@@ -82,6 +82,9 @@ def read(path: str | Path) -> Recording:
     if not rec.metadata and not rec.topics:
         raise ValueError(f"{path}: not a readable MCAP recording ({first_error})")
     n = len(rec.topics.get("/plant/command", []))
+    if n == 0:
+        raise ValueError(f"{path}: the recording was cut off before its first interval was "
+                         "written: there is nothing to replay or report")
     rec.note = (f"{path} has no footer (the recording was cut off); salvaged {n} intervals "
                 "with a non-seeking pass")
     return rec

@@ -235,7 +235,8 @@ def summary(r: dict[str, Any]) -> str:
             f"{k}: {v}" for k, v in sorted(r["rejected_messages"].items())))
     if r.get("fault"):
         f = r["fault"]
-        lines.append(f"  FAULT in {f['process']}: {f['message']} (exit {f['code']})")
+        code = f" (exit {f['code']})" if f.get("code") is not None else ""
+        lines.append(f"  FAULT in {f['process']}: {f['message']}{code}")
         if "safe_stop" in r:
             lines.append(_safe_stop_line(r["safe_stop"]))
     return "\n".join(lines)

@@ -40,3 +40,62 @@ def test_bad_parameter_file_is_refused(tmp_path):
     f.write_text("[delta]\nm_c = -3\n")
     res = ctrlunit("start", "--params", str(f), "--peripherals", "0")
     assert res.returncode == 1 and "m_c" in res.stderr and "[0.0, 100.0] kg" in res.stderr
+
+
+# -- edge inputs: exit 0 only with a finite answer; otherwise one line naming the input --
+
+
+def one_line_error(res) -> str:
+    """The error a command printed: exactly one line on stderr, no traceback."""
+    assert "Traceback" not in res.stderr + res.stdout
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    assert lines[0].startswith("ctrlunit: error: ")
+    return lines[0]
+
+
+def test_ik_of_a_point_so_far_that_its_squares_overflow_is_refused():
+    res = ctrlunit("ik", "0", "0", "1e308")
+    assert res.returncode == 1 and "nan" not in res.stdout
+    assert "(0, 0, 1e+308) m is out of reach" in one_line_error(res)
+
+
+def test_fk_names_the_angle_out_of_range_not_a_point():
+    res = ctrlunit("fk", "0", "0", "1e308")
+    assert res.returncode == 1
+    assert "Q3 = 1e+308 rad is outside [-3.14159, 3.14159] rad" in one_line_error(res)
+    res = ctrlunit("fk", "3", "3", "3")  # inside the range, but no loop closes
+    err = one_line_error(res)
+    assert res.returncode == 1 and "joint angles [3, 3, 3] rad give no platform position" in err
+    assert "point" not in err
+
+
+def test_a_task_file_reaching_1e308_m_gives_the_same_one_line_error_to_every_command(tmp_path):
+    task = tmp_path / "far.json"
+    task.write_text(json.dumps({"segments": [
+        {"type": "line", "start": [0, 0, -0.35], "end": [1e308, 0, -0.35], "accel": 10}]}))
+    want = "segments[0].end must be a list of 3 numbers within +-10 m"
+    res = ctrlunit("trajectory", str(task))
+    assert res.returncode == 1 and want in one_line_error(res)
+    res = ctrlunit("start", "--task", str(task), "--clock", "lockstep", "--peripherals", "0")
+    assert res.returncode == 1 and want in one_line_error(res)
+    task.write_text(json.dumps({"segments": [
+        {"type": "line", "start": [0, 0, -0.35], "end": [0.1, 0, -0.35], "accel": True}]}))
+    res = ctrlunit("trajectory", str(task))
+    assert res.returncode == 1 and "segments[0].accel must be in (0, 1000]" in one_line_error(res)
+
+
+def test_report_of_a_recording_cut_before_its_first_interval_is_an_error(tmp_path):
+    from ctrlunit.runtime.mcap_writer import LeanWriter
+
+    path = tmp_path / "cut.mcap"
+    with open(path, "wb") as fh:
+        w = LeanWriter(fh)
+        w.start(profile="ctrlunit", library="ctrlunit")
+        w.add_metadata("ctrlunit", {"config": "{}"})
+        w.finish()
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])  # no footer, no message
+    res = ctrlunit("report", str(path))
+    assert res.returncode == 1 and "salvaged 0" not in res.stdout + res.stderr
+    assert "cut off before its first interval" in one_line_error(res)
