@@ -3,7 +3,7 @@
 Sweeps n = 0..3 x depth 1, 2 x cost model (native, t800) in freerun, plus realtime at
 chosen periods, interleaved and repeated (so that the shared machine's noise shows as
 spread, not bias); measures the transport floor in the same run; compares with the 1994
-figures (errata.md) where one exists; writes ``report.json``, ``report.md`` and PNG
+figures (docs/thesis-notes.md) where one exists; writes ``report.json``, ``report.md`` and PNG
 figures (efficiency and speedup against n, period and traversal distributions, Gantt
 charts of each process over a few intervals at depth 1 and 2).
 """

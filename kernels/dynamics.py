@@ -1,6 +1,6 @@
 """Inverse dynamics of the Delta in the two spaces (thesis § V.5), derived again.
 
-Derivation (errata.md: the printed V.43-V.47 and V.49 are garbled)
+Derivation (docs/thesis-notes.md: the printed V.43-V.47 and V.49 are garbled)
 -----------------------------------------------------------------
 Forearm ``i`` is a thin rod of mass ``m_b`` and transverse inertia ``j_b`` about its centre
 of mass, which lies at ``rho = g_b / l_b`` of its length from the arm tip. With ``vA`` the

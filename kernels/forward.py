@@ -1,7 +1,7 @@
 """Forward kinematics of the Delta: the Newton-Raphson observer (Eq. II.20) and the
 closed-form three-sphere intersection used as a test oracle.
 
-The Newton-Raphson step, as corrected in errata.md, is ``p <- p - J (f^-1(p) - q_meas)``:
+The Newton-Raphson step, as corrected in docs/thesis-notes.md, is ``p <- p - J (f^-1(p) - q_meas)``:
 the residual of the inverse kinematics at the current estimate, mapped back through the
 Jacobian.
 """

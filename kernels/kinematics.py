@@ -1,13 +1,13 @@
 """Delta kinematics in the two spaces (thesis § V.3), per axis and on plain floats.
 
-Conventions (thesis Eq. V.7-V.15, errata.md)
+Conventions (thesis Eq. V.7-V.15, docs/thesis-notes.md)
 -------------------------------------------
 * Chain ``i`` (0, 1, 2 here; 1, 2, 3 in the thesis) lives in an auxiliary frame rotated by
   ``gamma_i = 0, 120, 240 deg`` about z. ``ip = R_i^T p`` is the platform position in it.
 * The arm unit vector is ``iv = (cos q_i, 0, sin q_i)`` (Eq. V.8), its derivative
   ``iv_perp = (-sin q_i, 0, cos q_i)`` (Eq. V.23).
 * The forearm unit vector is ``iw = (ip - [r_r, 0, 0] - l_a iv) / l_b`` with
-  ``r_r = r_a - r_b`` (Eq. V.14 as corrected in errata.md: the arm term is ``l_a iv``).
+  ``r_r = r_a - r_b`` (Eq. V.14 as corrected in docs/thesis-notes.md: the arm term is ``l_a iv``).
 
 Per-axis functions take and return floats: they are what a peripheral runs once per
 interval and are 10-100x faster than numpy on 3-vectors. Whole-robot helpers return numpy
@@ -139,7 +139,7 @@ def jinv_row(params: DeltaParams, axis: int, ax: AxisIK) -> Vec3:
 def jinvdot_pdot_row(
     params: DeltaParams, axis: int, ax: AxisIK, pdot: Vec3, qdot_i: float
 ) -> float:
-    """Row ``axis`` of ``d/dt(J^-1) . pdot`` (Eq. V.28-V.30 as corrected in errata.md).
+    """Row ``axis`` of ``d/dt(J^-1) . pdot`` (Eq. V.28-V.30 as corrected in docs/thesis-notes.md).
 
     ``iwdot = (ipdot - l_a iv_perp qdot_i) / l_b``,
     ``Xdot_ii = iwdot . iv_perp - (iw . iv) qdot_i`` and

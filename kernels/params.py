@@ -1,6 +1,6 @@
 """Delta robot parameters (thesis Eq. V.1-V.6) and their validation.
 
-The defaults are the Delta-IA of the thesis as corrected in ``errata.md``. A TOML file can
+The defaults are the Delta-IA of the thesis (``docs/thesis-notes.md``). A TOML file can
 override any field; unknown fields and out-of-range values raise :class:`ParameterError`
 naming the field and the allowed range.
 """
@@ -116,7 +116,7 @@ class DeltaParams:
 
 
 DELTA_IA = DeltaParams()
-"""The Delta-IA of the thesis (Eq. V.1-V.6, errata.md)."""
+"""The Delta-IA of the thesis (Eq. V.1-V.6, docs/thesis-notes.md)."""
 
 
 def params_from_mapping(data: dict[str, Any], *, source: str = "parameters") -> DeltaParams:

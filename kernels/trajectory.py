@@ -2,7 +2,7 @@
 
 A :class:`Path` is a sequence of segments; each segment is travelled with its own cycloidal
 profile ``s(t) = s_f (t/T - sin(2 pi t/T) / (2 pi))`` whose duration follows from the peak
-tangential acceleration ``2 pi s_f / T^2`` (errata.md). The reference at time ``t`` is
+tangential acceleration ``2 pi s_f / T^2`` (docs/thesis-notes.md). The reference at time ``t`` is
 ``p_c(s(t))``, ``p_c' sdot`` and ``p_c'' sdot^2 + p_c' sddot`` (Eq. II.33).
 
 A :class:`Task` plays its path forward, dwells, plays it backward and dwells, and repeats,
@@ -278,14 +278,15 @@ class Task:
 
 
 def circle_task() -> Task:
-    """§ V.6.1: half circle of radius 0.4 m in z = -0.35 m, 120 m/s^2 peak (errata.md)."""
+    """§ V.6.1: half circle of radius 0.4 m in z = -0.35 m, 120 m/s^2 peak
+    (docs/thesis-notes.md)."""
     seg = Segment(arc((0.0, 0.0, -0.35), (0.0, 0.4, -0.35), (0.0, -0.4, -0.35)), 120.0)
     return Task("circle", [seg], reference_length_m=1.257, reference_duration_s=0.253)
 
 
 def pick_place_task() -> Task:
     """§ V.6.2: half ellipse through (0.125,0,-0.35), (0,0,-0.31), (-0.125,0,-0.35),
-    80 m/s^2 peak (errata.md)."""
+    80 m/s^2 peak (docs/thesis-notes.md)."""
     seg = Segment(
         half_ellipse((0.125, 0.0, -0.35), (0.0, 0.0, -0.31), (-0.125, 0.0, -0.35)), 80.0
     )

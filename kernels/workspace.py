@@ -4,7 +4,7 @@
   within ``[beta_min, beta_max]``, plus reachability. This is the definition used to accept
   or refuse targets and paths.
 * Eq. V.32: the joint box ``q_min <= q_i <= q_max``, only a conservative inner
-  approximation (errata.md: the circle task leaves the box yet stays in V.33).
+  approximation (docs/thesis-notes.md: the circle task leaves the box yet stays in V.33).
 """
 
 from __future__ import annotations

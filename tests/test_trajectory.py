@@ -1,4 +1,4 @@
-"""Reference generation and the two thesis tasks against errata.md."""
+"""Reference generation and the two thesis tasks against docs/thesis-notes.md."""
 
 from __future__ import annotations
 

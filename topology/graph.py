@@ -8,7 +8,7 @@ exchange plan (:mod:`ctrlunit.topology.plan`) is derived from it and a placement
 
 Each block names the kernel it runs (``kernel``), the thesis equation, and its cost on a
 T-800 in microseconds (per axis for axis blocks), derived from the 1994 timing table of
-errata.md (see :data:`T800_NOTES`).
+docs/thesis-notes.md (see :data:`T800_NOTES`).
 """
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ class StageGraph:
         return sum(b.t800_s() for b in self.blocks) * 1e6
 
 
-# T-800 costs (us). errata.md: IK 240 us for 3 axes; IK + J^-1 380 us; LU 24 us;
+# T-800 costs (us). docs/thesis-notes.md: IK 240 us for 3 axes; IK + J^-1 380 us; LU 24 us;
 # d/dt(J^-1).pdot 268 us; all kinematics 1320 us; complete law 284 us; whole cycle 1604 us.
 T800 = {
     "reference": 60.0,  # profile generator (not in the table; a few dozen FLOP)
@@ -113,7 +113,7 @@ T800 = {
     "task_accel": 30.0,
 }
 T800_NOTES = (
-    "Per-block T-800 times split from the 1994 table (errata.md): inverse kinematics "
+    "Per-block T-800 times split from the 1994 table (docs/thesis-notes.md): inverse kinematics "
     "240 us / 3 axes, inverse Jacobian (380-240) us / 3, LU 24 us, d/dt(J^-1).pdot "
     "268 us / 3, complete law 284 us split into 30 us per axis and the rest central; "
     "blocks the table does not list are estimated from their FLOP counts."
