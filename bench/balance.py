@@ -248,7 +248,8 @@ def load_report(path: str | Path) -> dict[str, Any]:
     """A run's report from ``--report`` JSON or from a recording."""
     path = Path(path)
     if path.suffix == ".mcap":
-        from ..runtime.recording import read, report_from_recording
+        from ..runtime.recorded_report import report_from_recording
+        from ..runtime.recording import read
 
         return report_from_recording(read(path))
     return json.loads(path.read_text())

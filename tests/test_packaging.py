@@ -5,13 +5,23 @@ from __future__ import annotations
 import subprocess
 import sys
 import sysconfig
+import tomllib
 import zipfile
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SUBPACKAGES = ["kernels", "plant", "topology", "runtime", "bench"]
+SUBPACKAGES = [p.removeprefix("ctrlunit.") for p in tomllib.loads(
+    (ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]]
+
+
+def test_every_package_folder_is_listed_in_pyproject():
+    """A subpackage missing from the list installs nowhere (the editable install hides it)."""
+    folders = {str(d.parent.relative_to(ROOT)).replace("/", ".")
+               for top in ("kernels", "plant", "topology", "runtime", "bench")
+               for d in (ROOT / top).rglob("__init__.py")}
+    assert folders == set(SUBPACKAGES)
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +39,7 @@ def wheel(tmp_path_factory) -> Path:
 def test_wheel_holds_namespaced_packages_only(wheel):
     names = zipfile.ZipFile(wheel).namelist()
     for sub in SUBPACKAGES:
-        assert f"ctrlunit/{sub}/__init__.py" in names
+        assert f"ctrlunit/{sub.replace('.', '/')}/__init__.py" in names
     tops = {n.split("/")[0] for n in names if not n.startswith("ctrlunit-")}
     assert tops == {"ctrlunit"}, f"bare top-level names in the wheel: {tops}"
     assert "ctrlunit/kernels/delta_ia.toml" in names

@@ -1,69 +1,17 @@
-"""The ``ctrlunit`` command line (click).
-
-Every command prints a human summary, or JSON on stdout with ``--json``; errors go to stderr
-with a non-zero exit code.
-"""
+"""``ctrlunit ik``, ``fk``, ``trajectory`` and ``workspace``: the kernels on the command
+line."""
 
 from __future__ import annotations
 
-import json
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
 import click
 import numpy as np
 
-from ..kernels.params import DELTA_IA, DeltaParams, ParameterError, load_params
-
-EXIT_USAGE = 2
-
-
-def _params(path: str | None) -> DeltaParams:
-    return DELTA_IA if path is None else load_params(path)
-
-
-def _fail(msg: str, code: int = 1) -> None:
-    click.echo(f"ctrlunit: error: {msg}", err=True)
-    sys.exit(code)
-
-
-def _emit(data: dict[str, Any], as_json: bool, text: str) -> None:
-    if as_json:
-        click.echo(json.dumps(_json_safe(data)))
-    else:
-        click.echo(text)
-
-
-def _json_safe(x: Any) -> Any:
-    """Map NaN/inf to None and numpy types to Python ones, recursively."""
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_safe(x.tolist())
-    if isinstance(x, np.generic):
-        return _json_safe(x.item())
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
-params_option = click.option(
-    "--params", "params_file", type=click.Path(dir_okay=False), default=None,
-    help="TOML file of Delta parameters (default: the Delta-IA of the thesis).",
-)
-
-
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="ctrlunit")
-def cli() -> None:
-    """ctrlunit: a distributed, model-based control unit for fast parallel robots."""
-
-
-NUMERIC = {"ignore_unknown_options": True}  # so that -0.35 is a number, not an option
+from ...kernels.params import DeltaParams, ParameterError
+from .base import NUMERIC, _emit, _fail, _params, cli, params_option
 
 
 @cli.command(context_settings=NUMERIC, short_help="Inverse kinematics: joint angles of a point.")
@@ -75,8 +23,8 @@ NUMERIC = {"ignore_unknown_options": True}  # so that -0.35 is a number, not an 
 @params_option
 def ik(x: float, y: float, z: float, deg: bool, as_json: bool, params_file: str | None) -> None:
     """Inverse kinematics (Eq. V.16-V.21): joint angles for platform position X Y Z (m)."""
-    from ..kernels.kinematics import UnreachableError, inverse_kinematics
-    from ..kernels.workspace import check_point
+    from ...kernels.kinematics import UnreachableError, inverse_kinematics
+    from ...kernels.workspace import check_point
 
     try:
         params = _params(params_file)
@@ -104,8 +52,8 @@ def ik(x: float, y: float, z: float, deg: bool, as_json: bool, params_file: str 
 @params_option
 def fk(q1: float, q2: float, q3: float, deg: bool, as_json: bool, params_file: str | None) -> None:
     """Forward kinematics: platform position (m) for joint angles Q1 Q2 Q3 (rad)."""
-    from ..kernels.forward import fk_closed_form, fk_newton
-    from ..kernels.kinematics import UnreachableError
+    from ...kernels.forward import fk_closed_form, fk_newton
+    from ...kernels.kinematics import UnreachableError
 
     unit = "deg" if deg else "rad"
     bound = 180.0 if deg else math.pi
@@ -137,9 +85,9 @@ def fk(q1: float, q2: float, q3: float, deg: bool, as_json: bool, params_file: s
 
 def trajectory_summary(params: DeltaParams, name: str, *, samples: int = 2001) -> dict[str, Any]:
     """Figures of a task's path, one way (see ``ctrlunit trajectory``)."""
-    from ..kernels.kinematics import inverse_kinematics
-    from ..kernels.trajectory import get_task
-    from ..kernels.workspace import stiffness_eigenvalues
+    from ...kernels.kinematics import inverse_kinematics
+    from ...kernels.trajectory import get_task
+    from ...kernels.workspace import stiffness_eigenvalues
 
     task = get_task(name)
     ts = np.linspace(0.0, task.duration, samples)
@@ -210,7 +158,7 @@ def trajectory(name: str, as_json: bool, params_file: str | None) -> None:
 def workspace(png: str | None, as_json: bool, grid: int, params_file: str | None) -> None:
     """Usable workspace: det J maps on horizontal slices (Fig. 28) and the smallest
     eigenvalue of l_a^2 J^-T J^-1 against the joint bounds (Fig. 29)."""
-    from ..bench.workspace_maps import workspace_report
+    from ...bench.workspace_maps import workspace_report
 
     try:
         params = _params(params_file)
@@ -231,14 +179,3 @@ def workspace(png: str | None, as_json: bool, grid: int, params_file: str | None
     if png:
         lines.append(f"  maps written to {png}")
     _emit(data, as_json, "\n".join(lines))
-
-
-def main() -> None:
-    """Entry point of the ``ctrlunit`` console script."""
-    from . import commands  # registers the run-time commands
-
-    commands.cli(prog_name="ctrlunit")  # the registered group, also under ``python -m``
-
-
-if __name__ == "__main__":
-    main()

@@ -1,0 +1,18 @@
+"""The ``ctrlunit`` command line (click): one module per family of commands.
+
+``base`` holds the group and the shared helpers; ``kinematics`` (ik, fk, trajectory,
+workspace), ``run`` (start and the single roles), ``recordings`` (replay, report) and
+``tools`` (bench, balance) register their commands on it when imported here.
+"""
+
+from __future__ import annotations
+
+from . import kinematics, recordings, run, tools
+from .base import cli
+
+__all__ = ["cli", "kinematics", "main", "recordings", "run", "tools"]
+
+
+def main() -> None:
+    """Entry point of the ``ctrlunit`` console script (and of ``python -m``)."""
+    cli(prog_name="ctrlunit")

@@ -1,0 +1,67 @@
+"""The ``ctrlunit`` command group and what its commands share: the error and output
+helpers and the ``--params`` option.
+
+Every command prints a human summary, or JSON on stdout with ``--json``; errors are one
+line on stderr (``ctrlunit: error: ...``) with a non-zero exit code
+(docs/faults-and-errors.md).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from typing import Any
+
+import click
+import numpy as np
+
+from ...kernels.params import DELTA_IA, DeltaParams, load_params
+
+EXIT_USAGE = 2
+
+
+def _params(path: str | None) -> DeltaParams:
+    return DELTA_IA if path is None else load_params(path)
+
+
+def _fail(msg: str, code: int = 1) -> None:
+    click.echo(f"ctrlunit: error: {msg}", err=True)
+    sys.exit(code)
+
+
+def _emit(data: dict[str, Any], as_json: bool, text: str) -> None:
+    if as_json:
+        click.echo(json.dumps(_json_safe(data)))
+    else:
+        click.echo(text)
+
+
+def _json_safe(x: Any) -> Any:
+    """Map NaN/inf to None and numpy types to Python ones, recursively."""
+    if isinstance(x, dict):
+        return {str(k): _json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _json_safe(x.tolist())
+    if isinstance(x, np.generic):
+        return _json_safe(x.item())
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+params_option = click.option(
+    "--params", "params_file", type=click.Path(dir_okay=False), default=None,
+    help="TOML file of Delta parameters (default: the Delta-IA of the thesis).",
+)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="ctrlunit")
+def cli() -> None:
+    """ctrlunit: a distributed, model-based control unit for fast parallel robots."""
+
+
+NUMERIC = {"ignore_unknown_options": True}  # so that -0.35 is a number, not an option

@@ -1,0 +1,128 @@
+"""``ctrlunit bench`` and ``ctrlunit balance``: the one place that runs the benchmarks."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import click
+
+from ..config import EXIT_CONFIG, parse_duration
+from .base import _fail, _json_safe, cli
+
+
+@cli.command()
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="bench-out",
+              show_default=True, help="Directory for report.md, report.json and figures.")
+@click.option("--quick", is_flag=True, help="One repeat, short runs (under 3 minutes).")
+@click.option("--repeats", type=click.IntRange(1, 20), default=None)
+@click.option("--realtime-period", "rt_periods", multiple=True, default=("3ms",),
+              show_default=True, help="Realtime periods to include (repeatable).")
+@click.option("--thesis-scale", type=click.FloatRange(1.0, 1000.0), default=30.0,
+              show_default=True, help="T-800 time scale of the runs compared with 1994: "
+              "large enough that an exchange weighs on the arithmetic about as a "
+              "Transputer link did (README, bench).")
+def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str, ...],
+          thesis_scale: float) -> None:
+    """Sweep n x depth x cost model, measure the floor, write reports and figures."""
+    from rich.progress import Progress
+
+    from ...bench.sweep import bench as run_bench
+
+    periods = [parse_duration(p, field_name="--realtime-period") for p in rt_periods]
+    with Progress(transient=True) as prog:
+        task = prog.add_task("bench", total=None)
+
+        def tick(what: str, done: int, total: int) -> None:
+            prog.update(task, description=what[:70], completed=done, total=total)
+
+        rep = run_bench(out_dir, quick=quick, repeats=repeats, realtime_periods=periods,
+                        scale=thesis_scale, progress=tick)
+    click.echo(f"wrote {out_dir}/report.md, report.json and {len(rep['figures'])} figures "
+               f"in {rep['wall_s']:.0f} s")
+
+
+@cli.command(short_help="Where the time goes; recommend and write a placement.")
+@click.argument("source", type=click.Path(exists=True, dir_okay=False))
+@click.option("--write", "out", type=click.Path(dir_okay=False), default="placement.json",
+              show_default=True, help="Placement file to write.")
+@click.option("--compare", "rerun", type=click.Path(exists=True, dir_okay=False),
+              help="Report of a re-run with the written placement: measured against the "
+                   "prediction.")
+@click.option("--figure", type=click.Path(dir_okay=False),
+              help="PNG: measured and predicted Gantt charts side by side.")
+@click.option("--json", "as_json", is_flag=True)
+def balance(source: str, out: str, rerun: str | None, figure: str | None,
+            as_json: bool) -> None:
+    """Block costs, t_s (Eq. IV.24), t_p (Eq. IV.25), business, and the period predicted by
+    a schedule model calibrated on a run (--report JSON or a recording); recommends a
+    placement by the rules of § IV.7.2 and writes it."""
+    from pathlib import Path
+
+    from ...bench.balance import analyse, compare, load_report, write_placement
+
+    try:
+        a = analyse(load_report(source))
+        cmp = compare(a, load_report(rerun)) if rerun else None
+    except (ValueError, KeyError, OSError) as exc:
+        _fail(f"balance: {exc}", EXIT_CONFIG)
+        return
+    write_placement(a, out)
+    if figure:
+        from ...bench.figures import gantt_figure
+
+        d = a["pipeline"]
+        panels = {f"depth {d}, measured": a["measured"]["gantt_ms"],
+                  f"depth {d}, model of the same run": a["current"]["gantt_ms"],
+                  f"depth {d}, predicted with the new placement": a["predicted"]["gantt_ms"]}
+        if cmp is not None:
+            panels[f"depth {cmp['depth']}, re-run with the new placement (measured)"] = \
+                cmp["gantt_ms"]
+        gantt_figure(Path(figure), panels)
+    if as_json:
+        click.echo(json.dumps(_json_safe(a | ({"compare": cmp} if cmp else {}))))
+        return
+
+    def us(x: float | None) -> str:
+        return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:.0f} us"
+
+    mc = a["model_costs_s"]
+    d = a["pipeline"]
+    lines = [f"balance of {source} ({a['law']}, n = {a['peripherals']}, depth {d})",
+             "  block costs (3 axes):"]
+    for k, v in sorted(a["block_cost_s"].items(), key=lambda kv: -kv[1]):
+        lines.append(f"    {k:16s} {v * 1e6:8.1f} us")
+    lines += [
+        f"  t_s (Eq. IV.24) {us(a['t_s_s'])}   t_p (Eq. IV.25) {us(a['t_p_s'])}",
+        "  business " + ", ".join(f"{k} {v * 100:.0f} %" for k, v in a["business"].items()),
+        f"  model: central {us(mc['send'])} per request, {us(mc['reply'])} per reply, "
+        f"{us(mc['step'])} per run of steps, {us(mc['start'])} + {us(mc['finish'])} to start "
+        f"and finish an interval; latency {us(mc['latency'])} one way (fitted)",
+        f"  now: measured period {us(a['measured']['period_s'])} (mean); model depth 1 "
+        f"{us(a['current']['depth1']['period_s'])}, depth 2 "
+        f"{us(a['current']['depth2']['period_s'])}",
+    ]
+    cpu = a.get("cpu") or {}
+    if cpu.get("bound_period_s"):
+        per = cpu["per_interval_s"]
+        lines.append(
+            f"  CPU: {us(per.get('total'))} per interval (central {us(per.get('central'))}) "
+            f"on {cpu['cores']} core(s): no period below {us(cpu['bound_period_s'])}, the "
+            f"measured mean is {a['measured']['period_s'] / cpu['bound_period_s']:.2f}x that "
+            "(the model does not charge the cores the processes share)")
+    for c in a["candidates"][:6]:
+        lines.append(f"  candidate: {c['why']}: {us(c['period_s'])}")
+    lines += [f"  recommendation: {r}" for r in a["recommendations"]]
+    lines.append(f"  with the new placement: predicted period depth 1 "
+                 f"{us(a['predicted']['depth1']['period_s'])}, depth 2 "
+                 f"{us(a['predicted']['depth2']['period_s'])}; written to {out} "
+                 f"(ctrlunit start --peripherals {a['placement']['peripherals']} "
+                 f"--placement {out})")
+    if cmp is not None:
+        lines.append(f"  re-run (depth {cmp['depth']}): measured {us(cmp['measured_period_s'])} "
+                     f"against {us(cmp['predicted_period_s'])} predicted "
+                     f"({cmp['error'] * 100:+.1f} %); before {us(cmp['before_period_s'])} "
+                     f"(gain {cmp['gain'] * 100:+.1f} %)")
+    if figure:
+        lines.append(f"  Gantt charts: {figure}")
+    click.echo("\n".join(lines))

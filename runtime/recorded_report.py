@@ -1,0 +1,86 @@
+"""The run's report rebuilt from a recording alone (``ctrlunit report``, ``balance``):
+the same numbers as the live run's, from the recorded messages, timing and result."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+from .central import measure_t1
+from .config import RunConfig
+from .launcher import make_setup
+from .recording import Recording
+from .replay import recorded_inputs
+from .report import CPU_KEYS, build_report, command_digest, tracking_errors
+
+
+def report_from_recording(rec: Recording) -> dict[str, Any]:
+    """The run's report rebuilt from the recording alone (same numbers as the live one).
+
+    ``t_1`` comes from the run's result record; if the run died before writing it, it is
+    measured again here on the recorded intervals.
+    """
+    cfg = rec.config
+    rc = RunConfig(**cfg)
+    rc.record = rc.report = None
+    setup = make_setup(rc)
+    samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
+    cmd_ns, sample_ns, commands = [], [], []
+    true_p: dict[int, tuple[float, float, float]] = {}
+    for t, m in rec.decoded("/plant/command"):
+        k = m["cycle"]
+        s = samples.get(k)
+        if s is None:
+            continue
+        cmd_ns.append(t)
+        sample_ns.append(s["t_ns"])
+        commands.extend(float(x) for x in m["tau"])
+    for k, s in samples.items():
+        if "p" in s:
+            true_p[k] = tuple(s["p"])  # type: ignore[assignment]
+    result = rec.metadata.get("ctrlunit.result", {})
+    busy = json.loads(result.get("busy", "{}") or "{}")
+    t0, t1_ns = int(result.get("t_start_ns", "0") or 0), int(result.get("t_end_ns", "0") or 0)
+    wall = max(1, t1_ns - t0) if t0 else max(1, (cmd_ns[-1] - cmd_ns[0]) if cmd_ns else 1)
+    n = setup.placement.peripherals
+    if busy:
+        business = {"central": max(0.0, 1.0 - busy["central_wait_ns"] / wall)}
+        for k in range(n):
+            business[f"peripheral_{k + 1}"] = busy["periph_busy_ns"][k] / wall
+        if rc.clock != "freerun":
+            business["plant"] = busy["plant_busy_ns"] / wall
+    else:  # from the spans
+        acc: dict[str, int] = {}
+        for _, m in rec.decoded("/timing/spans"):
+            for proc, a, b in m["spans"]:
+                acc[proc] = acc.get(proc, 0) + (b - a)
+        business = {k: v / wall for k, v in sorted(acc.items())}
+    deadline = rec.decoded("/faults/deadline")
+    misses = deadline[-1][1]["deadline_misses"] if deadline else 0
+    skipped = deadline[-1][1]["skipped_samples"] if deadline else 0
+    rejected = json.loads(result.get("rejected", "{}") or "{}")
+    if not rejected:
+        rej = rec.decoded("/faults/rejected")
+        rejected = rej[-1][1] if rej else {}
+    t1 = float(result["t1_s"]) if result.get("t1_s") not in (None, "None", "") else math.nan
+    per_block = json.loads(result.get("block_cost_s", "{}") or "{}")
+    if not math.isfinite(t1):
+        t1, per_block = measure_t1(lambda: setup.engine(peripherals_plan=False),
+                                   recorded_inputs(rec, setup)[: rc.t1_cycles])
+    fault = json.loads(result.get("fault", "null") or "null")
+    if rec.salvaged:
+        fault = fault or {"process": "recording", "message": rec.note, "code": None}
+    task = setup.task
+    rep = build_report(
+        rc=rc, plan=setup.plan, task=task, cmd_ns=cmd_ns, sample_ns=sample_ns,
+        digest=command_digest(commands),
+        torque_max=max((abs(x) for x in commands), default=math.nan),
+        tracking_errors=tracking_errors(task, rc.period, true_p), business=business,
+        deadline_misses=misses,
+        skipped=skipped, rejected=rejected, t1_s=t1, per_block_s=per_block, fault=fault,
+        wall_s=wall / 1e9,
+    )
+    cpu = json.loads(result.get("cpu", "{}") or "{}")  # per process: only the run knew
+    rep.update({k: cpu.get(k) for k in CPU_KEYS if k in cpu})
+    return rep
