@@ -122,7 +122,14 @@ def _balance_stage(results: dict[str, list[dict]], configs: list[Config], out: P
     model calibrated again on the median default-placement re-run, made alternately with
     the balanced ones, so that both sides of the comparison see the same machine (this
     VM's speed drifts by up to 2x between the sweep and the re-runs)."""
-    from .balance import analyse, asked_replies, calibrate, placement_of, predict, write_placement
+    from ..topology.balance import (
+        analyse,
+        asked_replies,
+        calibrate,
+        placement_of,
+        predict,
+        write_placement,
+    )
 
     stage: dict[str, Any] = {"native": []}
     for d in (1, 2):

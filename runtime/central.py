@@ -58,6 +58,14 @@ from typing import Any
 
 from ..kernels.kinematics import ik_axis, inverse_kinematics
 from ..kernels.workspace import check_point
+from ..topology.pipeline import (
+    finishes_after_next_request,
+    handoff_step,
+    holds_lone_round,
+    may_prime,
+    may_start,
+    reply_mode,
+)
 from ..topology.plan import Round
 from .blocks import ObserverDiverged
 from .codec import (
@@ -70,7 +78,7 @@ from .codec import (
     short_text,
 )
 from .config import EXIT_LINK, EXIT_OBSERVER, EXIT_OK, EXIT_PERIPHERAL, EXIT_PLANT, RunConfig
-from .controller import Controller, handoff_step
+from .controller import Controller
 from .engine import CostModel, Engine
 from .node import WARM_RSS_AT, Node, rss_kb
 
@@ -403,18 +411,17 @@ class Central:
     def choose_replies(self) -> dict[str, Any]:
         """Decide how peripherals answer fused requests (``--replies``); see the module
         notes. Returns what was decided and from which figures (for the report)."""
-        mode = self.rc.replies
-        info: dict[str, Any] = {"asked": mode}
-        if self.depth < 2 or self.n == 0:
-            mode = "fused"
-            info["why"] = "one interval per exchange"
-        elif mode == "auto":
+        asked = self.rc.replies
+        info: dict[str, Any] = {"asked": asked}
+        rtt = between = math.nan
+        if asked == "auto" and self.depth >= 2 and self.n:
             rtt = statistics.median(self.warm_rtt_s) if self.warm_rtt_s else math.inf
             between = self.central_between_rounds_s()  # round trip: the exchange alone
-            mode = "each" if between > rtt else "fused"
-            info.update(round_trip_s=rtt, central_between_rounds_s=between,
-                        why="each if the central's work between two rounds exceeds a "
-                            "round trip")
+            info.update(round_trip_s=rtt, central_between_rounds_s=between)
+        mode, why = reply_mode(asked, depth=self.depth, peripherals=self.n,
+                               between_s=between, round_trip_s=rtt)
+        if why != "asked":
+            info["why"] = why
         info["mode"] = mode
         self.reply_each = mode == "each"
         self.replies_info = info
@@ -663,7 +670,9 @@ class Central:
         # finish after the next request is out (their last central blocks, command,
         # recording and progress overlap the peripherals' work)
         finishing = [f for f in complete if f.round is not None
-                     and f.round.index == self.last_round] if self.depth > 1 else []
+                     and finishes_after_next_request(depth=self.depth,
+                                                     round_index=f.round.index,
+                                                     last_round=self.last_round)]
         for f in complete:
             if f not in finishing:
                 self._advance(f)
@@ -677,15 +686,15 @@ class Central:
 
     # -- intervals --------------------------------------------------------------------
 
+    def _newest_handed_off(self) -> bool | None:
+        if not self.inflight:
+            return None
+        return next(reversed(self.inflight.values())).handed_off
+
     def _may_start(self) -> bool:
         live = sum(1 for f in self.inflight.values() if not f.finishing)
-        if live >= self.depth or self.next_cycle >= self.cycles:
-            return False
-        if self.inflight:
-            last = next(reversed(self.inflight.values()))
-            if not last.handed_off:
-                return False
-        return True
+        return may_start(depth=self.depth, live=live, next_cycle=self.next_cycle,
+                         cycles=self.cycles, newest_handed_off=self._newest_handed_off())
 
     def _start_ready(self) -> None:
         while self._may_start():
@@ -734,9 +743,9 @@ class Central:
         interval's last reply and the next request, with the peripherals idle. Same
         arithmetic: the estimate they use is final at the hand-off. Returns whether it
         ran them."""
-        if self.depth < 2 or self.primed is not None or self.next_cycle >= self.cycles:
-            return False
-        if self.inflight and not next(reversed(self.inflight.values())).handed_off:
+        if not may_prime(depth=self.depth, primed=self.primed is not None,
+                         next_cycle=self.next_cycle, cycles=self.cycles,
+                         newest_handed_off=self._newest_handed_off()):
             return False
         k = self.next_cycle
         t0 = time.monotonic_ns()
@@ -817,10 +826,10 @@ class Central:
         quarter period past that (a late or lost sample). In lockstep the next sample
         follows the command just sent; the plant's silence is a fault after
         ``--timeout``."""
-        if self.depth < 2 or len(self.outbox) != 1:
-            return 0
         f = self.outbox[0]
-        if not f.handed_off or self.next_cycle > f.cycle + 1 or self.next_cycle >= self.cycles:
+        if not holds_lone_round(depth=self.depth, ready=len(self.outbox),
+                                handed_off=f.handed_off, cycle=f.cycle,
+                                next_cycle=self.next_cycle, cycles=self.cycles):
             return 0
         if self.rc.clock == "realtime":
             return f.sample_ns + self.period_ns + self.period_ns // 4
@@ -893,7 +902,7 @@ class Central:
             self.cycle_spans.setdefault(cycle, []).append((proc, t0, t1))
 
     def costs(self) -> dict[str, float]:
-        """The central's own time, for the schedule model (:mod:`ctrlunit.bench.schedule`):
+        """The central's own time, for the schedule model (:mod:`ctrlunit.topology.schedule`):
         per request sent, per reply message handled, per interval to start and to finish
         it, and busy (not waiting) per interval."""
         wall = max(1, self.t_end_ns - self.t_start_ns)

@@ -25,22 +25,9 @@ from ..kernels.trajectory import Task
 from ..plant.simulator import Plant, PlantConfig
 from ..topology.graph import stage_graph
 from ..topology.placement import default_placement
-from ..topology.plan import ExchangePlan, exchange_plan
+from ..topology.plan import exchange_plan
 from .blocks import BlockConfig
 from .engine import CostModel, Engine
-
-EST_NAMES = ("p", "pd", "pdd")
-
-
-def handoff_step(plan: ExchangePlan) -> int:
-    """Index of the plan step after which the next interval may start."""
-    last = -1
-    for k, step in enumerate(plan.steps):
-        blocks = step.round.blocks if step.round is not None else [step.block]
-        for b in blocks:
-            if b is not None and any(o in EST_NAMES for o in b.outputs):
-                last = k
-    return last
 
 
 def initial_command(params: DeltaParams, task: Task) -> list[float]:

@@ -20,6 +20,7 @@ import time
 from collections import Counter
 from typing import Any
 
+from ..topology.pipeline import reply_order
 from .codec import BadMessage, check_vals, decode, encode, parts_of
 from .engine import Engine
 from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb
@@ -87,8 +88,8 @@ class Peripheral:
         except Exception as exc:  # a validation gap must not end the role: count it
             self.rejected[f"invalid:{type(exc).__name__}"] += 1
             return []
-        if each:  # first rounds first, each answered at once (see central.py)
-            parts.sort(key=lambda x: x[1].index)
+        # first rounds first when each is answered at once (docs/architecture.md)
+        parts = [parts[i] for i in reply_order([p[1].index for p in parts], each=each)]
         replies: list[bytes] = []
         out: list[dict[str, Any]] = []
         engine = self.engine

@@ -117,7 +117,8 @@ def verify(
     -------
     (intervals compared, first divergence or None)
     """
-    from .controller import Controller, handoff_step
+    from ..topology.pipeline import handoff_step
+    from .controller import Controller
     from .engine import Engine
 
     setup = _setup(rec)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import math
 
 import pytest
-from ctrlunit.bench.schedule import Costs, fit_latency, simulate
 from ctrlunit.topology.graph import stage_graph
 from ctrlunit.topology.placement import Placement, default_placement
 from ctrlunit.topology.plan import exchange_plan
+from ctrlunit.topology.schedule import Costs, fit_latency, simulate
 
 GRAPH = stage_graph()
 T800 = {b.name: b.t800_s() for b in GRAPH.blocks}
@@ -89,7 +89,7 @@ def test_bad_arguments_are_refused_with_the_allowed_values():
 def test_moving_the_last_round_recommends_one_processor_not_idle_peripherals():
     """With every other per-axis block already on the central, the rules' move of the last
     round leaves the peripherals nothing: the candidate is n = 0, said in words."""
-    from ctrlunit.bench.balance import candidates
+    from ctrlunit.topology.balance import candidates
 
     placement = Placement(default_placement(3).axes, ROUND0)
     business = {"central": 0.6, "peripheral_1": 0.08, "peripheral_2": 0.08,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from typing import Any
 
 import click
 
@@ -59,7 +60,7 @@ def balance(source: str, out: str, rerun: str | None, figure: str | None,
     placement by the rules of § IV.7.2 and writes it."""
     from pathlib import Path
 
-    from ...bench.balance import analyse, compare, load_report, write_placement
+    from ...topology.balance import analyse, compare, write_placement
 
     try:
         a = analyse(load_report(source))
@@ -126,3 +127,15 @@ def balance(source: str, out: str, rerun: str | None, figure: str | None,
     if figure:
         lines.append(f"  Gantt charts: {figure}")
     click.echo("\n".join(lines))
+
+
+def load_report(path: str) -> dict[str, Any]:
+    """A run's report from ``--report`` JSON or from a recording."""
+    from pathlib import Path
+
+    if Path(path).suffix == ".mcap":
+        from ..recorded_report import report_from_recording
+        from ..recording import read
+
+        return report_from_recording(read(path))
+    return json.loads(Path(path).read_text())

@@ -21,8 +21,15 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
-from ..runtime.controller import handoff_step
-from ..topology.plan import ExchangePlan
+from .pipeline import (
+    finishes_after_next_request,
+    handoff_step,
+    holds_lone_round,
+    may_prime,
+    may_start,
+    reply_order,
+)
+from .plan import ExchangePlan
 
 
 @dataclass(frozen=True)
@@ -170,11 +177,13 @@ class _Model:
         self.spans.append(("central", cycle, self.t, self.t + cost))
         self.t += cost
 
+    def newest_handed(self) -> bool | None:
+        return list(self.inflight.values())[-1].handed if self.inflight else None
+
     def may_start(self) -> bool:
         live = sum(1 for f in self.inflight.values() if not f.finishing)
-        if live >= self.depth or self.next >= self.total:
-            return False
-        return not self.inflight or list(self.inflight.values())[-1].handed
+        return may_start(depth=self.depth, live=live, next_cycle=self.next, cycles=self.total,
+                         newest_handed_off=self.newest_handed())
 
     def start_ready(self) -> None:
         while self.may_start():
@@ -188,9 +197,8 @@ class _Model:
             self.advance(f, skip)
 
     def prime(self) -> bool:
-        if self.depth < 2 or self.primed >= 0 or self.next >= self.total:
-            return False
-        if self.inflight and not list(self.inflight.values())[-1].handed:
+        if not may_prime(depth=self.depth, primed=self.primed >= 0, next_cycle=self.next,
+                         cycles=self.total, newest_handed_off=self.newest_handed()):
             return False
         self.primed = self.next
         self.busy(self.next, self.prefix_s + self.costs.step_s)
@@ -214,8 +222,9 @@ class _Model:
     def flush(self) -> None:
         if not self.outbox:
             return
-        if (self.depth > 1 and len(self.outbox) == 1 and self.outbox[0].handed
-                and self.next == self.outbox[0].cycle + 1 and self.next < self.total):
+        f = self.outbox[0]
+        if holds_lone_round(depth=self.depth, ready=len(self.outbox), handed_off=f.handed,
+                            cycle=f.cycle, next_cycle=self.next, cycles=self.total):
             return  # held for the next interval's first round
         self.t += self.costs.send_s
         self.exchanges += 1
@@ -227,7 +236,7 @@ class _Model:
         arrive = self.t + self.costs.latency_s
         for p in range(self.n):
             start = max(arrive, self.free_at[p])
-            order = sorted(parts, key=lambda x: x[1]) if each else parts
+            order = [parts[i] for i in reply_order([r for _, r in parts], each=each)]
             done_parts = []
             for cycle, r in order:
                 end = start + self.round_cost[r][p]
@@ -254,7 +263,8 @@ class _Model:
             if not f.waiting:
                 complete.append(f)
         last = self.rounds - 1
-        finishing = [f for f in complete if f.round == last] if self.depth > 1 else []
+        finishing = [f for f in complete if finishes_after_next_request(
+            depth=self.depth, round_index=f.round, last_round=last)]
         for f in complete:
             if f not in finishing:
                 f.round = -1

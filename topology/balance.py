@@ -5,7 +5,7 @@ central's message costs):
 
 * ``t_s`` (Eq. IV.24): every block on one processor; ``t_p`` (Eq. IV.25): the central's
   blocks plus the per-axis blocks divided over n; the business of each process;
-* the schedule model (:mod:`ctrlunit.bench.schedule`) calibrated on the run: block costs
+* the schedule model (:mod:`ctrlunit.topology.schedule`) calibrated on the run: block costs
   from its single-processor measurement, the central's costs per request, per reply and
   per run of steps as measured by the central, and the one-way message latency fitted so
   that the model gives the run's own mean period. It predicts the period at depth 1 and 2
@@ -21,14 +21,13 @@ central's message costs):
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
 
-from ..topology.graph import StageGraph, stage_graph
-from ..topology.placement import Placement, default_placement, save_placement
-from ..topology.plan import ExchangePlan, exchange_plan
+from .graph import StageGraph, stage_graph
+from .placement import Placement, default_placement, save_placement
+from .plan import ExchangePlan, exchange_plan
 from .schedule import Costs, Schedule, fit_latency, simulate
 
 MARGIN = 0.05
@@ -242,14 +241,3 @@ def compare(analysis: dict[str, Any], rerun: dict[str, Any]) -> dict[str, Any]:
 
 def write_placement(analysis: dict[str, Any], path: str | Path) -> None:
     save_placement(placement_of(analysis), path)
-
-
-def load_report(path: str | Path) -> dict[str, Any]:
-    """A run's report from ``--report`` JSON or from a recording."""
-    path = Path(path)
-    if path.suffix == ".mcap":
-        from ..runtime.recorded_report import report_from_recording
-        from ..runtime.recording import read
-
-        return report_from_recording(read(path))
-    return json.loads(path.read_text())

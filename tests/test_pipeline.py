@@ -1,0 +1,68 @@
+"""The pipeline's rules (topology/pipeline.py), which the central and the schedule model
+share: what each allows at depth 1 and 2."""
+
+from __future__ import annotations
+
+import pytest
+from ctrlunit.topology.graph import LAWS, stage_graph
+from ctrlunit.topology.pipeline import (
+    EST_NAMES,
+    finishes_after_next_request,
+    handoff_step,
+    holds_lone_round,
+    may_prime,
+    may_start,
+    reply_mode,
+    reply_order,
+)
+from ctrlunit.topology.placement import default_placement
+from ctrlunit.topology.plan import exchange_plan
+
+
+@pytest.mark.parametrize("law", LAWS)
+def test_the_hand_off_is_the_step_that_finishes_the_estimate(law):
+    plan = exchange_plan(stage_graph(law, "complete"), default_placement(3))
+    k = handoff_step(plan)  # -1: the law keeps no estimate (the next may start at once)
+    assert -1 <= k < len(plan.steps)
+    later = [b for s in plan.steps[k + 1:]
+             for b in (s.round.blocks if s.round is not None else [s.block])]
+    assert not any(o in EST_NAMES for b in later for o in b.outputs)
+
+
+def test_depth_one_never_overlaps_intervals():
+    assert may_start(depth=1, live=0, next_cycle=3, cycles=10, newest_handed_off=None)
+    assert not may_start(depth=1, live=1, next_cycle=3, cycles=10, newest_handed_off=True)
+    assert not may_prime(depth=1, primed=False, next_cycle=3, cycles=10,
+                         newest_handed_off=True)
+    assert not holds_lone_round(depth=1, ready=1, handed_off=True, cycle=2, next_cycle=3,
+                                cycles=10)
+    assert not finishes_after_next_request(depth=1, round_index=1, last_round=1)
+    assert reply_mode("each", depth=1, peripherals=3, between_s=1.0, round_trip_s=0.0)[0] \
+        == "fused"
+
+
+def test_depth_two_starts_the_next_interval_only_after_the_hand_off():
+    assert not may_start(depth=2, live=1, next_cycle=3, cycles=10, newest_handed_off=False)
+    assert may_start(depth=2, live=1, next_cycle=3, cycles=10, newest_handed_off=True)
+    assert not may_start(depth=2, live=2, next_cycle=3, cycles=10, newest_handed_off=True)
+    assert not may_start(depth=2, live=0, next_cycle=10, cycles=10, newest_handed_off=None)
+    assert may_prime(depth=2, primed=False, next_cycle=3, cycles=10, newest_handed_off=True)
+    assert not may_prime(depth=2, primed=True, next_cycle=3, cycles=10, newest_handed_off=True)
+
+
+def test_a_lone_round_waits_only_for_the_interval_right_after_it():
+    held = dict(depth=2, ready=1, handed_off=True, cycle=4, next_cycle=5, cycles=10)
+    assert holds_lone_round(**held)
+    assert not holds_lone_round(**(held | {"ready": 2}))  # already fused
+    assert not holds_lone_round(**(held | {"handed_off": False}))
+    assert not holds_lone_round(**(held | {"next_cycle": 6}))  # the next one started
+    assert not holds_lone_round(**(held | {"cycles": 5}))  # no next interval to wait for
+
+
+def test_replies_each_answer_first_rounds_first_and_auto_weighs_the_round_trip():
+    assert reply_order([1, 0], each=True) == [1, 0]
+    assert reply_order([1, 0], each=False) == [0, 1]
+    kw = dict(depth=2, peripherals=3)
+    assert reply_mode("auto", **kw, between_s=2e-4, round_trip_s=1e-4)[0] == "each"
+    assert reply_mode("auto", **kw, between_s=1e-4, round_trip_s=2e-4)[0] == "fused"
+    assert reply_mode("fused", **kw, between_s=1.0, round_trip_s=0.0) == ("fused", "asked")
