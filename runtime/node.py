@@ -293,3 +293,12 @@ def cpu_used(node: Node) -> float | None:
     """CPU seconds this process (all its threads: Zenoh's too) spent since the central's
     ``start`` order, or None if it never came."""
     return None if node.cpu_start_s is None else time.process_time() - node.cpu_start_s
+
+
+def say_bye(node: Node, report: dict[str, Any]) -> None:
+    """A role's last word: its final report, sent a few times (the central collects it
+    while it waits for every role after its stop order)."""
+    pub = node.publisher(node.keys.hello)
+    for _ in range(3):
+        pub.put(encode(node.unit, 0, "bye", role=node.role, report=report))
+        time.sleep(0.02)

@@ -16,14 +16,18 @@ reason and dropped: no payload ends the role.
 from __future__ import annotations
 
 import queue
+import sys
 import time
 from collections import Counter
 from typing import Any
 
 from ..topology.pipeline import reply_order
+from . import sched
 from .codec import BadMessage, check_vals, decode, encode, parts_of
+from .config import EXIT_LINK, EXIT_OK
 from .engine import Engine
-from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb
+from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb, say_bye
+from .setup import Setup
 
 MAX_KEPT_CYCLES = 8
 ALL_AXES = (0, 1, 2)
@@ -179,3 +183,20 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
             node.last_heard_ns = ev[3]
         for payload in replies:
             reply.put(payload)
+
+
+def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
+    node = Node(conf, setup.rc.unit, f"peripheral-{index}")
+    try:
+        reply = declare(node, index - 1)
+        node.wait_for_go(timeout=setup.rc.startup_timeout)
+        res = serve(node, setup.engine(), index - 1, reply,
+                    watchdog=max(5.0, 3 * setup.rc.timeout), trace=setup.rc.trace)
+        res["sched"] = sched.policy_name()
+        say_bye(node, res)
+        return EXIT_OK if res["exit"] == "stop" else EXIT_LINK
+    except TimeoutError as exc:
+        print(f"ctrlunit peripheral {index}: {exc}", file=sys.stderr)
+        return EXIT_LINK
+    finally:
+        node.close()

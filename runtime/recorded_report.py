@@ -9,10 +9,10 @@ from typing import Any
 
 from .central import measure_t1
 from .config import RunConfig
-from .launcher import make_setup
 from .recording import Recording
 from .replay import recorded_inputs
 from .report import CPU_KEYS, build_report, command_digest, tracking_errors
+from .setup import make_setup
 
 
 def report_from_recording(rec: Recording) -> dict[str, Any]:

@@ -85,7 +85,7 @@ class Recorder:
     Parameters
     ----------
     path : output file.
-    setup : the run's :class:`~ctrlunit.runtime.launcher.Setup`.
+    setup : the run's :class:`~ctrlunit.runtime.setup.Setup`.
     """
 
     def __init__(self, path: str, setup: Any) -> None:

@@ -41,7 +41,7 @@ class Divergence:
 
 def _setup(rec: Recording) -> Any:
     from .config import RunConfig
-    from .launcher import make_setup
+    from .setup import make_setup
 
     rc = RunConfig(**rec.config)
     rc.record = rc.report = None

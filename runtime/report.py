@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import hashlib
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..kernels.trajectory import Task
 
+if TYPE_CHECKING:
+    from .central import Central
+    from .engine import Engine
+    from .setup import Setup
+
 CPU_KEYS = ("cpu_per_interval_s", "cpu_cores", "cpu_bound_period_s")
-"""Report keys of the CPU budget (``launcher.cpu_budget``): only the live run measures
+"""Report keys of the CPU budget (:func:`cpu_budget`): only the live run measures
 them; a recording keeps them for ``ctrlunit report``."""
 
 
@@ -240,3 +245,89 @@ def summary(r: dict[str, Any]) -> str:
         if "safe_stop" in r:
             lines.append(_safe_stop_line(r["safe_stop"]))
     return "\n".join(lines)
+
+
+def text_or_none(x: Any) -> str | None:
+    """A role's word as text, or None when it said nothing usable."""
+    return x if isinstance(x, str) else None
+
+
+def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[str, Any]:
+    """CPU time per interval of every process (all its threads, Zenoh's included) between
+    the central's ``start`` and ``stop``, and what it implies: on ``cores`` CPUs, the
+    freerun period cannot be shorter than the total divided by ``cores``, whatever the
+    schedule. ``total`` and ``cpu_bound_period_s`` are there only when every role ran on
+    this host and reported (not after a fault, nor for ``ctrlunit central`` alone).
+
+    The CPU is averaged over every interval of the run, its first ones included (the
+    period's figures leave those out), so a short run shows a higher figure. When units
+    run inside another program (``ctrlunit bench``), the central's share also counts
+    that program's other threads."""
+    done = max(1, central.done)
+    per: dict[str, float] = {}
+    if central.cpu_s is not None:
+        per["central"] = central.cpu_s / done
+    for role in roles:
+        cpu = (central.role_reports.get(role) or {}).get("cpu_s")
+        if isinstance(cpu, (int, float)) and not isinstance(cpu, bool) and cpu >= 0:
+            per[role.replace("-", "_")] = cpu / done
+    complete = len(per) == len(roles) + 1
+    total = sum(per.values())
+    if complete:  # a total of the roles that reported would pass for the unit's
+        per["total"] = total
+    return {"cpu_per_interval_s": per,
+            "cpu_cores": cores,
+            "cpu_bound_period_s": total / cores if cores and complete and central.done
+            else None}
+
+
+def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[str, Any]:
+    """The report of a live run, from the central's logs and the roles' final reports
+    (``t_1`` is measured here, on the run's recorded inputs)."""
+    from .central import measure_t1  # the report of a live run needs its central
+
+    rc = setup.rc
+    wall = max(1, central.t_end_ns - central.t_start_ns)
+    business = {"central": max(0.0, 1.0 - central.wait_ns / wall)}
+    for k in range(setup.placement.peripherals):
+        business[f"peripheral_{k + 1}"] = central.periph_busy_ns[k] / wall
+    if rc.clock != "freerun":
+        business["plant"] = central.plant_busy_ns / wall
+    t1, per_block = math.nan, {}
+    t1_engines: list[Engine] = []
+
+    def t1_engine() -> Engine:
+        t1_engines.append(setup.engine(peripherals_plan=False))
+        return t1_engines[-1]
+
+    if central.t1_inputs:
+        t1, per_block = measure_t1(t1_engine,
+                                   central.t1_inputs[: (50 if rc.cost_model == "t800" else None)])
+    cost_err = None
+    if rc.cost_model == "t800":
+        # block costs are the emulated T-800 times; the emulation's error is measured
+        per_block = {b.name: b.t800_s(rc.cost_scale) for b in setup.plan.graph.blocks}
+        errs = sorted(central.engine.cost.errors_ns + [e for g in t1_engines
+                                                       for e in g.cost.errors_ns])
+        if errs:
+            cost_err = {"p50": errs[len(errs) // 2] / 1e9,
+                        "p99": errs[int(len(errs) * 0.99)] / 1e9, "max": errs[-1] / 1e9,
+                        "method": "sleep to twice the mean sleep overshoot (50 us to 1 ms) "
+                                  "before the T-800 deadline, then spin; "
+                                  "one settle per message sent"}
+    rejected = dict(central.node.rejected)
+    for role, rep in central.role_reports.items():
+        for k, v in (rep.get("rejected") or {}).items():
+            rejected[f"{role}:{k}"] = v
+    return build_report(
+        rc=rc, plan=setup.plan, task=setup.task, cmd_ns=list(central.log.cmd_ns),
+        sample_ns=list(central.log.sample_ns), digest=central.log.digest.hexdigest(),
+        torque_max=central.log.torque_max, tracking_errors=central.log.errors,
+        business=business,
+        deadline_misses=central.plant_misses, skipped=central.skipped, rejected=rejected,
+        t1_s=t1, per_block_s=per_block, fault=fault,
+        wall_s=(central.t_end_ns - central.t_start_ns) / 1e9, cost_error_s=cost_err,
+        exchanges=central.exchanges if setup.placement.peripherals else None,
+        replies=central.replies_info if setup.placement.peripherals else None,
+        central_costs=central.costs(), gantt=gantt_window(central.spans),
+    )

@@ -89,6 +89,8 @@ def make_config(
     config_file : a Zenoh JSON5 configuration passed through (``--zenoh-config``); the
         options above are applied on top of it only where given.
     """
+    # keep Zenoh's own logging quiet, here and in the roles started after (they inherit it)
+    os.environ.setdefault("RUST_LOG", "error")
     conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     if not config_file:
         conf.insert_json5("mode", '"peer"')

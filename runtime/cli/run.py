@@ -125,7 +125,7 @@ def _duration_or_zero(ctx: Any, param: click.Parameter, value: str) -> float:
 
 
 def make_rc(kw: dict[str, Any]) -> RunConfig:
-    from ..launcher import load_spec
+    from ..setup import load_spec
 
     spec = kw.pop("spec", None)
     listen = list(kw.pop("listen", ()) or ()) or None
@@ -218,7 +218,7 @@ def _progress(show: bool) -> tuple[Any, Any]:
 @click.option("--index", type=click.IntRange(1, 3), required=True)
 def peripheral(index: int, **kw: Any) -> None:
     """Run peripheral K of a unit (connects to the central's endpoint)."""
-    from ..launcher import run_peripheral
+    from ..peripheral import run_peripheral
 
     setup, conf = _role_setup(kw)
     if index > setup.placement.peripherals:
@@ -228,8 +228,8 @@ def peripheral(index: int, **kw: Any) -> None:
 
 def _role_setup(kw: dict[str, Any]) -> tuple[Any, Any]:
     """Setup and Zenoh configuration of a single role (exits on a configuration error)."""
-    from ..launcher import make_setup
     from ..sched import RtPermissionError, apply_rt
+    from ..setup import make_setup
     from ..zsession import make_config, pin_cpus
 
     rc = make_rc(kw)
@@ -250,7 +250,7 @@ def _role_setup(kw: dict[str, Any]) -> tuple[Any, Any]:
 @run_options
 def plant(**kw: Any) -> None:
     """Run the simulated Delta as a Zenoh node (connects to the central's endpoint)."""
-    from ..launcher import run_plant
+    from ..plant_node import run_plant
 
     setup, conf = _role_setup(kw)
     sys.exit(_quiet(lambda: run_plant(setup, conf)))

@@ -1,0 +1,84 @@
+"""Everything a role derives from the run configuration, once: the robot's parameters,
+the task (refused here if it leaves the usable workspace), the placement and the exchange
+plan, and the engine each role runs."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..kernels.laws import Gains
+from ..kernels.params import DELTA_IA, DeltaParams, load_params
+from ..kernels.trajectory import Task, get_task
+from ..kernels.workspace import require_path
+from ..topology.graph import stage_graph
+from ..topology.placement import Placement, default_placement, load_placement
+from ..topology.plan import ExchangePlan, exchange_plan
+from .blocks import BlockConfig
+from .config import ConfigError, RunConfig
+from .engine import CostModel, Engine
+
+
+@dataclass
+class Setup:
+    """Everything a role derives from the run configuration."""
+
+    rc: RunConfig
+    params: DeltaParams
+    task: Task
+    placement: Placement
+    plan: ExchangePlan
+    cycles: int
+
+    def engine(self, *, peripherals_plan: bool = True, cost: str | None = None) -> Engine:
+        plan = self.plan if peripherals_plan else exchange_plan(self.plan.graph,
+                                                                default_placement(0))
+        lead_depth = self.rc.pipeline + (1 if self.rc.clock == "realtime" else 0)
+        cfg = BlockConfig.build(self.params, model=self.rc.model,
+                                gains=Gains.from_bandwidth(self.rc.bandwidth),
+                                task=self.task, period=self.rc.period,
+                                observer=self.rc.observer, depth=lead_depth)
+        return Engine(plan, cfg, cost=CostModel(cost or self.rc.cost_model,
+                                                scale=self.rc.cost_scale))
+
+
+def make_setup(rc: RunConfig) -> Setup:
+    """Validate a run configuration and derive the plan.
+
+    Raises
+    ------
+    ConfigError
+        Naming the field at fault; a task outside the usable workspace is refused here,
+        before any motion.
+    """
+    rc.validate()
+    params = DELTA_IA if rc.params is None else load_params(rc.params)
+    try:
+        task = get_task(rc.task).align(rc.period / 2.0)
+    except ValueError as exc:
+        raise ConfigError(f"task: {exc}") from None
+    pts = np.array([task.sample_path(t)[0] for t in np.linspace(0.0, task.duration, 400)])
+    try:
+        require_path(params, pts, what=f"task {task.name}")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    graph = stage_graph(rc.law, rc.model, observer=rc.observer)
+    if rc.placement:
+        placement = load_placement(rc.placement,
+                                   block_names={b.name for b in graph.axis_blocks})
+        if placement.peripherals != rc.peripherals:
+            raise ConfigError(
+                f"placement {rc.placement} has {placement.peripherals} peripherals but "
+                f"--peripherals is {rc.peripherals}")
+    else:
+        placement = default_placement(rc.peripherals)
+    plan = exchange_plan(graph, placement)
+    return Setup(rc, params, task, placement, plan, rc.total_cycles(task.period))
+
+
+def load_spec(path: str) -> RunConfig:
+    data = json.loads(Path(path).read_text())["run"]
+    return RunConfig(**data)

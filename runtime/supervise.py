@@ -1,0 +1,102 @@
+"""Supervision of the roles ``ctrlunit start`` runs as child processes: how they are
+started (their CPUs taken between fork and exec, death with the parent) and ended."""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from .config import RunConfig
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    with contextlib.suppress(Exception):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def _child_setup(cpus: set[int] | None) -> Callable[[], None]:
+    """What a role's process does between fork and exec: die with its parent, and take
+    its CPUs before its first instruction (threads it starts later, numpy's and Zenoh's,
+    inherit them)."""
+    def setup() -> None:
+        _die_with_parent()
+        if cpus:
+            os.sched_setaffinity(0, cpus)
+
+    return setup
+
+
+def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Path, *,
+               cpus: set[int] | None = None) -> subprocess.Popen:
+    """Start one role as a child process (``ctrlunit plant|peripheral --spec``), on
+    ``cpus`` (see :func:`role_cpus`) if given."""
+    run = json.loads(spec.read_text())["run"]
+    args = [sys.executable, "-m", "ctrlunit.runtime.cli", role, "--spec", str(spec),
+            "--connect", endpoint, "--unit", run["unit"]]  # the unit id names it in ps
+    if index is not None:
+        args += ["--index", str(index)]
+    out = open(log, "wb")
+    return subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                            preexec_fn=_child_setup(cpus))
+
+
+def role_cpus(rc: RunConfig) -> tuple[set[int] | None, set[int] | None]:
+    """``(central, others)``: the CPUs the launcher pins itself (the central) and the roles
+    it starts to, or None to leave an affinity alone.
+
+    ``--cpus same``: every role on CPU 0; ``--cpus split``: the central on 0, the others
+    on 1; ``--pin`` alone pins the central only. Read before the central pins itself: the
+    children are given their CPUs explicitly, since they would otherwise inherit the
+    central's. A CPU this process may not use is replaced by every CPU it may use.
+    """
+    pin = {int(c) for c in rc.pin.split(",") if c.strip()} if rc.pin else None
+    try:
+        mine = set(os.sched_getaffinity(0))
+    except OSError:
+        return pin, None
+
+    def only(cpu: int) -> set[int]:
+        return {cpu} if cpu in mine else mine
+
+    if rc.cpus == "same":
+        return pin or only(0), only(0)
+    if rc.cpus == "split":
+        return pin or only(0), only(1)
+    return pin, (mine if pin else None)
+
+
+def end_children(children: list[subprocess.Popen], *, grace: float = 1.0) -> None:
+    """Wait up to ``grace`` s for children to exit, then terminate, then kill."""
+    deadline = time.monotonic() + grace
+    for p in children:
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+    for p in children:
+        if p.poll() is None:
+            p.terminate()
+    for p in children:
+        try:
+            p.wait(timeout=0.3)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=1.0)
+
+
+def unit_cores(central: set[int] | None, others: set[int] | None) -> int:
+    """How many CPUs the roles started on this host can use together, given
+    :func:`role_cpus` (read before the central pins itself)."""
+    try:
+        mine = set(os.sched_getaffinity(0))
+    except OSError:
+        return os.cpu_count() or 1
+    return len((central or mine) | (others or mine))
