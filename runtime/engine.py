@@ -10,12 +10,14 @@ process with no exchange (n = 0, and the ``t_1`` measurement).
 
 from __future__ import annotations
 
+import math
+import statistics
 import time
 from collections.abc import Callable, Generator, Iterable
 from typing import Any
 
 from ..topology.plan import ExchangePlan, Round
-from .blocks import AXIS_KERNELS, CENTRAL_KERNELS, BlockConfig, Ctx, names_for
+from .blocks import AXIS_KERNELS, CENTRAL_KERNELS, BlockConfig, Ctx, ObserverDiverged, names_for
 
 
 class CostModel:
@@ -210,3 +212,38 @@ class Engine:
             else:
                 c[name] = v
 
+
+def measure_t1(engine_factory: Callable[[], Engine], inputs: list[tuple], *, repeat: int = 1
+               ) -> tuple[float, dict[str, float]]:
+    """``t_1``: the same intervals computed by one process with no exchange.
+
+    Parameters
+    ----------
+    engine_factory : builds an n = 0 engine (same law, model, cost model).
+    inputs : ``(t, est, qmeas, qdmeas)`` of recorded intervals.
+
+    Returns
+    -------
+    (median seconds per interval, mean seconds per block)
+    """
+    block_ns: dict[str, list[int]] = {}
+
+    def span(name: str, t0: int, t1: int) -> None:
+        block_ns.setdefault(name, []).append(t1 - t0)
+
+    eng = engine_factory()
+    eng.span = span
+    times = []
+    for _ in range(repeat):
+        for t, est, q, qd in inputs:
+            ctx = eng.new_ctx(t, est, q, qd)
+            t0 = time.perf_counter_ns()
+            try:
+                eng.run_local(ctx)
+            except ObserverDiverged:
+                continue
+            times.append(time.perf_counter_ns() - t0)
+    if not times:
+        return math.nan, {}
+    per_block = {k: statistics.fmean(v) / 1e9 for k, v in block_ns.items()}
+    return statistics.median(times) / 1e9, per_block

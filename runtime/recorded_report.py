@@ -7,8 +7,8 @@ import json
 import math
 from typing import Any
 
-from .central import measure_t1
 from .config import RunConfig
+from .engine import measure_t1
 from .recording import Recording
 from .replay import recorded_inputs
 from .report import CPU_KEYS, build_report, command_digest, tracking_errors

@@ -9,10 +9,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..kernels.trajectory import Task
+from .engine import Engine, measure_t1
 
 if TYPE_CHECKING:
     from .central import Central
-    from .engine import Engine
     from .setup import Setup
 
 CPU_KEYS = ("cpu_per_interval_s", "cpu_cores", "cpu_bound_period_s")
@@ -284,8 +284,6 @@ def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[st
 def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[str, Any]:
     """The report of a live run, from the central's logs and the roles' final reports
     (``t_1`` is measured here, on the run's recorded inputs)."""
-    from .central import measure_t1  # the report of a live run needs its central
-
     rc = setup.rc
     wall = max(1, central.t_end_ns - central.t_start_ns)
     business = {"central": max(0.0, 1.0 - central.wait_ns / wall)}

@@ -1,0 +1,242 @@
+"""The central's guard: faults, silence, deadlines, late data and the robot's state.
+
+Every wait of the scheduler is bounded: a peripheral or the plant silent beyond its limit
+is a :class:`Fault` naming the process; in realtime a round's late replies follow the
+late-data policy (wait, hold the last values, fault); the observed state must track the
+reference within ``--max-error`` and stay in the usable workspace (Eq. V.33). A fault ends
+the run with its exit code, and :meth:`CentralGuard.hold_torques` gives the plant the
+torques to hold while it stops (docs/faults-and-errors.md).
+
+:class:`CentralGuard` is a part of :class:`~.central.Central` (a mixin): it reads the
+scheduler's state (``inflight``, ``last_reply_ns``, ``samples``, ...) and never changes
+the schedule except to hold a late round's values.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import TYPE_CHECKING, Any
+
+from ..kernels.workspace import check_point
+from .config import EXIT_OBSERVER, EXIT_PERIPHERAL, EXIT_PLANT
+from .engine import Engine
+
+if TYPE_CHECKING:
+    from .central import InFlight
+
+
+class Fault(RuntimeError):
+    """A detected fault: ``process`` names the failed process, ``code`` the exit code."""
+
+    def __init__(self, message: str, *, process: str, code: int) -> None:
+        super().__init__(message)
+        self.process = process
+        self.code = code
+
+
+class CentralGuard:
+    """Faults, deadlines and late data of :class:`~.central.Central`."""
+
+    def _timeout_ns(self) -> int:
+        """How long a reply or a sample may be missing before it is a fault: the
+        ``--timeout`` in lockstep and freerun; in realtime ``--fault-periods`` periods
+        (default 3; during the first 20 intervals at least 20 ms). A reply later than its
+        deadline but within that is lateness (a miss at the plant, or the late-data
+        policy); silence for that long is a failed process or link."""
+        if self.rc.clock == "realtime":
+            limit = self.rc.fault_periods * self.rc.period
+            if self.done < self.STARTUP_INTERVALS:  # first real intervals: start-up
+                limit = max(limit, self.STARTUP_LIMIT_S)
+            return int(limit * 1e9)
+        return int(self.rc.timeout * 1e9)
+
+    STARTUP_INTERVALS = 20
+
+    STARTUP_LIMIT_S = 0.020
+    """Realtime: until this many intervals are done the silence limit is at least
+    ``STARTUP_LIMIT_S`` (first samples, first real values through every process)."""
+
+    def _next_check(self, now: int, timeout_ns: int, hold_until: int) -> int:
+        """When the loop must look at the clock again, however quiet the inbox: a held
+        round's release, a round's deadline or late-data time, and in realtime the moment
+        a silent peripheral or plant would become a fault."""
+        wake = now + timeout_ns
+        if hold_until:
+            wake = min(wake, hold_until)
+        for f in self.inflight.values():
+            if f.waiting:
+                wake = min(wake, f.deadline_ns)
+                if f.late_ns:
+                    wake = min(wake, f.late_ns)
+                if self.rc.clock == "realtime":  # liveness: wake when it would fail
+                    for k in f.waiting:
+                        if self.last_reply_ns[k]:
+                            wake = min(wake, self.last_reply_ns[k] + timeout_ns)
+        if self.rc.clock == "realtime" and self.last_sample_ns:
+            wake = min(wake, self.last_sample_ns + timeout_ns)
+        return wake
+
+    def _check_deadlines(self, timeout_ns: int) -> None:
+        """Raise the fault of a silent peripheral or plant, unless messages are still
+        waiting in the inbox (the central may have been the slow one: a reply it has not
+        read yet is not silence)."""
+        try:
+            self._find_silence(timeout_ns)
+        except Fault:
+            if self.node.events.pending():
+                return  # read them first; the check runs again after each event
+            raise
+
+    def _find_silence(self, timeout_ns: int) -> None:
+        now = time.monotonic_ns()
+        if self.rc.clock == "realtime" and self.done:
+            for k, t in enumerate(self.last_reply_ns):  # alive, even when its data is held
+                if t and now - t > timeout_ns and any(k in f.dropped or k in f.waiting
+                                                      for f in self.inflight.values()):
+                    raise Fault(f"peripheral {k + 1} has not answered for "
+                                f"{(now - t) / 1e6:.1f} ms (limit {timeout_ns / 1e6:.1f} ms)"
+                                f"{self._overload_hint()}",
+                                process=f"peripheral-{k + 1}",
+                                code=EXIT_PERIPHERAL)
+        for f in self.inflight.values():
+            if f.waiting and now > f.deadline_ns:
+                k = min(f.waiting)
+                silent = (now - f.deadline_ns + timeout_ns) / 1e6
+                raise Fault(
+                    f"peripheral {k + 1} did not answer round {f.round.index if f.round else '?'}"
+                    f" of cycle {f.cycle}: silent for {silent:.1f} ms (limit "
+                    f"{timeout_ns / 1e6:.1f} ms){self._overload_hint()}",
+                    process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
+        if (self.rc.clock != "freerun" and not self.samples and self.next_cycle < self.cycles
+                and not any(f.waiting for f in self.inflight.values())):
+            last = self.last_sample_ns or self.t_start_ns
+            if now - last > timeout_ns:
+                raise Fault(f"no sample from the plant for {(now - last) / 1e6:.1f} ms "
+                            f"(cycle {self.next_cycle} awaited, newest seen "
+                            f"{self.newest_sample}){self._overload_hint()}", process="plant",
+                            code=EXIT_PLANT)
+
+    def _check_children(self) -> None:
+        """Fault at once when a role process this central started has died."""
+        if self.child_check is None:
+            return
+        now = time.monotonic()
+        if now < self._next_child_check:
+            return
+        self._next_child_check = now + 0.05
+        dead = self.child_check()
+        if dead is not None:
+            name, rc = dead
+            code = EXIT_PLANT if name == "plant" else EXIT_PERIPHERAL
+            raise Fault(f"{name} exited (status {rc})", process=name, code=code)
+
+    def _late_policies(self) -> dict[int, str]:
+        """Policy per round: the strictest of its blocks' (fault > hold > wait)."""
+        order = {"wait": 0, "hold": 1, "fault": 2}
+        out = {}
+        for r in self.plan.rounds:
+            pols = [self.rc.late.get(b.name, self.rc.late_policy) for b in r.blocks]
+            out[r.index] = max(pols, key=lambda p: order[p]) if pols else "wait"
+        return out
+
+    def _check_late(self, now: int) -> None:
+        if self.rc.clock != "realtime":
+            return
+        for f in list(self.inflight.values()):
+            if not f.waiting or f.round is None or not f.late_ns or now < f.late_ns:
+                continue
+            policy = self.late_policy[f.round.index]
+            if policy == "wait":
+                f.late_ns = 0
+                continue
+            k = min(f.waiting)
+            late = [b.name for b in f.round.blocks]
+            if policy == "fault":
+                raise Fault(f"late data: peripheral {k + 1} missed the deadline of round "
+                            f"{f.round.index} ({', '.join(late)}) of cycle {f.cycle}",
+                            process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
+            # hold: the last values of the missing peripherals' axes
+            if not all(name in self.last_vals for name in f.round.recv):
+                f.late_ns = 0  # nothing to hold yet: wait
+                continue
+            for p in sorted(f.waiting):
+                axes = self.plan.placement.axes[p]
+                held = {name: [self.last_vals[name][a] for a in axes] for name in f.round.recv}
+                Engine.merge(f.ctx, held, axes)
+                for a in axes:
+                    self.late_per_axis[a] += 1
+                f.dropped.add(p)
+                self.held.add((f.cycle, f.round.index, p))
+                if len(self.held) > 1024:
+                    self.held.discard(min(self.held))
+            f.waiting.clear()
+            self._advance(f)
+
+    def _check_state(self, f: InFlight) -> None:
+        """The observed state must track the reference and stay in the usable workspace
+        (Eq. V.33, checked every 10th interval); otherwise stop safely with a reason."""
+        p, pc = f.ctx.get("p"), f.ctx.get("pc")
+        if p is None or pc is None:
+            return
+        err = math.dist(p, pc)
+        why = None
+        if err > self.rc.max_error:
+            why = (f"tracking error {err * 1e3:.1f} mm exceeds --max-error "
+                   f"{self.rc.max_error * 1e3:.1f} mm")
+        elif f.cycle % 10 == 0:
+            chk = check_point(self.engine.cfg.params, p)
+            if not chk.ok:
+                why = f"the robot left the usable workspace: {chk.reason}"
+        if why is None:
+            return
+        raise Fault(f"cycle {f.cycle}: {why}{self._overload_hint()}", process="central",
+                    code=EXIT_OBSERVER)
+
+    def _overload_hint(self) -> str:
+        """In realtime, when most deadlines were missed: say that the machine, not a
+        process, is the likely cause."""
+        periods = max(1, self.next_cycle)
+        late = self.plant_misses + self.skipped
+        if self.rc.clock != "realtime" or late <= max(5, periods // 10):
+            return ""
+        return (f"; {self.plant_misses} commands missed their deadline and {self.skipped} "
+                f"samples were skipped in {periods} periods: this machine does not sustain "
+                f"a {self.rc.period * 1e3:g} ms period with {self.n} peripheral(s) (try a "
+                "longer --period or --fault-periods, or --clock lockstep)")
+
+    def hold_torques(self) -> list[float]:
+        """Gravity-holding torques at the last estimated position (the first stage of the
+        safe stop); zeros if that position is not usable."""
+        from ..kernels.dynamics import gravity_torques
+
+        p = self.ctl.est[0]
+        try:
+            if check_point(self.engine.cfg.params, p).ok:
+                return [float(x) for x in gravity_torques(self.engine.cfg.params, p)]
+        except (ValueError, ZeroDivisionError):
+            pass
+        return [0.0, 0.0, 0.0]
+
+
+ROLE_REPORT_FIELDS: dict[str, tuple[type, ...]] = {
+    "exit": (str,), "sched": (str,), "served": (int,), "samples": (int,), "misses": (int,),
+    "busy_ns": (int,), "wall_ns": (int,), "cpu_s": (int, float), "rejected": (dict,),
+    "rss_kb": (dict,), "safe_stop": (dict,),
+}
+"""What a role's ``bye`` report may hold, by field; anything else is left out."""
+
+
+def role_report(report: dict[str, Any]) -> dict[str, Any]:
+    """The fields of a role's final report that have the type the report reader expects
+    (:data:`ROLE_REPORT_FIELDS`; ``rejected`` keeps only counts by text reason), so that
+    a malformed or forged ``bye`` cannot break the run's report."""
+    out: dict[str, Any] = {}
+    for name, types in ROLE_REPORT_FIELDS.items():
+        v = report.get(name)
+        if isinstance(v, bool) or not isinstance(v, types):
+            continue
+        if name == "rejected":
+            v = {k: n for k, n in v.items() if isinstance(k, str) and type(n) is int}
+        out[name] = v
+    return out

@@ -1,0 +1,86 @@
+"""The central's start and end: the handshake with every role, the orders it gives
+(``go``, ``start``, ``stop``) and the collection of the roles' final reports.
+
+:class:`CentralLifecycle` is a part of :class:`~.central.Central` (a mixin).
+"""
+
+from __future__ import annotations
+
+import queue
+import time
+from typing import Any
+
+from .central_guard import Fault
+from .codec import (
+    encode,
+    short_text,
+)
+from .config import EXIT_LINK
+
+
+class CentralLifecycle:
+    """Start-up and stop of :class:`~.central.Central`."""
+
+    def expected_roles(self) -> set[str]:
+        roles = {f"peripheral-{k + 1}" for k in range(self.n)}
+        if self.rc.clock != "freerun":
+            roles.add("plant")
+        return roles
+
+    def handshake(self) -> None:
+        """Wait for every role's hello, then say go."""
+        expected = self.expected_roles()
+        seen: set[str] = set()
+        deadline = time.monotonic() + self.rc.startup_timeout
+        while seen != expected:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                missing = ", ".join(sorted(expected - seen))
+                raise Fault(f"no hello from {missing} within {self.rc.startup_timeout} s",
+                            process=missing, code=EXIT_LINK)
+            self._check_children()
+            try:
+                ev = self.node.events.get(timeout=min(left, 0.1))
+            except queue.Empty:
+                continue
+            if ev[0] == "hello":
+                msg = self.node.decode(ev[2])
+                if msg is not None and msg.get("role") in expected:
+                    seen.add(msg["role"])
+            elif ev[0] == "sample":
+                pass  # the plant's first sample may only follow go
+        self.say("go")
+
+    def say(self, stage: str, **extra: Any) -> None:
+        """Publish a control order (go, start, stop) to every other role."""
+        payload = encode(self.node.unit, 0, stage, **extra)
+        for pub in self.pub_ctl:
+            pub.put(payload)
+
+    def zenoh_identity(self) -> dict[str, Any]:
+        """This central's Zenoh id and the ids of the peers it is connected to."""
+        info = self.node.session.info
+        self.peers_seen.update(str(z) for z in info.peers_zid())
+        return {"zid": str(info.zid()), "peers": sorted(self.peers_seen)}
+
+    def stop(self, *, reason: str = "done", wait: float = 1.0) -> None:
+        """Tell every role to stop (the plant runs its safe stop) and collect their
+        reports for up to ``wait`` seconds."""
+        expected = self.expected_roles()
+        deadline = time.monotonic() + wait
+        hold = self.hold_torques()
+        # a fault's message is long; whole, it made the order undecodable (the roles then
+        # ran on, and the plant made no safe stop, until the launcher ended them)
+        reason = short_text(reason)
+        self.say("stop", reason=reason, hold=hold)
+        next_say = time.monotonic() + 0.1
+        while set(self.role_reports) < expected and time.monotonic() < deadline:
+            try:
+                ev = self.node.events.get(timeout=0.05)
+            except queue.Empty:
+                ev = None
+            if ev is not None and ev[0] == "hello":
+                self._handle(ev)
+            if time.monotonic() > next_say:
+                self.say("stop", reason=reason, hold=hold)
+                next_say = time.monotonic() + 0.1
