@@ -111,8 +111,8 @@ class CentralWarmUp:
                 self._handle(ev)
 
     def choose_replies(self) -> dict[str, Any]:
-        """Decide how peripherals answer fused requests (``--replies``); see the module
-        notes. Returns what was decided and from which figures (for the report)."""
+        """Decide how peripherals answer fused requests (``--replies``); the rule and its
+        figures are in docs/architecture.md. Returns what was decided and from which figures (for the report)."""
         asked = self.rc.replies
         info: dict[str, Any] = {"asked": asked}
         rtt = between = math.nan
