@@ -42,7 +42,8 @@ class BlockConfig:
     observer: str
     lead: float = 0.0
     """Feed-forward lead (s): the reference acceleration is taken at the middle of the
-    period in which the command will act, ``(depth - 1/2) T`` after the sample."""
+    period in which the command will act, ``(delay + 1/2) T`` after the sample, where
+    ``delay`` is the number of periods from the sample to that period's start."""
 
     @classmethod
     def build(
@@ -54,10 +55,10 @@ class BlockConfig:
         task: Task | None,
         period: float,
         observer: str,
-        depth: int = 1,
+        delay: int = 0,
     ) -> BlockConfig:
         return cls(params, coefficients(params, model), gains, nominal_joint_inertia(params),
-                   task, period, observer, (depth - 0.5) * period)
+                   task, period, observer, (delay + 0.5) * period)
 
 
 class ObserverDiverged(RuntimeError):

@@ -102,6 +102,9 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         progress).
     on_message : optional ``on_message(direction, key, cycle, stage, payload, t_ns)`` for
         every exchange (recording).
+    trial : the admission's trial (:mod:`.admission`): intervals from the plant's trial
+        samples (flagged ``probe``, numbered from ``controller.first_cycle``) at the
+        reference's own synthetic position, commands computed but never sent.
     """
 
     def __init__(
@@ -114,8 +117,10 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         *,
         on_cycle: Callable[[Central, int, dict], None] | None = None,
         on_message: Callable[[str, str, int, Any, bytes, int], None] | None = None,
+        trial: bool = False,
     ) -> None:
         self.node = node
+        self.trial = trial
         self.rc = rc
         self.engine = engine
         self.ctl = controller
@@ -126,6 +131,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.n = self.plan.placement.peripherals
         self.depth = rc.pipeline
         self.hand = handoff_step(self.plan)
+        self.hold = rc.hold_rounds == "always"
         self.round_step = {}
         for k, s in enumerate(self.plan.steps):
             if s.round is not None:
@@ -142,7 +148,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.log = CycleLog()
         self.inflight: OrderedDict[int, InFlight] = OrderedDict()
         self.samples: dict[int, tuple[list[int], int]] = {}
-        self.next_cycle = 0
+        self.next_cycle = controller.first_cycle
+        self.cycles += controller.first_cycle  # the end of the cycle numbers
         self.done = 0
         self.skipped = 0
         self.late_replies = 0
@@ -255,6 +262,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                 if k not in self.samples:
                     return
                 counts, t_ns = self.samples.pop(k)
+                if self.trial:  # the robot rests; the trial follows the reference
+                    counts = self._synthetic_sample(k)
             self.next_cycle = k + 1
             t0 = time.monotonic_ns()
             primed, self.primed = self.primed, None
@@ -297,7 +306,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         return True
 
     def _synthetic_sample(self, k: int) -> list[int]:
-        p = self.engine.cfg.task.sample(k * self.rc.period)[0]  # type: ignore[union-attr]
+        p = self.engine.cfg.task.sample(self.ctl.time_of(k))[0]  # type: ignore[union-attr]
         params = self.engine.cfg.params
         x, y, z = float(p[0]), float(p[1]), float(p[2])
         return [round(ik_axis(params, i, x, y, z).q / params.increment) for i in range(3)]
@@ -367,7 +376,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         f = self.outbox[0]
         if not holds_lone_round(depth=self.depth, ready=len(self.outbox),
                                 handed_off=f.handed_off, cycle=f.cycle,
-                                next_cycle=self.next_cycle, cycles=self.cycles):
+                                next_cycle=self.next_cycle, cycles=self.cycles,
+                                hold=self.hold):
             return 0
         if self.rc.clock == "realtime":
             return f.sample_ns + self.period_ns + self.period_ns // 4
@@ -378,7 +388,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self._check_state(f)  # here, after the next request is out: off the critical path
         cmd = f.ctx["cmd"]
         payload = encode(self.node.unit, f.cycle, "command", tau=[float(x) for x in cmd])
-        self.pub_cmd.put(payload)
+        if not self.trial:
+            self.pub_cmd.put(payload)
         now = time.monotonic_ns()
         self._span("central", f.cycle, f.start_ns, now)
         if self.on_message is not None:

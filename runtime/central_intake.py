@@ -55,6 +55,8 @@ class CentralIntake:
         if msg["stage"] != "sample":
             self.node.reject("bad_stage")
             return
+        if (msg.get("probe") is True) != self.trial:
+            return  # the admission trial's samples are its own (a stray one is no fault)
         try:
             counts = msg.get("counts")
             if not isinstance(counts, list) or len(counts) != 3 or not all(
@@ -83,7 +85,7 @@ class CentralIntake:
         true_p[cycle] = (p[0], p[1], p[2])
         if len(true_p) > 64:
             del true_p[min(true_p)]
-        ref = self.engine.cfg.task.sample(cycle * self.rc.period)[0]  # type: ignore[union-attr]
+        ref = self.engine.cfg.task.sample(self.ctl.time_of(cycle))[0]  # type: ignore[union-attr]
         self.log.errors.append(math.dist(true_p[cycle], ref))
         self.plant_busy_ns += span[1] - span[0]
         misses = msg.get("misses")

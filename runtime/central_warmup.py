@@ -54,6 +54,18 @@ class CentralWarmUp:
             except (StopIteration, ObserverDiverged):
                 continue
 
+    def drain_trial(self, *, seconds: float) -> None:
+        """After an admission trial that stopped early: for ``seconds``, drop the trial's
+        stragglers (replies, samples) so that the run does not count them as rejected."""
+        deadline = time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                ev = self.node.events.get(timeout=left)
+            except queue.Empty:
+                break
+            if ev[0] == "hello":
+                self._handle(ev)
+
     def _throwaway_ctx(self) -> dict:
         """A context at the current estimate, measured there exactly (warm-up, timing)."""
         est = self.ctl.est
@@ -112,7 +124,8 @@ class CentralWarmUp:
 
     def choose_replies(self) -> dict[str, Any]:
         """Decide how peripherals answer fused requests (``--replies``); the rule and its
-        figures are in docs/architecture.md. Returns what was decided and from which figures (for the report)."""
+        figures are in docs/architecture.md. Returns what was decided and from which
+        figures (for the report)."""
         asked = self.rc.replies
         info: dict[str, Any] = {"asked": asked}
         rtt = between = math.nan

@@ -10,6 +10,11 @@ from typing import Any
 CLOCKS = ("lockstep", "realtime", "freerun")
 REPLY_MODES = ("auto", "fused", "each")
 LATE_POLICIES = ("wait", "hold", "fault")
+COMMAND_DELAYS = ("full", "short")
+"""When the plant applies the command of sample k (docs/architecture.md, Clocks): ``full``
+(causal): at depth d, to the period that begins at tick k + d, d periods after the sample;
+``short``: the convention of the code before 2026-11-22, d - 1 periods (the realtime plant
+integrated the period that *ended* at tick k + d with the command due at that tick)."""
 """Realtime, a peripheral's reply past its round's share of the deadline: ``wait`` for it
 (the plant counts the miss), ``hold`` the peripheral's last values for its axes, or treat
 it as a ``fault``."""
@@ -21,6 +26,9 @@ EXIT_PERIPHERAL = 3
 EXIT_PLANT = 4
 EXIT_OBSERVER = 5
 EXIT_LINK = 6
+EXIT_UNSUSTAINABLE = 7
+"""Realtime: the admission trial showed that the period asked cannot be held; refused
+before any command reached the plant."""
 EXIT_INTERRUPTED = 130
 
 _UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0}
@@ -90,6 +98,17 @@ class RunConfig:
     replies: str = "auto"
     fault_periods: float = 3.0
     rt_priority: int = 0
+    command_delay: str = "full"
+    hold_rounds: str = "always"
+    """``--hold-rounds`` (topology/pipeline.py, ``HOLD_RULES``)."""
+    period_auto: bool = False
+    """``--period auto``: realtime runs at the shortest period of the admission ladder that
+    holds (runtime/admission.py); ``period`` is where the ladder starts."""
+    admission: bool = True
+    trial_only: bool = False
+    """Run the admission trial and stop before the first command (``ctrlunit latency
+    --unit``)."""
+    """Realtime: run the admission trial before the first command (runtime/admission.py)."""
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS
@@ -132,6 +151,10 @@ class RunConfig:
             raise bad("cost_scale", "0.01 to 1000")
         if not 1.0 <= self.fault_periods <= 1000.0:
             raise bad("fault_periods", "1 to 1000 periods")
+        if self.hold_rounds not in ("always", "never"):
+            raise bad("hold_rounds", "always or never")
+        if self.command_delay not in COMMAND_DELAYS:
+            raise bad("command_delay", ", ".join(COMMAND_DELAYS))
         if self.replies not in REPLY_MODES:
             raise bad("replies", ", ".join(REPLY_MODES))
         if not 1e-5 <= self.max_error <= 1.0:
@@ -159,6 +182,28 @@ class RunConfig:
         if self.bandwidth_hz is not None:
             return self.bandwidth_hz
         return min(20.0, 1.0 / (50.0 * self.period))
+
+    @property
+    def delay_periods(self) -> int:
+        """Periods from sample k to the start of the period in which the command of
+        interval k acts: the depth (``full``) or one less (``short``)."""
+        return self.pipeline if self.command_delay == "full" else self.pipeline - 1
+
+    @property
+    def lead_periods(self) -> int:
+        """The ``delay`` of the feed-forward lead (``(delay + 1/2) T``, runtime/blocks.py):
+        :attr:`delay_periods`, except that ``short`` in realtime keeps the earlier code's
+        lead of d + 1/2 periods, so that its recordings replay bit for bit."""
+        legacy = self.command_delay == "short" and self.clock == "realtime"
+        return self.delay_periods + (1 if legacy else 0)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RunConfig:
+        """A configuration as written by :meth:`to_dict` (a spec file, a recording); one
+        written before ``command_delay`` existed used the ``short`` convention."""
+        data = dict(data)
+        data.setdefault("command_delay", "short")
+        return cls(**data)
 
     def total_cycles(self, task_period: float) -> int:
         """Cycles to run: ``cycles``, else ``duration / period``, else one task loop."""

@@ -49,6 +49,8 @@ class Controller:
     increment: float
     p0: tuple[float, float, float]
     est: tuple = field(init=False)
+    first_cycle: int = 0
+    """The cycle at t = 0 (the admission's trial intervals count from a base of their own)."""
     q_prev: list[float] | None = field(default=None, init=False)
     k_prev: int = field(default=0, init=False)
 
@@ -66,7 +68,11 @@ class Controller:
     def context(self, cycle: int) -> dict:
         """Context of interval ``cycle`` before its sample: time and the estimate handed
         off by the previous interval (enough for the plan's sample-free leading steps)."""
-        return self.engine.new_ctx(cycle * self.period, self.est, (0.0,) * 3, (0.0,) * 3)
+        return self.engine.new_ctx(self.time_of(cycle), self.est, (0.0,) * 3, (0.0,) * 3)
+
+    def time_of(self, cycle: int) -> float:
+        """The time of sample ``cycle`` on the task's clock (s): the unit's one timebase."""
+        return (cycle - self.first_cycle) * self.period
 
     def measure(self, ctx: dict, cycle: int, counts: list[int]) -> None:
         """Put sample ``cycle``'s angles and backward-difference rates into ``ctx``
@@ -115,12 +121,14 @@ def build_engine(
     observer: str = "predict",
     peripherals: int = 0,
     cost: str = "native",
-    depth: int = 1,
+    delay: int = 0,
 ) -> Engine:
+    """The one-process engine of a law; ``delay``: periods from a sample to the start of
+    the period in which its command acts (the feed-forward lead, :class:`BlockConfig`)."""
     graph = stage_graph(law, model, observer=observer)
     plan = exchange_plan(graph, default_placement(peripherals))
     cfg = BlockConfig.build(params, model=model, gains=gains, task=task, period=period,
-                            observer=observer, depth=depth)
+                            observer=observer, delay=delay)
     return Engine(plan, cfg, cost=CostModel(cost))
 
 
@@ -138,10 +146,11 @@ def simulate(
     plant_config: PlantConfig | None = None,
 ) -> SimResult:
     """Closed loop in one process: sample k -> interval k -> command applied during period
-    ``k + delay`` (``delay = depth - 1``)."""
+    ``k + delay`` (the distributed unit's ``RunConfig.delay_periods``: the depth, or one
+    less with ``--command-delay short``)."""
     task.align(period / 2.0)  # as the distributed unit does
     engine = build_engine(params, task, law=law, model=model, gains=gains, period=period,
-                          observer=observer, depth=delay + 1)
+                          observer=observer, delay=delay)
     pc = plant_config or PlantConfig(period=period)
     plant = Plant(params, pc, q0=initial_angles(params, task), p_guess=tuple(task.start()))
     ctl = Controller(engine, period, params.increment, tuple(task.start()))

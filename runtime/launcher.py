@@ -9,6 +9,7 @@ launcher says stop, waits briefly, then terminates and kills what is left.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -20,8 +21,16 @@ from pathlib import Path
 from typing import Any
 
 from . import sched
+from .admission import LADDER_S, Unsustainable, admit
 from .central import Central, Fault
-from .config import EXIT_CONFIG, EXIT_INTERRUPTED, EXIT_OK, ConfigError, RunConfig
+from .config import (
+    EXIT_CONFIG,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_UNSUSTAINABLE,
+    ConfigError,
+    RunConfig,
+)
 from .controller import Controller
 from .node import Node, rss_kb
 from .report import cpu_budget, finish_report, text_or_none
@@ -41,8 +50,23 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     given, receives the central (spans, logs) for benchmarks. This process's scheduling
     policy is what it was before when it returns (see :mod:`.sched`)."""
     saved = sched.current()
+    tried: list[dict] = []
     try:
-        return _start(rc, echo=echo, progress=progress, spawn=spawn, inspect=inspect)
+        for attempt in range(len(LADDER_S)):  # --period auto: each start climbs the ladder
+            code, report = _start(rc, echo=echo, progress=progress, spawn=spawn,
+                                  inspect=inspect)
+            adm = report.get("admission") or {}
+            tried += [r | {"start": attempt} for r in adm.get("rungs") or []]
+            held = adm.get("sustainable_period_s")
+            if not (code == EXIT_UNSUSTAINABLE and rc.period_auto and held
+                    and held > rc.period and not rc.trial_only):
+                break
+            echo(f"ctrlunit: --period auto: {rc.period * 1e3:g} ms was not held in the "
+                 f"trial, {held * 1e3:g} ms was; starting again at {held * 1e3:g} ms")
+            rc = dataclasses.replace(rc, period=held)
+        if adm:
+            report["admission"]["rungs"] = tried
+        return code, report
     finally:
         sched.restore(saved)
 
@@ -82,6 +106,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
                       on_message=recorder.on_message if recorder else None)
     children: list[subprocess.Popen] = []
     code, fault = EXIT_OK, None
+    admission: dict | None = None
     old_int = signal.getsignal(signal.SIGINT)
     try:
         if not spawn:
@@ -104,11 +129,17 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         central.handshake()
         central.warm_up()
         central.choose_replies()
-        central.say("start")
-        central.run()
+        if rc.clock == "realtime" and (rc.admission or rc.trial_only):
+            admission = admit(central)
+        if not rc.trial_only:
+            central.say("start")
+            central.run()
     except Fault as exc:
         code = exc.code
         fault = {"process": exc.process, "message": str(exc), "code": exc.code}
+    except Unsustainable as exc:
+        code, admission = exc.code, exc.info
+        fault = {"process": "admission", "message": str(exc), "code": exc.code}
     except KeyboardInterrupt:
         code = EXIT_INTERRUPTED
         fault = {"process": "user", "message": "interrupted", "code": code}
@@ -138,6 +169,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     else:
         echo(f"ctrlunit: the roles' logs are kept in {run_dir}")
     report = finish_report(setup, central, fault)
+    if admission is not None:
+        report["admission"] = admission
     report["zenoh"] = zenoh_ids
     report["late"] = {"policy": rc.late_policy, "blocks": dict(rc.late),
                       "misses_per_axis": list(central.late_per_axis)}
@@ -152,8 +185,10 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         name.replace("-", "_"): text_or_none((central.role_reports.get(name) or {}).get("sched"))
         for name in (_child_names(rc, setup) if spawn else [])}
     if rc.clock != "freerun":  # the plant's own word that it held and braked
-        stop = (central.role_reports.get("plant") or {}).get("safe_stop")
+        plant = central.role_reports.get("plant") or {}
+        stop = plant.get("safe_stop")
         report["safe_stop"] = stop if isinstance(stop, dict) else None
+        report["plant_commands"] = plant.get("commands")  # commands it took
     if inspect is not None:
         inspect["central"] = central
         inspect["setup"] = setup

@@ -7,13 +7,21 @@ or type), stale or from the future; the last valid command stays applied.
 
 Clocks
 ------
-``lockstep``: after sample k the plant waits for the command of cycle ``k - latency``
-(``latency = depth - 1``; before the first one it holds the initial command), applies it,
-advances one period and publishes sample k+1.
+``delay`` is the number of periods from sample k to the start of the period in which the
+command of interval k acts: the pipeline depth d with ``--command-delay full`` (causal,
+the default), d - 1 with ``short`` (the convention before 2026-11-22).
 
-``realtime``: the plant ticks on its own wall clock. At tick j it applies the command of
-cycle ``j - depth`` if it has arrived (else a deadline miss is counted and the last command
-stays), publishes sample j and simulates period j.
+``lockstep``: after sample k the plant waits for the command of cycle ``k - delay``
+(before the first one it holds the initial command), applies it, advances one period and
+publishes sample k+1.
+
+``realtime``: the plant ticks on its own wall clock. ``full``: at tick j it publishes
+sample j (the state at jT, integrated ahead during the previous period), then applies the
+command of cycle ``j - d`` if it has arrived (else a deadline miss is counted and the last
+command stays) and integrates the period [jT, (j+1)T) while the controller works: the
+sample leaves at the tick, and a command acts only on physics after it was due.
+``short``: at tick j it applies the command of cycle ``j - d``, integrates the period that
+ended at the tick, [(j-1)T, jT), and then publishes sample j.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ import math
 import queue
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 from ..plant.simulator import Plant, PlantConfig
@@ -38,10 +47,14 @@ this long)."""
 
 
 class PlantServer:
-    """State of the plant role between messages."""
+    """State of the plant role between messages. ``trial_plant(period)`` builds the
+    throw-away robot of an admission trial at ``period`` (:func:`trial_ticks`)."""
 
-    def __init__(self, node: Node, plant: Plant, *, depth: int, initial: list[float]) -> None:
+    def __init__(self, node: Node, plant: Plant, *, depth: int, initial: list[float],
+                 trial_plant: Callable[[float], Plant] | None = None) -> None:
         self.node = node
+        self.trial_plant = trial_plant
+        self.commands_taken = 0
         self.plant = plant
         self.depth = depth
         self.pub = node.publisher(node.keys.sample)
@@ -76,6 +89,7 @@ class PlantServer:
         if len(self.commands) > 64:
             self.commands.pop(min(self.commands))
         self.commands[cycle] = tau
+        self.commands_taken += 1
         self.node.last_heard_ns = time.monotonic_ns()
 
     def apply(self, cycle: int) -> bool:
@@ -114,11 +128,12 @@ class PlantServer:
 
 
 def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles: int,
-          watchdog: float) -> dict[str, Any]:
+          watchdog: float, delay: int) -> dict[str, Any]:
     """Run the plant until ``cycles`` samples are out, a stop, or the watchdog.
 
+    ``delay``: periods from a sample to the period its command acts in (module notes).
     The clock starts on the central's ``start`` order (after its warm-up)."""
-    latency = server.depth - 1
+    causal = clock == "realtime" and delay == server.depth
     while True:
         try:
             ev = node.events.get(timeout=0.2)
@@ -130,14 +145,18 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
             return _result(server, "stop", time.monotonic_ns())
         if node.cpu_start_s is not None:  # is_stop noted the start order
             break
+        order = trial_order(node, ev)
+        if order is not None and not trial_ticks(node, server, *order, causal=causal):
+            return _result(server, "stop", time.monotonic_ns())
     t_start = time.monotonic_ns()
     server.publish_sample((t_start, t_start))
+    span = server.simulate() if causal else (t_start, t_start)  # the state at T, ahead
     exit_reason = "done"
     tick_ns = int(period * 1e9)
     next_tick = time.monotonic_ns() + tick_ns
     while server.sample_no < cycles:
         if clock == "lockstep":
-            due = server.sample_no - latency
+            due = server.sample_no - delay
             if due >= 0:
                 # wait for the awaited command
                 while due not in server.commands:
@@ -179,10 +198,14 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
                 next_tick = time.monotonic_ns() + tick_ns
             server.sample_no += 1
             due = server.sample_no - server.depth
+            if causal:  # the sample leaves at the tick; the next period is integrated after
+                server.publish_sample(span)
             if due >= 0 and not server.apply(due):
                 server.misses += 1
-            span = server.simulate()
-            server.publish_sample(span)
+            if server.sample_no < cycles or not causal:
+                span = server.simulate()
+            if not causal:
+                server.publish_sample(span)
             if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
                 return _result(server, "watchdog", t_start)
     # keep answering until the central says stop (it may still be finishing)
@@ -199,28 +222,98 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
     return _result(server, exit_reason, t_start)
 
 
+def trial_order(node: Node, ev: Any) -> tuple[float, int, int] | None:
+    """``(period, ticks, base)`` of an admission trial order, else None (a malformed one is
+    counted and dropped)."""
+    if ev[0] != "control":
+        return None
+    msg = node.decode(ev[2])
+    if msg is None or msg["stage"] != "probe":
+        return None
+    period, ticks, base = msg.get("period"), msg.get("ticks"), msg.get("base")
+    if not (isinstance(period, float) and 20e-6 <= period <= 1.0
+            and type(ticks) is int and 1 <= ticks <= 100_000
+            and type(base) is int and 0 <= base < 1 << 62):
+        node.reject("bad_value")
+        return None
+    return period, ticks, base
+
+
+def trial_ticks(node: Node, server: PlantServer, period: float, ticks: int, base: int, *,
+                causal: bool) -> bool:
+    """An admission trial (runtime/admission.py): tick ``ticks`` times at ``period`` on the
+    wall clock, integrating a throw-away robot at rest (the run's load) and publishing its
+    samples, numbered from ``base`` and flagged ``probe``, in the run's order (``causal``:
+    at the tick, then integrate). Commands are not taken. Returns False on a stop order."""
+    if server.trial_plant is None:
+        return True
+    sim = server.trial_plant(period)
+    tick_ns = int(period * 1e9)
+    next_tick = time.monotonic_ns() + tick_ns
+    span = (0, 0)
+
+    def publish(j: int) -> None:
+        server.pub.put(encode(
+            node.unit, base + j, "sample", counts=sim.encoder_counts(),
+            t_ns=time.monotonic_ns(), span=list(span), p=[float(x) for x in sim.state.p],
+            misses=0, applied=-1, probe=True))
+
+    for j in range(ticks):
+        while (ahead := next_tick - time.monotonic_ns()) > 0:
+            time.sleep(min(ahead / 1e9, SLEEP_SLICE_S))
+        while True:
+            try:
+                ev = node.events.get_nowait()
+            except queue.Empty:
+                break
+            if is_stop(node, ev):
+                return False
+        next_tick += tick_ns
+        if time.monotonic_ns() > next_tick:
+            next_tick = time.monotonic_ns() + tick_ns
+        if causal:
+            publish(j)
+        t0 = time.monotonic_ns()
+        sim.step()
+        span = (t0, time.monotonic_ns())
+        if not causal:
+            publish(j)
+    node.last_heard_ns = time.monotonic_ns()
+    return True
+
+
 def _result(server: PlantServer, reason: str, t_start: int) -> dict[str, Any]:
     return {"exit": reason, "samples": server.sample_no, "misses": server.misses,
             "busy_ns": server.busy_ns, "wall_ns": time.monotonic_ns() - t_start,
-            "rejected": dict(server.node.rejected),
+            "rejected": dict(server.node.rejected), "commands": server.commands_taken,
             "rss_kb": {"warm": server.rss_warm, "end": rss_kb()},
             "cpu_s": cpu_used(server.node)}
 
 
 def run_plant(setup: Setup, conf: Any) -> int:
     rc = setup.rc
-    plant = Plant(setup.params, PlantConfig(period=rc.period, substeps=rc.plant_substeps,
-                                           lag=rc.plant_lag, friction=rc.plant_friction,
-                                           belt=rc.belt),
-                  q0=initial_angles(setup.params, setup.task),
-                  p_guess=tuple(setup.task.start()))
+    initial = initial_command(setup.params, setup.task)
+
+    def make_plant(period: float) -> Plant:
+        return Plant(setup.params, PlantConfig(period=period, substeps=rc.plant_substeps,
+                                               lag=rc.plant_lag, friction=rc.plant_friction,
+                                               belt=rc.belt),
+                     q0=initial_angles(setup.params, setup.task),
+                     p_guess=tuple(setup.task.start()))
+
+    def trial_plant(period: float) -> Plant:
+        sim = make_plant(period)
+        sim.set_command(initial)  # at rest at the task's start, held against gravity
+        return sim
+
+    plant = make_plant(rc.period)
     node = Node(conf, rc.unit, "plant")
     try:
-        server = PlantServer(node, plant, depth=rc.pipeline,
-                             initial=initial_command(setup.params, setup.task))
+        server = PlantServer(node, plant, depth=rc.pipeline, initial=initial,
+                             trial_plant=trial_plant)
         node.wait_for_go(timeout=rc.startup_timeout)
         res = serve(node, server, clock=rc.clock, period=rc.period, cycles=setup.cycles,
-                    watchdog=max(5.0, 3 * rc.timeout))
+                    watchdog=max(5.0, 3 * rc.timeout), delay=rc.delay_periods)
         hold = (node.stop_msg or {}).get("hold")
         if isinstance(hold, list) and len(hold) == 3 and all(
                 isinstance(x, float) and math.isfinite(x) for x in hold):

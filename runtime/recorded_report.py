@@ -22,7 +22,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     measured again here on the recorded intervals.
     """
     cfg = rec.config
-    rc = RunConfig(**cfg)
+    rc = RunConfig.from_dict(cfg)
     rc.record = rc.report = None
     setup = make_setup(rc)
     samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}

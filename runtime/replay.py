@@ -43,7 +43,7 @@ def _setup(rec: Recording) -> Any:
     from .config import RunConfig
     from .setup import make_setup
 
-    rc = RunConfig(**rec.config)
+    rc = RunConfig.from_dict(rec.config)
     rc.record = rc.report = None
     return make_setup(rc)
 

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..kernels.trajectory import Task
+from .config import RunConfig
 from .engine import Engine, measure_t1
 
 if TYPE_CHECKING:
@@ -116,6 +117,7 @@ def build_report(
         "peripherals": n,
         "pipeline": rc.pipeline,
         "clock": rc.clock,
+        "command_delay": command_delay(rc),
         "cycles": len(cmd_ns),
         "nominal_period_s": rc.period,
         "law": rc.law,
@@ -212,6 +214,7 @@ def summary(r: dict[str, Any]) -> str:
         f"ctrlunit: {r['cycles']} intervals, {r['peripherals']} peripheral(s), pipeline depth "
         f"{r['pipeline']}, clock {r['clock']}, {r['law']} + {r['model']} model, task "
         f"{r['task']}, cost model {r['cost_model']}",
+        *_delay_lines(r),
         f"  round trips per interval  {r['round_trips']}" + (
             f"   exchanges per interval {r['exchanges_per_interval']:.2f}" + (
                 " (rounds of consecutive intervals fused)"
@@ -235,6 +238,14 @@ def summary(r: dict[str, Any]) -> str:
         f"  tracking error max {mm(r['tracking_error_m']['max'])}   rms "
         f"{mm(r['tracking_error_m']['rms'])}   peak torque {r['torque_nm']['max']:.2f} N m",
     ]
+    if not r["cycles"]:  # refused or failed before the first interval: nothing measured
+        lines = lines[:2] if r.get("command_delay") else lines[:1]
+    adm = r.get("admission")
+    if adm and adm.get("period_s"):
+        lines.append(f"  admission   {adm['period_s'] * 1e3:g} ms held in a trial of "
+                     f"{adm['rungs'][-1]['intervals']} intervals before motion (asked: "
+                     + ("auto" if adm["asked"] == "auto" else f"{adm['asked'] * 1e3:g} ms")
+                     + ")")
     if r["rejected_messages"]:
         lines.append("  rejected messages " + ", ".join(
             f"{k}: {v}" for k, v in sorted(r["rejected_messages"].items())))
@@ -245,6 +256,23 @@ def summary(r: dict[str, Any]) -> str:
         if "safe_stop" in r:
             lines.append(_safe_stop_line(r["safe_stop"]))
     return "\n".join(lines)
+
+
+def command_delay(rc: RunConfig) -> dict[str, Any] | None:
+    """When the plant applies a command (docs/architecture.md, Clocks): the convention and
+    the periods from a sample to the period in which its command acts. None in freerun
+    (no plant)."""
+    if rc.clock == "freerun":
+        return None
+    return {"convention": rc.command_delay, "periods": rc.delay_periods}
+
+
+def _delay_lines(r: dict[str, Any]) -> list[str]:
+    d = r.get("command_delay")
+    if not d:
+        return []
+    return [f"  command delay {d['periods']} period(s) from sample to the period it acts in "
+            f"({d['convention']})"]
 
 
 def text_or_none(x: Any) -> str | None:

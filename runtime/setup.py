@@ -36,11 +36,11 @@ class Setup:
     def engine(self, *, peripherals_plan: bool = True, cost: str | None = None) -> Engine:
         plan = self.plan if peripherals_plan else exchange_plan(self.plan.graph,
                                                                 default_placement(0))
-        lead_depth = self.rc.pipeline + (1 if self.rc.clock == "realtime" else 0)
         cfg = BlockConfig.build(self.params, model=self.rc.model,
                                 gains=Gains.from_bandwidth(self.rc.bandwidth),
                                 task=self.task, period=self.rc.period,
-                                observer=self.rc.observer, depth=lead_depth)
+                                observer=self.rc.observer,
+                                delay=self.rc.lead_periods)
         return Engine(plan, cfg, cost=CostModel(cost or self.rc.cost_model,
                                                 scale=self.rc.cost_scale))
 
@@ -81,4 +81,4 @@ def make_setup(rc: RunConfig) -> Setup:
 
 def load_spec(path: str) -> RunConfig:
     data = json.loads(Path(path).read_text())["run"]
-    return RunConfig(**data)
+    return RunConfig.from_dict(data)

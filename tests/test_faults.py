@@ -56,7 +56,8 @@ def _run_and_break(tmp_path: Path, how: str, role: str, index: int | None, *,
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
          clock, "--cycles", "1000000", "--timeout", "300ms", "--record", str(rec),
-         "--status-file", str(status), "--max-error", "1", *extra],
+         "--status-file", str(status), "--max-error", "1",
+         *(("--no-admission",) if clock == "realtime" else ()), *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         wait_status(status, 300)
@@ -94,7 +95,7 @@ def test_safe_stop_brings_a_fast_robot_to_rest(period, belt):
     task.align(0.0005)
     eng = ctl_mod.build_engine(P, task, law="resolved-acceleration", model="complete",
                          gains=Gains.from_bandwidth(20.0), period=1e-3, observer="predict",
-                         depth=1)
+                         delay=0)
     plant = Plant(P, PlantConfig(), q0=ctl_mod.initial_angles(P, task), p_guess=tuple(task.start()))
     ctl = ctl_mod.Controller(eng, 1e-3, P.increment, tuple(task.start()))
     plant.set_command(ctl_mod.initial_command(P, task))

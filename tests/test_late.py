@@ -26,7 +26,8 @@ def freeze_briefly(tmp_path, policy: str, *, attempts: int = 2) -> tuple[int, di
         report, status = tmp_path / f"{unit}.json", tmp_path / f"{unit}.status"
         proc = subprocess.Popen(
             [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
-             "realtime", "--period", "20ms", "--cycles", "120", "--task", slow_task(tmp_path),
+             "realtime", "--period", "20ms", "--no-admission", "--cycles", "120", "--task",
+             slow_task(tmp_path),
              "--late-policy", policy, "--max-error", "1", "--report", str(report),
              "--status-file", str(status)],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

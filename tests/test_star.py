@@ -35,20 +35,24 @@ def test_lockstep_commands_are_bit_identical_for_n_0_to_3(tmp_path, law):
         assert rep["cycles"] == CYCLES
         digests.add(rep["command_digest"])
     ref = simulate(P, pick_place_task(), law=law, gains=Gains.from_bandwidth(20.0),
-                   cycles=CYCLES)
+                   cycles=CYCLES, delay=1)  # depth 1, full delay: the period after the next
     digests.add(command_digest([x for c in ref.commands for x in c]))
     assert len(digests) == 1
 
 
-def test_depth_two_equals_one_process_with_command_one_period_later(tmp_path):
+@pytest.mark.parametrize(("convention", "delay"), [("full", 2), ("short", 1)])
+def test_depth_two_equals_one_process_with_the_commands_delay(tmp_path, convention, delay):
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",
-                                "lockstep", "--cycles", str(CYCLES), tag="depth2")
+                                "lockstep", "--cycles", str(CYCLES), "--command-delay",
+                                convention, tag=f"depth2{convention}")
     assert code == 0, out
+    assert rep["command_delay"] == {"convention": convention, "periods": delay}
     ref = simulate(P, pick_place_task(), gains=Gains.from_bandwidth(20.0), cycles=CYCLES,
-                   delay=1)
+                   delay=delay)
     assert rep["command_digest"] == command_digest([x for c in ref.commands for x in c])
-    at_depth1 = simulate(P, pick_place_task(), gains=Gains.from_bandwidth(20.0), cycles=CYCLES)
-    assert rep["command_digest"] != command_digest([x for c in at_depth1.commands for x in c])
+    other = simulate(P, pick_place_task(), gains=Gains.from_bandwidth(20.0), cycles=CYCLES,
+                     delay=3 - delay)
+    assert rep["command_digest"] != command_digest([x for c in other.commands for x in c])
 
 
 def test_resolved_acceleration_tracks_pick_place_far_better_than_pd(tmp_path):
@@ -68,7 +72,8 @@ def test_resolved_acceleration_tracks_pick_place_far_better_than_pd(tmp_path):
 @pytest.mark.parametrize("depth", [1, 2])
 def test_realtime_at_1ms_reports_misses(tmp_path, depth):
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", str(depth),
-                                "--clock", "realtime", "--period", "1ms", "--cycles", "600",
+                                "--clock", "realtime", "--period", "1ms", "--no-admission",
+                                "--cycles", "600",
                                 "--fault-periods", "50", tag=f"rt{depth}")
     # Either it keeps up, or it stops the robot safely and says that deadlines were missed
     # (on a 2-core machine five Python processes do not sustain 1 ms). The liveness limit

@@ -68,12 +68,22 @@ def may_prime(*, depth: int, primed: bool, next_cycle: int, cycles: int,
     return newest_handed_off is None or newest_handed_off
 
 
+HOLD_RULES = ("always", "never")
+"""``--hold-rounds``: whether a lone round ready early waits to be fused with the next
+interval's first round (``always``: one exchange per interval instead of two), or goes at
+once (``never``). In realtime the next sample comes a period later, so holding can put up
+to a period into an interval's traversal; side by side on 2026-11-22 neither was better
+at 1 and 2 ms on the 2-core machine (docs/measurements/2026-11-22-realtime.md), so the
+default stays ``always``."""
+
+
 def holds_lone_round(*, depth: int, ready: int, handed_off: bool, cycle: int,
-                     next_cycle: int, cycles: int) -> bool:
+                     next_cycle: int, cycles: int, hold: bool = True) -> bool:
     """Whether the one round ready to send (of interval ``cycle``) waits for the next
-    interval's first round, so that both travel in one exchange: at depth 2, when the
-    round's interval has handed off and the next interval is the one right after it."""
-    return (depth >= 2 and ready == 1 and handed_off and next_cycle == cycle + 1
+    interval's first round, so that both travel in one exchange: at depth 2, when lone
+    rounds are held at all (``hold``, :func:`hold_rule`), the round's interval has handed
+    off and the next interval is the one right after it."""
+    return (hold and depth >= 2 and ready == 1 and handed_off and next_cycle == cycle + 1
             and next_cycle < cycles)
 
 

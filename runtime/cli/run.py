@@ -21,6 +21,12 @@ def _duration(_ctx: Any, param: click.Parameter, value: str | None) -> float | N
         raise click.BadParameter(str(exc)) from None
 
 
+def _period(ctx: Any, param: click.Parameter, value: str) -> float | str:
+    if isinstance(value, str) and value.strip() == "auto":
+        return "auto"
+    return _duration(ctx, param, value) or 0.0
+
+
 def run_options(fn: Any) -> Any:
     """Options shared by start and the single roles (see the brief's Interfaces)."""
     opts = [
@@ -30,8 +36,19 @@ def run_options(fn: Any) -> Any:
                      help="Pipeline depth (§ IV.7.2)."),
         click.option("--clock", type=click.Choice(["lockstep", "realtime", "freerun"]),
                      default="realtime", show_default=True),
-        click.option("--period", default="1ms", show_default=True, callback=_duration,
-                     help="Sampling period: 500us, 1ms, or seconds."),
+        click.option("--command-delay", type=click.Choice(["full", "short"]), default="full",
+                     show_default=True,
+                     help="When the plant applies the command of sample k: full (causal) "
+                     "in the period that begins at tick k + depth; short: the earlier "
+                     "convention, one period sooner, on physics that began before the "
+                     "command was due."),
+        click.option("--period", default="auto", show_default=True, callback=_period,
+                     help="Sampling period: 500us, 1ms, or seconds; auto: in realtime the "
+                     "shortest period from 1 ms up that the admission trial shows this "
+                     "machine holds (1 ms in the other clocks)."),
+        click.option("--admission/--no-admission", default=True, show_default=True,
+                     help="Realtime: a trial at the period before the first command; a "
+                     "period that does not hold is refused (exit 7) before any motion."),
         click.option("--task", default="pick-place", show_default=True,
                      help="pick-place, circle, or a JSON task file."),
         click.option("--law", type=click.Choice(["resolved-acceleration", "computed-torque",
@@ -89,6 +106,11 @@ def run_options(fn: Any) -> Any:
                      "so the central works on one interval while they work on the other "
                      "(each); auto: each when the central's work between two rounds "
                      "exceeds a round trip measured at warm-up."),
+        click.option("--hold-rounds", type=click.Choice(["always", "never"]),
+                     default="always", show_default=True,
+                     help="Depth 2: a lone round ready early waits to travel with the next "
+                     "interval's first round (always: one exchange per interval), or goes "
+                     "at once (never: two exchanges, no wait for the next sample)."),
         click.option("--pin", default=None, help="CPUs for this process, e.g. 0 or 0,1."),
         click.option("--cpus", type=click.Choice(["same", "split"]), default=None,
                      help="start: pin every role on CPU 0 (same), or the central on 0 and "
@@ -144,6 +166,10 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
             raise ConfigError(f"--late {item!r}: expected BLOCK=POLICY (wait, hold, fault)")
         late[block] = pol
     kw["late"] = late
+    if kw.get("period") == "auto":
+        from ..admission import LADDER_S
+
+        kw["period"], kw["period_auto"] = LADDER_S[0], True
     rc = RunConfig(**{k: v for k, v in kw.items() if k in RunConfig.__dataclass_fields__})
     rc.plant_lag = kw.get("plant_lag", 0.0)
     rc.listen, rc.connect = listen, connect

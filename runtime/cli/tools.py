@@ -139,3 +139,81 @@ def load_report(path: str) -> dict[str, Any]:
 
         return report_from_recording(read(path))
     return json.loads(Path(path).read_text())
+
+
+@cli.command(short_help="This machine's wake-up latency; with --unit the unit's traversal.")
+@click.option("--period", default="1ms", show_default=True, help="Tick period.")
+@click.option("--duration", default="10s", show_default=True, help="How long to measure.")
+@click.option("--unit", "with_unit", is_flag=True,
+              help="Also run the unit's admission trial (no motion): its sample-to-command "
+              "traversal at the period, and the shortest period it holds.")
+@click.option("--peripherals", type=click.IntRange(0, 3), default=3, show_default=True)
+@click.option("--pipeline", type=click.IntRange(1, 2), default=2, show_default=True)
+@click.option("--plot", type=click.Path(dir_okay=False), default="latency.png",
+              show_default=True, help="Histogram of the wake-up latencies (PNG).")
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
+def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipeline: int,
+            plot: str, as_json: bool) -> None:
+    """Measure how late this machine wakes a process at each tick of PERIOD (the realtime
+    plant's own sleep), as LinuxCNC's latency-test does, for DURATION; print p50, p99,
+    p99.9 and max and the shortest period of the admission ladder that leaves half of
+    each period for the work. With --unit, then run the unit's admission trial at the
+    period: the traversal the unit itself shows, and the period it holds."""
+    from ..config import ConfigError, RunConfig
+    from ..latency import histogram_png, latency_report
+
+    try:
+        period_s = parse_duration(period, field_name="--period")
+        duration_s = parse_duration(duration, field_name="--duration")
+        rep, lat = latency_report(period_s, duration_s)
+    except (ConfigError, ValueError) as exc:
+        _fail(str(exc), EXIT_CONFIG)
+        return
+    histogram_png(lat, plot, period_s=period_s,
+                  title=f"wake-up latency at {period_s * 1e3:g} ms, {rep['ticks']} ticks")
+    rep["plot"] = plot
+    if with_unit:
+        from ..launcher import start
+
+        rc = RunConfig(peripherals=peripherals, pipeline=pipeline, clock="realtime",
+                       period=period_s, trial_only=True)
+        code, urep = start(rc, echo=lambda m: click.echo(m, err=True))
+        adm = urep.get("admission")
+        if not adm:
+            fault = (urep.get("fault") or {}).get("message", "no admission figures")
+            _fail(f"the unit's trial did not run: {fault}", code or EXIT_CONFIG)
+            return
+        first = adm["rungs"][0]
+        rep["unit"] = {"peripherals": peripherals, "pipeline": pipeline,
+                       "traversal_s": {k: first[f"traversal_{k}_s"]
+                                       for k in ("p50", "p99", "p999", "max")},
+                       "late": first["late"], "intervals": first["intervals"],
+                       "rungs": adm["rungs"],
+                       "sustainable_period_s": adm["sustainable_period_s"]}
+        rep["sustainable_period_s"] = adm["sustainable_period_s"]
+        rep["sustainable_period_from"] = "the unit's admission trial"
+    if as_json:
+        click.echo(json.dumps(_json_safe(rep), indent=2))
+        return
+    q = rep["wakeup_latency_s"]
+
+    def us(x: float | None) -> str:
+        return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:.0f} us"
+
+    def ms(x: float | None) -> str:
+        return "none of the ladder" if x is None else f"{x * 1e3:g} ms"
+
+    lines = [f"wake-up latency at {period_s * 1e3:g} ms over {rep['ticks']} ticks: p50 "
+             f"{us(q['p50'])}  p99 {us(q['p99'])}  p99.9 {us(q['p999'])}  max "
+             f"{us(q['max'])}; {rep['ticks_lost']} tick(s) woken more than a period late"]
+    if "unit" in rep:
+        u = rep["unit"]
+        t = u["traversal_s"]
+        lines.append(f"unit (n = {peripherals}, depth {pipeline}) traversal, command transit "
+                     f"included: p50 {us(t['p50'])}  p99 {us(t['p99'])}  p99.9 "
+                     f"{us(t['p999'])}  max {us(t['max'])}; {u['late']} of {u['intervals']} "
+                     "trial intervals late")
+    lines.append(f"shortest sustainable period ({rep['sustainable_period_from']}): "
+                 f"{ms(rep['sustainable_period_s'])}")
+    lines.append(f"histogram: {plot}")
+    click.echo("\n".join(lines))

@@ -1,0 +1,107 @@
+"""``ctrlunit latency``: this machine's timer wake-up latency at a period (the analogue of
+LinuxCNC's latency-test), and with ``--unit`` the unit's own sample-to-command traversal
+from the admission trial (runtime/admission.py).
+
+The wake-up test sleeps to absolute ticks ``t0 + j T`` the way the realtime plant does and
+records, for each tick, how late it woke. A tick woken later than the next tick is a
+period lost whatever the unit does; the realtime unit needs the rest of the period for
+its own work. :func:`sustainable_from_wakeup` turns that into a period from the admission
+ladder: the shortest whose period, less the wake-up latency's p99.9, leaves at least half
+the period for the work.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from .admission import LADDER_S
+
+SLEEP_SLICE_S = 0.02
+
+
+def wakeup_latencies(period_s: float, duration_s: float) -> np.ndarray:
+    """Sleep to ``duration_s / period_s`` consecutive absolute ticks of ``period_s``;
+    returns how late each wake-up was (s), shape ``(ticks,)``. Ticks missed entirely (the
+    process woke more than a period late) are skipped, as the plant skips them, and the
+    late wake-up that skipped them is the one recorded."""
+    if not 20e-6 <= period_s <= 1.0:
+        raise ValueError(f"period = {period_s!r} s: allowed 20us to 1s")
+    if not period_s <= duration_s <= 3600.0:
+        raise ValueError(f"duration = {duration_s!r} s: allowed one period to 3600 s")
+    ticks = int(duration_s / period_s)
+    tick_ns = int(period_s * 1e9)
+    out = np.empty(ticks, dtype=float)
+    next_tick = time.monotonic_ns() + tick_ns
+    n = 0
+    end = next_tick + ticks * tick_ns
+    while n < ticks and next_tick <= end:
+        while (ahead := next_tick - time.monotonic_ns()) > 0:
+            time.sleep(min(ahead / 1e9, SLEEP_SLICE_S))
+        woke = time.monotonic_ns()
+        out[n] = (woke - next_tick) / 1e9
+        n += 1
+        next_tick += tick_ns
+        if woke > next_tick:  # more than a period late: the next tick is already gone
+            next_tick += ((woke - next_tick) // tick_ns + 1) * tick_ns
+    return out[:n]
+
+
+def quantiles(x: np.ndarray) -> dict[str, float]:
+    """p50, p99, p99.9 and max of ``x`` (NaN when empty)."""
+    if x.size == 0:
+        return {"p50": math.nan, "p99": math.nan, "p999": math.nan, "max": math.nan}
+    return {"p50": float(np.quantile(x, 0.5)), "p99": float(np.quantile(x, 0.99)),
+            "p999": float(np.quantile(x, 0.999)), "max": float(x.max())}
+
+
+def sustainable_from_wakeup(p999_s: float) -> float | None:
+    """The shortest period of the admission ladder whose wake-up p99.9 leaves at least half
+    of it for the unit's work; None when none does."""
+    for p in LADDER_S:
+        if p999_s <= 0.5 * p:
+            return p
+    return None
+
+
+def histogram_png(lat_s: np.ndarray, path: str, *, period_s: float, title: str) -> None:
+    """The wake-up latencies as a log-count histogram, with the period marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    us = lat_s * 1e6
+    top = max(float(us.max()) if us.size else 1.0, period_s * 1e6) * 1.05
+    ax.hist(us, bins=np.linspace(0.0, top, 120), color="#3465a4")
+    ax.set_yscale("log")
+    ax.axvline(period_s * 1e6, color="#cc0000", lw=1, label=f"period {period_s * 1e3:g} ms")
+    for q, ls in (("p99", "--"), ("p999", ":")):
+        v = float(np.quantile(lat_s, 0.99 if q == "p99" else 0.999)) * 1e6 if us.size else 0
+        ax.axvline(v, color="k", lw=1, ls=ls, label=f"{q} {v:.0f} us")
+    ax.set_xlabel("wake-up latency (us)")
+    ax.set_ylabel("ticks")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def latency_report(period_s: float, duration_s: float) -> tuple[dict[str, Any], np.ndarray]:
+    """Measure and summarise; the report's keys are those of ``ctrlunit latency --json``."""
+    lat = wakeup_latencies(period_s, duration_s)
+    q = quantiles(lat)
+    return {
+        "period_s": period_s,
+        "duration_s": duration_s,
+        "ticks": int(lat.size),
+        "ticks_lost": int(np.sum(lat > period_s)),
+        "wakeup_latency_s": q,
+        "sustainable_period_s": sustainable_from_wakeup(q["p999"]),
+        "sustainable_period_from": "timer wake-up (p99.9 at most half the period)",
+    }, lat
