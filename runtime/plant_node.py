@@ -41,6 +41,9 @@ from .controller import initial_angles, initial_command
 from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb, say_bye
 from .setup import Setup
 
+TRIAL_MAX_S = 60.0
+"""Longest admission trial the plant runs on one order (a forged order cannot hold it)."""
+
 SLEEP_SLICE_S = 0.02
 """Longest the realtime plant sleeps before it reads its inbox (a stop order waits at most
 this long)."""
@@ -233,6 +236,7 @@ def trial_order(node: Node, ev: Any) -> tuple[float, int, int] | None:
     period, ticks, base = msg.get("period"), msg.get("ticks"), msg.get("base")
     if not (isinstance(period, float) and 20e-6 <= period <= 1.0
             and type(ticks) is int and 1 <= ticks <= 100_000
+            and ticks * period <= TRIAL_MAX_S
             and type(base) is int and 0 <= base < 1 << 62):
         node.reject("bad_value")
         return None
