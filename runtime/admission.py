@@ -44,7 +44,7 @@ TRIAL_BASE = 1 << 41
 """Trial cycles are numbered from here (one block of 2**20 per rung), far from the run's
 and the warm-up's, so that a straggling trial message is never taken for a real one."""
 
-HEADROOM = 0.85
+HEADROOM = 0.95
 """The trial's traversal p99 (command transit included) may use at most this share of the
 budget: the rest is for the run's longer tail (a few hundred trial intervals see fewer
 of the machine's stalls than a run of thousands)."""

@@ -37,7 +37,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
         sample_ns.append(s["t_ns"])
         commands.extend(float(x) for x in m["tau"])
     for k, s in samples.items():
-        if "p" in s:
+        if "p" in s and k < setup.cycles:  # as live: the run's samples only
             true_p[k] = tuple(s["p"])  # type: ignore[assignment]
     result = rec.metadata.get("ctrlunit.result", {})
     busy = json.loads(result.get("busy", "{}") or "{}")
