@@ -56,7 +56,7 @@ class Controller:
 
     def __post_init__(self) -> None:
         # plain floats: a numpy scalar here would make every value computed from the
-        # estimate a numpy scalar too, and the kernels several times slower (docs/messaging.md)
+        # estimate a numpy scalar too, and the kernels several times slower (docs/message-costs.md)
         self.est = (tuple(float(x) for x in self.p0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
     def sources(self, cycle: int, counts: list[int]) -> dict:

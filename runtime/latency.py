@@ -19,8 +19,7 @@ from typing import Any
 import numpy as np
 
 from .admission import LADDER_S
-
-SLEEP_SLICE_S = 0.02
+from .plant_node import SLEEP_SLICE_S
 
 
 def wakeup_latencies(period_s: float, duration_s: float) -> np.ndarray:

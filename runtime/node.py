@@ -3,7 +3,7 @@ rejection counters and a watchdog on the central's silence.
 
 Inbox: every key a role receives lies under its prefix (:class:`~.zsession.Keys`), so one
 FIFO subscriber carries all of it and the role's own thread reads it: no callback thread
-and no second queue between Zenoh and the role (docs/messaging.md: a callback handler feeding
+and no second queue between Zenoh and the role (docs/message-costs.md: a callback handler feeding
 a queue costs a thread hop per message; measured here 236 against 302-344 us p50 per
 scatter/gather round of 3, and 165 against 215 us of the central's CPU).
 

@@ -109,14 +109,17 @@ class PlantServer:
             del self.commands[c]
         return newest == cycle
 
-    def publish_sample(self, span: tuple[int, int]) -> None:
-        counts = self.plant.encoder_counts()
-        s = self.plant.state
+    def publish_sample(self, span: tuple[int, int], *,
+                       trial: tuple[Plant, int] | None = None) -> None:
+        """Publish the robot's sample now; ``trial``: an admission trial's robot and
+        sample number instead (flagged ``probe``, no misses, nothing applied)."""
+        plant, cycle = trial or (self.plant, self.sample_no)
+        extra = {"misses": 0, "applied": -1, "probe": True} if trial else {
+            "misses": self.misses, "applied": self.applied_cycle}
         self.pub.put(encode(
-            self.node.unit, self.sample_no, "sample", counts=counts, t_ns=time.monotonic_ns(),
-            span=list(span), p=[float(x) for x in s.p], misses=self.misses,
-            applied=self.applied_cycle,
-        ))
+            self.node.unit, cycle, "sample", counts=plant.encoder_counts(),
+            t_ns=time.monotonic_ns(), span=list(span), p=[float(x) for x in plant.state.p],
+            **extra))
 
     def simulate(self) -> tuple[int, int]:
         t0 = time.monotonic_ns()
@@ -178,27 +181,9 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
             server.sample_no += 1
             server.publish_sample(span)
         else:  # realtime
-            # sleep to the tick; commands wait in the inbox and are read at the tick, all
-            # at once (a wake-up per command and a ticker hop per tick cost more CPU than
-            # the simulation); a stop is seen within SLEEP_SLICE_S
-            while True:
-                ahead = next_tick - time.monotonic_ns()
-                if ahead > 0:
-                    time.sleep(min(ahead / 1e9, SLEEP_SLICE_S))
-                while True:
-                    try:
-                        ev = node.events.get_nowait()
-                    except queue.Empty:
-                        break
-                    if is_stop(node, ev):
-                        return _result(server, "stop", t_start)
-                    if ev[0] == "command":
-                        server.take_command(ev[2])
-                if time.monotonic_ns() >= next_tick:
-                    break
-            next_tick += tick_ns
-            if time.monotonic_ns() > next_tick:  # fell more than a period behind
-                next_tick = time.monotonic_ns() + tick_ns
+            if not sleep_to_tick(node, server, next_tick, take_commands=True):
+                return _result(server, "stop", t_start)
+            next_tick = tick_after(next_tick, tick_ns)
             server.sample_no += 1
             due = server.sample_no - server.depth
             if causal:  # the sample leaves at the tick; the next period is integrated after
@@ -223,6 +208,37 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
         if ev[0] == "command":
             server.take_command(ev[2])
     return _result(server, exit_reason, t_start)
+
+
+def sleep_to_tick(node: Node, server: PlantServer, tick_ns: int, *,
+                  take_commands: bool) -> bool:
+    """Sleep to the monotonic time ``tick_ns``, reading the inbox every
+    :data:`SLEEP_SLICE_S` and once at the tick (commands are taken then, all at once, when
+    ``take_commands``: a wake-up per command and a ticker hop per tick cost more CPU than
+    the simulation). Returns False on a stop order."""
+    while True:
+        ahead = tick_ns - time.monotonic_ns()
+        if ahead > 0:
+            time.sleep(min(ahead / 1e9, SLEEP_SLICE_S))
+        while True:
+            try:
+                ev = node.events.get_nowait()
+            except queue.Empty:
+                break
+            if is_stop(node, ev):
+                return False
+            if take_commands and ev[0] == "command":
+                server.take_command(ev[2])
+        if time.monotonic_ns() >= tick_ns:
+            return True
+
+
+def tick_after(tick_ns: int, period_ns: int) -> int:
+    """The tick after ``tick_ns``; a period from now when the plant fell more than a period
+    behind (the ticks missed are skipped, not caught up)."""
+    nxt = tick_ns + period_ns
+    now = time.monotonic_ns()
+    return now + period_ns if now > nxt else nxt
 
 
 def trial_order(node: Node, ev: Any) -> tuple[float, int, int] | None:
@@ -256,32 +272,17 @@ def trial_ticks(node: Node, server: PlantServer, period: float, ticks: int, base
     next_tick = time.monotonic_ns() + tick_ns
     span = (0, 0)
 
-    def publish(j: int) -> None:
-        server.pub.put(encode(
-            node.unit, base + j, "sample", counts=sim.encoder_counts(),
-            t_ns=time.monotonic_ns(), span=list(span), p=[float(x) for x in sim.state.p],
-            misses=0, applied=-1, probe=True))
-
     for j in range(ticks):
-        while (ahead := next_tick - time.monotonic_ns()) > 0:
-            time.sleep(min(ahead / 1e9, SLEEP_SLICE_S))
-        while True:
-            try:
-                ev = node.events.get_nowait()
-            except queue.Empty:
-                break
-            if is_stop(node, ev):
-                return False
-        next_tick += tick_ns
-        if time.monotonic_ns() > next_tick:
-            next_tick = time.monotonic_ns() + tick_ns
+        if not sleep_to_tick(node, server, next_tick, take_commands=False):
+            return False
+        next_tick = tick_after(next_tick, tick_ns)
         if causal:
-            publish(j)
+            server.publish_sample(span, trial=(sim, base + j))
         t0 = time.monotonic_ns()
         sim.step()
         span = (t0, time.monotonic_ns())
         if not causal:
-            publish(j)
+            server.publish_sample(span, trial=(sim, base + j))
     node.last_heard_ns = time.monotonic_ns()
     return True
 

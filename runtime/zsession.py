@@ -1,7 +1,7 @@
 """Zenoh session set-up and the key space of a unit.
 
 Peer mode, multicast and gossip scouting off, and the lowest-latency transport that
-eclipse-zenoh offers here (``transport/unicast/lowlatency`` with QoS off: docs/messaging.md
+eclipse-zenoh offers here (``transport/unicast/lowlatency`` with QoS off: docs/message-costs.md
 measured 138 us against 172 us p50 for a unix-socket round trip). The central listens; the
 other roles connect to it (a star). Every key lives under ``ctrlunit/<unit-id>/``.
 """
@@ -113,7 +113,7 @@ def default_endpoint(run_dir: Path) -> str:
 
 def pin_cpus(spec: str | None) -> None:
     """Pin this process to CPUs (``"0"``, ``"0,1"``) before ``zenoh.open`` so that Zenoh's
-    threads inherit it (docs/messaging.md). ``None`` leaves the affinity alone."""
+    threads inherit it (docs/message-costs.md). ``None`` leaves the affinity alone."""
     if not spec:
         return
     cpus = {int(c) for c in spec.split(",") if c.strip()}
