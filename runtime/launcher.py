@@ -164,7 +164,9 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         if p.returncode not in (0, None) and fault is None and p.returncode != -15:
             log = (run_dir / f"{name}.log").read_text(errors="replace")[-2000:]
             echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
-    if code == EXIT_OK:  # the run directory (spec, socket, role logs) is for diagnosis
+    # the run directory (spec, socket, role logs) is for diagnosing a fault; a refusal's
+    # figures are all in the report's admission
+    if code in (EXIT_OK, EXIT_UNSUSTAINABLE):
         shutil.rmtree(run_dir, ignore_errors=True)
     else:
         echo(f"ctrlunit: the roles' logs are kept in {run_dir}")
