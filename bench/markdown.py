@@ -99,6 +99,19 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
                   f"{rc_['config']}: period p50 {_us(rc_['period_p50_without_s'])} us without "
                   f"--record, {_us(rc_['period_p50_with_s'])} us with it: "
                   f"{(rc_['ratio'] - 1) * 100:+.1f} % (target: at most +10 %)."]
+        comps = rc_.get("compressions") or {}
+        if comps:
+            lines += ["", "| --record-compression | period p50 (us) | vs not recorded | "
+                      "bytes per interval |", "|---|---|---|---|"]
+            for comp, c in comps.items():
+                lines.append(f"| {comp} | {_us(c['period_p50_with_s'])} | "
+                             f"{(c['ratio'] - 1) * 100:+.1f} % | "
+                             f"{c['bytes_per_interval']:.0f} |")
+            if "none" in comps and "zstd" in comps:
+                shrink = (comps["none"]["bytes_per_interval"]
+                          / comps["zstd"]["bytes_per_interval"])
+                lines.append(f"\nzstd makes a recording {shrink:.2f}x smaller than "
+                             "uncompressed.")
     tg = r.get("target") or {}
     if tg.get("variants"):
         target_us = _us(tg["target_s"])

@@ -50,7 +50,7 @@ class Config:
     cost_scale: float = 1.0
     law: str = "resolved-acceleration"
     tag: str = "sweep"
-    record: bool = False
+    record: str | None = None  # --record-compression of a recorded run; None: not recorded
     placement: str | None = None  # a placement file (the balance stage)
     rt_priority: int = 0  # SCHED_FIFO for every role (the target stage)
 
@@ -58,7 +58,8 @@ class Config:
     def key(self) -> str:
         return (f"{self.tag}:{self.law}:n{self.peripherals}:d{self.pipeline}:"
                 f"{self.cost_model}x{self.cost_scale:g}:{self.clock}:{self.period:g}"
-                f"{':record' if self.record else ''}{':placed' if self.placement else ''}"
+                f"{f':record-{self.record}' if self.record else ''}"
+                f"{':placed' if self.placement else ''}"
                 f"{f':fifo{self.rt_priority}' if self.rt_priority else ''}")
 
 
@@ -71,8 +72,9 @@ def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) ->
     for per in realtime_periods:
         for d in (1, 2):
             out.append(Config(3, d, "native", "realtime", per, tag="realtime"))
-    # what recording costs: the same freerun configuration with and without --record
-    for rec in (False, True):
+    # what recording costs: the same freerun configuration without --record, and with it
+    # uncompressed and compressed (the default)
+    for rec in (None, "none", "zstd"):
         out.append(Config(3, 2, "native", tag="record", record=rec))
     # the thesis comparison: T-800 arithmetic scaled so that it outweighs the messages
     # as it did in 1994 (Zenoh here: ~200 us a round; a T-800 link: tens of us)
@@ -97,7 +99,8 @@ def cycles_for(cfg: Config, quick: bool) -> int:
 
 def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str, Any], Any]:
     record = str(tmp / f"rec-{random.randrange(1 << 30)}.mcap") if cfg.record and tmp else None
-    rc = RunConfig(record=record, peripherals=cfg.peripherals, pipeline=cfg.pipeline,
+    rc = RunConfig(record=record, record_compression=cfg.record or "zstd",
+                   peripherals=cfg.peripherals, pipeline=cfg.pipeline,
                    clock=cfg.clock,
                    period=cfg.period, cost_model=cfg.cost_model, cost_scale=cfg.cost_scale,
                    law=cfg.law, cycles=cycles, max_error=1.0, t1_cycles=200,
@@ -107,6 +110,7 @@ def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str
     code, rep = start(rc, echo=lambda m: None, inspect=inspect)
     rep["exit_code"] = code
     if record:
+        rep["record_bytes_per_interval"] = Path(record).stat().st_size / cycles
         Path(record).unlink(missing_ok=True)
     return rep, inspect.get("central")
 
@@ -333,14 +337,24 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     done += 2 * 2 * repeats
     target = _target_stage(out, quick=quick, repeats=repeats, progress=progress, done=done,
                            total=total)
-    rec_on = next(r for r, c in zip(runs, configs) if c.tag == "record" and c.record)
-    rec_off = next(r for r, c in zip(runs, configs) if c.tag == "record" and not c.record)
+    recorded = {c.record: (r, results[c.key]) for r, c in zip(runs, configs)
+                if c.tag == "record"}
+    rec_off = recorded[None][0]
     recording_cost = {
         "period_p50_without_s": rec_off["period_s"]["p50"],
-        "period_p50_with_s": rec_on["period_s"]["p50"],
-        "ratio": rec_on["period_s"]["p50"] / rec_off["period_s"]["p50"],
         "config": "freerun, n = 3, depth 2, native; interleaved with the sweep",
+        "compressions": {
+            comp: {"period_p50_with_s": r["period_s"]["p50"],
+                   "ratio": r["period_s"]["p50"] / rec_off["period_s"]["p50"],
+                   "bytes_per_interval": statistics.median(
+                       x["record_bytes_per_interval"] for x in reps
+                       if "record_bytes_per_interval" in x)}
+            for comp, (r, reps) in recorded.items() if comp is not None},
     }
+    # the default (zstd) stands for "with --record"
+    recording_cost["period_p50_with_s"] = \
+        recording_cost["compressions"]["zstd"]["period_p50_with_s"]
+    recording_cost["ratio"] = recording_cost["compressions"]["zstd"]["ratio"]
     report = {
         "machine": machine_info(), "floor": fl, "runs": runs, "thesis_1994": THESIS,
         "recording_cost": recording_cost, "balance": balance, "target": target,

@@ -69,6 +69,8 @@ class RunConfig:
     cycles: int | None = None
     duration: float | None = None
     record: str | None = None
+    record_compression: str = "zstd"
+    """Chunk compression of ``--record`` (runtime/mcap_writer.py, ``COMPRESSIONS``)."""
     report: str | None = None
     unit: str = field(default_factory=lambda: "u" + secrets.token_hex(4))
     cost_model: str = "native"
@@ -151,6 +153,10 @@ class RunConfig:
             raise bad("cost_scale", "0.01 to 1000")
         if not 1.0 <= self.fault_periods <= 1000.0:
             raise bad("fault_periods", "1 to 1000 periods")
+        from .mcap_writer import COMPRESSIONS
+
+        if self.record_compression not in COMPRESSIONS:
+            raise bad("record_compression", ", ".join(COMPRESSIONS))
         if self.hold_rounds not in ("always", "never"):
             raise bad("hold_rounds", "always or never")
         if self.command_delay not in COMMAND_DELAYS:

@@ -38,6 +38,11 @@ def test_quick_bench_writes_reports_and_figures_in_time(tmp_path):
     cost = rep["recording_cost"]  # a benchmark figure, reported (not a timed assertion)
     assert cost["period_p50_with_s"] > 0 and cost["period_p50_without_s"] > 0
     print(f"recording cost on the freerun period: {(cost['ratio'] - 1) * 100:+.1f} %")
+    comps = cost["compressions"]
+    assert set(comps) == {"none", "zstd"}
+    # the chunks are compressed: a third of the bytes or less (float64 payloads bound it)
+    assert comps["zstd"]["bytes_per_interval"] < 0.5 * comps["none"]["bytes_per_interval"]
+    assert "| zstd |" in md
     # the 0.5 ms target: default and balance's placement, each with SCHED_FIFO when
     # permitted, all measured (a benchmark figure, reported, not asserted against 0.5 ms)
     target = rep["target"]

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import io
 
+import lz4.frame
 import pytest
+import zstandard
 from ctrlunit.runtime.mcap_writer import LeanWriter
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -17,14 +19,15 @@ TOPICS = ("/central/sample", "/peripheral/request", "/central/reply/1", "/signal
 
 
 def _write(writer_cls: type, messages: list[tuple[int, int, bytes]], *,
-           chunk_size: int) -> bytes:
+           chunk_size: int, compression: str = "none", background: bool = False) -> bytes:
     """The recorder's calls: metadata, two schemas, channels on first use, messages,
     metadata at the end."""
     f = io.BytesIO()
     if writer_cls is LeanWriter:
-        w = LeanWriter(f, chunk_size=chunk_size)
+        w = LeanWriter(f, chunk_size=chunk_size, compression=compression,
+                       background=background)
     else:
-        w = Writer(f, chunk_size=chunk_size, compression=CompressionType.NONE,
+        w = Writer(f, chunk_size=chunk_size, compression=CompressionType[compression.upper()],
                    enable_data_crcs=True)
     w.start(profile="", library="test")
     w.add_metadata("ctrlunit", {"clock": "freerun"})
@@ -54,18 +57,44 @@ def _messages(n: int, *, size: int = 120) -> list[tuple[int, int, bytes]]:
             for i in range(n)]
 
 
-def test_lean_writer_file_reads_back_like_the_reference_writers() -> None:
+def _records(blob: bytes) -> list:
+    """Chunks (decompressed: the compressors' levels differ) and message indexes."""
+    out = []
+    for r in StreamReader(io.BytesIO(blob), emit_chunks=True).records:
+        if isinstance(r, Chunk):
+            data = r.data
+            if r.compression == "zstd":
+                data = zstandard.ZstdDecompressor().decompress(
+                    data, max_output_size=r.uncompressed_size)
+            elif r.compression == "lz4":
+                data = lz4.frame.decompress(data)
+            out.append((r.compression, r.message_start_time, r.message_end_time,
+                        r.uncompressed_size, r.uncompressed_crc, bytes(data)))
+        elif isinstance(r, MessageIndex):
+            out.append(r)
+    return out
+
+
+@pytest.mark.parametrize(("compression", "background"), [
+    ("none", False), ("none", True), ("zstd", False), ("zstd", True), ("lz4", True)])
+def test_lean_writer_file_reads_back_like_the_reference_writers(compression: str,
+                                                                background: bool) -> None:
     msgs = _messages(2000)
-    lean, ref = _write(LeanWriter, msgs, chunk_size=4096), _write(Writer, msgs, chunk_size=4096)
+    lean = _write(LeanWriter, msgs, chunk_size=4096, compression=compression,
+                  background=background)
+    ref = _write(Writer, msgs, chunk_size=4096, compression=compression)
     got, want = _read(lean), _read(ref)
     assert got[0] == want[0] and len(got[0]) == 2000
     assert got[1] == want[1]  # statistics: counts per channel, chunks, times
     assert got[2] == want[2]
-    # the chunks and message indexes themselves are byte for byte the reference's
-    def records(blob: bytes, kinds: tuple[type, ...]) -> list:
-        return [r for r in StreamReader(io.BytesIO(blob), emit_chunks=True).records
-                if isinstance(r, kinds)]
-    assert records(lean, (Chunk, MessageIndex)) == records(ref, (Chunk, MessageIndex))
+    # the chunks (their records) and message indexes are byte for byte the reference's
+    assert _records(lean) == _records(ref)
+    if compression == "none":  # and so is the whole data section
+        assert lean[:make_reader(io.BytesIO(lean)).get_summary().chunk_indexes[-1]
+                    .chunk_start_offset] == ref[:make_reader(io.BytesIO(ref)).get_summary()
+                                                .chunk_indexes[-1].chunk_start_offset]
+    else:  # repeated bytes: the chunks shrink
+        assert len(lean) < len(_write(LeanWriter, msgs, chunk_size=4096)) / 3
 
 
 @settings(max_examples=60, deadline=None)
@@ -73,9 +102,14 @@ def test_lean_writer_file_reads_back_like_the_reference_writers() -> None:
     msgs=st.lists(st.tuples(st.integers(0, len(TOPICS) - 1), st.integers(0, 2**63),
                             st.binary(max_size=300)), max_size=80),
     chunk_size=st.integers(1, 3000),
+    compression=st.sampled_from(["none", "zstd", "lz4"]),
+    background=st.booleans(),
 )
-def test_any_messages_round_trip_through_both_readers(msgs: list, chunk_size: int) -> None:
-    blob = _write(LeanWriter, msgs, chunk_size=chunk_size)
+def test_any_messages_round_trip_through_both_readers(msgs: list, chunk_size: int,
+                                                      compression: str,
+                                                      background: bool) -> None:
+    blob = _write(LeanWriter, msgs, chunk_size=chunk_size, compression=compression,
+                  background=background)
     got, stats, meta = _read(blob)
     assert [(TOPICS.index(t), lt, d) for t, _, _, lt, _, d in got] == msgs
     assert stats.message_count == len(msgs)
@@ -88,11 +122,13 @@ def test_any_messages_round_trip_through_both_readers(msgs: list, chunk_size: in
     assert [(m.log_time, m.data) for m in streamed] == [(lt, d) for _, lt, d in msgs]
 
 
-def test_file_cut_anywhere_keeps_every_closed_chunk() -> None:
+@pytest.mark.parametrize("compression", ["none", "zstd"])
+def test_file_cut_anywhere_keeps_every_closed_chunk(compression: str) -> None:
     """A crash loses the open chunk at most: a non-seeking pass over the file cut at any
     point returns every message of the chunks written whole before the cut."""
     msgs = _messages(300)
-    blob = _write(LeanWriter, msgs, chunk_size=2048)
+    blob = _write(LeanWriter, msgs, chunk_size=2048, compression=compression,
+                  background=True)
     summary = make_reader(io.BytesIO(blob)).get_summary()
     assert len(summary.chunk_indexes) >= 10
     for ci in summary.chunk_indexes[::3]:
@@ -115,3 +151,21 @@ def test_unknown_channel_and_bad_chunk_size_are_named() -> None:
         w.register_channel("/x", "msgpack", 3)
     with pytest.raises(ValueError, match="chunk_size must be >= 1"):
         LeanWriter(io.BytesIO(), chunk_size=0)
+    with pytest.raises(ValueError, match="compression must be one of none, lz4, zstd, got 'gz'"):
+        LeanWriter(io.BytesIO(), compression="gz")
+
+
+def test_a_failed_background_write_is_reported_not_lost() -> None:
+    class Full(io.BytesIO):
+        def write(self, b: bytes) -> int:  # type: ignore[override]
+            if self.tell() > 3000:
+                raise OSError(28, "No space left on device")
+            return super().write(b)
+
+    w = LeanWriter(Full(), chunk_size=512, compression="zstd", background=True)
+    w.start()
+    cid = w.register_channel("/x", "msgpack", 0)
+    with pytest.raises(RuntimeError, match="No space left on device"):
+        for i in range(10_000):
+            w.add_message(cid, i, bytes(range(256)) * 4, i)
+        w.finish()
