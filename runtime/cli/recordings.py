@@ -100,3 +100,39 @@ def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
         with open(report_file, "w") as fh:
             json.dump(_json_safe(rep), fh, indent=2)
     click.echo(json.dumps(_json_safe(rep)) if as_json else summary(rep))
+
+
+@cli.command("plot")
+@click.argument("file", type=click.Path(exists=True, dir_okay=False))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Directory for the PNGs and index.html (default: FILE without .mcap, "
+                   "plus -plots).")
+@click.option("--cycles", "cycle_range", default=None, callback=_cycle_range,
+              help="Intervals A:B only.")
+@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON.")
+def plot_cmd(file: str, out_dir: str | None, cycle_range: tuple[int, int] | None,
+             as_json: bool) -> None:
+    """Draw a recording: path against the reference, tracking error, torques, period and
+    traversal histograms, deadline misses and faults on the timeline, a Gantt window;
+    and an index.html that shows them with the run's summary."""
+    from pathlib import Path
+
+    from ..plots import plot_recording
+
+    rec = _open_recording(file)
+    out = Path(out_dir) if out_dir else Path(file).with_suffix("").with_name(
+        Path(file).stem + "-plots")
+    try:
+        plots = plot_recording(rec, out, cycles=cycle_range)
+    except ValueError as exc:
+        _fail(f"plot: {exc}")
+        return
+    data = {"out": str(out), "index": str(plots.index),
+            "images": {k: str(v) for k, v in plots.images.items()}, "notes": plots.notes}
+    if as_json:
+        click.echo(json.dumps(data))
+        return
+    for n in plots.notes:
+        click.echo(f"note: {n}")
+    click.echo(f"{len(plots.images)} figures and index.html in {out}/ (open "
+               f"{plots.index})")

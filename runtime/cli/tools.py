@@ -70,7 +70,7 @@ def balance(source: str, out: str, rerun: str | None, figure: str | None,
         return
     write_placement(a, out)
     if figure:
-        from ...bench.figures import gantt_figure
+        from ..plots import gantt_figure
 
         d = a["pipeline"]
         panels = {f"depth {d}, measured": a["measured"]["gantt_ms"],

@@ -1,0 +1,143 @@
+"""``ctrlunit plot`` and ``start --plot``: six figures and an index of a recording."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ctrlunit.runtime.plots import FIGURES, plot_recording
+from ctrlunit.runtime.recording import read
+from matplotlib.image import imread
+from mcap.reader import make_reader
+from runner import ctrlunit, start_json
+
+pytestmark = pytest.mark.zenoh
+
+
+@pytest.fixture(scope="module")
+def lockstep(tmp_path_factory):
+    """A lockstep pick & place at depth 2, recorded (zstd, the default) and plotted by
+    ``start --plot``."""
+    d = tmp_path_factory.mktemp("plot")
+    code, rep, out = start_json(d, "--clock", "lockstep", "--pipeline", "2", "--plot",
+                                str(d / "live"), tag="plot")
+    assert code == 0, out
+    return d, d / "live" / "run.mcap", rep
+
+
+def _ink(png: Path) -> tuple[float, int]:
+    """Fraction of pixels that are not the white background, and distinct colours."""
+    img = imread(png)[..., :3]
+    ink = float((np.abs(img - 1.0).sum(axis=2) > 0.05).mean())
+    colours = len(np.unique((img * 255).astype(np.uint8).reshape(-1, 3), axis=0))
+    return ink, colours
+
+
+def test_start_plot_draws_every_figure_from_a_compressed_recording(lockstep):
+    d, path, _ = lockstep
+    live = d / "live"
+    with open(path, "rb") as fh:
+        chunks = make_reader(fh).get_summary().chunk_indexes
+    assert chunks and {c.compression for c in chunks} == {"zstd"}
+    for name in FIGURES:
+        assert (live / f"{name}.png").read_bytes()[:4] == b"\x89PNG", name
+    html = (live / "index.html").read_text()
+    assert "tracking error max" in html  # the run's summary
+
+
+def test_plot_writes_six_pictures_with_content_and_an_index(lockstep, tmp_path):
+    _, path, _ = lockstep
+    res = ctrlunit("plot", str(path), "--out", str(tmp_path / "p"), "--json")
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    assert set(out["images"]) == set(FIGURES) and out["notes"] == []
+    html = Path(out["index"]).read_text()
+    for name in FIGURES:
+        png = Path(out["images"][name])
+        ink, colours = _ink(png)
+        # axes, ticks and text alone ink about 2 % of a figure; data more, in colour
+        assert ink > 0.02 and colours > 20, (name, ink, colours)
+        assert f"src='{png.name}'" in html
+
+
+def test_plotted_tracking_error_is_the_reports_max(lockstep, tmp_path):
+    """The error drawn (the recorded /signals/state) against the live report's (from
+    the plant's samples): two accounts of the same run."""
+    _, path, rep = lockstep
+    plots = plot_recording(read(path), tmp_path, summary="")
+    e = plots.series["tracking_error_m"]
+    assert np.isfinite(e).all() and e.size == rep["cycles"]
+    assert abs(float(e.max()) - rep["tracking_error_m"]["max"]) <= 1e-9
+    tau = plots.series["torque_nm"]
+    assert abs(float(np.abs(tau).max()) - rep["torque_nm"]["max"]) <= 1e-9
+
+
+def test_cycle_range_limits_what_is_drawn_and_an_empty_range_is_named(lockstep, tmp_path):
+    _, path, _ = lockstep
+    plots = plot_recording(read(path), tmp_path / "a", cycles=(50, 120), summary="")
+    assert plots.series["cycle"].tolist() == list(range(50, 120))
+    res = ctrlunit("plot", str(path), "--out", str(tmp_path / "b"), "--cycles",
+                   "900000:900010")
+    assert res.returncode == 1
+    assert "no interval to plot in cycles 900000:900010" in res.stderr
+
+
+def test_plot_of_a_recording_cut_off_mid_run(lockstep, tmp_path):
+    """A crash leaves no footer: the salvaged part is drawn, and the page says so."""
+    _, path, _ = lockstep
+    cut = tmp_path / "cut.mcap"
+    data = path.read_bytes()
+    cut.write_bytes(data[: len(data) * 3 // 5])
+    res = ctrlunit("plot", str(cut), "--out", str(tmp_path / "c"), "--json")
+    assert res.returncode == 0, res.stderr
+    assert "salvaged" in res.stderr
+    out = json.loads(res.stdout)
+    assert "Salvaged" in Path(out["index"]).read_text()
+    plots = plot_recording(read(cut), tmp_path / "d", summary="")
+    assert 0 < plots.series["cycle"].size < len(read(path).topics["/signals/state"])
+
+
+def test_freerun_plots_say_there_is_no_plant(tmp_path):
+    code, _, out = start_json(tmp_path, "--clock", "freerun", "--cycles", "60", "--record",
+                              str(tmp_path / "f.mcap"), tag="plotfree")
+    assert code == 0, out
+    plots = plot_recording(read(tmp_path / "f.mcap"), tmp_path / "p", summary="")
+    assert any("freerun has no plant" in n for n in plots.notes)
+    assert set(plots.images) == set(FIGURES)
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed")
+def test_index_html_shows_every_image_in_headless_chromium(lockstep, tmp_path):
+    """Chromium loads the page and every image (naturalWidth > 0), and a screenshot of
+    the page is not blank."""
+    d, _, _ = lockstep
+    page = (d / "live" / "index.html").resolve()
+    probe = tmp_path / "probe.html"
+    # the same page, with a script that writes how many images loaded into the title
+    html = page.read_text().replace(
+        "</body>", "<script>window.onload=()=>{const im=[...document.images];"
+        "document.title='loaded '+im.filter(i=>i.complete&&i.naturalWidth>0).length+"
+        "' of '+im.length;}</script></body>")
+    for name in FIGURES:
+        html = html.replace(f"src='{name}.png'", f"src='{(page.parent / name).as_uri()}.png'")
+    probe.write_text(html)
+    flags = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+             "--no-first-run", "--disable-background-networking",
+             "--disable-component-update", "--disable-sync", "--allow-file-access-from-files",
+             f"--user-data-dir={tmp_path / 'profile'}"]
+    dom = subprocess.run([CHROMIUM, *flags, "--virtual-time-budget=5000", "--dump-dom",
+                          probe.as_uri()], capture_output=True, text=True, timeout=120)
+    assert f"<title>loaded {len(FIGURES)} of {len(FIGURES)}</title>" in dom.stdout, \
+        dom.stderr[-2000:]
+    shot = tmp_path / "page.png"
+    subprocess.run([CHROMIUM, *flags, f"--screenshot={shot}", "--window-size=1100,3000",
+                    page.as_uri()], capture_output=True, timeout=120)
+    ink, colours = _ink(shot)
+    assert ink > 0.05 and colours > 50, (ink, colours)
