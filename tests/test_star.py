@@ -128,12 +128,15 @@ def test_ctrl_c_leaves_no_process_behind():
         assert len(pids_of(unit)) >= 5  # launcher + plant + 3 peripherals
         time.sleep(1.0)
         os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
+        # a bound on "left behind", not a speed target: on a loaded 2-core CI machine the
+        # roles' exit took over 2 s once (fewer than 0.5 s when the machine is quiet)
         t0 = time.monotonic()
-        while pids_of(unit) and time.monotonic() - t0 < 2.0:
+        while pids_of(unit) and time.monotonic() - t0 < 10.0:
             time.sleep(0.05)
         left = pids_of(unit)
-        assert not left, f"still running 2 s after Ctrl-C: {left}"
-        assert proc.wait(timeout=1) == 130
+        print(f"all processes gone {time.monotonic() - t0:.2f} s after Ctrl-C")
+        assert not left, f"still running 10 s after Ctrl-C: {left}"
+        assert proc.wait(timeout=5) == 130
     finally:
         kill_unit(unit)
         if proc.poll() is None:
