@@ -66,9 +66,11 @@ def test_an_unsustainable_period_is_refused_before_the_plant_gets_a_command(tmp_
 
 
 def test_period_auto_runs_at_the_period_the_trial_held_and_says_so(tmp_path):
+    # what is checked is the choice of period; a stall of a few ms after the trial (this
+    # machine has them) must not end the run, so silence is tolerated for 100 periods
     code, rep, out = start_json(tmp_path, "--peripherals", "0", "--clock", "realtime",
                                 "--period", "auto", "--cycles", "200", "--max-error", "1",
-                                tag="auto")
+                                "--fault-periods", "100", tag="auto")
     adm = rep.get("admission") or {}
     if code == EXIT_UNSUSTAINABLE:  # this machine held no period of the ladder today
         assert adm["sustainable_period_s"] is None, out
