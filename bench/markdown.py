@@ -112,6 +112,15 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
                           / comps["zstd"]["bytes_per_interval"])
                 lines.append(f"\nzstd makes a recording {shrink:.2f}x smaller than "
                              "uncompressed.")
+        lv = rc_.get("live_view")
+        if lv:
+            lines += ["", "## What the live view costs", "",
+                      f"The same configuration with --foxglove and a viewer subscribed to "
+                      f"everything: period p50 {_us(lv['period_p50_with_s'])} us, "
+                      f"{(lv['ratio'] - 1) * 100:+.1f} % against not recorded (target: at "
+                      f"most the recording's +10 %); the viewer read "
+                      f"{lv['viewer_messages']:.0f} messages for {lv['cycles']:.0f} "
+                      "intervals."]
     tg = r.get("target") or {}
     if tg.get("variants"):
         target_us = _us(tg["target_s"])

@@ -53,6 +53,7 @@ class Config:
     record: str | None = None  # --record-compression of a recorded run; None: not recorded
     placement: str | None = None  # a placement file (the balance stage)
     rt_priority: int = 0  # SCHED_FIFO for every role (the target stage)
+    foxglove: bool = False  # --foxglove, with a viewer reading everything
 
     @property
     def key(self) -> str:
@@ -60,7 +61,8 @@ class Config:
                 f"{self.cost_model}x{self.cost_scale:g}:{self.clock}:{self.period:g}"
                 f"{f':record-{self.record}' if self.record else ''}"
                 f"{':placed' if self.placement else ''}"
-                f"{f':fifo{self.rt_priority}' if self.rt_priority else ''}")
+                f"{f':fifo{self.rt_priority}' if self.rt_priority else ''}"
+                f"{':foxglove' if self.foxglove else ''}")
 
 
 def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) -> list[Config]:
@@ -76,6 +78,8 @@ def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) ->
     # uncompressed and compressed (the default)
     for rec in (None, "none", "zstd"):
         out.append(Config(3, 2, "native", tag="record", record=rec))
+    # what the live view costs, with a viewer connected and reading
+    out.append(Config(3, 2, "native", tag="live", foxglove=True))
     # the thesis comparison: T-800 arithmetic scaled so that it outweighs the messages
     # as it did in 1994 (Zenoh here: ~200 us a round; a T-800 link: tens of us)
     for law in ("resolved-acceleration", "kinematics"):
@@ -106,13 +110,35 @@ def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str
                    law=cfg.law, cycles=cycles, max_error=1.0, t1_cycles=200,
                    placement=cfg.placement, rt_priority=cfg.rt_priority,
                    unit=f"bench-{os.getpid()}-{random.randrange(1 << 30)}")
+    viewer = None
+    if cfg.foxglove:
+        from .viewer_client import ViewerClient
+
+        port = _free_port()
+        rc.foxglove = f"127.0.0.1:{port}"
+        viewer = ViewerClient(port)
     inspect: dict[str, Any] = {}
-    code, rep = start(rc, echo=lambda m: None, inspect=inspect)
+    try:
+        code, rep = start(rc, echo=lambda m: None, inspect=inspect)
+    finally:
+        if viewer is not None:
+            viewer.stop()
     rep["exit_code"] = code
+    if viewer is not None:
+        rep["viewer_messages"] = viewer.messages
+        rep["viewer_error"] = viewer.error
     if record:
         rep["record_bytes_per_interval"] = Path(record).stat().st_size / cycles
         Path(record).unlink(missing_ok=True)
     return rep, inspect.get("central")
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def _balance_stage(results: dict[str, list[dict]], configs: list[Config], out: Path, *,
@@ -318,8 +344,8 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
         for cfg in order:
             if progress:
                 progress(cfg.key, done, total)
-            rep, central = run_one(cfg, cycles_for(cfg, quick) * (3 if cfg.tag == "record"
-                                                                  else 1), out)
+            rep, central = run_one(cfg, cycles_for(cfg, quick)
+                                   * (3 if cfg.tag in ("record", "live") else 1), out)
             results[cfg.key].append(rep)
             done += 1
             if central is not None and rep_i == 0:
@@ -351,6 +377,14 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
                        if "record_bytes_per_interval" in x)}
             for comp, (r, reps) in recorded.items() if comp is not None},
     }
+    live = [(r, results[c.key]) for r, c in zip(runs, configs) if c.tag == "live"]
+    if live:
+        r, reps = live[0]
+        recording_cost["live_view"] = {
+            "period_p50_with_s": r["period_s"]["p50"],
+            "ratio": r["period_s"]["p50"] / rec_off["period_s"]["p50"],
+            "viewer_messages": statistics.median(x.get("viewer_messages", 0) for x in reps),
+            "cycles": statistics.median(x.get("cycles", 0) for x in reps)}
     # the default (zstd) stands for "with --record"
     recording_cost["period_p50_with_s"] = \
         recording_cost["compressions"]["zstd"]["period_p50_with_s"]

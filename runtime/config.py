@@ -55,6 +55,19 @@ def parse_duration(text: str | float, *, field_name: str = "duration") -> float:
     return value
 
 
+def parse_host_port(text: str, *, field_name: str, default_host: str = "127.0.0.1"
+                    ) -> tuple[str, int]:
+    """``[HOST:]PORT`` -> ``(host, port)``; the port 0 to 65535 (0: any free port), the
+    host a name or an IPv4 address, or an IPv6 one in brackets (``[::1]:8765``)."""
+    text = str(text)
+    m = re.fullmatch(r"(?:(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):)?([0-9]{1,5})", text)
+    if not m or int(m.group(2)) > 65535:
+        raise ConfigError(f"{field_name} = {text!r}: expected [HOST:]PORT with PORT 0 to "
+                          "65535 (e.g. 8765 or 127.0.0.1:8765)")
+    host = m.group(1) or default_host
+    return host.strip("[]"), int(m.group(2))
+
+
 @dataclass
 class RunConfig:
     """Options of one run (see ``ctrlunit start --help``)."""
@@ -71,6 +84,10 @@ class RunConfig:
     record: str | None = None
     record_compression: str = "zstd"
     """Chunk compression of ``--record`` (runtime/mcap_writer.py, ``COMPRESSIONS``)."""
+    foxglove: str | None = None
+    """``[HOST:]PORT`` of the live view's Foxglove WebSocket server (runtime/viewer.py)."""
+    foxglove_rate: float = 200.0
+    """``/signals/state`` messages per second of the live view (0: every interval)."""
     report: str | None = None
     unit: str = field(default_factory=lambda: "u" + secrets.token_hex(4))
     cost_model: str = "native"
@@ -157,6 +174,10 @@ class RunConfig:
 
         if self.record_compression not in COMPRESSIONS:
             raise bad("record_compression", ", ".join(COMPRESSIONS))
+        if self.foxglove is not None:
+            parse_host_port(self.foxglove, field_name="foxglove")
+        if not (self.foxglove_rate == 0 or 1.0 <= self.foxglove_rate <= 100_000.0):
+            raise bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
         if self.hold_rounds not in ("always", "never"):
             raise bad("hold_rounds", "always or never")
         if self.command_delay not in COMMAND_DELAYS:

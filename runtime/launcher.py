@@ -30,6 +30,7 @@ from .config import (
     EXIT_UNSUSTAINABLE,
     ConfigError,
     RunConfig,
+    parse_host_port,
 )
 from .controller import Controller
 from .node import Node, rss_kb
@@ -73,11 +74,16 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
 
 def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
            inspect: dict | None) -> tuple[int, dict]:
+    viewer = None
     try:
         setup = make_setup(rc)
+        # before the real-time policy: the view's threads stay at normal priority
+        viewer = _live_view(rc, setup, echo)
         # before zenoh.open and the children: Zenoh's threads and the roles inherit it
         policy = sched.apply_rt(rc.rt_priority)
-    except (ConfigError, ValueError, sched.RtPermissionError) as exc:
+    except (ConfigError, ValueError, OSError, sched.RtPermissionError) as exc:
+        if viewer is not None:
+            viewer.close()
         return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
                                        "code": EXIT_CONFIG}}
     rc.trace = bool(rc.record)
@@ -102,7 +108,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         recorder = Recorder(rc.record, setup)
     central = Central(node, rc, engine, ctl, setup.cycles,
                       on_cycle=_chain(recorder.on_cycle if recorder else None, progress,
-                                      _status_writer(rc.status_file)),
+                                      viewer, _status_writer(rc.status_file)),
                       on_message=recorder.on_message if recorder else None)
     children: list[subprocess.Popen] = []
     code, fault = EXIT_OK, None
@@ -159,6 +165,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             node.close()
             if recorder is not None:
                 recorder.close(central)
+            if viewer is not None:
+                viewer.close()
             signal.signal(signal.SIGINT, old_int)
     for p, name in zip(children, _child_names(rc, setup), strict=False):
         if p.returncode not in (0, None) and fault is None and p.returncode != -15:
@@ -196,7 +204,25 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         inspect["setup"] = setup
     if recorder is not None:
         recorder.write_report(report)
+    if viewer is not None:
+        report["live_view"] = {"url": viewer.url, "sent": viewer.sent,
+                               "dropped": viewer.dropped}
     return code, report
+
+
+def _live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
+    """``--foxglove``: the live view's server (runtime/viewer.py), or ``None``."""
+    if not rc.foxglove:
+        return None
+    from .viewer import LiveView
+
+    host, port = parse_host_port(rc.foxglove, field_name="foxglove")
+    view = LiveView(host=host, port=port, task=setup.task if rc.clock != "freerun" else None,
+                    period_s=rc.period, cycles=setup.cycles, rate_hz=rc.foxglove_rate,
+                    name=f"ctrlunit {rc.unit}")
+    echo(f"ctrlunit: live view on {view.url} (in Foxglove: Open connection, Foxglove "
+         "WebSocket)")
+    return view
 
 
 def _child_names(rc: RunConfig, setup: Setup) -> list[str]:

@@ -45,9 +45,10 @@ class LiveStats:
         self._last_ns: int | None = None
 
     def add(self, *, done: int, cmd_ns: int, misses: int = 0, skipped: int = 0,
-            p: Any = None, pc: Any = None) -> None:
+            p: Any = None, pc: Any = None, error: float | None = None) -> None:
         """One interval: its command time (ns), the counters so far, and the observed
-        position ``p`` and reference ``p_c`` (3-vectors, m) when the interval has them."""
+        position ``p`` and reference ``p_c`` (3-vectors, m) when the interval has them, or
+        the tracking ``error`` (m) already computed."""
         self.done = done
         if self._last_ns is not None:
             i = (cmd_ns - self._last_ns) // BIN_NS
@@ -55,11 +56,34 @@ class LiveStats:
             self.count += 1
         self._last_ns = cmd_ns
         self.misses, self.skipped = misses, skipped
-        if p is not None and pc is not None:
-            e = math.dist(p, pc)
+        if error is None and p is not None and pc is not None:
+            error = math.dist(p, pc)
+        if error is not None:
+            e = error
             self.error = e
             if not e <= self.error_max:  # the first, or a new maximum (NaN-safe)
                 self.error_max = e
+
+    def add_many(self, *, done: int, cmd_ns: Any, misses: int, skipped: int,
+                 errors: Any = ()) -> None:
+        """Many intervals at once (vectorised): their command times (ns, in order), the
+        counters so far and their tracking errors (m)."""
+        self.done, self.misses, self.skipped = done, misses, skipped
+        c = np.asarray(cmd_ns, dtype=np.int64)
+        if c.size:
+            if self._last_ns is not None:
+                c = np.concatenate(([self._last_ns], c))
+            i = np.clip(np.diff(c) // BIN_NS, 0, self.hist.size - 1)
+            self.hist += np.bincount(i, minlength=self.hist.size)
+            self.count += int(i.size)
+            self._last_ns = int(c[-1])
+        e = np.asarray(errors, dtype=float)
+        if e.size:
+            self.error = float(e[-1])
+            if not np.all(np.isnan(e)):
+                m = float(np.nanmax(e))
+                if not m <= self.error_max:  # the first, or a new maximum
+                    self.error_max = m
 
     def percentile_s(self, q: float) -> float:
         """The period's ``q``-th percentile so far (s), to the bin: the lower edge of the

@@ -27,7 +27,6 @@ non-seeking pass. Smaller chunks compress worse: 16 KiB ones 2.5x, 64 KiB 2.9x
 from __future__ import annotations
 
 import json
-import math
 import os
 import platform
 import socket
@@ -39,49 +38,10 @@ import msgpack
 
 from .mcap_writer import LeanWriter
 from .report import CPU_KEYS
-
-SIGNALS_SCHEMA = {
-    "title": "ctrlunit.State",
-    "type": "object",
-    "properties": {
-        "cycle": {"type": "integer", "minimum": 0},
-        "t": {"type": "number", "description": "reference time (s)"},
-        "p": {"$ref": "#/$defs/vec3_or_null", "description": "platform position (m)"},
-        "reference": {"$ref": "#/$defs/vec3_or_null", "description": "p_c (m)"},
-        "q": {"type": "array", "items": {"type": ["number", "null"]}, "minItems": 3,
-              "maxItems": 3, "description": "measured joint angles (rad)"},
-        "torque": {"type": "array", "items": {"type": ["number", "null"]}, "minItems": 3,
-                   "maxItems": 3, "description": "command (N m)"},
-        "tracking_error": {"type": ["number", "null"], "description": "|p - p_c| (m)"},
-        "period": {"type": ["number", "null"], "description": "since previous command (s)"},
-        "traversal": {"type": ["number", "null"], "description": "sample to command (s)"},
-    },
-    "required": ["cycle", "t", "q", "torque"],
-    "$defs": {
-        "vec3_or_null": {
-            "oneOf": [
-                {"type": "null"},
-                {"type": "object", "properties": {"x": {"type": ["number", "null"]},
-                                                  "y": {"type": ["number", "null"]},
-                                                  "z": {"type": ["number", "null"]}},
-                 "required": ["x", "y", "z"]},
-            ]
-        }
-    },
-}
+from .signals import SIGNALS_SCHEMA, capture, state_message
 
 FLUSH_EVERY_NS = 20_000_000
 CHUNK_SIZE = 64 * 1024
-
-
-def _num(x: float) -> float | None:
-    return x if math.isfinite(x) else None
-
-
-def _vec(v: Any) -> dict[str, float | None] | None:
-    if v is None:
-        return None
-    return {"x": _num(float(v[0])), "y": _num(float(v[1])), "z": _num(float(v[2]))}
 
 
 class Recorder:
@@ -165,27 +125,14 @@ class Recorder:
         """After each interval (at depth 2 once the next request is out): the exchanges
         noted since the last one, spans, signals, deadline and rejection events."""
         self._drain()
-        now = central.log.cmd_ns[-1]
+        iv = capture(central, cycle, ctx)
+        now = iv.cmd_ns
         spans = [s for s in central.spans_of(cycle)]
         self._add("/timing/spans", now, msgpack.packb({"cycle": cycle, "spans": spans}))
-        true_p = central.log.true_p.get(cycle)
-        t = cycle * central.rc.period
-        ref = self.setup.task.sample(t)[0] if central.rc.clock != "freerun" else None
-        err = math.dist(true_p, ref) if (true_p is not None and ref is not None) else math.nan
-        period = (now - self.last_cmd_ns) / 1e9 if self.last_cmd_ns is not None else math.nan
+        sig = state_message(iv, period_s=central.rc.period,
+                            task=self.setup.task if central.rc.clock != "freerun" else None,
+                            previous_cmd_ns=self.last_cmd_ns)
         self.last_cmd_ns = now
-        trav = central.log.traversal_ns[-1] / 1e9
-        sig = {
-            "cycle": cycle,
-            "t": t,
-            "p": _vec(true_p),
-            "reference": _vec(ref),
-            "q": [_num(float(x)) for x in ctx["qmeas_i"]],
-            "torque": [_num(float(x)) for x in ctx["cmd"]],
-            "tracking_error": _num(err),
-            "period": _num(period),
-            "traversal": _num(trav),
-        }
         self._add("/signals/state", now, json.dumps(sig).encode(), json_signals=True)
         self._add("/trace/central", now, msgpack.packb(
             {"cycle": cycle, "vals": {n: ctx[n] for n in self.central_outputs

@@ -43,6 +43,11 @@ def test_quick_bench_writes_reports_and_figures_in_time(tmp_path):
     # the chunks are compressed: a third of the bytes or less (float64 payloads bound it)
     assert comps["zstd"]["bytes_per_interval"] < 0.5 * comps["none"]["bytes_per_interval"]
     assert "| zstd |" in md
+    live = cost["live_view"]  # the same run with --foxglove and a viewer reading it all
+    assert live["period_p50_with_s"] > 0 and live["viewer_messages"] > 0
+    print(f"live view cost on the freerun period: {(live['ratio'] - 1) * 100:+.1f} %, "
+          f"{live['viewer_messages']:.0f} messages read for {live['cycles']:.0f} intervals")
+    assert "What the live view costs" in md
     # the 0.5 ms target: default and balance's placement, each with SCHED_FIFO when
     # permitted, all measured (a benchmark figure, reported, not asserted against 0.5 ms)
     target = rep["target"]

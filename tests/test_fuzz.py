@@ -143,14 +143,18 @@ def run_unit(tmp_path, unit: str, fuzz: bool, cycles: int) -> tuple[int, dict, s
                        keys.reply(3), keys.hello, keys.control("peripheral"),
                        keys.control("plant")]
             rng = random.Random(7)
-            with zenoh.open(make_config(connect=eps)) as s:
-                t0 = time.monotonic()  # connected to all five processes before fuzzing
-                while len(list(s.info.peers_zid())) < 5 and time.monotonic() - t0 < 10:
+            # the central's keys through a session connected to the central alone: one
+            # connected to all five sometimes delivered 24 of ~5 500 payloads to it
+            with zenoh.open(make_config(connect=eps[1:])) as s, \
+                    zenoh.open(make_config(connect=eps[:1])) as sc:
+                t0 = time.monotonic()  # connected to the processes before fuzzing
+                while (len(list(s.info.peers_zid())) < 4 or not list(sc.info.peers_zid())) \
+                        and time.monotonic() - t0 < 10:
                     time.sleep(0.05)
-                assert len(list(s.info.peers_zid())) == 5
+                assert len(list(s.info.peers_zid())) >= 4 and list(sc.info.peers_zid())
                 # BLOCK: a payload Zenoh drops in transit would prove nothing either way
-                pubs = [s.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
-                        for k in targets]
+                pubs = [(sc if "/central/" in k else s).declare_publisher(
+                    k, congestion_control=zenoh.CongestionControl.BLOCK) for k in targets]
                 # past cycle 1: a stale sample for cycle 0 or 1 must not be a real one
                 wait_status(status, 100)
                 near = 100

@@ -9,7 +9,7 @@ from typing import Any
 import click
 
 from ..config import EXIT_CONFIG, ConfigError, RunConfig, parse_duration
-from .base import _fail, _json_safe, cli
+from .base import _emit, _fail, _json_safe, cli
 
 
 def _duration(_ctx: Any, param: click.Parameter, value: str | None) -> float | None:
@@ -69,6 +69,14 @@ def run_options(fn: Any) -> Any:
                      default="zstd", show_default=True,
                      help="MCAP chunk compression of --record, done on a writer thread "
                      "off the control path (zstd: about 3x smaller)."),
+        click.option("--foxglove", default=None, metavar="[HOST:]PORT",
+                     help="Serve a live view of the run to Foxglove (WebSocket; host "
+                     "127.0.0.1 unless given; port 0: any free port): /signals/state every "
+                     "interval (at most --foxglove-rate per second), /report/running every "
+                     "second, off the control path."),
+        click.option("--foxglove-rate", type=float, default=200.0, show_default=True,
+                     metavar="HZ", help="/signals/state messages per second of the live "
+                     "view; 0: every interval (each costs the central ~0.1 ms of CPU)."),
         click.option("--report", type=click.Path(dir_okay=False), default=None,
                      help="Write the report as JSON."),
         click.option("--unit", default=None, help="Unit id (keys ctrlunit/<unit>/...)."),
@@ -190,7 +198,11 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None,
               help="At the end, draw the run into DIR (as ctrlunit plot does); records it "
               "to DIR/run.mcap unless --record is given.")
-def start(as_json: bool, progress: bool | None, plot_dir: str | None, **kw: Any) -> None:
+@click.option("--check", is_flag=True,
+              help="Check the options and files (task, placement, parameters), print the "
+              "plan and exit: nothing is started.")
+def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: bool,
+          **kw: Any) -> None:
     """Start plant, central and peripherals on this host and run the task."""
     from ..launcher import start as run_start
 
@@ -198,6 +210,9 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, **kw: Any)
         rc = make_rc(kw).validate()
     except ConfigError as exc:
         _fail(str(exc), EXIT_CONFIG)
+        return
+    if check:
+        _check(rc, as_json)
         return
     if plot_dir and not rc.record:
         from pathlib import Path
@@ -227,6 +242,34 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, **kw: Any)
         f = report.get("fault") or {}
         click.echo(f"ctrlunit: fault in {f.get('process')}: {f.get('message')}", err=True)
     sys.exit(code)
+
+
+def _check(rc: RunConfig, as_json: bool) -> None:
+    """``start --check``: everything ``start`` derives before it starts a process."""
+    from ..setup import make_setup
+
+    try:
+        setup = make_setup(rc)
+    except (ConfigError, ValueError, OSError) as exc:
+        _fail(str(exc), EXIT_CONFIG)
+        return
+    plan = setup.plan
+    data = {"valid": True, "peripherals": setup.placement.peripherals,
+            "pipeline": rc.pipeline, "clock": rc.clock,
+            "period_s": None if rc.period_auto else rc.period, "period_auto": rc.period_auto,
+            "task": setup.task.name, "task_loop_s": setup.task.period,
+            "cycles": setup.cycles, "law": rc.law, "model": rc.model,
+            "placement": setup.placement.to_dict(), "round_trips": plan.round_trips,
+            "command_delay_periods": rc.delay_periods}
+    period = "auto" if rc.period_auto else f"{rc.period * 1e3:g} ms"
+    _emit(data, as_json,
+          f"ctrlunit start: the options are valid; nothing was started.\n"
+          f"  {setup.placement.peripherals} peripheral(s), pipeline depth {rc.pipeline}, "
+          f"clock {rc.clock}, period {period}\n"
+          f"  task {setup.task.name} (a loop of {setup.task.period:.3f} s), {setup.cycles} "
+          f"intervals, {rc.law} + {rc.model} model\n"
+          f"  {plan.round_trips} round trip(s) per interval:\n    "
+          + plan.describe().replace("\n", "\n    "))
 
 
 def _plot_run(record: str | None, plot_dir: str, text: str) -> None:

@@ -1,0 +1,120 @@
+"""The ``/signals/state`` message: one interval as a control engineer plots it.
+
+The same JSON message goes to the recording (``--record``) and to the live view
+(``--foxglove``), under the schema :data:`SIGNALS_SCHEMA` (JSON Schema, draft 2020-12):
+platform position and reference, measured joint angles, torques, tracking error, period
+and traversal. NaN and infinities are written as ``null``.
+
+Taking an interval apart costs the central's thread a tuple (:func:`capture`); building
+the message (:func:`state_message`) can then happen on another thread.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+SIGNALS_SCHEMA: dict[str, Any] = {
+    "title": "ctrlunit.State",
+    "type": "object",
+    "properties": {
+        "cycle": {"type": "integer", "minimum": 0},
+        "t": {"type": "number", "description": "reference time (s)"},
+        "p": {"$ref": "#/$defs/vec3_or_null", "description": "platform position (m)"},
+        "reference": {"$ref": "#/$defs/vec3_or_null", "description": "p_c (m)"},
+        "q": {"type": "array", "items": {"type": ["number", "null"]}, "minItems": 3,
+              "maxItems": 3, "description": "measured joint angles (rad)"},
+        "torque": {"type": "array", "items": {"type": ["number", "null"]}, "minItems": 3,
+                   "maxItems": 3, "description": "command (N m)"},
+        "tracking_error": {"type": ["number", "null"], "description": "|p - p_c| (m)"},
+        "period": {"type": ["number", "null"], "description": "since previous command (s)"},
+        "traversal": {"type": ["number", "null"], "description": "sample to command (s)"},
+    },
+    "required": ["cycle", "t", "q", "torque"],
+    "$defs": {
+        "vec3_or_null": {
+            "oneOf": [
+                {"type": "null"},
+                {"type": "object", "properties": {"x": {"type": ["number", "null"]},
+                                                  "y": {"type": ["number", "null"]},
+                                                  "z": {"type": ["number", "null"]}},
+                 "required": ["x", "y", "z"]},
+            ]
+        }
+    },
+}
+
+
+class Interval(NamedTuple):
+    """What the central knows of one finished interval (no copies of its arrays' data
+    beyond three floats each)."""
+
+    cycle: int
+    cmd_ns: int
+    """When its command left (host monotonic clock, ns)."""
+    traversal_ns: int
+    """Sample to command (ns)."""
+    true_p: tuple[float, float, float] | None
+    """The plant's true platform position (m), when the clock has it."""
+    q: tuple[float, ...]
+    """Measured joint angles (rad)."""
+    torque: tuple[float, ...]
+    """The command (N m)."""
+    misses: int
+    """Deadline misses so far."""
+    skipped: int
+    """Samples skipped so far."""
+    previous_cmd_ns: int | None = None
+    """When the previous interval's command left (ns), if there was one."""
+
+
+def capture(central: Any, cycle: int, ctx: dict) -> Interval:
+    """The interval ``cycle`` that the central has just finished (call from its
+    ``on_cycle``)."""
+    log = central.log
+    cmd = log.cmd_ns
+    return Interval(cycle, cmd[-1], log.traversal_ns[-1], log.true_p.get(cycle),
+                    tuple(float(x) for x in ctx["qmeas_i"]),
+                    tuple(float(x) for x in ctx["cmd"]),
+                    central.plant_misses, central.skipped,
+                    cmd[-2] if len(cmd) > 1 else None)
+
+
+def _num(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def _vec(v: Any) -> dict[str, float | None] | None:
+    if v is None:
+        return None
+    return {"x": _num(float(v[0])), "y": _num(float(v[1])), "z": _num(float(v[2]))}
+
+
+def state_message(iv: Interval, *, period_s: float, task: Any | None,
+                  previous_cmd_ns: int | None) -> dict[str, Any]:
+    """The ``/signals/state`` message of one interval.
+
+    Parameters
+    ----------
+    iv : the interval.
+    period_s : the nominal period (s); the reference time is ``cycle * period_s``.
+    task : the task whose ``sample(t)[0]`` is the reference ``p_c`` (m); ``None`` when
+        the run has no reference (freerun).
+    previous_cmd_ns : when the previous interval's command left, or ``None``.
+    """
+    t = iv.cycle * period_s
+    ref = task.sample(t)[0] if task is not None else None
+    err = math.dist(iv.true_p, ref) if (iv.true_p is not None and ref is not None) \
+        else math.nan
+    period = (iv.cmd_ns - previous_cmd_ns) / 1e9 if previous_cmd_ns is not None else math.nan
+    return {
+        "cycle": iv.cycle,
+        "t": t,
+        "p": _vec(iv.true_p),
+        "reference": _vec(ref),
+        "q": [_num(x) for x in iv.q],
+        "torque": [_num(x) for x in iv.torque],
+        "tracking_error": _num(err),
+        "period": _num(period),
+        "traversal": _num(iv.traversal_ns / 1e9),
+    }
