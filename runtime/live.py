@@ -45,10 +45,9 @@ class LiveStats:
         self._last_ns: int | None = None
 
     def add(self, *, done: int, cmd_ns: int, misses: int = 0, skipped: int = 0,
-            p: Any = None, pc: Any = None, error: float | None = None) -> None:
+            p: Any = None, pc: Any = None) -> None:
         """One interval: its command time (ns), the counters so far, and the observed
-        position ``p`` and reference ``p_c`` (3-vectors, m) when the interval has them, or
-        the tracking ``error`` (m) already computed."""
+        position ``p`` and reference ``p_c`` (3-vectors, m) when the interval has them."""
         self.done = done
         if self._last_ns is not None:
             i = (cmd_ns - self._last_ns) // BIN_NS
@@ -56,10 +55,8 @@ class LiveStats:
             self.count += 1
         self._last_ns = cmd_ns
         self.misses, self.skipped = misses, skipped
-        if error is None and p is not None and pc is not None:
-            error = math.dist(p, pc)
-        if error is not None:
-            e = error
+        if p is not None and pc is not None:
+            e = math.dist(p, pc)
             self.error = e
             if not e <= self.error_max:  # the first, or a new maximum (NaN-safe)
                 self.error_max = e

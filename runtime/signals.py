@@ -80,14 +80,15 @@ def capture(central: Any, cycle: int, ctx: dict) -> Interval:
                     cmd[-2] if len(cmd) > 1 else None)
 
 
-def _num(x: float) -> float | None:
+def finite_or_none(x: float) -> float | None:
+    """``x``, or ``None`` for NaN and infinities (JSON has no such numbers)."""
     return x if math.isfinite(x) else None
 
 
 def _vec(v: Any) -> dict[str, float | None] | None:
     if v is None:
         return None
-    return {"x": _num(float(v[0])), "y": _num(float(v[1])), "z": _num(float(v[2]))}
+    return {k: finite_or_none(float(x)) for k, x in zip("xyz", v, strict=False)}
 
 
 def state_message(iv: Interval, *, period_s: float, task: Any | None,
@@ -112,9 +113,9 @@ def state_message(iv: Interval, *, period_s: float, task: Any | None,
         "t": t,
         "p": _vec(iv.true_p),
         "reference": _vec(ref),
-        "q": [_num(x) for x in iv.q],
-        "torque": [_num(x) for x in iv.torque],
-        "tracking_error": _num(err),
-        "period": _num(period),
-        "traversal": _num(iv.traversal_ns / 1e9),
+        "q": [finite_or_none(x) for x in iv.q],
+        "torque": [finite_or_none(x) for x in iv.torque],
+        "tracking_error": finite_or_none(err),
+        "period": finite_or_none(period),
+        "traversal": finite_or_none(iv.traversal_ns / 1e9),
     }

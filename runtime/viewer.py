@@ -39,7 +39,7 @@ import time
 from typing import Any
 
 from .live import LiveStats
-from .signals import SIGNALS_SCHEMA, Interval, capture, state_message
+from .signals import SIGNALS_SCHEMA, Interval, capture, finite_or_none, state_message
 
 STATE_TOPIC = "/signals/state"
 RUNNING_TOPIC = "/report/running"
@@ -78,10 +78,6 @@ RUNNING_SCHEMA: dict[str, Any] = {
     "required": ["cycles", "cycles_planned", "period_s", "deadline_misses",
                  "skipped_samples", "tracking_error_m", "dropped"],
 }
-
-
-def _finite_or_none(x: float) -> float | None:
-    return x if x == x and abs(x) != float("inf") else None
 
 
 class LiveView:
@@ -200,11 +196,11 @@ class LiveView:
         self._read_logs()
         s = self.stats
         return {"cycles": s.done, "cycles_planned": self.cycles,
-                "period_s": {"p50": _finite_or_none(s.percentile_s(50)),
-                             "p99": _finite_or_none(s.percentile_s(99))},
+                "period_s": {"p50": finite_or_none(s.percentile_s(50)),
+                             "p99": finite_or_none(s.percentile_s(99))},
                 "deadline_misses": s.misses, "skipped_samples": s.skipped,
-                "tracking_error_m": {"now": _finite_or_none(s.error),
-                                     "max": _finite_or_none(s.error_max)},
+                "tracking_error_m": {"now": finite_or_none(s.error),
+                                     "max": finite_or_none(s.error_max)},
                 "dropped": self.dropped}
 
     def _send_running(self) -> None:

@@ -24,18 +24,13 @@ from ctrlunit.runtime.config import ConfigError, parse_host_port
 from ctrlunit.runtime.controller import simulate
 from ctrlunit.runtime.report import command_digest
 from runner import ctrlunit, kill_unit, unit_id
+from test_fuzz import free_port
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
 pytestmark = pytest.mark.zenoh
 SUBPROTOCOL = "foxglove.sdk.v1"
 CYCLES = 1500
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def open_client(port: int, *, deadline: float, rcvbuf: int | None = None,
