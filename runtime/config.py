@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
 import re
 import secrets
+import types
+import typing
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -36,6 +39,47 @@ _UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0
 
 class ConfigError(ValueError):
     """An option is out of range; the message names it and the allowed range."""
+
+
+def _has_type(value: Any, tp: Any) -> bool:
+    """``value`` (decoded JSON) is of the annotated type: ``int``, ``float`` (an int is
+    one), ``str``, ``bool``, ``X | None``, ``list[str]``, ``dict[str, str]``; bool is no
+    number; a float must be finite."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        return any(_has_type(value, a) for a in args)
+    if tp is type(None):
+        return value is None
+    if tp is bool:
+        return isinstance(value, bool)
+    if tp is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if tp is float:
+        return (isinstance(value, (int, float)) and not isinstance(value, bool)
+                and math.isfinite(value))
+    if tp is str:
+        return isinstance(value, str)
+    if origin is list:
+        return isinstance(value, list) and all(_has_type(x, args[0]) for x in value)
+    if origin is dict:
+        return isinstance(value, dict) and all(
+            _has_type(k, args[0]) and _has_type(x, args[1]) for k, x in value.items())
+    return False
+
+
+def _type_name(tp: Any) -> str:
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in args)
+    names = {type(None): "null", bool: "true or false", int: "an integer",
+             float: "a finite number", str: "a string"}
+    if tp in names:
+        return names[tp]
+    if origin is list:
+        return f"a list of {_type_name(args[0]).removeprefix('a ')}s"
+    if origin is dict:
+        return "an object of strings"
+    return str(tp)
 
 
 def parse_duration(text: str | float, *, field_name: str = "duration") -> float:
@@ -133,7 +177,13 @@ class RunConfig:
         from ..topology.graph import LAWS
 
         def bad(name: str, allowed: str) -> ConfigError:
-            return ConfigError(f"{name} = {getattr(self, name)!r}: allowed {allowed}")
+            """Names the option (``--max-error``) and the value as the user would write it."""
+            value = getattr(self, name)
+            unit = {"period": " s", "timeout": " s", "max_error": " m", "bandwidth_hz": " Hz",
+                    "foxglove_rate": " Hz"}.get(name, "")
+            shown = f"{value:g}{unit}" if isinstance(value, float) else repr(value)
+            option = "--" + name.removesuffix("_hz").replace("_", "-")
+            return ConfigError(f"{option} = {shown}: allowed {allowed}")
 
         if self.peripherals not in (0, 1, 2, 3):
             raise bad("peripherals", "0, 1, 2 or 3")
@@ -164,7 +214,7 @@ class RunConfig:
             raise bad("late_policy", ", ".join(LATE_POLICIES))
         for block, pol in self.late.items():
             if pol not in LATE_POLICIES:
-                raise ConfigError(f"late = {block}={pol}: the policy must be one of "
+                raise ConfigError(f"--late {block}={pol}: the policy must be one of "
                                   f"{', '.join(LATE_POLICIES)}")
         if not 0.01 <= self.cost_scale <= 1000.0:
             raise bad("cost_scale", "0.01 to 1000")
@@ -175,7 +225,7 @@ class RunConfig:
         if self.record_compression not in COMPRESSIONS:
             raise bad("record_compression", ", ".join(COMPRESSIONS))
         if self.foxglove is not None:
-            parse_host_port(self.foxglove, field_name="foxglove")
+            parse_host_port(self.foxglove, field_name="--foxglove")
         if not (self.foxglove_rate == 0 or 1.0 <= self.foxglove_rate <= 100_000.0):
             raise bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
         if self.hold_rounds not in ("always", "never"):
@@ -194,12 +244,20 @@ class RunConfig:
             check_priority(self.rt_priority)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        from .zsession import check_unit_id
+        from .zsession import check_endpoint, check_unit_id, check_zenoh_config
 
         try:
             check_unit_id(self.unit)
         except ValueError as exc:
-            raise ConfigError(f"unit: {exc}") from None
+            raise ConfigError(f"--unit: {exc}") from None
+        try:
+            for option, endpoints in (("--listen", self.listen), ("--connect", self.connect)):
+                for e in endpoints or []:
+                    check_endpoint(e, option=option)
+            if self.zenoh_config is not None:
+                check_zenoh_config(self.zenoh_config)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
         return self
 
     @property
@@ -225,11 +283,25 @@ class RunConfig:
         return self.delay_periods + (1 if legacy else 0)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> RunConfig:
+    def from_dict(cls, data: Any, *, source: str = "configuration") -> RunConfig:
         """A configuration as written by :meth:`to_dict` (a spec file, a recording); one
-        written before ``command_delay`` existed used the ``short`` convention."""
+        written before ``command_delay`` existed used the ``short`` convention.
+
+        Every field is checked for its type (a :class:`ConfigError` names the field, the
+        value and the type allowed); ranges are :meth:`validate`'s."""
+        if not isinstance(data, dict):
+            raise ConfigError(f"{source}: expected an object of run options, got "
+                              f"{type(data).__name__}")
         data = dict(data)
         data.setdefault("command_delay", "short")
+        hints = typing.get_type_hints(cls)
+        for k, v in data.items():
+            if k not in hints:
+                raise ConfigError(f"{source}: unknown run option {k!r}")
+            if not _has_type(v, hints[k]):
+                shown = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
+                raise ConfigError(f"{source}: {k} = {shown}: allowed "
+                                  f"{_type_name(hints[k])}")
         return cls(**data)
 
     def total_cycles(self, task_period: float) -> int:

@@ -28,9 +28,9 @@ def wakeup_latencies(period_s: float, duration_s: float) -> np.ndarray:
     process woke more than a period late) are skipped, as the plant skips them, and the
     late wake-up that skipped them is the one recorded."""
     if not 20e-6 <= period_s <= 1.0:
-        raise ValueError(f"period = {period_s!r} s: allowed 20us to 1s")
+        raise ValueError(f"--period = {period_s:g} s: allowed 20us to 1s")
     if not period_s <= duration_s <= 3600.0:
-        raise ValueError(f"duration = {duration_s!r} s: allowed one period to 3600 s")
+        raise ValueError(f"--duration = {duration_s:g} s: allowed one period to 3600 s")
     ticks = int(duration_s / period_s)
     tick_ns = int(period_s * 1e9)
     out = np.empty(ticks, dtype=float)

@@ -216,7 +216,7 @@ def _live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
         return None
     from .viewer import LiveView
 
-    host, port = parse_host_port(rc.foxglove, field_name="foxglove")
+    host, port = parse_host_port(rc.foxglove, field_name="--foxglove")
     view = LiveView(host=host, port=port, task=setup.task if rc.clock != "freerun" else None,
                     period_s=rc.period, cycles=setup.cycles, rate_hz=rc.foxglove_rate,
                     name=f"ctrlunit {rc.unit}")

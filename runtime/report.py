@@ -122,6 +122,7 @@ def build_report(
         "nominal_period_s": rc.period,
         "law": rc.law,
         "model": rc.model,
+        "observer": rc.observer,
         "task": task.name,
         "cost_model": rc.cost_model,
         "cost_scale": rc.cost_scale,

@@ -76,7 +76,7 @@ def check_priority(priority: int) -> None:
     """0 to 99, else a ``ValueError`` naming the option and the range."""
     if isinstance(priority, bool) or not isinstance(priority, int) or not (
             0 <= priority <= MAX_PRIORITY):
-        raise ValueError(f"rt_priority = {priority!r}: allowed 0 (leave the policy as it is) to "
+        raise ValueError(f"--rt-priority = {priority!r}: allowed 0 (leave the policy as it is) to "
                          f"{MAX_PRIORITY} (SCHED_FIFO priority)")
 
 

@@ -80,5 +80,12 @@ def make_setup(rc: RunConfig) -> Setup:
 
 
 def load_spec(path: str) -> RunConfig:
-    data = json.loads(Path(path).read_text())["run"]
-    return RunConfig.from_dict(data)
+    """The run options a launcher wrote for its roles (``--spec FILE``), checked."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"--spec {path}: cannot read it: {exc}") from None
+    if not isinstance(doc, dict) or "run" not in doc:
+        raise ConfigError(f"--spec {path}: expected an object with the field 'run' (a spec "
+                          "the launcher writes)")
+    return RunConfig.from_dict(doc["run"], source=f"--spec {path}: run").validate()

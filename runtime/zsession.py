@@ -28,6 +28,53 @@ def check_unit_id(unit: str) -> str:
     return unit
 
 
+_IP_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(?P<host>\[[^\]]+\]|[^:\[\]/]+):(?P<port>[^?#]*)"
+                          r"([?#].*)?$")
+
+
+def check_endpoint(endpoint: str, *, option: str) -> str:
+    """A Zenoh endpoint ``<protocol>/<address>``: checked here, before any role starts,
+    where Zenoh would report it only when a session opens (or, for a connect endpoint,
+    never: it keeps retrying). IP protocols need ``HOST:PORT`` with a port in 0-65535."""
+    if not isinstance(endpoint, str) or "/" not in endpoint or endpoint.startswith("/"):
+        raise ValueError(f"{option} = {endpoint!r}: expected <protocol>/<address>, e.g. "
+                         "tcp/127.0.0.1:7447 or unixsock-stream/PATH")
+    proto = endpoint.split("/", 1)[0]
+    if proto in ("tcp", "udp", "tls", "quic", "ws"):
+        m = _IP_ENDPOINT.match(endpoint)
+        port = m.group("port") if m else ""
+        if not m or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise ValueError(f"{option} = {endpoint!r}: expected {proto}/HOST:PORT with PORT "
+                             "0 to 65535")
+    try:
+        conf = zenoh.Config()
+        conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    except Exception as exc:  # Zenoh's parser: ZError, whose text is long and multi-line
+        raise ValueError(f"{option} = {endpoint!r}: {_first_line(exc)}") from None
+    return endpoint
+
+
+def check_zenoh_config(path: str) -> None:
+    """``--zenoh-config``: a readable Zenoh JSON5 configuration (Zenoh's own parser)."""
+    try:
+        zenoh.Config.from_file(path)
+    except Exception as exc:  # ZError: syntax, unknown field, unreadable file
+        raise ValueError(f"--zenoh-config {path}: {_first_line(exc)}") from None
+
+
+def _first_line(exc: BaseException) -> str:
+    """Zenoh's error in one line: without its source location, the parser's nesting and
+    the JSON5 parser's drawing of the line (kept: its position and what it expected)."""
+    text = re.sub(r" at /\S+:\d+\.?", "", str(exc)).strip() or type(exc).__name__
+    where = re.search(r"-->\s*(\d+):(\d+)", text)
+    expected = re.search(r"^\s*= (.*)$", text, re.MULTILINE)
+    if where and expected:
+        return f"syntax error at line {where[1]}, column {where[2]}: {expected[1]}"
+    m = re.search(r'msg: "([^"]*)"', text)
+    text = m.group(1) if m else text.splitlines()[0]
+    return text if len(text) <= 300 else text[:text.rfind(", ", 0, 300)] + ", ..."
+
+
 @dataclass(frozen=True)
 class Keys:
     """Key expressions of one unit, addressed by destination: every key a role receives

@@ -22,7 +22,7 @@ from typing import Any
 import pytest
 from click.testing import CliRunner, Result
 from ctrlunit.runtime.cli import cli
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from runner import ctrlunit, kill_unit, unit_id
 
@@ -38,7 +38,9 @@ def invoke(*args: str) -> Result:
     return CliRunner().invoke(cli, list(args), prog_name="ctrlunit", catch_exceptions=True)
 
 
-def check_contract(res: Result, args: tuple[str, ...]) -> None:
+def check_contract(res: Result, args: tuple[str, ...], *, generated: bool = True) -> None:
+    if generated:
+        event(f"exit {res.exit_code}")  # pytest --hypothesis-show-statistics: how often each
     if res.exception is not None and not isinstance(res.exception, SystemExit):
         raise AssertionError(f"ctrlunit {' '.join(map(repr, args))} raised "
                              f"{type(res.exception).__name__}: {res.exception}") \
@@ -183,6 +185,13 @@ def test_parameter_files_keep_the_contract(work, data):
     check_contract(invoke(*args), args)
 
 
+class Recorded(tuple):
+    """(recording bytes, report): shown by name only in a failing example's report."""
+
+    def __repr__(self) -> str:
+        return "<the 40-interval recording and its report>"
+
+
 @pytest.fixture(scope="module")
 def recorded(work) -> tuple[bytes, Any]:
     """A 40-interval lockstep recording and its report, made once."""
@@ -195,7 +204,7 @@ def recorded(work) -> tuple[bytes, Any]:
     finally:
         kill_unit(unit)
     assert res.returncode == 0, res.stderr
-    return rec.read_bytes(), json.loads(rep.read_text())
+    return Recorded((rec.read_bytes(), json.loads(rep.read_text())))
 
 
 @SETTINGS
@@ -223,10 +232,6 @@ def test_plot_keeps_the_contract_on_recordings(work, recorded, data):
     check_contract(invoke(*args), args)
 
 
-@pytest.mark.xfail(reason="balance reads a report's fields without checking their types: "
-                   "a report that is JSON null or a list ends in an AttributeError "
-                   "(found by this test, 2026-11-23; issue 16)", strict=True,
-                   raises=AssertionError)
 @SETTINGS
 @given(data=st.data())
 def test_balance_keeps_the_contract_on_reports(work, recorded, data):
@@ -235,6 +240,101 @@ def test_balance_keeps_the_contract_on_reports(work, recorded, data):
     f.write_bytes(data.draw(file_contents(doc=json.loads(json.dumps(report)))))
     args = ("balance", str(f), "--write", str(work / "placement.json"), "--json")
     check_contract(invoke(*args), args)
+
+
+BAD_REPORTS = [  # (change to the run's report, words the one-line error must hold)
+    (lambda r: None, "must be a JSON object, got null"),
+    (lambda r: [r], "must be a JSON object, got a list"),
+    (lambda r: r | {"law": ["pd"]}, "law = ['pd']; allowed: resolved-acceleration"),
+    (lambda r: r | {"pipeline": 3}, "pipeline = 3; allowed: 1 or 2"),
+    (lambda r: r | {"block_cost_s": {}}, "block_cost_s = {}"),
+    (lambda r: r | {"block_cost_s": r["block_cost_s"] | {"ik": "7e-6"}},
+     "block_cost_s.ik = '7e-6'; allowed: a number of seconds in [0, 10]"),
+    (lambda r: r | {"block_cost_s": r["block_cost_s"] | {"ik": 1e308}}, "block_cost_s.ik"),
+    (lambda r: r | {"block_cost_s": r["block_cost_s"] | {"warp": 1e-6}},
+     "a key of block_cost_s = 'warp'"),
+    (lambda r: r | {"business": {"central": True}}, "business.central = True"),
+    (lambda r: r | {"placement": {"peripherals": 1, "axes": [[0, 1]]}}, "placement"),
+    (lambda r: r | {"period_s": {"p50": -1.0}, "period_mean_s": None}, "period_s.p50 = -1.0"),
+    (lambda r: r | {"gantt_ms": [["central", 1, "a", 2]]}, "gantt_ms"),
+]
+
+
+@pytest.mark.parametrize("change,words", BAD_REPORTS,
+                         ids=[w.split(" ")[0] for _, w in BAD_REPORTS])
+def test_balance_names_the_field_of_a_bad_report(work, recorded, change, words):
+    _, report = recorded
+    f = work / "bad-report.json"
+    f.write_text(json.dumps(change(json.loads(json.dumps(report)))))
+    out = work / "bad-placement.json"
+    out.unlink(missing_ok=True)
+    res = invoke("balance", str(f), "--write", str(out))
+    assert res.exit_code == 1, res.output
+    assert words in res.stderr and res.stderr.count("\n") == 1, res.stderr
+    assert not out.exists()  # nothing written from a report it could not read
+
+
+def test_balance_reads_a_report_of_the_observer_that_starts_from_the_previous_estimate(
+        work, recorded):
+    """Found with the contract test: a run with ``--observer previous`` has the second
+    Newton-Raphson iteration's blocks (``ik_obs1``, ...); balance once knew only the
+    default observer's blocks and stopped on them. Reports name their observer now; one
+    written before says it by those blocks."""
+    _, report = recorded
+    assert report["observer"] == "predict"
+    older = {k: v for k, v in report.items() if k != "observer"}
+    costs = older["block_cost_s"]
+    older["block_cost_s"] = costs | {f"{b}1": costs[f"{b}0"]
+                                     for b in ("ik_obs", "jinv_obs", "residual", "observer")}
+    for doc in (older, older | {"observer": "previous"}):
+        f = work / "previous.json"
+        f.write_text(json.dumps(doc))
+        res = invoke("balance", str(f), "--write", str(work / "p.json"), "--json")
+        assert res.exit_code == 0, res.output
+        a = json.loads(res.stdout)
+        assert "ik_obs1" in a["block_cost_s"]
+        assert a["t_s_s"] == pytest.approx(sum(older["block_cost_s"].values()), rel=1e-12)
+
+
+def documented_errors() -> list[tuple[list[str], str, int]]:
+    """The rows of docs/faults-and-errors.md whose first cell is a whole ``ctrlunit``
+    command: (arguments, message, exit code)."""
+    doc = Path(__file__).resolve().parents[1] / "docs" / "faults-and-errors.md"
+    rows = []
+    for line in doc.read_text().splitlines():
+        m = re.match(r"^\| `ctrlunit ([^`]*)` \| (``?)(.*?)\2 \| (\d+) \|$", line)
+        if m:
+            rows.append((m[1].split(), m[3], int(m[4])))
+    return rows
+
+
+DOCUMENTED_ERRORS = documented_errors()
+ROLE_COMMANDS = {"start", "central", "plant", "peripheral"}
+
+
+def test_the_error_table_is_read():
+    assert len(DOCUMENTED_ERRORS) >= 20
+    assert {args[0] for args, _, _ in DOCUMENTED_ERRORS} >= {
+        "ik", "fk", "trajectory", "workspace", "start", "central", "peripheral", "latency",
+        "bench"}
+
+
+@pytest.mark.parametrize("args,message,code", DOCUMENTED_ERRORS,
+                         ids=[" ".join(a) for a, _, _ in DOCUMENTED_ERRORS])
+def test_each_documented_error_is_what_the_command_says(args, message, code):
+    """The message (its pieces around ``...``, in order) and the exit code of each command
+    docs/faults-and-errors.md lists. The roles get ``--check``: a regression that made one
+    valid starts nothing."""
+    if args[0] in ROLE_COMMANDS:
+        args = [args[0], "--check", *args[1:]]
+    res = invoke(*args)
+    check_contract(res, tuple(args), generated=False)
+    assert res.exit_code == code, (args, res.exit_code, res.stderr)
+    at = 0
+    for piece in (p.strip() for p in message.split("...")):
+        found = res.stderr.find(piece, at)
+        assert found >= 0, (args, piece, res.stderr)
+        at = found + len(piece)
 
 
 def test_the_generators_reach_the_edges():
@@ -264,23 +364,57 @@ NUMERIC_OPTIONS = ["--period", "--cycles", "--duration", "--peripherals", "--pip
                    "--max-error", "--bandwidth", "--fault-periods", "--timeout",
                    "--cost-scale", "--plant-substeps", "--plant-lag", "--plant-friction",
                    "--rt-priority", "--foxglove-rate"]
+PLAUSIBLE = {  # a value each option accepts, so that examples reach past the first check
+    "--period": "2ms", "--cycles": "50", "--duration": "1s", "--peripherals": "2",
+    "--pipeline": "2", "--max-error": "0.01", "--bandwidth": "10", "--fault-periods": "5",
+    "--timeout": "3", "--cost-scale": "2", "--plant-substeps": "4", "--plant-lag": "0.001",
+    "--plant-friction": "0.1", "--rt-priority": "0", "--foxglove-rate": "50",
+    "--clock": "lockstep", "--law": "pd", "--model": "simplified", "--task": "circle",
+    "--observer": "previous", "--late-policy": "hold", "--late": "ik=hold",
+    "--replies": "each", "--cpus": "split", "--unit": "contract-x", "--foxglove": "0",
+    "--cost-model": "t800", "--record-compression": "lz4", "--command-delay": "short",
+    "--hold-rounds": "never", "--listen": "tcp/127.0.0.1:0", "--connect": "tcp/127.0.0.1:9"}
 TEXT_OPTIONS = ["--clock", "--law", "--model", "--task", "--observer", "--late-policy",
                 "--late", "--replies", "--cpus", "--unit", "--foxglove", "--cost-model",
                 "--record-compression", "--command-delay", "--hold-rounds"]
 PLACEMENT = {"peripherals": 3, "axes": [[0], [1], [2]]}
 
 
+ENDPOINTS = st.one_of(
+    st.text(max_size=12),
+    st.sampled_from(["tcp/127.0.0.1:0", "tcp/127.0.0.1:99999", "tcp/[::1]:7447", "tcp/:80",
+                     "udp/127.0.0.1:x", "unixsock-stream//tmp/ctrlunit-x.sock", "garbage",
+                     "tcp/127.0.0.1:7447?x=1", "/tcp/1.2.3.4:5"]),
+    st.integers(-2, 70000).map(lambda p: f"tcp/127.0.0.1:{p}"))
+ZENOH_CONFIG = {"mode": "peer", "scouting": {"multicast": {"enabled": False}}}
+SPEC = {"run": {"peripherals": 1, "pipeline": 1, "clock": "lockstep", "period": 0.001}}
+ROLES = [("start",), ("central", "--listen", "tcp/127.0.0.1:0"), ("plant",),
+         ("peripheral", "--index", "1")]
+
+
 @SETTINGS
 @given(data=st.data())
-def test_start_keeps_the_contract_on_options_and_files(work, data):
-    args: list[str] = ["start", "--check"]
-    for opt in data.draw(st.lists(st.sampled_from(NUMERIC_OPTIONS), max_size=3,
-                                  unique=True)):
-        args += [opt, data.draw(numbers_as_text)]
-    for opt in data.draw(st.lists(st.sampled_from(TEXT_OPTIONS), max_size=2, unique=True)):
-        args += [opt, data.draw(st.one_of(st.text(max_size=10), st.sampled_from(
-            ["auto", "lockstep", "pd", "circle", "x=hold", "8765", "0.0.0.0:99999"])))]
-    which = data.draw(st.sampled_from(["none", "task", "placement", "params"]))
+def test_start_and_the_roles_keep_the_contract_on_options_and_files(work, data):
+    """``start`` and the single roles (``central``, ``plant``, ``peripheral``) share their
+    options; with ``--check`` each checks them and the files and starts nothing."""
+    role = data.draw(st.sampled_from(ROLES))
+    args: list[str] = [*role, "--check"]
+    # plausible values, of which at most one is spoiled: each error path on its own
+    options = data.draw(st.lists(st.sampled_from([*NUMERIC_OPTIONS, *TEXT_OPTIONS,
+                                                  "--listen", "--connect"]),
+                                 max_size=4, unique=True))
+    spoiled = data.draw(st.one_of(st.none(), st.sampled_from(options))) if options else None
+    for opt in options:
+        value = PLAUSIBLE[opt]
+        if opt == spoiled:
+            value = data.draw(numbers_as_text if opt in NUMERIC_OPTIONS else ENDPOINTS
+                              if opt in ("--listen", "--connect") else st.one_of(
+                                  st.text(max_size=10), st.sampled_from(
+                                      ["auto", "x=hold", "8765", "0.0.0.0:99999", "ik=",
+                                       "nosuchblock=hold"])))
+        args += [opt, value]
+    which = data.draw(st.sampled_from(["none", "task", "placement", "params", "zenoh",
+                                       "spec"]))
     if which == "task":
         f = work / "start-task.json"
         f.write_bytes(data.draw(file_contents(doc=TASK)))
@@ -293,8 +427,93 @@ def test_start_keeps_the_contract_on_options_and_files(work, data):
         f = work / "start-params.toml"
         f.write_bytes(data.draw(st.binary(max_size=100)))
         args += ["--params", str(f)]
-    args += data.draw(st.sampled_from([[], ["--json"]]))
+    elif which == "zenoh":
+        f = work / "zenoh.json5"
+        f.write_bytes(data.draw(file_contents(doc=ZENOH_CONFIG)))
+        args += ["--zenoh-config", str(f)]
+    elif which == "spec" and role[0] != "start":
+        f = work / "role.spec"
+        f.write_bytes(data.draw(file_contents(doc=SPEC)))
+        args += ["--spec", str(f)]
+    if role[0] in ("start", "central"):
+        args += data.draw(st.sampled_from([[], ["--json"]]))
     res = invoke(*args)
     check_contract(res, tuple(args))
     if res.exit_code == 0:  # --check never starts a run
         assert "nothing was started" in res.stdout or '"valid": true' in res.stdout
+
+
+# -- workspace, latency, bench ----------------------------------------------------------
+
+def _not_a_slow_grid(text: str) -> bool:
+    """A valid --grid above 15 draws maps for seconds (401: 25 s); the range is click's."""
+    try:
+        return not 15 < int(text) <= 401
+    except ValueError:
+        return True
+
+
+@SETTINGS
+@given(grid=st.one_of(numbers_as_text.filter(_not_a_slow_grid),
+                     st.integers(11, 15).map(str)),
+       as_json=st.booleans())
+def test_workspace_keeps_the_contract(grid, as_json):
+    args = ("workspace", "--grid", grid, *(["--json"] if as_json else []))
+    check_contract(invoke(*args), args)
+
+
+with_unit = st.one_of(numbers_as_text, st.tuples(numbers_as_text, st.sampled_from(
+    ["s", "ms", "us", "ns", "min", "h"])).map("".join))
+
+
+@SETTINGS
+@given(period=st.one_of(with_unit, st.sampled_from(["1ms", "500us", "20us", "19us"])),
+       duration=st.one_of(st.sampled_from(["1ms", "5ms", "20ms", "0", "-1ms", "1e308",
+                                           "nan", "inf", "x", ""]),
+                          numbers_as_text.filter(lambda s: not _short(s))),
+       as_json=st.booleans())
+def test_latency_keeps_the_contract(work, period, duration, as_json):
+    """Valid durations are kept under 20 ms (the command measures for that long)."""
+    args = ("latency", "--period", period, "--duration", duration, "--plot",
+            str(work / "latency.png"), *(["--json"] if as_json else []))
+    check_contract(invoke(*args), args)
+
+
+def _short(text: str) -> bool:
+    """A bare number of seconds that latency would accept and measure for long."""
+    try:
+        return float(text) > 0.02
+    except ValueError:
+        return False
+
+
+@SETTINGS
+@given(periods=st.lists(st.one_of(with_unit, st.sampled_from(["3ms", "1ms", "10us"])),
+                       max_size=2),
+       repeats=st.one_of(numbers_as_text, st.sampled_from(["1", "2", "20"])),
+       scale=st.one_of(numbers_as_text, st.sampled_from(["1", "30", "1000"])),
+       quick=st.booleans())
+def test_bench_keeps_the_contract(work, periods, repeats, scale, quick):
+    """``bench --check`` checks the options and lists the runs; it starts none."""
+    args = ["bench", "--check", "--out", str(work / "bench-out"), "--repeats", repeats,
+            "--thesis-scale", scale, *(["--quick"] if quick else [])]
+    for p in periods:
+        args += ["--realtime-period", p]
+    res = invoke(*args)
+    check_contract(res, tuple(args))
+    if res.exit_code == 0:
+        assert "configurations" in res.stdout and not (work / "bench-out").exists()
+
+
+@pytest.mark.slow
+def test_every_command_keeps_the_contract_on_ten_times_the_examples():
+    """``pytest -m slow``: this module again with 2000 examples per command (about 15 min
+    on the 2-core reference machine)."""
+    import subprocess
+    import sys
+
+    env = os.environ | {"CTRLUNIT_CLI_EXAMPLES": str(10 * EXAMPLES)}
+    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                          "-m", "not slow", __file__], env=env, timeout=3600,
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stdout[-4000:]

@@ -23,11 +23,11 @@ def _child(code: str) -> dict:
 
 
 def test_priority_outside_0_to_99_is_refused_with_the_range() -> None:
-    with pytest.raises(ConfigError, match=r"rt_priority = 120: allowed 0 .* to 99"):
+    with pytest.raises(ConfigError, match=r"--rt-priority = 120: allowed 0 .* to 99"):
         RunConfig(rt_priority=120).validate()
-    with pytest.raises(ValueError, match="rt_priority = -1"):
+    with pytest.raises(ValueError, match="--rt-priority = -1"):
         sched.check_priority(-1)
-    with pytest.raises(ValueError, match="rt_priority = None"):
+    with pytest.raises(ValueError, match="--rt-priority = None"):
         sched.check_priority(None)  # type: ignore[arg-type]
     RunConfig(rt_priority=0).validate()
     RunConfig(rt_priority=99).validate()

@@ -75,19 +75,19 @@ def message_data(frame: bytes) -> tuple[int, int, bytes]:
 
 
 def test_parse_host_port_names_the_option_and_the_range():
-    assert parse_host_port("8765", field_name="foxglove") == ("127.0.0.1", 8765)
-    assert parse_host_port("0.0.0.0:0", field_name="foxglove") == ("0.0.0.0", 0)
-    assert parse_host_port("[::1]:9", field_name="foxglove") == ("::1", 9)
+    assert parse_host_port("8765", field_name="--foxglove") == ("127.0.0.1", 8765)
+    assert parse_host_port("0.0.0.0:0", field_name="--foxglove") == ("0.0.0.0", 0)
+    assert parse_host_port("[::1]:9", field_name="--foxglove") == ("::1", 9)
     for bad in ("", "65536", "host:", ":80", "a b:1", "-1", "1e3"):
-        with pytest.raises(ConfigError, match=r"foxglove = .*\[HOST:\]PORT.*0 to 65535"):
-            parse_host_port(bad, field_name="foxglove")
+        with pytest.raises(ConfigError, match=r"--foxglove = .*\[HOST:\]PORT.*0 to 65535"):
+            parse_host_port(bad, field_name="--foxglove")
 
 
 def test_a_bad_foxglove_address_is_refused_before_anything_starts():
     res = ctrlunit("start", "--clock", "lockstep", "--cycles", "5", "--foxglove", "70000",
                    timeout=60)
     assert res.returncode == 1, res.stderr
-    assert "foxglove = '70000'" in res.stderr and "Traceback" not in res.stderr
+    assert "--foxglove = '70000'" in res.stderr and "Traceback" not in res.stderr
     with socket.socket() as taken:  # a port someone else listens on
         taken.bind(("127.0.0.1", 0))
         taken.listen()

@@ -92,8 +92,8 @@ def placement_from_mapping(
     unknown = set(data) - {"peripherals", "axes", "central_blocks"}
     if unknown:
         raise PlacementError(
-            f"{source}: unknown field(s) {', '.join(sorted(unknown))}; allowed: peripherals, "
-            "axes, central_blocks"
+            f"{source}: unknown field(s) {', '.join(map(repr, sorted(unknown)))}; allowed: "
+            "peripherals, axes, central_blocks"
         )
     n = data.get("peripherals")
     if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= 3:

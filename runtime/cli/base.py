@@ -25,8 +25,14 @@ def _params(path: str | None) -> DeltaParams:
     return DELTA_IA if path is None else load_params(path)
 
 
+def one_line(text: str) -> str:
+    """``text`` with its line breaks and other unprintable characters escaped (``\\r``),
+    so that an error quoting a user's value stays one line."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def _fail(msg: str, code: int = 1) -> None:
-    click.echo(f"ctrlunit: error: {msg}", err=True)
+    click.echo(f"ctrlunit: error: {one_line(msg)}", err=True)
     sys.exit(code)
 
 
@@ -58,7 +64,20 @@ params_option = click.option(
 )
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Group(click.Group):
+    """The group: a configuration error no command caught itself is still one line on
+    stderr and exit 1, never a traceback."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        from ..config import EXIT_CONFIG, ConfigError
+
+        try:
+            return super().invoke(ctx)
+        except ConfigError as exc:
+            _fail(str(exc), EXIT_CONFIG)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="ctrlunit")
 def cli() -> None:
     """ctrlunit: a distributed, model-based control unit for fast parallel robots."""

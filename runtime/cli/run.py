@@ -30,6 +30,9 @@ def _period(ctx: Any, param: click.Parameter, value: str) -> float | str:
 def run_options(fn: Any) -> Any:
     """Options shared by start and the single roles (see the brief's Interfaces)."""
     opts = [
+        click.option("--check", is_flag=True,
+                     help="Check the options and files (task, placement, parameters, Zenoh "
+                     "configuration), print the plan and exit: nothing is started."),
         click.option("--peripherals", type=click.IntRange(0, 3), default=3, show_default=True,
                      help="Number of peripheral processes (0 = single processor)."),
         click.option("--pipeline", type=click.IntRange(1, 2), default=1, show_default=True,
@@ -198,9 +201,6 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None,
               help="At the end, draw the run into DIR (as ctrlunit plot does); records it "
               "to DIR/run.mcap unless --record is given.")
-@click.option("--check", is_flag=True,
-              help="Check the options and files (task, placement, parameters), print the "
-              "plan and exit: nothing is started.")
 def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: bool,
           **kw: Any) -> None:
     """Start plant, central and peripherals on this host and run the task."""
@@ -317,23 +317,30 @@ def peripheral(index: int, **kw: Any) -> None:
     """Run peripheral K of a unit (connects to the central's endpoint)."""
     from ..peripheral import run_peripheral
 
-    setup, conf = _role_setup(kw)
-    if index > setup.placement.peripherals:
-        _fail(f"--index {index} is outside [1, {setup.placement.peripherals}]", EXIT_CONFIG)
+    setup, conf = _role_setup(kw, role="peripheral", index=index)
     sys.exit(_quiet(lambda: run_peripheral(setup, index, conf)))
 
 
-def _role_setup(kw: dict[str, Any]) -> tuple[Any, Any]:
-    """Setup and Zenoh configuration of a single role (exits on a configuration error)."""
+def _role_setup(kw: dict[str, Any], *, role: str, index: int | None = None) -> tuple[Any, Any]:
+    """Setup and Zenoh configuration of a single role (exits on a configuration error;
+    with ``--check``, exits 0 once everything is checked, before anything starts)."""
     from ..sched import RtPermissionError, apply_rt
     from ..setup import make_setup
     from ..zsession import make_config, pin_cpus
 
+    check = kw.pop("check", False)
     rc = make_rc(kw)
     try:
-        setup = make_setup(rc)
-    except (ConfigError, ValueError) as exc:
+        setup = make_setup(rc.validate())
+    except (ConfigError, ValueError, OSError) as exc:
         _fail(str(exc), EXIT_CONFIG)
+    if index is not None and index > setup.placement.peripherals:
+        _fail(f"--index = {index}: allowed 1 to {setup.placement.peripherals} (the unit's "
+              "peripherals)" if setup.placement.peripherals else
+              f"--index = {index}: the unit has no peripherals (--peripherals 0)", EXIT_CONFIG)
+    if check:
+        click.echo(f"ctrlunit {role}: the options are valid; nothing was started.")
+        sys.exit(0)
     pin_cpus(rc.pin)
     try:  # before zenoh.open: its threads inherit it
         apply_rt(rc.rt_priority)
@@ -349,7 +356,7 @@ def plant(**kw: Any) -> None:
     """Run the simulated Delta as a Zenoh node (connects to the central's endpoint)."""
     from ..plant_node import run_plant
 
-    setup, conf = _role_setup(kw)
+    setup, conf = _role_setup(kw, role="plant")
     sys.exit(_quiet(lambda: run_plant(setup, conf)))
 
 
@@ -361,15 +368,20 @@ def central(as_json: bool, **kw: Any) -> None:
     (``ctrlunit plant`` / ``ctrlunit peripheral --index K`` with the same options and
     ``--connect`` to this process's ``--listen`` endpoint)."""
     from ..launcher import central_only
+    from ..setup import make_setup
 
+    check = kw.pop("check", False)
     rc = make_rc(kw)
     try:
-        rc.validate()
-    except ConfigError as exc:
+        make_setup(rc.validate())
+    except (ConfigError, ValueError, OSError) as exc:
         _fail(str(exc), EXIT_CONFIG)
         return
     if not rc.listen:
         _fail("central needs --listen ENDPOINT (e.g. tcp/127.0.0.1:7447)", EXIT_CONFIG)
+    if check:
+        click.echo("ctrlunit central: the options are valid; nothing was started.")
+        sys.exit(0)
     code, report = central_only(rc)
     from ..report import summary
 
@@ -379,7 +391,7 @@ def central(as_json: bool, **kw: Any) -> None:
                 json.dump(_json_safe(report), fh, indent=2)
         click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     else:
-        click.echo(f"ctrlunit: error: {report['fault']['message']}", err=True)
+        _fail(report["fault"]["message"], code)
     sys.exit(code)
 
 

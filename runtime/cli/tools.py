@@ -23,14 +23,29 @@ from .base import _fail, _json_safe, cli
               show_default=True, help="T-800 time scale of the runs compared with 1994: "
               "large enough that an exchange weighs on the arithmetic about as a "
               "Transputer link did (README, bench).")
+@click.option("--check", is_flag=True,
+              help="Check the options and list the runs the bench would make; run nothing.")
 def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str, ...],
-          thesis_scale: float) -> None:
+          thesis_scale: float, check: bool) -> None:
     """Sweep n x depth x cost model, measure the floor, write reports and figures."""
     from rich.progress import Progress
 
     from ...bench.sweep import bench as run_bench
+    from ...bench.sweep import cycles_for, plan_configs
 
     periods = [parse_duration(p, field_name="--realtime-period") for p in rt_periods]
+    for p in periods:
+        if not 20e-6 <= p <= 1.0:
+            _fail(f"--realtime-period = {p:g} s: allowed 20us to 1s", EXIT_CONFIG)
+            return
+    if check:
+        configs = plan_configs(quick=quick, realtime_periods=periods, scale=thesis_scale)
+        runs = repeats or (1 if quick else 3)
+        for c in configs:
+            click.echo(f"  {c.key}  {cycles_for(c, quick)} intervals x {runs}")
+        click.echo(f"{len(configs)} configurations x {runs} repeat(s), plus the floor, the "
+                   f"balance and the target stages; reports into {out_dir}/")
+        return
     with Progress(transient=True) as prog:
         task = prog.add_task("bench", total=None)
 
@@ -63,12 +78,16 @@ def balance(source: str, out: str, rerun: str | None, figure: str | None,
     from ...topology.balance import analyse, compare, write_placement
 
     try:
-        a = analyse(load_report(source))
-        cmp = compare(a, load_report(rerun)) if rerun else None
+        a = analyse(load_report(source), source=source)
+        cmp = compare(a, load_report(rerun), source=rerun) if rerun else None
     except (ValueError, KeyError, OSError) as exc:
         _fail(f"balance: {exc}", EXIT_CONFIG)
         return
-    write_placement(a, out)
+    try:
+        write_placement(a, out)
+    except OSError as exc:
+        _fail(f"balance: --write {out}: {exc.strerror or exc}", EXIT_CONFIG)
+        return
     if figure:
         from ..plots import gantt_figure
 
@@ -79,7 +98,11 @@ def balance(source: str, out: str, rerun: str | None, figure: str | None,
         if cmp is not None:
             panels[f"depth {cmp['depth']}, re-run with the new placement (measured)"] = \
                 cmp["gantt_ms"]
-        gantt_figure(Path(figure), panels)
+        try:
+            gantt_figure(Path(figure), panels)
+        except OSError as exc:
+            _fail(f"balance: --figure {figure}: {exc.strerror or exc}", EXIT_CONFIG)
+            return
     if as_json:
         click.echo(json.dumps(_json_safe(a | ({"compare": cmp} if cmp else {}))))
         return
@@ -138,7 +161,12 @@ def load_report(path: str) -> dict[str, Any]:
         from ..recording import read
 
         return report_from_recording(read(path))
-    return json.loads(Path(path).read_text())
+    try:
+        return json.loads(Path(path).read_text())
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a JSON report (not UTF-8 text)") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not a JSON report ({exc})") from None
 
 
 @cli.command(short_help="This machine's wake-up latency; with --unit the unit's traversal.")
