@@ -207,15 +207,46 @@ def recorded(work) -> tuple[bytes, Any]:
     return Recorded((rec.read_bytes(), json.loads(rep.read_text())))
 
 
+def _slow_rate(text: str) -> bool:
+    """A valid --rate under 1 replays the 0.2 s recording for up to 200 s."""
+    try:
+        return 1e-3 <= float(text) < 1.0
+    except ValueError:
+        return False
+
+
+REPLAY_OPTIONS = {
+    "--cycles": st.one_of(st.tuples(numbers_as_text, numbers_as_text).map(":".join),
+                          st.sampled_from(["10:20", "0:1", "39:40", "100:200", ":5", "5:",
+                                           "3:3"]), numbers_as_text),
+    "--start-offset": st.one_of(numbers_as_text, st.sampled_from(["0", "0.05", "0.3"])),
+    "--rate": st.one_of(numbers_as_text.filter(lambda t: not _slow_rate(t)),
+                        st.sampled_from(["10", "1000"])),
+    "--topics": st.one_of(st.text(max_size=8),
+                          st.sampled_from(["/plant/command", "/central/sample", "/x"])),
+    "--unit": st.one_of(st.text(max_size=8), st.just("contract-replay")),
+    "--connect": st.deferred(lambda: ENDPOINTS),
+}
+
+
 @SETTINGS
 @given(data=st.data())
 def test_report_and_replay_keep_the_contract_on_recordings(work, recorded, data):
+    """Files cut, emptied or garbled; and the whole recording with replay's options
+    (``--loop`` aside: it republishes until stopped)."""
     good, _ = recorded
     f = work / "cut.mcap"
-    f.write_bytes(data.draw(file_contents(good=good)))
-    command = data.draw(st.sampled_from([("report",), ("replay", "--verify")]))
-    args = (*command, str(f))
-    check_contract(invoke(*args), args)
+    intact = data.draw(st.booleans())
+    f.write_bytes(good if intact else data.draw(file_contents(good=good)))
+    command = data.draw(st.sampled_from([("report",), ("replay", "--verify"),
+                                         ("replay", "--csv", str(work / "csv")),
+                                         ("replay",)]))
+    args: list[str] = [*command, str(f)]
+    if intact and command[0] == "replay":
+        for opt in data.draw(st.lists(st.sampled_from(sorted(REPLAY_OPTIONS)), max_size=3,
+                                      unique=True)):
+            args += [opt, data.draw(REPLAY_OPTIONS[opt])]
+    check_contract(invoke(*args), tuple(args))
 
 
 @SETTINGS

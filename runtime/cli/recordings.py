@@ -62,6 +62,7 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
     from .. import replay as rp
 
     rec = _open_recording(file)
+    _check_replay_options(rec, cycle_range, start_offset, topics, unit, connect, listen)
     if verify:
         n, div = rp.verify(rec, cycles=cycle_range)
         if div is not None:
@@ -82,6 +83,39 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
                         topics=list(topics) or None, cycles=cycle_range, conf=conf,
                         max_seconds=max_seconds)
     click.echo(f"republished {sent} messages under ctrlunit/{target}/")
+
+
+def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_offset: float,
+                          topics: tuple[str, ...], unit: str | None,
+                          connect: tuple[str, ...], listen: tuple[str, ...]) -> None:
+    """What replay's options ask of this recording, checked before anything is sent:
+    intervals it holds, a start inside it, topics it has, a unit id and endpoints Zenoh
+    can use."""
+    from ..zsession import check_endpoint, check_unit_id
+
+    cycles = sorted(m["cycle"] for _, m in rec.decoded("/plant/command")
+                    if isinstance(m.get("cycle"), int))
+    if cycle_range is not None:
+        held = f"intervals {cycles[0]} to {cycles[-1]}" if cycles else "no interval"
+        if not any(cycle_range[0] <= c < cycle_range[1] for c in cycles):
+            _fail(f"--cycles {cycle_range[0]}:{cycle_range[1]}: the recording holds {held}")
+    times = [t for items in rec.topics.values() for t, _ in items]
+    length = (max(times) - min(times)) / 1e9 if times else 0.0
+    if not (start_offset == start_offset and start_offset <= length):  # NaN fails too
+        _fail(f"--start-offset = {start_offset:g} s: allowed 0 to {length:.3f} s (the "
+              "recording's length)")
+    for topic in topics:
+        if topic not in rec.topics:
+            _fail(f"--topics {topic!r}: allowed: the recording's topics "
+                  f"({', '.join(sorted(rec.topics))})")
+    try:
+        if unit is not None:
+            check_unit_id(unit)
+        for option, endpoints in (("--connect", connect), ("--listen", listen)):
+            for e in endpoints:
+                check_endpoint(e, option=option)
+    except ValueError as exc:
+        _fail(f"--unit: {exc}" if "unit id" in str(exc) else str(exc))
 
 
 @cli.command("report")
