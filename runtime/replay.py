@@ -281,10 +281,15 @@ def export_csv(rec: Recording, out_dir: str | Path, *, cycles: tuple[int, int] |
 def republish(rec: Recording, *, unit: str, rate: float = 1.0, loop: bool = False,
               start_offset: float = 0.0, topics: list[str] | None = None,
               cycles: tuple[int, int] | None = None, conf: Any = None,
-              max_seconds: float | None = None) -> int:
+              max_seconds: float | None = None, wait_subscribers: float = 1.0) -> int:
     """Publish the recorded messages on ``ctrlunit/<unit>/<topic>`` at their recorded pace
     scaled by ``rate`` (rosbag2's ``--rate``, ``--loop``, ``--start-offset``,
-    ``--topics``). Returns the number of messages published."""
+    ``--topics``). Returns the number of messages published.
+
+    Before the first message, wait up to ``wait_subscribers`` seconds until every topic
+    to be sent has a matching subscriber (Zenoh's matching status), so that a viewer
+    connected when replay starts receives the first interval too; after that time the
+    replay starts whether or not anyone listens."""
     import zenoh
 
     from .zsession import make_config
@@ -308,9 +313,11 @@ def republish(rec: Recording, *, unit: str, rate: float = 1.0, loop: bool = Fals
     t0 = msgs[0][0] + int(start_offset * 1e9)
     msgs = [m for m in msgs if m[0] >= t0]
     sent = 0
-    deadline = None if max_seconds is None else time.monotonic() + max_seconds
     with zenoh.open(conf or make_config()) as session:
-        pubs: dict[str, Any] = {}
+        pubs: dict[str, Any] = {topic: session.declare_publisher(f"ctrlunit/{unit}{topic}")
+                                for topic in sorted({m[1] for m in msgs})}
+        _wait_for_subscribers(list(pubs.values()), wait_subscribers)
+        deadline = None if max_seconds is None else time.monotonic() + max_seconds
         while True:
             wall0 = time.monotonic()
             for t, topic, data in msgs:
@@ -318,15 +325,24 @@ def republish(rec: Recording, *, unit: str, rate: float = 1.0, loop: bool = Fals
                 delay = due - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
-                pub = pubs.get(topic)
-                if pub is None:
-                    pub = pubs[topic] = session.declare_publisher(f"ctrlunit/{unit}{topic}")
-                pub.put(data)
+                pubs[topic].put(data)
                 sent += 1
                 if deadline is not None and time.monotonic() > deadline:
                     return sent
             if not loop:
                 return sent
+
+
+def _wait_for_subscribers(pubs: list[Any], seconds: float) -> bool:
+    """Poll the publishers' matching status until each has a subscriber or ``seconds``
+    pass (bounded: at most ``seconds`` + one 5 ms poll). True when all matched."""
+    deadline = time.monotonic() + max(0.0, seconds)
+    while True:
+        if all(p.matching_status.matching for p in pubs):
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.005)
 
 
 _ = math

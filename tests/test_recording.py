@@ -125,33 +125,109 @@ def test_kill_9_of_the_central_leaves_a_salvageable_recording(tmp_path):
     assert div is None and n >= 0.99 * done
 
 
-def test_replay_republishes_on_zenoh_with_rate_and_topics(tmp_path):
+@pytest.fixture(scope="module")
+def short(tmp_path_factory):
+    """A 200-interval lockstep recording (n = 1) and its commands' recorded times and
+    cycles."""
+    d = tmp_path_factory.mktemp("short")
+    path = d / "short.mcap"
+    code, _, out = start_json(d, "--peripherals", "1", "--clock", "lockstep", "--cycles",
+                              "200", "--record", str(path), tag="short")
+    assert code == 0, out
+    cmds = [(t, m["cycle"]) for t, m in read(path).decoded("/plant/command")]
+    return path, cmds
+
+
+def _republished(path, *options: str) -> list[tuple[int, int]]:
+    """``ctrlunit replay FILE OPTIONS`` (the CLI's entry point, in this process) to a
+    subscriber of its own: each command's arrival time (ns) and cycle."""
     import queue as q
 
+    import msgpack
     import zenoh
+    from click.testing import CliRunner
+    from ctrlunit.runtime.cli import cli
     from ctrlunit.runtime.zsession import make_config
     from test_fuzz import free_port
 
-    path = tmp_path / "short.mcap"
-    code, _, out = start_json(tmp_path, "--peripherals", "1", "--clock", "lockstep",
-                              "--cycles", "200", "--record", str(path), tag="short")
-    assert code == 0, out
     port, unit = free_port(), unit_id("replay")
     got: q.SimpleQueue = q.SimpleQueue()
+
+    def on(x) -> None:
+        got.put((time.monotonic_ns(), str(x.key_expr), x.payload.to_bytes()))
+
     with zenoh.open(make_config(listen=[f"tcp/127.0.0.1:{port}"])) as s:
-        sub = s.declare_subscriber(f"ctrlunit/{unit}/**", lambda x: got.put(str(x.key_expr)))
-        t0 = time.monotonic()
-        res = ctrlunit("replay", str(path), "--unit", unit, "--rate", "5", "--topics",
-                       "/plant/command", "--connect", f"tcp/127.0.0.1:{port}")
-        wall = time.monotonic() - t0
+        sub = s.declare_subscriber(f"ctrlunit/{unit}/**", on)
+        res = CliRunner().invoke(cli, ["replay", str(path), "--unit", unit, "--connect",
+                                       f"tcp/127.0.0.1:{port}", "--topics", "/plant/command",
+                                       "--wait-subscribers", "10", *options])
         time.sleep(0.3)
         sub.undeclare()
-    assert res.returncode == 0, res.stderr
-    keys = []
+    assert res.exit_code == 0, (res.output, res.exception)
+    out = []
     while not got.empty():
-        keys.append(got.get())
-    assert len(keys) >= 190 and set(keys) == {f"ctrlunit/{unit}/plant/command"}
-    rec = read(path)
-    span_s = (rec.topics["/plant/command"][-1][0] - rec.topics["/plant/command"][0][0]) / 1e9
-    print(f"republished {len(keys)} commands in {wall:.2f} s (recorded span {span_s:.2f} s, "
-          "rate 5)")
+        t, key, data = got.get()
+        assert key == f"ctrlunit/{unit}/plant/command"
+        out.append((t, msgpack.unpackb(data)["cycle"]))
+    return out
+
+
+def test_replay_options_do_what_they_say(short):
+    """--rate scales the pace (two rates side by side: the arrival spans' ratio), --cycles
+    selects exactly its intervals, --start-offset starts at the recorded time asked, --loop
+    starts again from the first interval, --csv writes the intervals asked."""
+    path, cmds = short
+    slow = _republished(path, "--rate", "0.5")
+    fast = _republished(path, "--rate", "2")
+    assert [c for _, c in slow] == [c for _, c in fast] == [c for _, c in cmds]
+    span = [(m[-1][0] - m[0][0]) / 1e9 for m in (slow, fast)]
+    recorded = (cmds[-1][0] - cmds[0][0]) / 1e9
+    print(f"recorded span {recorded:.3f} s; republished at rate 0.5 in {span[0]:.3f} s, at "
+          f"rate 2 in {span[1]:.3f} s (ratio {span[0] / span[1]:.2f}, 4 asked)")
+    # 4 asked; this machine stalls up to ~45 ms, which the shorter span may take
+    assert 2.5 < span[0] / span[1] < 6.0
+    assert span[0] == pytest.approx(2.0 * recorded, rel=0.3)
+
+    sel = _republished(path, "--rate", "10", "--cycles", "50:60")
+    assert [c for _, c in sel] == list(range(50, 60))
+
+    t100 = next(t for t, c in cmds if c == 100)
+    offset = (t100 - cmds[0][0]) / 1e9 - 1e-7
+    late = _republished(path, "--rate", "10", "--start-offset", repr(offset))
+    assert [c for _, c in late] == list(range(100, 200))
+
+    looped = _republished(path, "--rate", "10", "--cycles", "0:20", "--loop",
+                          "--max-seconds", "0.5")
+    cycles = [c for _, c in looped]
+    assert len(cycles) > 40, len(cycles)  # more than two passes
+    assert cycles == (list(range(20)) * (len(cycles) // 20 + 1))[:len(cycles)]
+
+    from click.testing import CliRunner
+    from ctrlunit.runtime.cli import cli
+
+    csv_dir = path.parent / "csv"
+    res = CliRunner().invoke(cli, ["replay", str(path), "--csv", str(csv_dir), "--cycles",
+                                   "10:20"])
+    assert res.exit_code == 0, res.output
+    rows = (csv_dir / "signals.csv").read_text().splitlines()
+    assert rows[0].startswith("cycle,t,p_x") and len(rows) == 11
+    assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(10, 20))
+
+
+def test_replay_waits_for_subscribers_at_most_the_time_asked(short):
+    """With nobody listening, replay waits --wait-subscribers seconds, then sends anyway."""
+    from click.testing import CliRunner
+    from ctrlunit.runtime.cli import cli
+
+    path, _ = short
+    walls = {}
+    for wait in ("0", "1.5"):
+        t0 = time.monotonic()
+        res = CliRunner().invoke(cli, ["replay", str(path), "--unit", unit_id("nobody"),
+                                       "--topics", "/plant/command", "--cycles", "0:5",
+                                       "--rate", "100", "--wait-subscribers", wait])
+        walls[wait] = time.monotonic() - t0
+        assert res.exit_code == 0, res.output
+        assert "republished 5 messages" in res.output
+    print(f"replay with nobody listening: {walls}")
+    assert 1.45 <= walls["1.5"] < walls["0"] + 10.0

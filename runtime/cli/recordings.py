@@ -52,11 +52,14 @@ def _open_recording(path: str) -> Any:
 @click.option("--unit", default=None, help="Unit id to republish under (default: replay-<id>).")
 @click.option("--connect", multiple=True, help="Zenoh endpoint to connect to.")
 @click.option("--listen", multiple=True, help="Zenoh endpoint to listen on.")
+@click.option("--wait-subscribers", type=click.FloatRange(min=0.0, max=60.0), default=1.0,
+              show_default=True, metavar="SECONDS",
+              help="Wait up to this long for a subscriber to every topic before sending.")
 @click.option("--max-seconds", type=float, default=None, hidden=True)
 def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir: str | None,
            rate: float, loop: bool, start_offset: float, topics: tuple[str, ...],
            unit: str | None, connect: tuple[str, ...], listen: tuple[str, ...],
-           max_seconds: float | None) -> None:
+           wait_subscribers: float, max_seconds: float | None) -> None:
     """Replay a recording: --verify bit-compares every block; --csv exports; otherwise
     republish its messages on Zenoh at the recorded pace."""
     from .. import replay as rp
@@ -81,7 +84,7 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
     target = unit or f"replay-{rec.config.get('unit', 'x')}"
     sent = rp.republish(rec, unit=target, rate=rate, loop=loop, start_offset=start_offset,
                         topics=list(topics) or None, cycles=cycle_range, conf=conf,
-                        max_seconds=max_seconds)
+                        max_seconds=max_seconds, wait_subscribers=wait_subscribers)
     click.echo(f"republished {sent} messages under ctrlunit/{target}/")
 
 
