@@ -1,0 +1,243 @@
+"""The control laws against oracles written here, from the thesis's equations, with the
+plant's own mechanics as the model of the robot.
+
+The unit's laws (kernels/laws.py, wired as blocks in runtime/blocks.py) compute torques
+from the inverse dynamics of kernels/dynamics.py. The oracles below never call those:
+they ask the plant (plant/mechanics.py, derived independently, with multipliers) which
+torque produces a given acceleration, since its accelerations are affine in the torque,
+and take the joint reference by finite differences of the inverse kinematics along the
+reference's own quadratic path (not the Jacobian rows the unit uses). So a law that
+drops or garbles a term disagrees with its oracle at random states.
+
+The second part checks a promise of the design (docs/thesis-notes.md, the laws): with
+the complete model and resolved acceleration, the platform's error obeys
+``e'' + kd e' + kp e = 0``; its natural frequency and damping, fitted from a lockstep
+offset start, are those of the gains.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from ctrlunit.kernels.kinematics import inverse_kinematics
+from ctrlunit.kernels.laws import Gains, nominal_joint_inertia
+from ctrlunit.kernels.params import DELTA_IA as P
+from ctrlunit.kernels.trajectory import Line, Segment, Task, circle_task, pick_place_task
+from ctrlunit.plant.mechanics import (
+    accelerations,
+    assemble_platform,
+    body_constants,
+    platform_velocity,
+)
+from ctrlunit.plant.simulator import Plant, PlantConfig
+from ctrlunit.runtime.controller import Controller, build_engine, initial_command
+
+PERIOD = 1e-3
+GAINS = Gains(kp=900.0, kd=50.0)  # not the defaults: a swapped kp/kd shows
+BC = body_constants(P)
+
+
+# --- oracles ---------------------------------------------------------------------------
+
+
+def plant_response(q, p, qd, pd) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The plant's ``(qdd, pdd)`` as affine functions of the torque: ``qdd = q0 + Bq tau``,
+    ``pdd = p0 + Bp tau`` (columns by unit torques; the equations are linear in tau)."""
+    q0, p0 = (np.array(v) for v in accelerations(P, BC, q, p, qd, pd, [0.0, 0.0, 0.0]))
+    bq, bp = np.zeros((3, 3)), np.zeros((3, 3))
+    for k in range(3):
+        tau = [0.0, 0.0, 0.0]
+        tau[k] = 1.0
+        qk, pk = accelerations(P, BC, q, p, qd, pd, tau)
+        bq[:, k], bp[:, k] = np.array(qk) - q0, np.array(pk) - p0
+    return q0, bq, p0, bp
+
+
+def torque_for_platform_acceleration(state, pdd) -> np.ndarray:
+    """The torque under which the plant at ``state`` accelerates its platform by ``pdd``."""
+    _, _, p0, bp = plant_response(*state)
+    return np.linalg.solve(bp, np.asarray(pdd) - p0)
+
+
+def torque_for_joint_acceleration(state, qdd) -> np.ndarray:
+    """The torque under which the plant at ``state`` accelerates its arms by ``qdd``."""
+    q0, bq, _, _ = plant_response(*state)
+    return np.linalg.solve(bq, np.asarray(qdd) - q0)
+
+
+def joint_reference(p_c, v_c, a_c, *, h: float = 1e-4):
+    """``q_c, qdot_c, qddot_c``: the inverse kinematics along ``p_c + v_c s + a_c s^2/2``
+    and its first two derivatives at ``s = 0`` by central differences with Richardson
+    extrapolation (error O(h^4); Eq. V.16-V.31 without the Jacobian)."""
+    p_c, v_c, a_c = (np.asarray(x, dtype=float) for x in (p_c, v_c, a_c))
+
+    def q(s: float) -> np.ndarray:
+        return inverse_kinematics(P, p_c + v_c * s + 0.5 * a_c * s * s)
+
+    q_c = q(0.0)
+
+    def d1(step: float) -> np.ndarray:
+        return (q(step) - q(-step)) / (2 * step)
+
+    def d2(step: float) -> np.ndarray:
+        return (q(step) - 2 * q_c + q(-step)) / (step * step)
+
+    return (q_c, (4 * d1(h / 2) - d1(h)) / 3, (4 * d2(h / 2) - d2(h)) / 3)
+
+
+def reference(task: Task, t: float, lead: float):
+    """The reference the unit takes at sample time ``t``: position and velocity at ``t``,
+    the acceleration at ``t + lead`` (the middle of the period the command acts in)."""
+    p, v, _ = task.sample(t)
+    return np.array(p), np.array(v), np.array(task.sample(t + lead)[2])
+
+
+def oracle_torque(law: str, task: Task, t: float, state, *, delay: int = 0) -> np.ndarray:
+    """Each law's torque (before saturation) from the thesis's equations, the plant's
+    mechanics standing for the complete model."""
+    q, p, qd, pd = (np.asarray(x) for x in state)
+    p_c, v_c, a_c = reference(task, t, (delay + 0.5) * PERIOD)
+    q_c, qd_c, qdd_c = joint_reference(p_c, v_c, a_c)
+    kp, kd, a0 = GAINS.kp, GAINS.kd, nominal_joint_inertia(P)
+    if law == "resolved-acceleration":  # Eq. IV.14: the platform's acceleration, servoed
+        return torque_for_platform_acceleration(state, a_c + kp * (p_c - p) + kd * (v_c - pd))
+    if law == "computed-torque":  # Fig. 18: the joints' acceleration, servoed
+        return torque_for_joint_acceleration(state, qdd_c + kp * (q_c - q) + kd * (qd_c - qd))
+    if law == "pd-feedforward":  # Eq. IV.13: the model at the reference, plus a joint PD
+        ref_state = (q_c, p_c, qd_c, v_c)
+        ff = torque_for_platform_acceleration(ref_state, a_c)
+        return ff + a0 * (kp * (q_c - q) + kd * (qd_c - qd))
+    if law == "pd-gravity":  # Eq. V.38: what holds the robot still here, plus a PD to rest
+        hold = torque_for_platform_acceleration((q, p, 0 * qd, 0 * pd), np.zeros(3))
+        return hold + a0 * (kp * (q_c - q) - kd * qd)
+    if law == "pd":
+        return a0 * (kp * (q_c - q) + kd * (qd_c - qd))
+    raise ValueError(law)
+
+
+# --- the unit's torque at a given state -----------------------------------------------
+
+
+def random_state(rng: np.random.Generator, task: Task, t: float):
+    """A plant state near the reference at ``t``: arm angles off by up to 0.02 rad, arm
+    rates off by up to 0.5 rad/s; the platform closes the loops (the plant's own forward
+    kinematics)."""
+    p_c, v_c, _ = reference(task, t, 0.0)
+    q_c, qd_c, _ = joint_reference(p_c, v_c, np.zeros(3))
+    q = q_c + rng.uniform(-0.02, 0.02, 3)
+    qd = qd_c + rng.uniform(-0.5, 0.5, 3)
+    p = assemble_platform(P, list(q), list(p_c))
+    pd = platform_velocity(P, list(q), p, list(qd))
+    return [float(x) for x in q], p, [float(x) for x in qd], pd
+
+
+def unit_torque(law: str, task: Task, t: float, state, *, delay: int = 0) -> np.ndarray:
+    """The unit's torque before saturation, from its one-process engine, the observer
+    starting at the true platform position (``--observer previous``) so that it reads the
+    state exactly: ``p`` the loop-closing point of ``q``, ``pdot = J qdot``."""
+    q, p, qd, _ = state
+    engine = build_engine(P, task, law=law, model="complete", gains=GAINS, period=PERIOD,
+                          observer="previous", delay=delay)
+    ctx = engine.run_local(engine.new_ctx(t, (tuple(p), (0.0,) * 3, (0.0,) * 3), q, qd))
+    return np.array(ctx["tau"])
+
+
+LAWS = ("resolved-acceleration", "computed-torque", "pd-feedforward", "pd-gravity", "pd")
+
+
+@pytest.mark.parametrize("law", LAWS)
+@pytest.mark.parametrize("task", [pick_place_task(), circle_task()], ids=lambda t: t.name)
+def test_each_law_gives_the_torque_of_its_equations_at_random_states(law, task):
+    rng = np.random.default_rng(abs(hash((law, task.name))) % 2**32)
+    worst = 0.0
+    for _ in range(20):
+        t = float(rng.uniform(0.0, task.duration))
+        delay = int(rng.integers(0, 3))
+        state = random_state(rng, task, t)
+        got = unit_torque(law, task, t, state, delay=delay)
+        want = oracle_torque(law, task, t, state, delay=delay)
+        err = float(np.max(np.abs(got - want)))
+        worst = max(worst, err / max(1.0, float(np.max(np.abs(want)))))
+        # the finite differences of the reference give ~1e-8 relative; a dropped term
+        # gives ~1e-2 and more at these states
+        assert got == pytest.approx(want, rel=1e-6, abs=1e-6), (t, delay, state)
+    print(f"{law} on {task.name}: worst relative torque difference {worst:.1e}")
+
+
+def test_the_oracles_see_a_dropped_term():
+    """The tolerance above is tight enough: the torque of resolved acceleration without its
+    feed-forward acceleration, or with the damping on the wrong sign, misses by far more."""
+    task = pick_place_task()
+    rng = np.random.default_rng(7)
+    t = 0.4 * task.duration
+    state = random_state(rng, task, t)
+    p_c, v_c, a_c = reference(task, t, 0.5 * PERIOD)
+    p, pd = np.array(state[1]), np.array(state[3])
+    right = oracle_torque("resolved-acceleration", task, t, state)
+    no_ff = torque_for_platform_acceleration(state, GAINS.kp * (p_c - p) + GAINS.kd * (v_c - pd))
+    flipped = torque_for_platform_acceleration(
+        state, a_c + GAINS.kp * (p_c - p) - GAINS.kd * (v_c - pd))
+    for wrong in (no_ff, flipped):
+        assert np.max(np.abs(wrong - right)) > 1e4 * 1e-6 * max(1.0, np.max(np.abs(right)))
+
+
+# --- the closed loop's dynamics ----------------------------------------------------------
+
+
+def offset_start_errors(gains: Gains, offset, *, cycles: int, delay: int = 0) -> np.ndarray:
+    """Lockstep closed loop (complete model, resolved acceleration) holding still at a
+    point while the plant starts ``offset`` (m) away: the platform's error ``p - p_c``
+    at each sample, shape ``(cycles, 3)``."""
+    hold = (0.0, 0.05, -0.40)
+    task = Task("hold", [Segment(Line((0.0, 0.0, -0.40), hold), 10.0)], dwell=5.0)
+    task.align(PERIOD / 2)
+    k0 = math.ceil((task.duration + 0.01) / PERIOD)  # in the dwell at ``hold`` from here
+    engine = build_engine(P, task, law="resolved-acceleration", model="complete",
+                          gains=gains, period=PERIOD, delay=delay)
+    start = np.array(hold) + np.asarray(offset)
+    plant = Plant(P, PlantConfig(period=PERIOD), q0=tuple(inverse_kinematics(P, start)),
+                  p_guess=tuple(start))
+    ctl = Controller(engine, PERIOD, P.increment, tuple(hold), first_cycle=-k0)
+    plant.set_command(initial_command(P, task))
+    pending, errors = [], []
+    for k in range(cycles):
+        ctx = engine.run_local(ctl.sources(k, plant.encoder_counts()))
+        ctl.handoff(ctx)
+        errors.append(np.array(plant.state.p) - np.array(hold))
+        pending.append(ctx["cmd"])
+        if len(pending) > delay:
+            plant.set_command(pending.pop(0))
+        plant.step()
+    return np.array(errors)
+
+
+def fitted_dynamics(e: np.ndarray, period: float) -> tuple[float, float]:
+    """Natural frequency (rad/s) and damping of the second-order system that best explains
+    ``e[k+1] = a1 e[k] + a2 e[k-1]`` (least squares over the three axes): the poles
+    ``z`` of ``z^2 - a1 z - a2``, mapped by ``s = ln(z) / T``."""
+    x = np.concatenate([np.column_stack([e[1:-1, j], e[:-2, j]]) for j in range(3)])
+    y = np.concatenate([e[2:, j] for j in range(3)])
+    a1, a2 = np.linalg.lstsq(x, y, rcond=None)[0]
+    s = np.log(np.roots([1.0, -a1, -a2]).astype(complex)) / period
+    wn = float(np.sqrt(np.prod(np.abs(s))))  # |s1 s2| = wn^2
+    zeta = float(-np.sum(s.real) / (2.0 * wn))  # s1 + s2 = -2 zeta wn
+    return wn, zeta
+
+
+@pytest.mark.parametrize("hz,zeta,delay", [(5.0, 1.0, 0), (5.0, 0.3, 1), (8.0, 0.6, 0)])
+def test_resolved_acceleration_error_has_the_designed_frequency_and_damping(hz, zeta, delay):
+    """The fitted natural frequency within 5 % of the design and the damping within 0.03,
+    the command acting 0 or 1 period after its sample (measured 2026-11-23: +1.4 to +2.2 %
+    and -0.020 to +0.013). A longer delay is outside the promise: at two periods the
+    fitted frequency is 5 % (5 Hz, zeta 0.6) to 10 % (5 Hz, zeta 1) above the design
+    (docs/thesis-notes.md)."""
+    gains = Gains.from_bandwidth(hz, zeta)
+    e = offset_start_errors(gains, (0.004, -0.003, 0.005), cycles=600, delay=delay)
+    skip = 20  # the observer settles on the offset in its first intervals
+    wn, z = fitted_dynamics(e[skip:], PERIOD)
+    print(f"designed wn {2 * math.pi * hz:.2f} rad/s, zeta {zeta}, delay {delay}: fitted "
+          f"wn {wn:.2f}, zeta {z:.3f}")
+    assert wn == pytest.approx(2 * math.pi * hz, rel=0.05)
+    assert z == pytest.approx(zeta, abs=0.03)
