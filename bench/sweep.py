@@ -97,7 +97,7 @@ def cycles_for(cfg: Config, quick: bool) -> int:
     if cfg.cost_model == "t800":
         per = 1.6e-3 * cfg.cost_scale
         budget = 0.5 if quick else 3.0
-        return int(min(1500, max(40, budget / per)))
+        return int(min(1500, max(20 if quick else 40, budget / per)))
     return 300 if quick else 2000
 
 

@@ -18,6 +18,8 @@ import math
 import time
 from typing import TYPE_CHECKING, Any
 
+import msgpack
+
 from ..kernels.workspace import check_point
 from .config import EXIT_OBSERVER, EXIT_PERIPHERAL, EXIT_PLANT
 from .engine import Engine
@@ -168,6 +170,12 @@ class CentralGuard:
                     self.late_per_axis[a] += 1
                 f.dropped.add(p)
                 self.held.add((f.cycle, f.round.index, p))
+                if self.on_message is not None:  # the recording, so that replay holds too
+                    self.on_message("held", f"{self.node.keys.root}/faults/held", f.cycle,
+                                    f.round.index, msgpack.packb(
+                                        {"cycle": f.cycle, "stage": f.round.index,
+                                         "peripheral": p, "vals": held},
+                                        use_single_float=False), now)
                 if len(self.held) > 1024:
                     self.held.discard(min(self.held))
             f.waiting.clear()

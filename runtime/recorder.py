@@ -7,7 +7,9 @@ Channels
   ``/central/sample``, ``/plant/command``, ``/peripheral/request``, ``/central/reply/K``.
 ``msgpack``: ``/timing/spans`` (per interval: ``[[process, t0, t1], ...]``),
   ``/faults/rejected`` (rejection counters, every 500 intervals and at the end),
-  ``/faults/deadline`` (deadline misses and skipped samples as they change).
+  ``/faults/deadline`` (deadline misses and skipped samples as they change),
+  ``/faults/held`` (a late round's values replaced by the last ones, ``--late-policy
+  hold``: cycle, stage, peripheral and the values used, which replay uses too).
 ``json`` with ``jsonschema`` schemas (open in Foxglove): ``/signals/state`` (p, reference,
   q, torque, tracking error, period, traversal). NaN and infinities are written as null.
 

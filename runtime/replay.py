@@ -5,6 +5,11 @@ in the recorded plan: each recorded request must equal the central's recomputed 
 each recorded reply the recomputed per-axis values, each command the recomputed command.
 The first divergence names the cycle, the block that produces the value, the axis, the
 expected (recorded) and the recomputed value.
+
+A round whose reply came too late under ``--late-policy hold`` was computed by the
+central with the peripheral's last values (recorded on ``/faults/held``): verify checks
+that those are the last values the recording's accepted replies gave for those axes, and
+uses them, as the central did.
 """
 
 from __future__ import annotations
@@ -130,6 +135,9 @@ def verify(
     round_step = {s.round.index: k for k, s in enumerate(plan.steps) if s.round is not None}
     requests, replies = _index(rec, "request"), _index(rec, "reply")
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
+    held = {(m["peripheral"], m["cycle"], m["stage"]): m["vals"]
+            for _, m in rec.decoded("/faults/held")}
+    last: dict[str, list[Any]] = {}  # the last accepted values, by name and axis
     central_trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
     current = {"cycle": -1}
     if alter is not None:
@@ -173,13 +181,16 @@ def verify(
                     if d:
                         return done, d
                 engine.run_round(rnd, ctx, (0, 1, 2))
+                d = _apply_held(plan, rnd.index, ctx, k, held, replies, last)
+                if d and compare:
+                    return done, d
                 rnd = gen.send(None)
         except StopIteration:
             pass
         if not handed:
             ctl.handoff(ctx)
         if compare:
-            d = _compare_blocks(plan, ctx, k, central_trace.get(k), replies)
+            d = _compare_blocks(plan, ctx, k, central_trace.get(k), replies, held)
             if d:
                 return done, d
             rec_cmd = commands.get(k)
@@ -191,11 +202,40 @@ def verify(
     return done, None
 
 
+def _apply_held(plan: Any, stage: int, ctx: dict, k: int, held: dict, replies: dict,
+                last: dict[str, list[Any]]) -> Divergence | None:
+    """After round ``stage`` of interval ``k``: where the central held a late reply, put
+    the held values into ``ctx`` (as the central did) and check they are the last accepted
+    ones; elsewhere note the accepted reply's values as the last ones."""
+    from .engine import Engine
+
+    out = None
+    for p in range(plan.placement.peripherals):
+        axes = plan.placement.axes[p]
+        vals = held.get((p, k, stage))
+        if vals is None:
+            m = replies.get((p, k, stage))
+            for name, v in ((m or {}).get("vals") or {}).items():
+                slot = last.setdefault(name, [None, None, None])
+                for j, a in enumerate(axes):
+                    slot[a] = v[j]
+            continue
+        for name, v in vals.items():
+            for j, a in enumerate(axes):
+                want = _plain(last.get(name, [None] * 3)[a])
+                if out is None and _plain(v[j]) != want:
+                    out = Divergence(k, "(hold)", a, name, v[j], want)
+        Engine.merge(ctx, vals, axes)
+    return out
+
+
 def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
-                    replies: dict[tuple[int, int, Any], dict]) -> Divergence | None:
+                    replies: dict[tuple[int, int, Any], dict],
+                    held: dict | None = None) -> Divergence | None:
     """Compare every block's outputs, in plan order, with what the recording holds: the
     central's trace for central blocks, the replies (values and trace) for per-axis blocks
-    run on the peripherals. The first difference names its block."""
+    run on the peripherals (except the rounds the central held: :func:`_apply_held`
+    checked those). The first difference names its block."""
     for step in plan.steps:
         if step.round is None:
             b = step.block
@@ -211,6 +251,8 @@ def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
         for b in rnd.blocks:
             for p in range(plan.placement.peripherals):
                 axes = plan.placement.axes[p]
+                if held and (p, k, rnd.index) in held:
+                    continue
                 m = replies.get((p, k, rnd.index))
                 if m is None:
                     return Divergence(k, "(reply)", None, "missing", None, None)

@@ -17,7 +17,9 @@ from mcap.reader import make_reader
 from runner import ctrlunit, kill_unit, pids_of, start_json, unit_id, wait_status
 
 pytestmark = pytest.mark.zenoh
-CYCLES = int(os.environ.get("CTRLUNIT_RECORD_CYCLES", "10000"))
+CYCLES = int(os.environ.get("CTRLUNIT_RECORD_CYCLES", "3000"))
+"""Intervals of the module's recording: 3000 in CI; the 10 000-interval file (the size
+the recording's figures are quoted for) is the slow test below."""
 
 
 @pytest.fixture(scope="module")
@@ -29,6 +31,17 @@ def recorded(tmp_path_factory):
                                 tag="rec", timeout=400)
     assert code == 0, out
     return path, rep
+
+
+@pytest.mark.slow
+def test_a_10000_interval_recording_verifies_bit_for_bit(tmp_path):
+    path = tmp_path / "long.mcap"
+    code, _, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",
+                                "freerun", "--cycles", "10000", "--record", str(path),
+                                tag="long", timeout=600)
+    assert code == 0, out
+    n, div = verify(read(path))
+    assert div is None and n == 10000, div
 
 
 def test_replay_verify_finds_no_divergence(recorded):
