@@ -147,14 +147,12 @@ def shape_of(name: str) -> tuple[int, ...]:
     stem = base.rstrip("0123456789")
     if stem in ("axo", "axr", "ax"):
         return (9,)
-    if stem in ("rowo", "rowr", "row", "f"):
-        return (3,)
     if stem in ("J", "est"):
         return (3, 3)
     if stem in ("t", "q", "qo", "qc", "r", "qd", "jdp", "qdd", "tauq", "taufb", "qdc", "qddc",
                 "qddcmd", "qmeas", "qdmeas"):
         return ()
-    return (3,)  # positions, velocities, accelerations, torques
+    return (3,)  # Jacobian rows, forces, positions, velocities, accelerations, torques
 
 
 _SHAPES: dict[str, tuple[int, ...]] = {}
