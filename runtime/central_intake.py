@@ -131,10 +131,7 @@ class CentralIntake:
                 continue
             accepted = True
             Engine.merge(f.ctx, vals, axes)
-            for name, v in vals.items():
-                slot = self.last_vals.setdefault(name, [None, None, None])
-                for j, a in enumerate(axes):
-                    slot[a] = v[j]
+            Engine.merge(self.last_vals, vals, axes)  # replies hold per-axis values only
             self.periph_busy_ns[k] += span[1] - span[0]
             self._span(f"peripheral_{k + 1}", f.cycle, span[0], span[1])
             f.waiting.discard(k)

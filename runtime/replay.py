@@ -213,12 +213,8 @@ def _apply_held(plan: Any, stage: int, ctx: dict, k: int, held: dict, replies: d
     for p in range(plan.placement.peripherals):
         axes = plan.placement.axes[p]
         vals = held.get((p, k, stage))
-        if vals is None:
-            m = replies.get((p, k, stage))
-            for name, v in ((m or {}).get("vals") or {}).items():
-                slot = last.setdefault(name, [None, None, None])
-                for j, a in enumerate(axes):
-                    slot[a] = v[j]
+        if vals is None:  # accepted: its values are the last ones, as the central keeps them
+            Engine.merge(last, (replies.get((p, k, stage)) or {}).get("vals") or {}, axes)
             continue
         for name, v in vals.items():
             for j, a in enumerate(axes):

@@ -15,7 +15,7 @@ from ctrlunit.kernels.trajectory import pick_place_task
 from ctrlunit.plant.simulator import PlantConfig
 from ctrlunit.runtime.controller import simulate
 from ctrlunit.runtime.report import command_digest
-from runner import start_json
+from runner import start_json, unit_id
 
 pytestmark = pytest.mark.zenoh
 CYCLES = 150
@@ -68,7 +68,7 @@ def test_rt_priority_without_the_right_to_it_is_refused_before_anything_starts(t
     """SCHED_FIFO asked for by a process that may not use it (CAP_SYS_NICE dropped from
     its bounding set, real-time limit 0): exit 1 (configuration), a message that says what
     is needed, and no role started."""
-    unit = "rt-refused"
+    unit = unit_id("rt-refused")
     res = subprocess.run(
         ["setpriv", "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice", "--",
          "prlimit", "--rtprio=0", "--", sys.executable, "-m", "ctrlunit.runtime.cli",
