@@ -158,8 +158,11 @@ class CentralGuard:
                 raise Fault(f"late data: peripheral {k + 1} missed the deadline of round "
                             f"{f.round.index} ({', '.join(late)}) of cycle {f.cycle}",
                             process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
-            # hold: the last values of the missing peripherals' axes
-            if not all(name in self.last_vals for name in f.round.recv):
+            # hold: the last values of the missing peripherals' axes; a peripheral that
+            # never answered this round has none (its slots are None): wait for it
+            if not all(self.last_vals.get(name, (None,) * 3)[a] is not None
+                       for name in f.round.recv for p in f.waiting
+                       for a in self.plan.placement.axes[p]):
                 f.late_ns = 0  # nothing to hold yet: wait
                 continue
             for p in sorted(f.waiting):

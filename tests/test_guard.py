@@ -1,0 +1,465 @@
+"""The central's guard (runtime/central_guard.py) in this process: a real central on the
+loopback bus (tests/loopback.py), its peripherals' replies held back or let through one by
+one, the guard's clock set by the test. Each check states what the guard must do at the
+edge of its limit: nothing one nanosecond before, the named fault at it or just after."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+from typing import Any
+
+import msgpack
+import pytest
+from ctrlunit.kernels.dynamics import gravity_torques
+from ctrlunit.runtime import central_guard
+from ctrlunit.runtime.central_guard import Fault
+from ctrlunit.runtime.codec import decode
+from ctrlunit.runtime.config import (
+    EXIT_OBSERVER,
+    EXIT_PERIPHERAL,
+    EXIT_PLANT,
+    RunConfig,
+)
+from loopback import LoopbackUnit
+from runner import unit_id
+
+MS = 1_000_000
+
+
+class Clock:
+    """The guard's clock (``time`` in runtime/central_guard.py), moved by the test."""
+
+    def __init__(self, now_ns: int) -> None:
+        self.now = now_ns
+
+    def monotonic_ns(self) -> int:
+        return self.now
+
+    def monotonic(self) -> float:
+        return self.now / 1e9
+
+
+def realtime_unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUnit:
+    kw.setdefault("peripherals", 3)
+    kw.setdefault("pipeline", 1)
+    return LoopbackUnit(RunConfig(unit=unit_id(tag), clock="realtime", **kw),
+                        on_message=on_message)
+
+
+def sample(u: LoopbackUnit, k: int) -> None:
+    """The plant's sample ``k`` (the robot's present state), taken by the central."""
+    assert u.server is not None
+    u.server.sample_no = k
+    u.server.publish_sample((0, 0))
+    u.central._handle(u.node.events.get_nowait())
+
+
+def settle(u: LoopbackUnit, *, muted: frozenset[int] = frozenset()) -> None:
+    """Start what may start, send, let the peripherals not in ``muted`` answer, handle
+    the replies; until nothing moves (bounded)."""
+    c = u.central
+    u.muted = set(muted)
+    for _ in range(50):
+        c._start_ready()
+        c._flush(c.t_start_ns or 0)
+        u.pump()
+        if not u.node.events.pending():
+            return
+        while u.node.events.pending():
+            c._handle(u.node.events.get_nowait())
+    raise AssertionError("the exchange did not settle")
+
+
+def first_interval(u: LoopbackUnit) -> None:
+    sample(u, 0)
+    settle(u)
+    assert u.central.done == 1
+
+
+def reply_vals(u: LoopbackUnit, peripheral: int, cycle: int, stage: int) -> dict:
+    key = u.node.keys.reply(peripheral + 1)
+    for k, data in u.bus.log:
+        if k != key:
+            continue
+        for part in decode(data, u.rc.unit)["parts"]:
+            if (part["cycle"], part["stage"]) == (cycle, stage):
+                return part["vals"]
+    raise AssertionError(f"no reply of peripheral {peripheral + 1} to {cycle}/{stage}")
+
+
+def request_of(u: LoopbackUnit, cycle: int, stage: int) -> bytes:
+    for k, data in u.bus.log:
+        if k == u.node.keys.request and any(
+                (p["cycle"], p["stage"]) == (cycle, stage)
+                for p in decode(data, u.rc.unit)["parts"]):
+            return data
+    raise AssertionError(f"no request for {cycle}/{stage}")
+
+
+def plain(v: Any) -> Any:
+    return [plain(x) for x in v] if isinstance(v, tuple | list) else v
+
+
+# -- late data ---------------------------------------------------------------------------
+
+
+def test_hold_takes_the_last_accepted_values_of_the_late_peripheral_only_at_its_time():
+    seen: list[tuple] = []
+    u = realtime_unit("hold", late_policy="hold",
+                      on_message=lambda *a: seen.append(a))
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({1}))
+    f = c.inflight[1]
+    assert f.waiting == {1} and f.round is not None and f.round.index == 0
+    before = {n: plain(f.ctx[n]) for n in f.round.recv}
+    c._check_late(f.late_ns - 1)
+    assert f.waiting == {1} and not f.dropped and not c.held
+    c._check_late(f.late_ns)
+    assert f.waiting == set() and f.dropped == {1}
+    assert c.held == {(1, 0, 1)}  # (cycle, round, peripheral)
+    last = reply_vals(u, 1, 0, 0)
+    for name in last:
+        assert plain(f.ctx[name])[1] == plain(last[name])[0]  # axis 1: peripheral 2's
+        for axis in (0, 2):
+            assert plain(f.ctx[name])[axis] == before[name][axis]
+    assert c.late_per_axis == [0, 1, 0]
+    held = [a for a in seen if a[0] == "held"]
+    assert len(held) == 1
+    _direction, key, cycle, stage, payload, t_ns = held[0]
+    assert key == f"{u.node.keys.root}/faults/held" and (cycle, stage) == (1, 0)
+    assert t_ns == f.late_ns
+    msg = msgpack.unpackb(payload)
+    assert msg == {"cycle": 1, "stage": 0, "peripheral": 1,
+                   "vals": {n: [plain(v)[0]] for n, v in last.items()}}
+    # the interval went on without peripheral 2's reply: its next round is out
+    assert f.round is not None and f.round.index == 1 and f in c.outbox
+
+
+def test_a_held_replys_late_arrival_is_counted_and_marks_the_peripheral_alive():
+    u = realtime_unit("holdlate", late_policy="hold")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({1}))
+    f = c.inflight[1]
+    c._check_late(f.late_ns)
+    c.last_reply_ns[1] = 0
+    late = request_of(u, 1, 0)
+    u.muted = set()
+    for reply in u.peripherals[1][1].on_request(late):
+        c._handle(("reply", 1, reply, 123))
+    assert c.node.rejected["late_reply"] == 1
+    assert (1, 0, 1) not in c.held
+    assert c.last_reply_ns[1] == 123
+    for reply in u.peripherals[1][1].on_request(late):  # a second copy: not held any more
+        c._handle(("reply", 1, reply, 456))
+    assert c.node.rejected["unexpected_reply"] == 1 and c.last_reply_ns[1] == 123
+
+
+def test_hold_waits_when_there_is_nothing_to_hold_yet():
+    u = realtime_unit("holdnone", late_policy="hold")
+    c = u.central
+    sample(u, 0)
+    settle(u, muted=frozenset({2}))
+    f = c.inflight[0]
+    c._check_late(f.late_ns + 5 * MS)
+    assert f.waiting == {2} and f.late_ns == 0 and not f.dropped and not c.held
+    assert c.late_per_axis == [0, 0, 0]
+
+
+def test_wait_policy_keeps_waiting_and_looks_no_more():
+    u = realtime_unit("wait", late_policy="wait")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({0}))
+    f = c.inflight[1]
+    c._check_late(f.late_ns)
+    assert f.waiting == {0} and f.late_ns == 0 and not f.dropped
+
+
+def test_fault_policy_names_the_peripheral_round_blocks_and_cycle():
+    u = realtime_unit("fault", late_policy="fault")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({0, 2}))
+    f = c.inflight[1]
+    c._check_late(f.late_ns - 1)
+    with pytest.raises(Fault) as exc:
+        c._check_late(f.late_ns)
+    assert exc.value.process == "peripheral-1" and exc.value.code == EXIT_PERIPHERAL
+    assert str(exc.value) == ("late data: peripheral 1 missed the deadline of round 0 "
+                              "(ik_obs0, jinv_obs0, residual0) of cycle 1")
+
+
+def test_late_data_is_not_judged_outside_realtime():
+    u = LoopbackUnit(RunConfig(unit=unit_id("lslate"), clock="lockstep", peripherals=3,
+                               late_policy="fault"))
+    c = u.central
+    u.start_plant()
+    c._handle(u.node.events.get_nowait())
+    settle(u, muted=frozenset({0}))
+    f = c.inflight[0]
+    f.late_ns = 1
+    c._check_late(10**18)
+    assert f.waiting == {0}
+
+
+def test_a_rounds_policy_is_the_strictest_of_its_blocks():
+    u = realtime_unit("pol", late_policy="wait", late={"jdot": "hold"})
+    assert u.central.late_policy == {0: "wait", 1: "hold"}
+    u = realtime_unit("pol2", late_policy="hold", late={"ik": "fault", "jdot": "wait"})
+    assert u.central.late_policy == {0: "hold", 1: "fault"}
+    u = realtime_unit("pol3", late_policy="fault", late={"residual0": "wait"})
+    assert u.central.late_policy == {0: "fault", 1: "fault"}
+
+
+# -- limits and silence --------------------------------------------------------------------
+
+
+def test_the_silence_limit_is_fault_periods_after_start_up_and_the_timeout_elsewhere():
+    u = realtime_unit("limit", period=2e-3, fault_periods=4.0)
+    c = u.central
+    assert c._timeout_ns() == 20 * MS  # start-up: at least 20 ms
+    c.done = central_guard.CentralGuard.STARTUP_INTERVALS - 1
+    assert c._timeout_ns() == 20 * MS
+    c.done = central_guard.CentralGuard.STARTUP_INTERVALS
+    assert c._timeout_ns() == 8 * MS
+    u = realtime_unit("limit2", period=10e-3, fault_periods=3.0)
+    assert u.central._timeout_ns() == 30 * MS  # longer than start-up's floor: kept
+    u = LoopbackUnit(RunConfig(unit=unit_id("limit3"), clock="lockstep", timeout=0.75))
+    assert u.central._timeout_ns() == 750 * MS
+
+
+def test_a_silent_peripheral_is_a_fault_just_after_its_limit(monkeypatch):
+    u = realtime_unit("silent", late_policy="hold")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({1}))
+    c.done = 100  # past start-up
+    limit = c._timeout_ns()
+    assert limit == 3 * MS
+    f = c.inflight[1]
+    f.deadline_ns = 10**18  # the round's own deadline out of the way
+    clock = Clock(c.last_reply_ns[1] + limit)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c._check_deadlines(limit)  # at the limit: alive
+    clock.now += 1
+    with pytest.raises(Fault) as exc:
+        c._check_deadlines(limit)
+    assert exc.value.process == "peripheral-2" and exc.value.code == EXIT_PERIPHERAL
+    assert str(exc.value).startswith("peripheral 2 has not answered for 3.0 ms (limit 3.0 ms)")
+    c._check_late(f.late_ns)  # held: still judged by its silence
+    assert f.dropped == {1} and not f.waiting
+    with pytest.raises(Fault, match="peripheral 2 has not answered"):
+        c._check_deadlines(limit)
+    f.dropped.clear()  # neither waited for nor held: its silence is no fault
+    c._check_deadlines(limit)
+
+
+def test_the_first_interval_is_judged_by_its_rounds_deadline_only(monkeypatch):
+    u = realtime_unit("first")
+    c = u.central
+    sample(u, 0)
+    settle(u, muted=frozenset({0, 1}))
+    f = c.inflight[0]
+    c.last_reply_ns = [1, 1, 1]  # long ago, but nothing is done yet
+    clock = Clock(f.deadline_ns)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c._check_deadlines(3 * MS)
+    clock.now += 1
+    with pytest.raises(Fault) as exc:
+        c._check_deadlines(3 * MS)
+    assert exc.value.process == "peripheral-1" and exc.value.code == EXIT_PERIPHERAL
+    assert str(exc.value).startswith("peripheral 1 did not answer round 0 of cycle 0: "
+                                     "silent for 3.0 ms (limit 3.0 ms)")
+
+
+def test_a_silent_plant_is_a_fault_after_the_limit_unless_messages_wait(monkeypatch):
+    u = realtime_unit("plant")
+    c = u.central
+    first_interval(u)
+    c.done = 100
+    assert not c.samples and not c.inflight
+    c.last_sample_ns = 5 * MS
+    clock = Clock(5 * MS + 3 * MS)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c._check_deadlines(3 * MS)
+    clock.now += 1
+    with pytest.raises(Fault) as exc:
+        c._check_deadlines(3 * MS)
+    assert exc.value.process == "plant" and exc.value.code == EXIT_PLANT
+    assert str(exc.value) == ("no sample from the plant for 3.0 ms (cycle 1 awaited, newest "
+                              "seen 0)")
+    u.node.events.deliver(u.node.keys.sample, b"unread")  # the central may be the slow one
+    c._check_deadlines(3 * MS)
+    u.node.events.get_nowait()
+    c.samples[1] = ([0, 0, 0], 0)  # a sample not started yet: not the plant's silence
+    c._check_deadlines(3 * MS)
+    del c.samples[1]
+    c.next_cycle = c.cycles  # every interval started: nothing more is awaited
+    c._check_deadlines(3 * MS)
+
+
+def test_the_plants_silence_counts_from_the_start_before_any_sample(monkeypatch):
+    u = LoopbackUnit(RunConfig(unit=unit_id("plant0"), clock="lockstep", timeout=0.5))
+    c = u.central
+    c.t_start_ns = 7 * MS
+    clock = Clock(7 * MS + 500 * MS)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c._check_deadlines(500 * MS)
+    clock.now += 1
+    with pytest.raises(Fault, match="no sample from the plant for 500.0 ms"):
+        c._check_deadlines(500 * MS)
+    u = LoopbackUnit(RunConfig(unit=unit_id("plant1"), clock="freerun", timeout=0.5))
+    u.central.t_start_ns = 7 * MS
+    u.central._check_deadlines(500 * MS)  # freerun: no plant
+
+
+def test_next_check_is_the_earliest_moment_something_could_fail():
+    u = realtime_unit("next", late_policy="hold")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({1}))
+    f = c.inflight[1]
+    now = 10**12
+    f.deadline_ns, f.late_ns = now + 990, now + 950
+    c.last_reply_ns = [now - 500, now - 300, now - 400]  # peripheral 2 is the one waited for
+    c.last_sample_ns = now - 100
+    timeout = 1000
+    assert c._next_check(now, timeout, 0) == now - 300 + timeout
+    c.last_reply_ns[1] = now
+    assert c._next_check(now, timeout, 0) == now - 100 + timeout  # the plant
+    c.last_sample_ns = now
+    assert c._next_check(now, timeout, 0) == now + 950  # late data
+    assert c._next_check(now, timeout, now + 700) == now + 700  # a held round's release
+    f.late_ns = 0
+    assert c._next_check(now, timeout, 0) == now + 990  # the round's deadline
+    f.waiting.clear()
+    assert c._next_check(now, timeout, 0) == now + timeout
+    c.last_sample_ns = 0
+    c.last_reply_ns = [0, 0, 0]
+    f.waiting.add(1)
+    f.deadline_ns = now + 5000
+    assert c._next_check(now, timeout, 0) == now + timeout
+
+
+def test_next_check_outside_realtime_ignores_silence():
+    u = LoopbackUnit(RunConfig(unit=unit_id("nextls"), clock="lockstep", peripherals=2))
+    c = u.central
+    u.start_plant()
+    c._handle(u.node.events.get_nowait())
+    settle(u, muted=frozenset({0}))
+    f = c.inflight[0]
+    now = f.deadline_ns - 10_000
+    c.last_reply_ns = [now - 900, now - 900]
+    c.last_sample_ns = now - 900
+    assert c._next_check(now, 50_000, 0) == f.deadline_ns
+
+
+def test_a_dead_child_is_a_fault_of_its_kind_looked_at_every_50_ms(monkeypatch):
+    u = realtime_unit("child")
+    c = u.central
+    c._check_children()  # none started: nothing to look at
+    calls = []
+    dead: list[tuple[str, int] | None] = [None]
+    c.child_check = lambda: calls.append(1) or dead[0]
+    clock = Clock(10**12)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c._check_children()
+    assert len(calls) == 1
+    dead[0] = ("plant", -9)
+    clock.now += 50 * MS - 1000
+    c._check_children()  # not yet looked at again
+    assert len(calls) == 1
+    clock.now += 1000
+    with pytest.raises(Fault) as exc:
+        c._check_children()
+    assert (exc.value.process, exc.value.code) == ("plant", EXIT_PLANT)
+    assert str(exc.value) == "plant exited (status -9)"
+    dead[0] = ("peripheral-2", 1)
+    clock.now += 50 * MS
+    with pytest.raises(Fault) as exc:
+        c._check_children()
+    assert (exc.value.process, exc.value.code) == ("peripheral-2", EXIT_PERIPHERAL)
+
+
+# -- the robot's state ---------------------------------------------------------------------
+
+
+def state(u: LoopbackUnit, cycle: int, p: Any, pc: Any) -> Any:
+    return SimpleNamespace(cycle=cycle, ctx={"p": p, "pc": pc})
+
+
+def test_tracking_error_beyond_max_error_stops_with_the_observers_code():
+    u = realtime_unit("track", max_error=0.005)
+    c = u.central
+    p0 = tuple(u.setup.task.start())
+    c._check_state(state(u, 3, p0, p0))
+    c._check_state(state(u, 3, (p0[0] + 0.004999, p0[1], p0[2]), p0))  # within
+    with pytest.raises(Fault) as exc:
+        c._check_state(state(u, 3, (p0[0] + 0.0051, p0[1], p0[2]), p0))
+    assert (exc.value.process, exc.value.code) == ("central", EXIT_OBSERVER)
+    assert str(exc.value) == ("cycle 3: tracking error 5.1 mm exceeds --max-error 5.0 mm")
+    c._check_state(SimpleNamespace(cycle=3, ctx={"p": None, "pc": p0}))
+    c._check_state(SimpleNamespace(cycle=3, ctx={"p": p0}))
+
+
+def test_leaving_the_usable_workspace_is_checked_every_tenth_interval():
+    u = realtime_unit("ws", max_error=1.0)
+    c = u.central
+    out = (0.0, 0.0, -2.0)  # far below the reach of the arms
+    c._check_state(state(u, 11, out, out))
+    with pytest.raises(Fault) as exc:
+        c._check_state(state(u, 20, out, out))
+    assert (exc.value.process, exc.value.code) == ("central", EXIT_OBSERVER)
+    assert str(exc.value).startswith("cycle 20: the robot left the usable workspace: ")
+
+
+def test_the_overload_hint_appears_in_realtime_when_most_deadlines_are_missed():
+    u = realtime_unit("hint", period=2e-3)
+    c = u.central
+    c.next_cycle = 100
+    c.plant_misses, c.skipped = 6, 4  # 10 of 100: not more than a tenth
+    assert c._overload_hint() == ""
+    c.skipped = 5
+    assert c._overload_hint() == (
+        "; 6 commands missed their deadline and 5 samples were skipped in 100 periods: "
+        "this machine does not sustain a 2 ms period with 3 peripheral(s) (try a longer "
+        "--period or --fault-periods, or --clock lockstep)")
+    c.next_cycle = 10
+    c.plant_misses, c.skipped = 5, 0  # few periods: at least 5 misses before it says so
+    assert c._overload_hint() == ""
+    c.plant_misses = 6
+    assert c._overload_hint().startswith("; 6 commands missed their deadline")
+    c.next_cycle = 0
+    assert "in 1 periods" in c._overload_hint()
+    u = LoopbackUnit(RunConfig(unit=unit_id("hintls"), clock="lockstep"))
+    u.central.plant_misses = 10**6
+    assert u.central._overload_hint() == ""
+
+
+def test_hold_torques_hold_the_last_estimate_against_gravity_or_are_zero():
+    u = realtime_unit("holdtau")
+    c = u.central
+    p = tuple(u.setup.task.start())
+    c.ctl.est = (p, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    want = [float(x) for x in gravity_torques(u.setup.params, p)]
+    got = c.hold_torques()
+    assert got == want and all(type(x) is float for x in got)
+    assert max(abs(x) for x in got) > 0.1
+    c.ctl.est = ((0.0, 0.0, -2.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert c.hold_torques() == [0.0, 0.0, 0.0]
+    c.ctl.est = ((math.nan, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert c.hold_torques() == [0.0, 0.0, 0.0]
+
+
+def test_a_fault_carries_its_process_and_code():
+    f = Fault("why", process="plant", code=EXIT_PLANT)
+    assert (str(f), f.process, f.code) == ("why", "plant", EXIT_PLANT)
