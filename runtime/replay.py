@@ -4,7 +4,9 @@
 in the recorded plan: each recorded request must equal the central's recomputed values,
 each recorded reply the recomputed per-axis values, each command the recomputed command.
 The first divergence names the cycle, the block that produces the value, the axis, the
-expected (recorded) and the recomputed value.
+expected (recorded) and the recomputed value. Within an interval the blocks are compared
+in plan order before its requests, so that the first wrong value found is the one a block
+made, not a later request that carried it on.
 
 A round whose reply came too late under ``--late-policy hold`` was computed by the
 central with the peripheral's last values (recorded on ``/faults/held``): verify checks
@@ -166,20 +168,22 @@ def verify(
         ctx = ctl.sources(k, counts)
         gen = engine.cycle(ctx)
         handed = False
+        sent: Divergence | None = None  # the first request that differs, reported after
+        # the blocks: a wrong block's output reaches a later request before the blocks
+        # are compared, and the block is the finding, not the request that carried it
         try:
             rnd = next(gen)
             while True:
                 if not handed and round_step[rnd.index] > hand:
                     ctl.handoff(ctx)
                     handed = True
-                if compare and plan.placement.peripherals:
-                    got = Engine.request_vals(rnd, ctx, (0, 1, 2))
+                if compare and plan.placement.peripherals and sent is None:
                     m = requests.get((k, rnd.index))
                     if m is None:
-                        return done, Divergence(k, "(request)", None, "missing", None, None)
-                    d = _diff(got, m["vals"], (0, 1, 2), producer, k)
-                    if d:
-                        return done, d
+                        sent = Divergence(k, "(request)", None, "missing", None, None)
+                    else:
+                        sent = _diff(Engine.request_vals(rnd, ctx, (0, 1, 2)), m["vals"],
+                                     (0, 1, 2), producer, k)
                 engine.run_round(rnd, ctx, (0, 1, 2))
                 d = _apply_held(plan, rnd.index, ctx, k, held, replies, last)
                 if d and compare:
@@ -190,7 +194,7 @@ def verify(
         if not handed:
             ctl.handoff(ctx)
         if compare:
-            d = _compare_blocks(plan, ctx, k, central_trace.get(k), replies, held)
+            d = _compare_blocks(plan, ctx, k, central_trace.get(k), replies, held) or sent
             if d:
                 return done, d
             rec_cmd = commands.get(k)

@@ -31,7 +31,8 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                                     "tests/test_codec_contract.py"]),
     "laws": (["kernels/laws.py"], ["tests/test_law_oracles.py", "tests/test_engine.py",
                                    "tests/test_laws.py"]),
-    "guard": (["runtime/central_guard.py"], ["tests/test_guard.py"]),
+    "guard": (["runtime/central_guard.py"], ["tests/test_guard.py", "tests/test_loopback.py",
+                                             "tests/test_validation.py"]),
     "replay": (["runtime/replay.py"], ["tests/test_replay_unit.py"]),
 }
 
