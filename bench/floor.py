@@ -63,21 +63,21 @@ def _zenoh_child(endpoint: str, index: int, unit: str) -> None:
     from ctrlunit.runtime.node import Node
     from ctrlunit.runtime.zsession import make_config
 
-    node = Node(make_config(connect=[endpoint]), unit, f"floor-{index}", inbox="peripheral")
-    node.route(node.keys.request, "req")
-    pub = node.publisher(node.keys.reply(index + 1))
-    hello = node.publisher(node.keys.hello)
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        try:
-            ev = node.events.get(timeout=0.05)
-        except queue.Empty:
-            hello.put(str(index).encode())
-            continue
-        if ev[2] == b"q":
-            break
-        pub.put(ev[2])
-    node.close()
+    with Node(make_config(connect=[endpoint]), unit, f"floor-{index}",
+              inbox="peripheral") as node:
+        node.route(node.keys.request, "req")
+        pub = node.publisher(node.keys.reply(index + 1))
+        hello = node.publisher(node.keys.hello)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            try:
+                ev = node.events.get(timeout=0.05)
+            except queue.Empty:
+                hello.put(str(index).encode())
+                continue
+            if ev.data == b"q":
+                break
+            pub.put(ev.data)
 
 
 def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[float]:
@@ -108,8 +108,8 @@ def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[f
                 ev = node.events.get(timeout=0.1)
             except queue.Empty:
                 continue
-            if ev[0] == "hello":
-                seen.add(ev[2])
+            if ev.kind == "hello":
+                seen.add(ev.data)
         time.sleep(0.1)
         while True:  # drain hellos
             try:
@@ -122,7 +122,7 @@ def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[f
             got = 0
             while got < n:
                 ev = node.events.get(timeout=2.0)
-                if ev[0] == "rep":
+                if ev.kind == "rep":
                     got += 1
             if k >= warmup:
                 out.append(time.perf_counter() - t0)

@@ -43,11 +43,11 @@ class CentralLifecycle:
                 ev = self.node.events.get(timeout=min(left, 0.1))
             except queue.Empty:
                 continue
-            if ev[0] == "hello":
-                msg = self.node.decode(ev[2])
+            if ev.kind == "hello":
+                msg = self.node.decode(ev.data)
                 if msg is not None and msg.get("role") in expected:
                     seen.add(msg["role"])
-            elif ev[0] == "sample":
+            elif ev.kind == "sample":
                 pass  # the plant's first sample may only follow go
         self.say("go")
 
@@ -79,7 +79,7 @@ class CentralLifecycle:
                 ev = self.node.events.get(timeout=0.05)
             except queue.Empty:
                 ev = None
-            if ev is not None and ev[0] == "hello":
+            if ev is not None and ev.kind == "hello":
                 self._handle(ev)
             if time.monotonic() > next_say:
                 self.say("stop", reason=reason, hold=hold)

@@ -63,7 +63,7 @@ class CentralWarmUp:
                 ev = self.node.events.get(timeout=left)
             except queue.Empty:
                 break
-            if ev[0] == "hello":
+            if ev.kind == "hello":
                 self._handle(ev)
 
     def _throwaway_ctx(self) -> dict:
@@ -99,27 +99,27 @@ class CentralWarmUp:
             except queue.Empty:
                 self._check_children()
                 continue
-            if ev[0] == "reply":
-                msg = self.node.decode(ev[2])
-                if msg is None or msg["cycle"] != cycle or ev[1] not in waiting:
+            if ev.kind == "reply":
+                msg = self.node.decode(ev.data)
+                if msg is None or msg["cycle"] != cycle or ev.index not in waiting:
                     continue
                 try:
                     part = parts_of(msg)[0]
                     if part["stage"] != rnd.index:
                         continue
-                    axes = self.plan.placement.axes[ev[1]]
+                    axes = self.plan.placement.axes[ev.index]
                     Engine.merge(ctx, check_vals(part.get("vals"), rnd.recv, len(axes)), axes)
                     span = check_span(part.get("span"))
                 except BadMessage:
                     continue
-                waiting.discard(ev[1])
+                waiting.discard(ev.index)
                 # the exchange alone: less the slowest peripheral's compute span
                 compute_s = max(compute_s, (span[1] - span[0]) / 1e9)
                 if not waiting and sends == 1 and rnd.index == 0:
                     self.warm_rtt_s.append(time.perf_counter() - t_sent - compute_s)
-            elif ev[0] == "sample":
-                self._on_sample(ev[2], ev[3])
-            elif ev[0] == "hello":
+            elif ev.kind == "sample":
+                self._on_sample(ev.data, ev.rx_ns)
+            elif ev.kind == "hello":
                 self._handle(ev)
 
     def choose_replies(self) -> dict[str, Any]:

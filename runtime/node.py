@@ -22,14 +22,25 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import zenoh
 
 from .codec import BadMessage, decode, encode
 from .zsession import Keys
 
-Event = tuple[str, int, bytes, int]  # (kind, index, payload, receive time ns)
+
+class Event(NamedTuple):
+    """One received message: what its key was routed as, and when it arrived."""
+
+    kind: str
+    """The kind its key was routed as (``reply``, ``sample``, ``request``, ...)."""
+    index: int
+    """The index routed with the key (the peripheral of a reply, 0 otherwise)."""
+    data: bytes
+    """The payload, not yet decoded."""
+    rx_ns: int
+    """Receive time on the monotonic clock (ns)."""
 
 TICK_MAX_S = 0.1
 """Longest a wait blocks inside Zenoh before it looks at the clock again (and Python sees
@@ -124,7 +135,7 @@ class Inbox:
         r = self._routes.get(key)
         data = sample.payload.to_bytes()
         if r is not None:
-            return (r[0], r[1], data, time.monotonic_ns())
+            return Event(r[0], r[1], data, time.monotonic_ns())
         if key != self._tick_key or data != self._token:
             self._on_unknown("unexpected_key")
         return None  # a tick: look at the clock again
@@ -222,6 +233,12 @@ class Node:
         self.events.close()
         self.session.close()
 
+    def __enter__(self) -> Node:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     # -- handshake (non-central roles) ----------------------------------------------------
 
     def wait_for_go(self, *, timeout: float, on_event: Callable[[Event], None] | None = None
@@ -248,8 +265,8 @@ class Node:
                 ev = self.events.get(timeout=0.05)
             except queue.Empty:
                 continue
-            if ev[0] == "control":
-                msg = self.decode(ev[2])
+            if ev.kind == "control":
+                msg = self.decode(ev.data)
                 if msg is not None and msg["stage"] == "go":
                     self.last_heard_ns = time.monotonic_ns()
                     return msg
@@ -275,9 +292,9 @@ WARM_RSS_AT = 1000  # intervals after which memory counts as warmed up
 def is_stop(node: Node, ev: Event) -> bool:
     """True if ``ev`` is a stop order from the central (and note that it spoke, and when
     it said ``start``: see :func:`cpu_used`)."""
-    if ev[0] != "control":
+    if ev.kind != "control":
         return False
-    msg = node.decode(ev[2])
+    msg = node.decode(ev.data)
     if msg is None:
         return False
     node.last_heard_ns = time.monotonic_ns()

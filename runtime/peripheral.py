@@ -172,31 +172,29 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
             if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
                 return result("watchdog")
             continue
-        if ev[0] == "control":
+        if ev.kind == "control":
             if is_stop(node, ev):
                 return result("stop")
             continue
-        if ev[0] != "request":
+        if ev.kind != "request":
             continue
-        replies = role.on_request(ev[2])
+        replies = role.on_request(ev.data)
         if replies:  # a request that passed validation: the central is alive
-            node.last_heard_ns = ev[3]
+            node.last_heard_ns = ev.rx_ns
         for payload in replies:
             reply.put(payload)
 
 
 def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
-    node = Node(conf, setup.rc.unit, f"peripheral-{index}")
-    try:
-        reply = declare(node, index - 1)
-        node.wait_for_go(timeout=setup.rc.startup_timeout)
-        res = serve(node, setup.engine(), index - 1, reply,
-                    watchdog=max(5.0, 3 * setup.rc.timeout), trace=setup.rc.trace)
+    with Node(conf, setup.rc.unit, f"peripheral-{index}") as node:
+        try:
+            reply = declare(node, index - 1)
+            node.wait_for_go(timeout=setup.rc.startup_timeout)
+            res = serve(node, setup.engine(), index - 1, reply,
+                        watchdog=max(5.0, 3 * setup.rc.timeout), trace=setup.rc.trace)
+        except TimeoutError as exc:
+            print(f"ctrlunit peripheral {index}: {exc}", file=sys.stderr)
+            return EXIT_LINK
         res["sched"] = sched.policy_name()
         say_bye(node, res)
         return EXIT_OK if res["exit"] == "stop" else EXIT_LINK
-    except TimeoutError as exc:
-        print(f"ctrlunit peripheral {index}: {exc}", file=sys.stderr)
-        return EXIT_LINK
-    finally:
-        node.close()

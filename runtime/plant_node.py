@@ -174,8 +174,8 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
                         continue
                     if is_stop(node, ev):
                         return _result(server, "stop", t_start)
-                    if ev[0] == "command":
-                        server.take_command(ev[2])
+                    if ev.kind == "command":
+                        server.take_command(ev.data)
                 server.apply(due)
             span = server.simulate()
             server.sample_no += 1
@@ -205,8 +205,8 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
             continue
         if is_stop(node, ev):
             break
-        if ev[0] == "command":
-            server.take_command(ev[2])
+        if ev.kind == "command":
+            server.take_command(ev.data)
     return _result(server, exit_reason, t_start)
 
 
@@ -227,8 +227,8 @@ def sleep_to_tick(node: Node, server: PlantServer, tick_ns: int, *,
                 break
             if is_stop(node, ev):
                 return False
-            if take_commands and ev[0] == "command":
-                server.take_command(ev[2])
+            if take_commands and ev.kind == "command":
+                server.take_command(ev.data)
         if time.monotonic_ns() >= tick_ns:
             return True
 
@@ -244,9 +244,9 @@ def tick_after(tick_ns: int, period_ns: int) -> int:
 def trial_order(node: Node, ev: Any) -> tuple[float, int, int] | None:
     """``(period, ticks, base)`` of an admission trial order, else None (a malformed one is
     counted and dropped)."""
-    if ev[0] != "control":
+    if ev.kind != "control":
         return None
-    msg = node.decode(ev[2])
+    msg = node.decode(ev.data)
     if msg is None or msg["stage"] != "probe":
         return None
     period, ticks, base = msg.get("period"), msg.get("ticks"), msg.get("base")
@@ -312,11 +312,14 @@ def run_plant(setup: Setup, conf: Any) -> int:
         return sim
 
     plant = make_plant(rc.period)
-    node = Node(conf, rc.unit, "plant")
-    try:
+    with Node(conf, rc.unit, "plant") as node:
         server = PlantServer(node, plant, depth=rc.pipeline, initial=initial,
                              trial_plant=trial_plant)
-        node.wait_for_go(timeout=rc.startup_timeout)
+        try:
+            node.wait_for_go(timeout=rc.startup_timeout)
+        except TimeoutError as exc:
+            print(f"ctrlunit plant: {exc}", file=sys.stderr)
+            return EXIT_LINK
         res = serve(node, server, clock=rc.clock, period=rc.period, cycles=setup.cycles,
                     watchdog=max(5.0, 3 * rc.timeout), delay=rc.delay_periods)
         hold = (node.stop_msg or {}).get("hold")
@@ -327,11 +330,6 @@ def run_plant(setup: Setup, conf: Any) -> int:
         res["sched"] = sched.policy_name()
         say_bye(node, res)
         return EXIT_OK if res["exit"] in ("stop", "done") else EXIT_LINK
-    except TimeoutError as exc:
-        print(f"ctrlunit plant: {exc}", file=sys.stderr)
-        return EXIT_LINK
-    finally:
-        node.close()
 
 
 def safe_stop(plant: Plant, *, hold_s: float = 0.05, damping: float = 5.0,

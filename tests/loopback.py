@@ -80,7 +80,7 @@ class LoopbackInbox:
         if r is None:
             self._on_unknown("unexpected_key")
             return
-        self._queue.append((r[0], r[1], data, time.monotonic_ns()))
+        self._queue.append(Event(r[0], r[1], data, time.monotonic_ns()))
 
     def pending(self) -> bool:
         return bool(self._queue)
@@ -164,7 +164,8 @@ class LoopbackUnit:
                           p_guess=tuple(setup.task.start()))
             self.server = PlantServer(pnode, plant, depth=rc.pipeline,
                                       initial=initial_command(setup.params, setup.task))
-        self.muted: set[int] = set()  # peripherals (0-based) that do not answer
+        self.muted: set[int] = set()  # peripherals (0-based) whose replies are withheld
+        self.withheld: list[tuple[int, bytes]] = []  # (peripheral, reply) not delivered
         self.plant_muted = False
         self.node.events.pump = self.pump
 
@@ -176,10 +177,11 @@ class LoopbackUnit:
                 while pnode.events.pending():
                     ev = pnode.events.get_nowait()
                     moved = True
-                    if k in self.muted:
-                        continue
-                    for reply in periph.on_request(ev[2]):
-                        self.bus.put(pnode.keys.reply(k + 1), reply)
+                    for reply in periph.on_request(ev.data):
+                        if k in self.muted:  # computed, but not (yet) delivered
+                            self.withheld.append((k, reply))
+                        else:
+                            self.bus.put(pnode.keys.reply(k + 1), reply)
             if self.server is not None and not self.plant_muted:
                 moved |= self._plant_lockstep()
             if not moved:
@@ -200,8 +202,8 @@ class LoopbackUnit:
         moved = False
         while pnode.events.pending():
             ev = pnode.events.get_nowait()
-            if ev[0] == "command":
-                server.take_command(ev[2])
+            if ev.kind == "command":
+                server.take_command(ev.data)
             moved = True
         if self.rc.clock != "lockstep":
             return moved
