@@ -134,13 +134,11 @@ class CentralGuard:
             raise Fault(f"{name} exited (status {rc})", process=name, code=code)
 
     def _late_policies(self) -> dict[int, str]:
-        """Policy per round: the strictest of its blocks' (fault > hold > wait)."""
+        """Policy per round: the strictest of its blocks' (fault > hold > wait); every
+        round has at least one block."""
         order = {"wait": 0, "hold": 1, "fault": 2}
-        out = {}
-        for r in self.plan.rounds:
-            pols = [self.rc.late.get(b.name, self.rc.late_policy) for b in r.blocks]
-            out[r.index] = max(pols, key=lambda p: order[p]) if pols else "wait"
-        return out
+        return {r.index: max((self.rc.late.get(b.name, self.rc.late_policy) for b in r.blocks),
+                             key=order.__getitem__) for r in self.plan.rounds}
 
     def _check_late(self, now: int) -> None:
         if self.rc.clock != "realtime":

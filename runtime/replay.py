@@ -124,7 +124,6 @@ def verify(
     -------
     (intervals compared, first divergence or None)
     """
-    from ..topology.pipeline import handoff_step
     from .controller import Controller
     from .engine import Engine
 
@@ -133,15 +132,13 @@ def verify(
     plan = engine.plan
     producer = {o: b.name for b in plan.graph.blocks for o in b.outputs}
     ctl = Controller(engine, setup.rc.period, setup.params.increment, tuple(setup.task.start()))
-    hand = handoff_step(plan)
-    round_step = {s.round.index: k for k, s in enumerate(plan.steps) if s.round is not None}
     requests, replies = _index(rec, "request"), _index(rec, "reply")
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
     held = {(m["peripheral"], m["cycle"], m["stage"]): m["vals"]
             for _, m in rec.decoded("/faults/held")}
     last: dict[str, list[Any]] = {}  # the last accepted values, by name and axis
     central_trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
-    current = {"cycle": -1}
+    current: dict[str, int] = {}  # the interval being re-executed (for ``alter``)
     if alter is not None:
         name, at = alter
         fn, names, cost, per_axis = engine._bound[name]
@@ -167,16 +164,12 @@ def verify(
         compare = cycles is None or cycles[0] <= k < cycles[1]
         ctx = ctl.sources(k, counts)
         gen = engine.cycle(ctx)
-        handed = False
         sent: Divergence | None = None  # the first request that differs, reported after
         # the blocks: a wrong block's output reaches a later request before the blocks
         # are compared, and the block is the finding, not the request that carried it
         try:
             rnd = next(gen)
             while True:
-                if not handed and round_step[rnd.index] > hand:
-                    ctl.handoff(ctx)
-                    handed = True
                 if compare and plan.placement.peripherals and sent is None:
                     m = requests.get((k, rnd.index))
                     if m is None:
@@ -191,8 +184,9 @@ def verify(
                 rnd = gen.send(None)
         except StopIteration:
             pass
-        if not handed:
-            ctl.handoff(ctx)
+        # the estimate for the next interval: one after the other here, so its values at
+        # the end of the interval are those the central handed off at its hand-off point
+        ctl.handoff(ctx)
         if compare:
             d = _compare_blocks(plan, ctx, k, central_trace.get(k), replies, held) or sent
             if d:
@@ -231,7 +225,7 @@ def _apply_held(plan: Any, stage: int, ctx: dict, k: int, held: dict, replies: d
 
 def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
                     replies: dict[tuple[int, int, Any], dict],
-                    held: dict | None = None) -> Divergence | None:
+                    held: dict) -> Divergence | None:
     """Compare every block's outputs, in plan order, with what the recording holds: the
     central's trace for central blocks, the replies (values and trace) for per-axis blocks
     run on the peripherals (except the rounds the central held: :func:`_apply_held`
@@ -242,8 +236,6 @@ def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
             if central is None:
                 continue
             for name in b.outputs:
-                if name.endswith("_i"):
-                    continue
                 if name in central and _plain(ctx[name]) != central[name]:
                     return Divergence(k, b.name, None, name, central[name], _plain(ctx[name]))
             continue
@@ -251,7 +243,7 @@ def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
         for b in rnd.blocks:
             for p in range(plan.placement.peripherals):
                 axes = plan.placement.axes[p]
-                if held and (p, k, rnd.index) in held:
+                if (p, k, rnd.index) in held:
                     continue
                 m = replies.get((p, k, rnd.index))
                 if m is None:

@@ -463,3 +463,140 @@ def test_hold_torques_hold_the_last_estimate_against_gravity_or_are_zero():
 def test_a_fault_carries_its_process_and_code():
     f = Fault("why", process="plant", code=EXIT_PLANT)
     assert (str(f), f.process, f.code) == ("why", "plant", EXIT_PLANT)
+
+
+# -- edges that only a wrong guard would cross ----------------------------------------------
+
+
+def twin(f: Any, **changes: Any) -> Any:
+    """Another interval like ``f`` (its own sets), e.g. at another round or cycle."""
+    import dataclasses
+
+    return dataclasses.replace(f, waiting=set(changes.pop("waiting", f.waiting)),
+                               dropped=set(), **changes)
+
+
+def test_every_interval_in_flight_is_judged_not_only_the_first():
+    u = realtime_unit("many", late_policy="fault", late={
+        "ik_obs0": "wait", "jinv_obs0": "wait", "residual0": "wait"})
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({0}))
+    f = c.inflight[1]  # round 0 (wait), late
+    done = twin(f, cycle=0, waiting=set())  # answered: nothing to judge
+    later = twin(f, cycle=2, round=u.central.plan.rounds[1])  # round 1 (fault), late
+    c.inflight.clear()
+    c.inflight.update({0: done, 1: f, 2: later})
+    with pytest.raises(Fault, match="round 1 .* of cycle 2"):
+        c._check_late(f.late_ns)
+    assert f.late_ns == 0  # the waiting one was looked at too
+
+
+def test_an_interval_without_late_time_or_without_waiting_is_left_alone():
+    u = realtime_unit("alone", late_policy="fault")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({0}))
+    f = c.inflight[1]
+    late = f.late_ns
+    f.late_ns = 0  # already judged (wait) or not realtime-timed
+    c._check_late(10**18)
+    f.late_ns, f.waiting = late, set()  # every reply in, not yet advanced
+    c._check_late(10**18)
+    f.waiting = {0}
+    with pytest.raises(Fault):
+        c._check_late(late)
+
+
+def test_hold_waits_while_no_peripheral_has_answered_at_all_and_goes_on_to_the_next():
+    u = realtime_unit("holdnone2", late_policy="hold")
+    c = u.central
+    sample(u, 0)
+    settle(u, muted=frozenset({0, 1, 2}))
+    f = c.inflight[0]
+    assert c.last_vals == {}
+    c._check_late(f.late_ns)
+    assert f.waiting == {0, 1, 2} and f.late_ns == 0 and not c.held
+    # with an interval that can be held behind it, that one is held
+    u = realtime_unit("holdnext", late_policy="hold")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({1}))
+    f = c.inflight[1]
+    blank = twin(f, cycle=0, ctx={}, waiting={0, 1, 2})
+    c.last_vals["rowo0_i"][0] = None  # peripheral 1's axis has nothing to hold
+    c.inflight.clear()
+    c.inflight.update({0: blank, 1: f})
+    c._check_late(f.late_ns)
+    assert blank.waiting == {0, 1, 2} and blank.late_ns == 0
+    assert f.dropped == {1} and c.held == {(1, 0, 1)}
+
+
+def test_late_counts_add_up_per_axis_and_the_held_set_stays_bounded():
+    u = realtime_unit("count", late_policy="hold")
+    c = u.central
+    first_interval(u)
+    for k in (1, 2):
+        sample(u, k)
+        settle(u, muted=frozenset({1}))
+        c._check_late(c.inflight[k].late_ns)
+        settle(u)
+    assert c.late_per_axis == [0, 2, 0] and c.done == 3
+    assert c.held == {(1, 0, 1), (2, 0, 1)}
+    sample(u, 3)
+    settle(u, muted=frozenset({2}))
+    c.held = {(-k, 0, 0) for k in range(1, 1023)} | {(2, 0, 1)}  # 1023 held
+    c._check_late(c.inflight[3].late_ns)
+    assert len(c.held) == 1024 and (-1022, 0, 0) in c.held  # at the bound: all kept
+    settle(u)
+    sample(u, 4)
+    settle(u, muted=frozenset({2}))
+    c._check_late(c.inflight[4].late_ns)
+    assert len(c.held) == 1024 and (-1022, 0, 0) not in c.held  # past it: oldest out
+    assert (4, 0, 2) in c.held
+
+
+def test_a_rounds_policy_is_the_strictest_whatever_the_order_of_its_blocks():
+    u = realtime_unit("order", late_policy="hold", late={"dyn_axis": "fault"})
+    assert u.central.late_policy == {0: "hold", 1: "fault"}
+
+
+def test_limits_and_messages_keep_their_units_at_large_values(monkeypatch):
+    u = realtime_unit("units", period=1.0, fault_periods=1000.0, cycles=50)
+    c = u.central
+    first_interval(u)
+    c.done = 100
+    assert c._timeout_ns() == 1000 * 10**9
+    u2 = LoopbackUnit(RunConfig(unit=unit_id("units2"), clock="lockstep", timeout=600.0))
+    assert u2.central._timeout_ns() == 600 * 10**9
+    sample(u, 1)
+    settle(u, muted=frozenset({1}))
+    limit = 123_456_789_000  # 123456.789 ms
+    f = c.inflight[1]
+    clock = Clock(c.last_reply_ns[1] + limit + 1)
+    f.deadline_ns = clock.now + 1
+    monkeypatch.setattr(central_guard, "time", clock)
+    with pytest.raises(Fault, match=r"for 123456\.8 ms \(limit 123456\.8 ms\)"):
+        c._check_deadlines(limit)
+    c.last_reply_ns[1] = 0
+    clock.now = f.deadline_ns + 1
+    with pytest.raises(Fault, match=r"silent for 123456\.8 ms \(limit 123456\.8 ms\)"):
+        c._check_deadlines(limit)
+    c.inflight.clear()
+    c.last_sample_ns = 1
+    clock.now = 1 + limit + 1
+    with pytest.raises(Fault, match=r"no sample from the plant for 123456\.8 ms"):
+        c._check_deadlines(limit)
+
+
+def test_tracking_error_at_exactly_max_error_is_allowed_and_reported_in_mm():
+    u = realtime_unit("exact", max_error=0.005)
+    c = u.central
+    pc = (0.0, 0.0, -0.35)
+    c._check_state(state(u, 3, (0.005, 0.0, -0.35), pc))
+    u = realtime_unit("mm", max_error=0.5)
+    with pytest.raises(Fault, match=r"tracking error 750\.0 mm exceeds --max-error 500\.0 mm"):
+        u.central._check_state(state(u, 3, (0.75, 0.0, -0.35), pc))

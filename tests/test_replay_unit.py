@@ -25,8 +25,9 @@ CYCLES = 520  # past 500: the progress callback's second call
 @pytest.fixture(scope="module")
 def made(tmp_path_factory) -> tuple[Path, Any]:
     path = tmp_path_factory.mktemp("replay") / "run.mcap"
+    # the circle: the three axes differ (on pick & place, in the x-z plane, two are equal)
     unit = record_lockstep(str(path), unit_id("replay"), peripherals=3, pipeline=2,
-                           cycles=CYCLES, max_error=1.0)
+                           cycles=CYCLES, max_error=1.0, task="circle")
     return path, unit
 
 
@@ -138,10 +139,24 @@ def test_a_tampered_central_trace_value_names_the_central_block(rec):
         if m["cycle"] == 42:
             m["vals"]["pc"] = [0.0, 0.0, 0.0]
         return m
+    want = next(m["vals"]["pc"] for m in messages(rec, "/trace/central") if m["cycle"] == 42)
     rewrite(rec, "/trace/central", edit)
     done, div = replay.verify(rec)
     assert (done, div.cycle, div.block, div.axis, div.value, div.expected) == (
         42, 42, "reference", None, "pc", [0.0, 0.0, 0.0])
+    assert div.got == want
+
+
+def test_an_interval_without_central_trace_still_has_its_replies_compared(rec):
+    rewrite(rec, "/trace/central", lambda m: None if m["cycle"] == 48 else m)
+    assert replay.verify(rec) == (CYCLES, None)
+
+    def edit(p: dict) -> dict:
+        p["vals"]["tauq_i"][0] += 1.0
+        return p
+    rewrite(rec, "/central/reply/3", parts_edit(48, 1, edit))
+    done, div = replay.verify(rec)
+    assert (done, div.cycle, div.block, div.axis) == (48, 48, "dyn_axis", 2)
 
 
 def test_a_tampered_request_names_the_block_of_the_value(rec):
@@ -154,13 +169,15 @@ def test_a_tampered_request_names_the_block_of_the_value(rec):
         43, 43, "velocity", None, "pd", [1.0, 2.0, 3.0])
 
 
-def test_a_tampered_per_axis_request_value_names_its_axis(rec):
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_a_tampered_per_axis_request_value_names_its_axis(rec, axis):
     def edit(p: dict) -> dict:
-        p["vals"]["qmeas_i"][2] = 0.5
+        p["vals"]["qmeas_i"][axis] = 0.5
         return p
     rewrite(rec, "/peripheral/request", parts_edit(44, 0, edit))
     done, div = replay.verify(rec)
-    assert (done, div.cycle, div.axis, div.value, div.expected) == (44, 44, 2, "qmeas_i", 0.5)
+    assert (done, div.cycle, div.axis, div.value, div.expected) == (44, 44, axis, "qmeas_i",
+                                                                     0.5)
 
 
 def test_a_missing_request_or_reply_is_a_divergence(rec):
@@ -219,6 +236,10 @@ def test_a_held_round_is_checked_against_the_last_accepted_values_and_used(rec):
         return p
     rewrite(rec, "/central/reply/2", parts_edit(60, 1, garbage))
     assert replay.verify(rec, cycles=(60, CYCLES)) == (CYCLES - 60, None)
+    # the other peripherals' replies of that round are still compared
+    rewrite(rec, "/central/reply/3", parts_edit(60, 1, garbage))
+    done, div = replay.verify(rec, cycles=(60, CYCLES))
+    assert (done, div.cycle, div.axis) == (0, 60, 2)
 
 
 def test_held_values_other_than_the_last_accepted_ones_are_a_divergence(rec):
@@ -295,11 +316,11 @@ def test_plain_turns_nested_tuples_into_lists():
 def test_nudge_changes_the_first_float_only_and_keeps_the_type():
     P = namedtuple("P", "a b")
     assert replay._nudge(1.0) != 1.0 and replay._nudge(1.0) - 1.0 < 1e-11
-    assert replay._nudge(0.0) != 0.0
+    assert replay._nudge(0.0) > 0.0
     assert replay._nudge(-2.0) != -2.0 and replay._nudge(-2.0) > -2.0
     assert replay._nudge("x") == "x" and replay._nudge(3) == 3
     v = replay._nudge(P(1.0, 2.0))
-    assert type(v) is P and v.a != 1.0 and v.b == 2.0
+    assert type(v) is P and v.a != 1.0 and v.a == pytest.approx(1.0) and v.b == 2.0
     v = replay._nudge([1.0, 2.0])
     assert type(v) is list and v[0] != 1.0 and v[1] == 2.0
     v = replay._nudge((1.0, 2.0))
@@ -317,24 +338,36 @@ def test_diff_names_the_first_differing_value_and_its_producer():
     assert replay._diff({"b": (1, 3)}, {"b": [1, 2]}, (0, 1, 2), prod, 4) == \
         Divergence(4, "cen", None, "b", [1, 2], [1, 3])
     assert replay._diff({"c": 1}, {"c": 2}, (0, 1, 2), prod, 4).block == "?"
+    assert replay._diff({}, {"z_i": [1, 2, 3]}, (0, 1, 2), prod, 4).block == "?"
 
 
 # -- export --------------------------------------------------------------------------------
 
 
 def test_csv_holds_every_recorded_signal_row_and_the_window_asked(rec, tmp_path):
-    [path] = replay.export_csv(rec, tmp_path / "out")
-    rows = list(csv.DictReader(open(path)))
+    out = tmp_path / "a" / "b"  # made with its parents
+    [path] = replay.export_csv(rec, out)
+    assert path == out / "signals.csv"
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0] == ["cycle", "t", "p_x", "p_y", "p_z", "ref_x", "ref_y", "ref_z", "q1",
+                       "q2", "q3", "tau1", "tau2", "tau3", "tracking_error", "period",
+                       "traversal"]
     states = [json.loads(d) for _, d in rec.topics["/signals/state"]]
-    assert len(rows) == len(states) == CYCLES
-    for row, s in zip(rows, states, strict=True):
-        assert int(row["cycle"]) == s["cycle"]
-        assert float(row["p_x"]) == s["p"]["x"] and float(row["ref_z"]) == s["reference"]["z"]
-        assert float(row["q2"]) == s["q"][1] and float(row["tau3"]) == s["torque"][2]
-        assert float(row["tracking_error"]) == s["tracking_error"]
-        assert row["t"] == str(s["t"]) and row["traversal"] == str(s["traversal"])
-    [path] = replay.export_csv(rec, tmp_path / "win", cycles=(100, 150))
-    rows = list(csv.DictReader(open(path)))
+    assert len(rows) - 1 == len(states) == CYCLES
+    for row, s in zip(rows[1:], states, strict=True):
+        p, r = s["p"], s["reference"]
+        want = [s["cycle"], s["t"], p["x"], p["y"], p["z"], r["x"], r["y"], r["z"], *s["q"],
+                *s["torque"], s["tracking_error"], s["period"], s["traversal"]]
+        assert row == ["" if v is None else str(v) for v in want]
+    assert len({row[3] for row in rows[1:]}) > 100  # y moves on the circle
+    del rec.topics["/signals/state"]  # nothing to export: the header alone
+    [path] = replay.export_csv(rec, tmp_path / "none")
+    assert path.read_text().splitlines() == [",".join(rows[0])]
+    rec = recording.read(rec.path)
+    [path] = replay.export_csv(rec, out, cycles=(100, 150))  # into the same folder again
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
     assert [int(r["cycle"]) for r in rows] == list(range(100, 150))
 
 
@@ -366,6 +399,7 @@ class FakePublisher:
 class FakeSession:
     def __init__(self, clock: FakeClock, matched: bool = True) -> None:
         self.clock, self.matched = clock, matched
+        self.conf: Any = None
         self.puts: list[tuple[float, str, bytes]] = []
 
     def __enter__(self) -> FakeSession:
@@ -385,7 +419,10 @@ def fake(monkeypatch) -> tuple[FakeClock, FakeSession]:
     clock = FakeClock()
     session = FakeSession(clock)
     monkeypatch.setattr(replay, "time", clock)
-    monkeypatch.setattr(zenoh, "open", lambda conf: session)
+    def open_(conf: Any) -> FakeSession:
+        session.conf = conf
+        return session
+    monkeypatch.setattr(zenoh, "open", open_)
     return clock, session
 
 
@@ -404,10 +441,13 @@ def small(rec: recording.Recording) -> recording.Recording:
 
 
 def test_republish_keeps_the_recorded_order_and_pace_scaled_by_rate(rec, fake):
-    _clock, session = fake
+    clock, session = fake
     r = small(rec)
-    n = replay.republish(r, unit="u1", rate=2.0, conf=object())
+    conf = object()
+    n = replay.republish(r, unit="u1", rate=2.0, conf=conf)
+    assert session.conf is conf
     assert n == 15 == len(session.puts)
+    assert all(s > 0 for s in clock.sleeps)  # no sleep for a message already due
     t0 = session.puts[0][0]
     want = sorted((t, topic) for topic, items in r.topics.items() for t, _ in items)
     for (at, key, _), (t, topic) in zip(session.puts, want, strict=True):
@@ -421,8 +461,10 @@ def test_republish_starts_at_the_offset_and_keeps_topics_and_cycles_asked(rec, f
     n = replay.republish(r, unit="u2", start_offset=0.003, conf=object())
     assert n == 14  # the first sample (5 ms before the first command) is left out
     session.puts.clear()
-    n = replay.republish(r, unit="u2", topics=["/plant/command"], conf=object())
-    assert n == 5 and {k for _, k, _ in session.puts} == {"ctrlunit/u2/plant/command"}
+    n = replay.republish(r, unit="u2", topics=["/signals/state", "/central/sample"],
+                         conf=object())
+    assert n == 10 and {k for _, k, _ in session.puts} == {"ctrlunit/u2/signals/state",
+                                                         "ctrlunit/u2/central/sample"}
     session.puts.clear()
     n = replay.republish(r, unit="u2", cycles=(1, 3), conf=object())
     got = sorted((k, msgpack.unpackb(d)["cycle"]) for _, k, d in session.puts)
@@ -470,3 +512,21 @@ def test_waiting_for_subscribers_ends_as_soon_as_all_match():
         assert replay._wait_for_subscribers(pubs, -1.0) is False and clock.sleeps == []
     finally:
         replay.time = orig
+
+
+def test_republish_keeps_the_recorded_order_of_messages_logged_at_the_same_time(rec, fake):
+    _clock, session = fake
+    r = recording.Recording(rec.path)
+    r.topics = {"/z/first": [(5, msgpack.packb({"cycle": 1}))],
+                "/a/second": [(5, msgpack.packb({"cycle": 2}))]}
+    replay.republish(r, unit="u6", conf=object())
+    assert [k for _, k, _ in session.puts] == ["ctrlunit/u6/z/first", "ctrlunit/u6/a/second"]
+
+
+def test_a_start_offset_keeps_a_message_logged_exactly_at_it(rec, fake):
+    _clock, session = fake
+    r = recording.Recording(rec.path)
+    r.topics = {"/x": [(0, msgpack.packb({"cycle": 0})),
+                       (10_000_000_000, msgpack.packb({"cycle": 1}))]}
+    assert replay.republish(r, unit="u7", start_offset=10.0, conf=object()) == 1
+    assert [msgpack.unpackb(d)["cycle"] for _, _, d in session.puts] == [1]
