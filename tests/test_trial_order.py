@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from ctrlunit.runtime.node import Event
 from ctrlunit.runtime.plant_node import TRIAL_MAX_S, trial_order
 
 
@@ -21,7 +22,7 @@ class FakeNode:
 def order(**fields) -> tuple[FakeNode, object]:
     node = FakeNode({"stage": "probe", "period": 1e-3, "ticks": 300, "base": 1 << 41}
                     | fields)
-    return node, trial_order(node, ("control", 0, b"", 0))
+    return node, trial_order(node, Event("control", 0, b"", 0))
 
 
 def test_a_well_formed_trial_order_is_taken():
@@ -42,4 +43,4 @@ def test_a_malformed_or_endless_trial_order_is_counted_and_dropped(fields):
 def test_other_orders_are_not_trials():
     node, got = order(stage="start")
     assert got is None and node.rejected == []
-    assert trial_order(node, ("command", 0, b"", 0)) is None
+    assert trial_order(node, Event("command", 0, b"", 0)) is None
