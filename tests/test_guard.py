@@ -40,6 +40,15 @@ class Clock:
         return self.now / 1e9
 
 
+def fault_just_past(c: Any, clock: Clock, limit: int) -> Fault:
+    """The guard at ``limit`` (nothing) and one nanosecond past it: the fault raised."""
+    c._check_deadlines(limit)
+    clock.now += 1
+    with pytest.raises(Fault) as info:
+        c._check_deadlines(limit)
+    return info.value
+
+
 def realtime_unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUnit:
     kw.setdefault("peripherals", 3)
     kw.setdefault("pipeline", 1)
@@ -75,6 +84,16 @@ def first_interval(u: LoopbackUnit) -> None:
     sample(u, 0)
     settle(u)
     assert u.central.done == 1
+
+
+def second_interval_late(tag: str, *, muted: set[int], **kw: Any) -> tuple[Any, Any, Any]:
+    """A realtime unit whose first interval is done and whose second waits for the
+    ``muted`` peripherals' replies to round 0: ``(unit, central, that interval)``."""
+    u = realtime_unit(tag, **kw)
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset(muted))
+    return u, u.central, u.central.inflight[1]
 
 
 def reply_vals(u: LoopbackUnit, peripheral: int, cycle: int, stage: int) -> dict:
@@ -139,12 +158,7 @@ def test_hold_takes_the_last_accepted_values_of_the_late_peripheral_only_at_its_
 
 
 def test_a_held_replys_late_arrival_is_counted_and_marks_the_peripheral_alive():
-    u = realtime_unit("holdlate", late_policy="hold")
-    c = u.central
-    first_interval(u)
-    sample(u, 1)
-    settle(u, muted=frozenset({1}))
-    f = c.inflight[1]
+    u, c, f = second_interval_late("holdlate", late_policy="hold", muted={1})
     c._check_late(f.late_ns)
     c.last_reply_ns[1] = 0
     late = request_of(u, 1, 0)
@@ -171,28 +185,19 @@ def test_hold_waits_when_there_is_nothing_to_hold_yet():
 
 
 def test_wait_policy_keeps_waiting_and_looks_no_more():
-    u = realtime_unit("wait", late_policy="wait")
-    c = u.central
-    first_interval(u)
-    sample(u, 1)
-    settle(u, muted=frozenset({0}))
-    f = c.inflight[1]
+    _u, c, f = second_interval_late("wait", late_policy="wait", muted={0})
     c._check_late(f.late_ns)
     assert f.waiting == {0} and f.late_ns == 0 and not f.dropped
 
 
 def test_fault_policy_names_the_peripheral_round_blocks_and_cycle():
-    u = realtime_unit("fault", late_policy="fault")
-    c = u.central
-    first_interval(u)
-    sample(u, 1)
-    settle(u, muted=frozenset({0, 2}))
-    f = c.inflight[1]
+    _u, c, f = second_interval_late("fault", late_policy="fault", muted={0, 2})
     c._check_late(f.late_ns - 1)
-    with pytest.raises(Fault) as exc:
+    with pytest.raises(Fault) as info:
         c._check_late(f.late_ns)
-    assert exc.value.process == "peripheral-1" and exc.value.code == EXIT_PERIPHERAL
-    assert str(exc.value) == ("late data: peripheral 1 missed the deadline of round 0 "
+    exc = info.value
+    assert exc.process == "peripheral-1" and exc.code == EXIT_PERIPHERAL
+    assert str(exc) == ("late data: peripheral 1 missed the deadline of round 0 "
                               "(ik_obs0, jinv_obs0, residual0) of cycle 1")
 
 
@@ -248,12 +253,9 @@ def test_a_silent_peripheral_is_a_fault_just_after_its_limit(monkeypatch):
     f.deadline_ns = 10**18  # the round's own deadline out of the way
     clock = Clock(c.last_reply_ns[1] + limit)
     monkeypatch.setattr(central_guard, "time", clock)
-    c._check_deadlines(limit)  # at the limit: alive
-    clock.now += 1
-    with pytest.raises(Fault) as exc:
-        c._check_deadlines(limit)
-    assert exc.value.process == "peripheral-2" and exc.value.code == EXIT_PERIPHERAL
-    assert str(exc.value).startswith("peripheral 2 has not answered for 3.0 ms (limit 3.0 ms)")
+    exc = fault_just_past(c, clock, limit)
+    assert exc.process == "peripheral-2" and exc.code == EXIT_PERIPHERAL
+    assert str(exc).startswith("peripheral 2 has not answered for 3.0 ms (limit 3.0 ms)")
     c._check_late(f.late_ns)  # held: still judged by its silence
     assert f.dropped == {1} and not f.waiting
     with pytest.raises(Fault, match="peripheral 2 has not answered"):
@@ -271,12 +273,9 @@ def test_the_first_interval_is_judged_by_its_rounds_deadline_only(monkeypatch):
     c.last_reply_ns = [1, 1, 1]  # long ago, but nothing is done yet
     clock = Clock(f.deadline_ns)
     monkeypatch.setattr(central_guard, "time", clock)
-    c._check_deadlines(3 * MS)
-    clock.now += 1
-    with pytest.raises(Fault) as exc:
-        c._check_deadlines(3 * MS)
-    assert exc.value.process == "peripheral-1" and exc.value.code == EXIT_PERIPHERAL
-    assert str(exc.value).startswith("peripheral 1 did not answer round 0 of cycle 0: "
+    exc = fault_just_past(c, clock, 3 * MS)
+    assert exc.process == "peripheral-1" and exc.code == EXIT_PERIPHERAL
+    assert str(exc).startswith("peripheral 1 did not answer round 0 of cycle 0: "
                                      "silent for 3.0 ms (limit 3.0 ms)")
 
 
@@ -289,12 +288,9 @@ def test_a_silent_plant_is_a_fault_after_the_limit_unless_messages_wait(monkeypa
     c.last_sample_ns = 5 * MS
     clock = Clock(5 * MS + 3 * MS)
     monkeypatch.setattr(central_guard, "time", clock)
-    c._check_deadlines(3 * MS)
-    clock.now += 1
-    with pytest.raises(Fault) as exc:
-        c._check_deadlines(3 * MS)
-    assert exc.value.process == "plant" and exc.value.code == EXIT_PLANT
-    assert str(exc.value) == ("no sample from the plant for 3.0 ms (cycle 1 awaited, newest "
+    exc = fault_just_past(c, clock, 3 * MS)
+    assert exc.process == "plant" and exc.code == EXIT_PLANT
+    assert str(exc) == ("no sample from the plant for 3.0 ms (cycle 1 awaited, newest "
                               "seen 0)")
     u.node.events.deliver(u.node.keys.sample, b"unread")  # the central may be the slow one
     c._check_deadlines(3 * MS)
@@ -322,12 +318,7 @@ def test_the_plants_silence_counts_from_the_start_before_any_sample(monkeypatch)
 
 
 def test_next_check_is_the_earliest_moment_something_could_fail():
-    u = realtime_unit("next", late_policy="hold")
-    c = u.central
-    first_interval(u)
-    sample(u, 1)
-    settle(u, muted=frozenset({1}))
-    f = c.inflight[1]
+    _u, c, f = second_interval_late("next", late_policy="hold", muted={1})
     now = 10**12
     f.deadline_ns, f.late_ns = now + 990, now + 950
     c.last_reply_ns = [now - 500, now - 300, now - 400]  # peripheral 2 is the one waited for
@@ -379,15 +370,17 @@ def test_a_dead_child_is_a_fault_of_its_kind_looked_at_every_50_ms(monkeypatch):
     c._check_children()  # not yet looked at again
     assert len(calls) == 1
     clock.now += 1000
-    with pytest.raises(Fault) as exc:
+    with pytest.raises(Fault) as info:
         c._check_children()
-    assert (exc.value.process, exc.value.code) == ("plant", EXIT_PLANT)
-    assert str(exc.value) == "plant exited (status -9)"
+    exc = info.value
+    assert (exc.process, exc.code) == ("plant", EXIT_PLANT)
+    assert str(exc) == "plant exited (status -9)"
     dead[0] = ("peripheral-2", 1)
     clock.now += 50 * MS
-    with pytest.raises(Fault) as exc:
+    with pytest.raises(Fault) as info:
         c._check_children()
-    assert (exc.value.process, exc.value.code) == ("peripheral-2", EXIT_PERIPHERAL)
+    exc = info.value
+    assert (exc.process, exc.code) == ("peripheral-2", EXIT_PERIPHERAL)
 
 
 # -- the robot's state ---------------------------------------------------------------------
@@ -403,10 +396,11 @@ def test_tracking_error_beyond_max_error_stops_with_the_observers_code():
     p0 = tuple(u.setup.task.start())
     c._check_state(state(u, 3, p0, p0))
     c._check_state(state(u, 3, (p0[0] + 0.004999, p0[1], p0[2]), p0))  # within
-    with pytest.raises(Fault) as exc:
+    with pytest.raises(Fault) as info:
         c._check_state(state(u, 3, (p0[0] + 0.0051, p0[1], p0[2]), p0))
-    assert (exc.value.process, exc.value.code) == ("central", EXIT_OBSERVER)
-    assert str(exc.value) == ("cycle 3: tracking error 5.1 mm exceeds --max-error 5.0 mm")
+    exc = info.value
+    assert (exc.process, exc.code) == ("central", EXIT_OBSERVER)
+    assert str(exc) == ("cycle 3: tracking error 5.1 mm exceeds --max-error 5.0 mm")
     c._check_state(SimpleNamespace(cycle=3, ctx={"p": None, "pc": p0}))
     c._check_state(SimpleNamespace(cycle=3, ctx={"p": p0}))
 
@@ -416,10 +410,11 @@ def test_leaving_the_usable_workspace_is_checked_every_tenth_interval():
     c = u.central
     out = (0.0, 0.0, -2.0)  # far below the reach of the arms
     c._check_state(state(u, 11, out, out))
-    with pytest.raises(Fault) as exc:
+    with pytest.raises(Fault) as info:
         c._check_state(state(u, 20, out, out))
-    assert (exc.value.process, exc.value.code) == ("central", EXIT_OBSERVER)
-    assert str(exc.value).startswith("cycle 20: the robot left the usable workspace: ")
+    exc = info.value
+    assert (exc.process, exc.code) == ("central", EXIT_OBSERVER)
+    assert str(exc).startswith("cycle 20: the robot left the usable workspace: ")
 
 
 def test_the_overload_hint_appears_in_realtime_when_most_deadlines_are_missed():
@@ -494,12 +489,7 @@ def test_every_interval_in_flight_is_judged_not_only_the_first():
 
 
 def test_an_interval_without_late_time_or_without_waiting_is_left_alone():
-    u = realtime_unit("alone", late_policy="fault")
-    c = u.central
-    first_interval(u)
-    sample(u, 1)
-    settle(u, muted=frozenset({0}))
-    f = c.inflight[1]
+    _u, c, f = second_interval_late("alone", late_policy="fault", muted={0})
     late = f.late_ns
     f.late_ns = 0  # already judged (wait) or not realtime-timed
     c._check_late(10**18)
@@ -520,12 +510,7 @@ def test_hold_waits_while_no_peripheral_has_answered_at_all_and_goes_on_to_the_n
     c._check_late(f.late_ns)
     assert f.waiting == {0, 1, 2} and f.late_ns == 0 and not c.held
     # with an interval that can be held behind it, that one is held
-    u = realtime_unit("holdnext", late_policy="hold")
-    c = u.central
-    first_interval(u)
-    sample(u, 1)
-    settle(u, muted=frozenset({1}))
-    f = c.inflight[1]
+    u, c, f = second_interval_late("holdnext", late_policy="hold", muted={1})
     blank = twin(f, cycle=0, ctx={}, waiting={0, 1, 2})
     c.last_vals["rowo0_i"][0] = None  # peripheral 1's axis has nothing to hold
     c.inflight.clear()
