@@ -95,14 +95,21 @@ class LeanWriter:
     ----------
     stream : a binary file opened for writing (``tell`` is not needed).
     chunk_size : a chunk is closed once its (uncompressed) records exceed this many bytes.
+    chunk_age : a chunk is also closed once a message's log time is this many (log time
+        units, ns in a recording) past the chunk's first; None: by size alone. This bounds
+        in time what a file cut off mid-run loses, whatever the message rate.
     compression : one of :data:`COMPRESSIONS`.
     background : write (and compress) on a writer thread; :meth:`finish` waits for it.
     """
 
     def __init__(self, stream: IO[bytes], *, chunk_size: int = 1024 * 1024,
-                 compression: str = "none", background: bool = False) -> None:
+                 chunk_age: int | None = None, compression: str = "none",
+                 background: bool = False) -> None:
         if chunk_size < 1:
             raise ValueError(f"chunk_size must be >= 1 byte, got {chunk_size}")
+        if chunk_age is not None and chunk_age < 0:
+            raise ValueError(f"chunk_age must be >= 0 or None, got {chunk_age}")
+        self._chunk_age = _U64_MAX if chunk_age is None else chunk_age
         self._compress = compressor(compression)
         self._compression = b"" if compression == "none" else compression.encode()
         self._stream = stream
@@ -208,7 +215,8 @@ class LeanWriter:
 
     def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
                     sequence: int = 0) -> None:
-        """Append one Message record to the open chunk (closed past ``chunk_size``)."""
+        """Append one Message record to the open chunk (closed past ``chunk_size`` or
+        ``chunk_age``)."""
         count = self._counts.get(channel_id)
         if count is None:
             raise ValueError(f"channel_id {channel_id} is not registered "
@@ -228,7 +236,7 @@ class LeanWriter:
         if log_time > self._chunk_end:
             self._chunk_end = log_time
         self._chunk_messages += 1
-        if len(chunk) > self._chunk_size:
+        if len(chunk) > self._chunk_size or log_time - self._chunk_start >= self._chunk_age:
             self._close_chunk()
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:

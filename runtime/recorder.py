@@ -19,11 +19,12 @@ core count and clock; ``ctrlunit.result`` (at the end) holds ``t_1`` and the blo
 Chunks are compressed (``--record-compression``, zstd by default) and written on the
 writer's own thread: the central's thread only appends to the open chunk.
 
-Crash safety: 64 KiB chunks (about 18 intervals) and a flush at least every 20 ms, so a
-file cut off by ``kill -9`` loses at most the open chunk and those the writer thread had
-not yet written; :func:`ctrlunit.runtime.recording.read` salvages such a file with a
-non-seeking pass. Smaller chunks compress worse: 16 KiB ones 2.5x, 64 KiB 2.9x
-(docs/measurements/2026-11-22-recording.md).
+Crash safety: a chunk is closed at 256 KiB (about 75 intervals) or 100 ms after its first
+message, whichever comes first, and the file is flushed at least every 20 ms, so a file cut
+off by ``kill -9`` loses at most the open chunk (100 ms of the run at most) and those the
+writer thread had not yet written; :func:`ctrlunit.runtime.recording.read` salvages such a
+file with a non-seeking pass. Larger chunks compress better (a 10 000-interval freerun
+recording: 2.92x at 64 KiB, 3.02x at 256 KiB; docs/measurements/2026-11-22-recording.md).
 """
 
 from __future__ import annotations
@@ -37,13 +38,15 @@ from importlib.metadata import version
 from typing import Any
 
 import msgpack
+import orjson
 
 from .mcap_writer import LeanWriter
 from .report import CPU_KEYS
 from .signals import SIGNALS_SCHEMA, capture, state_message
 
 FLUSH_EVERY_NS = 20_000_000
-CHUNK_SIZE = 64 * 1024
+CHUNK_SIZE = 256 * 1024
+CHUNK_AGE_NS = 100_000_000
 
 
 class Recorder:
@@ -59,7 +62,7 @@ class Recorder:
         self.path = path
         self.setup = setup
         self.fh = open(path, "wb")
-        self.w = LeanWriter(self.fh, chunk_size=CHUNK_SIZE,
+        self.w = LeanWriter(self.fh, chunk_size=CHUNK_SIZE, chunk_age=CHUNK_AGE_NS,
                             compression=setup.rc.record_compression, background=True)
         self.w.start(profile="", library=f"ctrlunit {version('ctrlunit')}")
         self.channels: dict[str, int] = {}
@@ -69,6 +72,7 @@ class Recorder:
         self.last_misses = -1
         self.closed = False
         self.pending: list[tuple[str, int, bytes]] = []
+        self.topics: dict[str, str] = {}  # Zenoh key -> topic
         rc = setup.rc
         meta = {
             "config": json.dumps(rc.to_dict()),
@@ -119,8 +123,12 @@ class Recorder:
         self.pending.append((key, t_ns, data))
 
     def _drain(self) -> None:
+        topics = self.topics
         for key, t_ns, data in self.pending:
-            self._add("/" + key.split("/", 2)[2], t_ns, data)
+            topic = topics.get(key)
+            if topic is None:
+                topic = topics[key] = "/" + key.split("/", 2)[2]
+            self._add(topic, t_ns, data)
         self.pending.clear()
 
     def on_cycle(self, central: Any, cycle: int, ctx: dict) -> None:
@@ -135,7 +143,7 @@ class Recorder:
                             task=self.setup.task if central.rc.clock != "freerun" else None,
                             previous_cmd_ns=self.last_cmd_ns)
         self.last_cmd_ns = now
-        self._add("/signals/state", now, json.dumps(sig).encode(), json_signals=True)
+        self._add("/signals/state", now, orjson.dumps(sig), json_signals=True)
         self._add("/trace/central", now, msgpack.packb(
             {"cycle": cycle, "vals": {n: ctx[n] for n in self.central_outputs
                                       if n in ctx}}, use_single_float=False))

@@ -38,6 +38,8 @@ import threading
 import time
 from typing import Any
 
+import orjson
+
 from .live import LiveStats
 from .signals import SIGNALS_SCHEMA, Interval, capture, finite_or_none, state_message
 
@@ -168,7 +170,7 @@ class LiveView:
                 break
             msg = state_message(iv, period_s=self.period_s, task=self.task,
                                 previous_cmd_ns=iv.previous_cmd_ns)
-            self._state.log(json.dumps(msg).encode(), log_time=iv.cmd_ns + self._wall_offset_ns)
+            self._state.log(orjson.dumps(msg), log_time=iv.cmd_ns + self._wall_offset_ns)
             self.sent += 1
             # hand the GIL back often: the central's thread, returning from a wait in
             # Zenoh, would otherwise wait for it up to the switch interval (5 ms); a yield

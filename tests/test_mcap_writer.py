@@ -142,6 +142,25 @@ def test_file_cut_anywhere_keeps_every_closed_chunk(compression: str) -> None:
         assert seen == [m[1] for m in whole]
 
 
+@pytest.mark.parametrize("age", [2500, 10_000, 49_000])
+def test_a_chunk_closes_by_age_when_it_is_still_small(age: int) -> None:
+    # 1 us apart, 100 bytes each: by size alone (64 MiB) everything would be one chunk
+    f = io.BytesIO()
+    w = LeanWriter(f, chunk_size=64 << 20, chunk_age=age * 1000, compression="zstd")
+    w.start()
+    cid = w.register_channel("/x", "msgpack", 0)
+    for i in range(50_000):
+        w.add_message(cid, 1_000_000 + 1000 * i, bytes([i % 256]) * 100, 0)
+    w.finish()
+    reader = make_reader(io.BytesIO(f.getvalue()), validate_crcs=True)
+    chunks = reader.get_summary().chunk_indexes
+    # each chunk spans exactly `age` messages, the last the rest
+    assert [(c.message_end_time - c.message_start_time) // 1000 for c in chunks[:-1]] \
+        == [age] * (len(chunks) - 1)
+    assert len(chunks) == -(-50_000 // (age + 1))
+    assert sum(1 for _ in reader.iter_messages()) == 50_000
+
+
 def test_unknown_channel_and_bad_chunk_size_are_named() -> None:
     w = LeanWriter(io.BytesIO())
     w.start()
@@ -151,6 +170,8 @@ def test_unknown_channel_and_bad_chunk_size_are_named() -> None:
         w.register_channel("/x", "msgpack", 3)
     with pytest.raises(ValueError, match="chunk_size must be >= 1"):
         LeanWriter(io.BytesIO(), chunk_size=0)
+    with pytest.raises(ValueError, match="chunk_age must be >= 0 or None, got -1"):
+        LeanWriter(io.BytesIO(), chunk_age=-1)
     with pytest.raises(ValueError, match="compression must be one of none, lz4, zstd, got 'gz'"):
         LeanWriter(io.BytesIO(), compression="gz")
 
