@@ -63,8 +63,9 @@ _U64_MAX = (1 << 64) - 1
 COMPRESSIONS = ("none", "lz4", "zstd")
 """Chunk compressions a recording can use (``none`` is MCAP's empty name)."""
 ZSTD_LEVEL = 3
-"""zstd level of the chunks (zstd's default): 3.3x on a recording's 64 KiB chunks here, 11 us of
-the writer thread's time per interval; level 6 gains 2 % for three times the time."""
+"""zstd level of the chunks (zstd's default): a recording's 256 KiB chunks compress 3.07x
+with their message indexes, for 15 us of the writer thread's time per interval; level 6 gains
+1.5 % for 2.4 times the time (docs/measurements/2026-11-23-recording.md)."""
 
 
 def compressor(name: str) -> Callable[[bytes], bytes] | None:
