@@ -103,7 +103,7 @@ def cycles_for(cfg: Config, quick: bool) -> int:
 
 def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str, Any], Any]:
     record = str(tmp / f"rec-{random.randrange(1 << 30)}.mcap") if cfg.record and tmp else None
-    rc = RunConfig(record=record, record_compression=cfg.record or "zstd",
+    rc = RunConfig.of(record=record, record_compression=cfg.record or "zstd",
                    peripherals=cfg.peripherals, pipeline=cfg.pipeline,
                    clock=cfg.clock,
                    period=cfg.period, cost_model=cfg.cost_model, cost_scale=cfg.cost_scale,
@@ -115,7 +115,7 @@ def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str
         from .viewer_client import ViewerClient
 
         port = _free_port()
-        rc.foxglove = f"127.0.0.1:{port}"
+        rc = rc.replace(foxglove=f"127.0.0.1:{port}")
         viewer = ViewerClient(port)
     inspect: dict[str, Any] = {}
     try:

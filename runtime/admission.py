@@ -23,7 +23,6 @@ its setup from the period). The decision and its figures go in the report
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 import statistics
 import time
@@ -109,13 +108,13 @@ def admit(central: Central) -> dict[str, Any]:
     ``info["sustainable_period_s"]``), before any command has been sent."""
     rc = central.rc
     transit = statistics.median(central.warm_rtt_s) / 2 if central.warm_rtt_s else 0.0
-    asked = rc.period
+    asked = rc.schedule.period
     rungs: list[dict[str, Any]] = []
     held_at: float | None = None
     untrackable: tuple[float, float] | None = None
     for i, period in enumerate(ladder_from(asked)):
         err = predicted_tracking(central, period)
-        if err > TRACKING_SHARE * rc.max_error:  # longer periods only track worse
+        if err > TRACKING_SHARE * rc.control.max_error:  # longer periods only track worse
             untrackable = (period, err)
             break
         verdict = trial(central, period, base=TRIAL_BASE + (i << 20), transit_s=transit)
@@ -125,7 +124,7 @@ def admit(central: Central) -> dict[str, Any]:
             held_at = period
             break
     info: dict[str, Any] = {
-        "asked": "auto" if rc.period_auto else asked, "depth": rc.pipeline,
+        "asked": "auto" if rc.schedule.period_auto else asked, "depth": rc.schedule.pipeline,
         "transit_s": transit, "headroom": HEADROOM, "late_share": LATE_SHARE,
         "tracking_share": TRACKING_SHARE, "rungs": rungs, "sustainable_period_s": held_at,
     }
@@ -135,7 +134,7 @@ def admit(central: Central) -> dict[str, Any]:
             raise Unsustainable(
                 f"the task cannot be tracked at {asked * 1e3:g} ms: the one-process "
                 f"simulation at it tracks within {untrackable[1] * 1e3:.1f} mm, more than "
-                f"half of --max-error {rc.max_error * 1e3:g} mm; refused before any "
+                f"half of --max-error {rc.control.max_error * 1e3:g} mm; refused before any "
                 "motion (try a shorter --period or a slower task)", info)
     if held_at is not None and math.isclose(held_at, asked):
         info["period_s"] = held_at
@@ -155,9 +154,9 @@ def admit(central: Central) -> dict[str, Any]:
         f"the period of {asked * 1e3:g} ms cannot be held here: in a trial of "
         f"{first['intervals']} intervals before any motion, {first['late']} were late and "
         f"the traversal p99 was {first['traversal_p99_s'] * 1e3:.2f} ms of a "
-        f"{first['budget_s'] * 1e3:.2f} ms budget ({rc.pipeline} period(s)); {found}. "
-        + ("" if rc.period_auto and held_at else "Try "
-           + ("--period auto or " if held_at and not rc.period_auto else "")
+        f"{first['budget_s'] * 1e3:.2f} ms budget ({rc.schedule.pipeline} period(s)); {found}. "
+        + ("" if rc.schedule.period_auto and held_at else "Try "
+           + ("--period auto or " if held_at and not rc.schedule.period_auto else "")
            + (f"--period {held_at * 1e3:g}ms, " if held_at else "")
            + "--rt-priority, a placement from ctrlunit balance, or fewer --peripherals "
            "(ctrlunit latency measures this machine)"), info)
@@ -171,14 +170,14 @@ def predicted_tracking(central: Central, period: float) -> float:
     from ..kernels.trajectory import get_task
     from .controller import simulate
 
-    rc = dataclasses.replace(central.rc, period=period)
-    if rc.law == "kinematics":
+    rc = central.rc.replace(period=period)
+    if rc.control.law == "kinematics":
         return math.nan
-    task = get_task(rc.task)
-    res = simulate(central.engine.cfg.params, task, law=rc.law, model=rc.model,
+    task = get_task(rc.control.task)
+    res = simulate(central.engine.cfg.params, task, law=rc.control.law, model=rc.control.model,
                    gains=Gains.from_bandwidth(rc.bandwidth), period=period,
                    cycles=rc.total_cycles(task.period), delay=rc.delay_periods,
-                   observer=rc.observer)
+                   observer=rc.control.observer)
     ref = np.asarray(res.references, dtype=float)
     pos = np.asarray(res.positions, dtype=float)
     return float(np.max(np.linalg.norm(ref - pos, axis=1))) if ref.size else math.nan
@@ -194,7 +193,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
 
     rc = central.rc
     n = trial_intervals(period)
-    trc = dataclasses.replace(rc, period=period, t1_cycles=0, record=None, report=None)
+    trc = rc.replace(period=period, t1_cycles=0, record=None, report=None)
     ctl = copy.copy(central.ctl)
     ctl.first_cycle, ctl.q_prev, ctl.k_prev = base, None, base
     probe = Central(central.node, trc, central.engine, ctl, n, trial=True)
@@ -209,7 +208,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
         if central.child_check is not None and central.child_check() is not None:
             raise
         fault = str(exc)
-    budget = rc.pipeline * period  # the command of sample k is due at tick k + depth
+    budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
     trav = np.asarray(probe.log.traversal_ns, dtype=float) / 1e9
     out = {"period_s": period}
     out |= rung_verdict(trav, skipped=probe.skipped, budget_s=budget, transit_s=transit_s)

@@ -129,9 +129,9 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.on_message = on_message
         self.plan = engine.plan
         self.n = self.plan.placement.peripherals
-        self.depth = rc.pipeline
+        self.depth = rc.schedule.pipeline
         self.hand = handoff_step(self.plan)
-        self.hold = rc.hold_rounds == "always"
+        self.hold = rc.schedule.hold_rounds == "always"
         self.round_step = {}
         for k, s in enumerate(self.plan.steps):
             if s.round is not None:
@@ -143,7 +143,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         for k in range(self.n):
             node.route(keys.reply(k + 1), "reply", k)
         node.route(keys.hello, "hello")
-        if rc.clock != "freerun":
+        if rc.schedule.clock != "freerun":
             node.route(keys.sample, "sample")
         self.log = CycleLog()
         self.inflight: OrderedDict[int, InFlight] = OrderedDict()
@@ -186,7 +186,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.reply_msgs = 0
         self.admit_ns = 0  # starting intervals (sample, context), not their steps
         self.finish_ns = 0  # finishing them (checks, command, logs, progress)
-        self.period_ns = int(rc.period * 1e9)
+        self.period_ns = int(rc.schedule.period * 1e9)
         self.last_round = self.plan.rounds[-1].index if self.plan.rounds else -1
         self.reply_each = False
         self.replies_info: dict[str, Any] = {"mode": "fused"}
@@ -245,14 +245,14 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         while self._may_start():
             t_in = time.perf_counter_ns()
             k = self.next_cycle
-            if self.rc.clock == "freerun":
+            if self.rc.schedule.clock == "freerun":
                 counts, t_ns = self._synthetic_sample(k), time.monotonic_ns()
                 if self.on_message is not None:
                     self.on_message("in", self.node.keys.sample, k, "sample", encode(
                         self.node.unit, k, "sample", counts=counts, t_ns=t_ns, synthetic=True),
                         t_ns)
             else:
-                if self.rc.clock == "realtime" and self.samples and max(self.samples) > k:
+                if self.rc.schedule.clock == "realtime" and self.samples and max(self.samples) > k:
                     # behind the plant's clock: start from the newest sample, never queue
                     newest = max(self.samples)
                     self.skipped += sum(1 for c in self.samples if c < newest) + (
@@ -274,7 +274,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             else:
                 ctx = self.ctl.sources(k, counts)
                 gen = self.engine.cycle(ctx)
-            if len(self.t1_inputs) < self.rc.t1_cycles:
+            if len(self.t1_inputs) < self.rc.run.t1_cycles:
                 self.t1_inputs.append((ctx["t"], ctx["est"], list(ctx["qmeas_i"]),
                                        list(ctx["qdmeas_i"])))
             f = InFlight(k, gen, ctx, t_ns, t0)
@@ -349,7 +349,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             assert rnd is not None
             f.waiting = set(range(self.n))
             f.deadline_ns = now + timeout_ns
-            if self.rc.clock == "realtime" and self.plan.round_trips:
+            if self.rc.schedule.clock == "realtime" and self.plan.round_trips:
                 share = (rnd.index + 1) / self.plan.round_trips
                 f.late_ns = f.sample_ns + int(self.depth * self.period_ns * share)
             parts.append({"cycle": f.cycle, "stage": rnd.index,
@@ -379,7 +379,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                                 next_cycle=self.next_cycle, cycles=self.cycles,
                                 hold=self.hold):
             return 0
-        if self.rc.clock == "realtime":
+        if self.rc.schedule.clock == "realtime":
             return f.sample_ns + self.period_ns + self.period_ns // 4
         return time.monotonic_ns() + self._timeout_ns()
 

@@ -46,12 +46,12 @@ class CentralGuard:
         (default 3; during the first 20 intervals at least 20 ms). A reply later than its
         deadline but within that is lateness (a miss at the plant, or the late-data
         policy); silence for that long is a failed process or link."""
-        if self.rc.clock == "realtime":
-            limit = self.rc.fault_periods * self.rc.period
+        if self.rc.schedule.clock == "realtime":
+            limit = self.rc.schedule.fault_periods * self.rc.schedule.period
             if self.done < self.STARTUP_INTERVALS:  # first real intervals: start-up
                 limit = max(limit, self.STARTUP_LIMIT_S)
             return int(limit * 1e9)
-        return int(self.rc.timeout * 1e9)
+        return int(self.rc.transport.timeout * 1e9)
 
     STARTUP_INTERVALS = 20
 
@@ -71,11 +71,11 @@ class CentralGuard:
                 wake = min(wake, f.deadline_ns)
                 if f.late_ns:
                     wake = min(wake, f.late_ns)
-                if self.rc.clock == "realtime":  # liveness: wake when it would fail
+                if self.rc.schedule.clock == "realtime":  # liveness: wake when it would fail
                     for k in f.waiting:
                         if self.last_reply_ns[k]:
                             wake = min(wake, self.last_reply_ns[k] + timeout_ns)
-        if self.rc.clock == "realtime" and self.last_sample_ns:
+        if self.rc.schedule.clock == "realtime" and self.last_sample_ns:
             wake = min(wake, self.last_sample_ns + timeout_ns)
         return wake
 
@@ -92,7 +92,7 @@ class CentralGuard:
 
     def _find_silence(self, timeout_ns: int) -> None:
         now = time.monotonic_ns()
-        if self.rc.clock == "realtime" and self.done:
+        if self.rc.schedule.clock == "realtime" and self.done:
             for k, t in enumerate(self.last_reply_ns):  # alive, even when its data is held
                 if t and now - t > timeout_ns and any(k in f.dropped or k in f.waiting
                                                       for f in self.inflight.values()):
@@ -110,7 +110,8 @@ class CentralGuard:
                     f" of cycle {f.cycle}: silent for {silent:.1f} ms (limit "
                     f"{timeout_ns / 1e6:.1f} ms){self._overload_hint()}",
                     process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
-        if (self.rc.clock != "freerun" and not self.samples and self.next_cycle < self.cycles
+        if (self.rc.schedule.clock != "freerun" and not self.samples
+                and self.next_cycle < self.cycles
                 and not any(f.waiting for f in self.inflight.values())):
             last = self.last_sample_ns or self.t_start_ns
             if now - last > timeout_ns:
@@ -137,11 +138,12 @@ class CentralGuard:
         """Policy per round: the strictest of its blocks' (fault > hold > wait); every
         round has at least one block."""
         order = {"wait": 0, "hold": 1, "fault": 2}
-        return {r.index: max((self.rc.late.get(b.name, self.rc.late_policy) for b in r.blocks),
+        sch = self.rc.schedule
+        return {r.index: max((sch.late.get(b.name, sch.late_policy) for b in r.blocks),
                              key=order.__getitem__) for r in self.plan.rounds}
 
     def _check_late(self, now: int) -> None:
-        if self.rc.clock != "realtime":
+        if self.rc.schedule.clock != "realtime":
             return
         for f in list(self.inflight.values()):
             if not f.waiting or f.round is None or not f.late_ns or now < f.late_ns:
@@ -190,9 +192,9 @@ class CentralGuard:
             return
         err = math.dist(p, pc)
         why = None
-        if err > self.rc.max_error:
+        if err > self.rc.control.max_error:
             why = (f"tracking error {err * 1e3:.1f} mm exceeds --max-error "
-                   f"{self.rc.max_error * 1e3:.1f} mm")
+                   f"{self.rc.control.max_error * 1e3:.1f} mm")
         elif f.cycle % 10 == 0:
             chk = check_point(self.engine.cfg.params, p)
             if not chk.ok:
@@ -207,11 +209,11 @@ class CentralGuard:
         process, is the likely cause."""
         periods = max(1, self.next_cycle)
         late = self.plant_misses + self.skipped
-        if self.rc.clock != "realtime" or late <= max(5, periods // 10):
+        if self.rc.schedule.clock != "realtime" or late <= max(5, periods // 10):
             return ""
         return (f"; {self.plant_misses} commands missed their deadline and {self.skipped} "
                 f"samples were skipped in {periods} periods: this machine does not sustain "
-                f"a {self.rc.period * 1e3:g} ms period with {self.n} peripheral(s) (try a "
+                f"a {self.rc.schedule.period * 1e3:g} ms period with {self.n} peripheral(s) (try a "
                 "longer --period or --fault-periods, or --clock lockstep)")
 
     def hold_torques(self) -> list[float]:

@@ -23,7 +23,7 @@ class CentralLifecycle:
 
     def expected_roles(self) -> set[str]:
         roles = {f"peripheral-{k + 1}" for k in range(self.n)}
-        if self.rc.clock != "freerun":
+        if self.rc.schedule.clock != "freerun":
             roles.add("plant")
         return roles
 
@@ -31,12 +31,12 @@ class CentralLifecycle:
         """Wait for every role's hello, then say go."""
         expected = self.expected_roles()
         seen: set[str] = set()
-        deadline = time.monotonic() + self.rc.startup_timeout
+        deadline = time.monotonic() + self.rc.transport.startup_timeout
         while seen != expected:
             left = deadline - time.monotonic()
             if left <= 0:
                 missing = ", ".join(sorted(expected - seen))
-                raise Fault(f"no hello from {missing} within {self.rc.startup_timeout} s",
+                raise Fault(f"no hello from {missing} within {self.rc.transport.startup_timeout} s",
                             process=missing, code=EXIT_LINK)
             self._check_children()
             try:

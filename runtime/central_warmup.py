@@ -78,7 +78,7 @@ class CentralWarmUp:
             {"cycle": cycle, "stage": rnd.index,
              "vals": Engine.request_vals(rnd, ctx, (0, 1, 2))}])
         waiting = set(range(self.n))
-        deadline = time.monotonic() + self.rc.startup_timeout
+        deadline = time.monotonic() + self.rc.transport.startup_timeout
         resend = 0.0
         sends = 0
         compute_s = 0.0
@@ -126,7 +126,7 @@ class CentralWarmUp:
         """Decide how peripherals answer fused requests (``--replies``); the rule and its
         figures are in docs/architecture.md. Returns what was decided and from which
         figures (for the report)."""
-        asked = self.rc.replies
+        asked = self.rc.schedule.replies
         info: dict[str, Any] = {"asked": asked}
         rtt = between = math.nan
         if asked == "auto" and self.depth >= 2 and self.n:

@@ -4,11 +4,20 @@ from __future__ import annotations
 
 import math
 import re
-import secrets
 import types
 import typing
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
+
+from .sections import (
+    RENAMED,
+    SECTIONS,
+    ControlConfig,
+    PlantOptions,
+    RunOptions,
+    ScheduleConfig,
+    TransportConfig,
+)
 
 CLOCKS = ("lockstep", "realtime", "freerun")
 REPLY_MODES = ("auto", "fused", "each")
@@ -112,150 +121,135 @@ def parse_host_port(text: str, *, field_name: str, default_host: str = "127.0.0.
     return host.strip("[]"), int(m.group(2))
 
 
-@dataclass
-class RunConfig:
-    """Options of one run (see ``ctrlunit start --help``)."""
+def _flat_names() -> dict[str, tuple[str, str]]:
+    back = {v: k for k, v in RENAMED.items()}
+    return {back.get(f.name, f.name): (section, f.name)
+            for section, cls in SECTIONS.items() for f in fields(cls)}
 
-    peripherals: int = 3
-    pipeline: int = 1
-    clock: str = "realtime"
-    period: float = 1e-3
-    task: str = "pick-place"
-    law: str = "resolved-acceleration"
-    model: str = "complete"
-    cycles: int | None = None
-    duration: float | None = None
-    record: str | None = None
-    record_compression: str = "zstd"
-    """Chunk compression of ``--record`` (runtime/mcap_writer.py, ``COMPRESSIONS``)."""
-    foxglove: str | None = None
-    """``[HOST:]PORT`` of the live view's Foxglove WebSocket server (runtime/viewer.py)."""
-    foxglove_rate: float = 200.0
-    """``/signals/state`` messages per second of the live view (0: every interval)."""
-    report: str | None = None
-    unit: str = field(default_factory=lambda: "u" + secrets.token_hex(4))
-    cost_model: str = "native"
-    placement: str | None = None
-    params: str | None = None
-    observer: str = "predict"
-    bandwidth_hz: float | None = None
-    listen: list[str] | None = None
-    connect: list[str] | None = None
-    zenoh_config: str | None = None
-    timeout: float = 2.0
-    startup_timeout: float = 30.0
-    pin: str | None = None
-    plant_substeps: int | None = None
-    plant_lag: float = 0.0
-    plant_friction: float = 0.0
-    belt: bool = False
-    t1_cycles: int = 500
-    progress: bool = False
-    status_file: str | None = None
-    trace: bool = False
-    cpus: str | None = None
-    max_error: float = 0.02
-    cost_scale: float = 1.0
-    late_policy: str = "wait"
-    late: dict[str, str] = field(default_factory=dict)
-    replies: str = "auto"
-    fault_periods: float = 3.0
-    rt_priority: int = 0
-    command_delay: str = "full"
-    hold_rounds: str = "always"
-    """``--hold-rounds`` (topology/pipeline.py, ``HOLD_RULES``)."""
-    period_auto: bool = False
-    """``--period auto``: realtime runs at the shortest period of the admission ladder that
-    holds (runtime/admission.py); ``period`` is where the ladder starts."""
-    admission: bool = True
-    trial_only: bool = False
-    """Run the admission trial and stop before the first command (``ctrlunit latency
-    --unit``)."""
-    """Realtime: run the admission trial before the first command (runtime/admission.py)."""
+
+FLAT = _flat_names()
+"""Each option's flat name (the CLI's, a spec's, a recording's) -> (section, field)."""
+_FLAT_TYPES = {flat: typing.get_type_hints(SECTIONS[sec])[name]
+               for flat, (sec, name) in FLAT.items()}
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Options of one run (see ``ctrlunit start --help``), in frozen sections
+    (runtime/sections.py). Build one with :meth:`of` from flat option names; a changed
+    copy with :meth:`replace`."""
+
+    control: ControlConfig = field(default_factory=ControlConfig)
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
+    plant: PlantOptions = field(default_factory=PlantOptions)
+    transport: TransportConfig = field(default_factory=TransportConfig)
+    run: RunOptions = field(default_factory=RunOptions)
+
+    @classmethod
+    def of(cls, **options: Any) -> RunConfig:
+        """A configuration from flat option names (``peripherals=3, plant_lag=1e-4``), the
+        rest at their defaults. An unknown name is a :class:`ConfigError`."""
+        parts: dict[str, dict[str, Any]] = {name: {} for name in SECTIONS}
+        for flat, value in options.items():
+            where = FLAT.get(flat)
+            if where is None:
+                raise ConfigError(f"unknown run option {flat!r}")
+            parts[where[0]][where[1]] = value
+        return cls(**{name: SECTIONS[name](**kw) for name, kw in parts.items()})
+
+    def replace(self, **options: Any) -> RunConfig:
+        """A copy with the options named (flat names) changed; this one is unchanged."""
+        return RunConfig.of(**{**self.to_dict(), **options})
+
+    def option(self, flat: str) -> Any:
+        """The value of one option by its flat name."""
+        section, name = FLAT[flat]
+        return getattr(getattr(self, section), name)
 
     def validate(self) -> RunConfig:
         from ..topology.graph import LAWS
 
         def bad(name: str, allowed: str) -> ConfigError:
             """Names the option (``--max-error``) and the value as the user would write it."""
-            value = getattr(self, name)
+            value = self.option(name)
             unit = {"period": " s", "timeout": " s", "max_error": " m", "bandwidth_hz": " Hz",
                     "foxglove_rate": " Hz"}.get(name, "")
             shown = f"{value:g}{unit}" if isinstance(value, float) else repr(value)
             option = "--" + name.removesuffix("_hz").replace("_", "-")
             return ConfigError(f"{option} = {shown}: allowed {allowed}")
 
-        if self.peripherals not in (0, 1, 2, 3):
+        if self.schedule.peripherals not in (0, 1, 2, 3):
             raise bad("peripherals", "0, 1, 2 or 3")
-        if self.pipeline not in (1, 2):
+        if self.schedule.pipeline not in (1, 2):
             raise bad("pipeline", "1 or 2")
-        if self.clock not in CLOCKS:
+        if self.schedule.clock not in CLOCKS:
             raise bad("clock", ", ".join(CLOCKS))
-        if not 20e-6 <= self.period <= 1.0:
+        if not 20e-6 <= self.schedule.period <= 1.0:
             raise bad("period", "20us to 1s")
-        if self.law not in (*LAWS, "kinematics"):
+        if self.control.law not in (*LAWS, "kinematics"):
             raise bad("law", ", ".join(LAWS))
-        if self.model not in ("complete", "simplified"):
+        if self.control.model not in ("complete", "simplified"):
             raise bad("model", "complete or simplified")
-        if self.cycles is not None and not 1 <= self.cycles <= 10**9:
+        if self.run.cycles is not None and not 1 <= self.run.cycles <= 10**9:
             raise bad("cycles", "1 to 1e9")
-        if self.cost_model not in ("native", "t800"):
+        if self.control.cost_model not in ("native", "t800"):
             raise bad("cost_model", "native or t800")
-        if self.observer not in ("predict", "previous"):
+        if self.control.observer not in ("predict", "previous"):
             raise bad("observer", "predict or previous")
-        if self.bandwidth_hz is not None and not 0.1 <= self.bandwidth_hz <= 200.0:
+        if self.control.bandwidth_hz is not None and not 0.1 <= self.control.bandwidth_hz <= 200.0:
             raise bad("bandwidth_hz", "0.1 to 200 Hz")
-        if not 0.01 <= self.timeout <= 600.0:
+        if not 0.01 <= self.transport.timeout <= 600.0:
             raise bad("timeout", "0.01 to 600 s")
-        if self.cpus not in (None, "same", "split"):
+        if self.schedule.cpus not in (None, "same", "split"):
             raise bad("cpus", "same (every role on CPU 0) or split (central on 0, the rest "
                       "on 1)")
-        if self.late_policy not in LATE_POLICIES:
+        if self.schedule.late_policy not in LATE_POLICIES:
             raise bad("late_policy", ", ".join(LATE_POLICIES))
-        for block, pol in self.late.items():
+        for block, pol in self.schedule.late.items():
             if pol not in LATE_POLICIES:
                 raise ConfigError(f"--late {block}={pol}: the policy must be one of "
                                   f"{', '.join(LATE_POLICIES)}")
-        if not 0.01 <= self.cost_scale <= 1000.0:
+        if not 0.01 <= self.control.cost_scale <= 1000.0:
             raise bad("cost_scale", "0.01 to 1000")
-        if not 1.0 <= self.fault_periods <= 1000.0:
+        if not 1.0 <= self.schedule.fault_periods <= 1000.0:
             raise bad("fault_periods", "1 to 1000 periods")
         from .mcap_writer import COMPRESSIONS
 
-        if self.record_compression not in COMPRESSIONS:
+        if self.run.record_compression not in COMPRESSIONS:
             raise bad("record_compression", ", ".join(COMPRESSIONS))
-        if self.foxglove is not None:
-            parse_host_port(self.foxglove, field_name="--foxglove")
-        if not (self.foxglove_rate == 0 or 1.0 <= self.foxglove_rate <= 100_000.0):
+        if self.run.foxglove is not None:
+            parse_host_port(self.run.foxglove, field_name="--foxglove")
+        if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
             raise bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
-        if self.hold_rounds not in ("always", "never"):
+        if self.schedule.hold_rounds not in ("always", "never"):
             raise bad("hold_rounds", "always or never")
-        if self.command_delay not in COMMAND_DELAYS:
+        if self.schedule.command_delay not in COMMAND_DELAYS:
             raise bad("command_delay", ", ".join(COMMAND_DELAYS))
-        if self.replies not in REPLY_MODES:
+        if self.schedule.replies not in REPLY_MODES:
             raise bad("replies", ", ".join(REPLY_MODES))
-        if not 1e-5 <= self.max_error <= 1.0:
+        if not 1e-5 <= self.control.max_error <= 1.0:
             raise bad("max_error", "10 um to 1 m")
-        if self.plant_substeps is not None and not 1 <= self.plant_substeps <= 1000:
+        if self.plant.substeps is not None and not 1 <= self.plant.substeps <= 1000:
             raise bad("plant_substeps", "1 to 1000")
         from .sched import check_priority
 
         try:
-            check_priority(self.rt_priority)
+            check_priority(self.schedule.rt_priority)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         from .zsession import check_endpoint, check_unit_id, check_zenoh_config
 
         try:
-            check_unit_id(self.unit)
+            check_unit_id(self.transport.unit)
         except ValueError as exc:
             raise ConfigError(f"--unit: {exc}") from None
         try:
-            for option, endpoints in (("--listen", self.listen), ("--connect", self.connect)):
+            for option, endpoints in (("--listen", self.transport.listen),
+                                      ("--connect", self.transport.connect)):
                 for e in endpoints or []:
                     check_endpoint(e, option=option)
-            if self.zenoh_config is not None:
-                check_zenoh_config(self.zenoh_config)
+            if self.transport.zenoh_config is not None:
+                check_zenoh_config(self.transport.zenoh_config)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         return self
@@ -264,22 +258,23 @@ class RunConfig:
     def bandwidth(self) -> float:
         """Closed-loop bandwidth of the gains (Hz): ``--bandwidth``, else 20 Hz but at most
         ``1 / (50 T)`` so that slower periods keep their phase margin."""
-        if self.bandwidth_hz is not None:
-            return self.bandwidth_hz
-        return min(20.0, 1.0 / (50.0 * self.period))
+        if self.control.bandwidth_hz is not None:
+            return self.control.bandwidth_hz
+        return min(20.0, 1.0 / (50.0 * self.schedule.period))
 
     @property
     def delay_periods(self) -> int:
         """Periods from sample k to the start of the period in which the command of
         interval k acts: the depth (``full``) or one less (``short``)."""
-        return self.pipeline if self.command_delay == "full" else self.pipeline - 1
+        depth = self.schedule.pipeline
+        return depth if self.schedule.command_delay == "full" else depth - 1
 
     @property
     def lead_periods(self) -> int:
         """The ``delay`` of the feed-forward lead (``(delay + 1/2) T``, runtime/blocks.py):
         :attr:`delay_periods`, except that ``short`` in realtime keeps the earlier code's
         lead of d + 1/2 periods, so that its recordings replay bit for bit."""
-        legacy = self.command_delay == "short" and self.clock == "realtime"
+        legacy = self.schedule.command_delay == "short" and self.schedule.clock == "realtime"
         return self.delay_periods + (1 if legacy else 0)
 
     @classmethod
@@ -294,23 +289,24 @@ class RunConfig:
                               f"{type(data).__name__}")
         data = dict(data)
         data.setdefault("command_delay", "short")
-        hints = typing.get_type_hints(cls)
         for k, v in data.items():
-            if k not in hints:
+            if k not in _FLAT_TYPES:
                 raise ConfigError(f"{source}: unknown run option {k!r}")
-            if not _has_type(v, hints[k]):
+            if not _has_type(v, _FLAT_TYPES[k]):
                 shown = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
                 raise ConfigError(f"{source}: {k} = {shown}: allowed "
-                                  f"{_type_name(hints[k])}")
-        return cls(**data)
+                                  f"{_type_name(_FLAT_TYPES[k])}")
+        return cls.of(**data)
 
     def total_cycles(self, task_period: float) -> int:
         """Cycles to run: ``cycles``, else ``duration / period``, else one task loop."""
-        if self.cycles is not None:
-            return self.cycles
-        if self.duration is not None:
-            return max(1, round(self.duration / self.period))
-        return max(1, round(task_period / self.period)) + 1
+        if self.run.cycles is not None:
+            return self.run.cycles
+        if self.run.duration is not None:
+            return max(1, round(self.run.duration / self.schedule.period))
+        return max(1, round(task_period / self.schedule.period)) + 1
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """Every option by its flat name (what :meth:`from_dict` and :meth:`of` read)."""
+        sections = {name: asdict(getattr(self, name)) for name in SECTIONS}
+        return {flat: sections[sec][name] for flat, (sec, name) in FLAT.items()}

@@ -9,7 +9,6 @@ launcher says stop, waits briefly, then terminates and kills what is left.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import shutil
@@ -59,12 +58,12 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
             adm = report.get("admission") or {}
             tried += [r | {"start": attempt} for r in adm.get("rungs") or []]
             held = adm.get("sustainable_period_s")
-            if not (code == EXIT_UNSUSTAINABLE and rc.period_auto and held
-                    and held > rc.period and not rc.trial_only):
+            if not (code == EXIT_UNSUSTAINABLE and rc.schedule.period_auto and held
+                    and held > rc.schedule.period and not rc.schedule.trial_only):
                 break
-            echo(f"ctrlunit: --period auto: {rc.period * 1e3:g} ms was not held in the "
+            echo(f"ctrlunit: --period auto: {rc.schedule.period * 1e3:g} ms was not held in the "
                  f"trial, {held * 1e3:g} ms was; starting again at {held * 1e3:g} ms")
-            rc = dataclasses.replace(rc, period=held)
+            rc = rc.replace(period=held)
         if adm:
             report["admission"]["rungs"] = tried
         return code, report
@@ -80,35 +79,35 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         # before the real-time policy: the view's threads stay at normal priority
         viewer = _live_view(rc, setup, echo)
         # before zenoh.open and the children: Zenoh's threads and the roles inherit it
-        policy = sched.apply_rt(rc.rt_priority)
+        policy = sched.apply_rt(rc.schedule.rt_priority)
     except (ConfigError, ValueError, OSError, sched.RtPermissionError) as exc:
         if viewer is not None:
             viewer.close()
         return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
                                        "code": EXIT_CONFIG}}
-    rc.trace = bool(rc.record)
+    rc = rc.replace(trace=bool(rc.run.record))
     run_dir = Path(tempfile.mkdtemp(prefix="ctrlunit-"))
     spec = run_dir / "spec.json"
     spec.write_text(json.dumps({"run": rc.to_dict()}))
-    endpoint = rc.listen[0] if rc.listen else default_endpoint(run_dir)
+    endpoint = rc.transport.listen[0] if rc.transport.listen else default_endpoint(run_dir)
     connect_ep = endpoint  # the children always connect to their own central
     central_cpus, child_cpus = role_cpus(rc)  # before this process pins itself
     cores = unit_cores(central_cpus, child_cpus) if spawn else None
     if central_cpus:
         os.sched_setaffinity(0, central_cpus)  # before zenoh.open: its threads inherit it
     # --connect joins the central to another Zenoh network (e.g. another unit's)
-    node = Node(make_config(listen=[endpoint], connect=rc.connect,
-                            config_file=rc.zenoh_config), rc.unit, "central")
+    node = Node(make_config(listen=[endpoint], connect=rc.transport.connect,
+                            config_file=rc.transport.zenoh_config), rc.transport.unit, "central")
     engine = setup.engine()
-    ctl = Controller(engine, rc.period, setup.params.increment, tuple(setup.task.start()))
+    ctl = Controller(engine, rc.schedule.period, setup.params.increment, tuple(setup.task.start()))
     recorder = None
-    if rc.record:
+    if rc.run.record:
         from .recorder import Recorder
 
-        recorder = Recorder(rc.record, setup)
+        recorder = Recorder(rc.run.record, setup)
     central = Central(node, rc, engine, ctl, setup.cycles,
                       on_cycle=_chain(recorder.on_cycle if recorder else None, progress,
-                                      viewer, _status_writer(rc.status_file)),
+                                      viewer, _status_writer(rc.run.status_file)),
                       on_message=recorder.on_message if recorder else None)
     children: list[subprocess.Popen] = []
     code, fault = EXIT_OK, None
@@ -117,7 +116,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     try:
         if not spawn:
             pass
-        elif rc.clock != "freerun":
+        elif rc.schedule.clock != "freerun":
             children.append(spawn_role(spec, "plant", None, connect_ep, run_dir / "plant.log",
                                        cpus=child_cpus))
         for k in range(setup.placement.peripherals if spawn else 0):
@@ -135,9 +134,9 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         central.handshake()
         central.warm_up()
         central.choose_replies()
-        if rc.clock == "realtime" and (rc.admission or rc.trial_only):
+        if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
             admission = admit(central)
-        if not rc.trial_only:
+        if not rc.schedule.trial_only:
             central.say("start")
             central.run()
     except Fault as exc:
@@ -182,7 +181,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     if admission is not None:
         report["admission"] = admission
     report["zenoh"] = zenoh_ids
-    report["late"] = {"policy": rc.late_policy, "blocks": dict(rc.late),
+    report["late"] = {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),
                       "misses_per_axis": list(central.late_per_axis)}
     report["memory_kb"] = {"central": {"warm": central.rss_warm,
                                        "end": central.rss_end if central.rss_end > 0
@@ -194,7 +193,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     report["scheduling"] = {"central": policy} | {
         name.replace("-", "_"): text_or_none((central.role_reports.get(name) or {}).get("sched"))
         for name in (_child_names(rc, setup) if spawn else [])}
-    if rc.clock != "freerun":  # the plant's own word that it held and braked
+    if rc.schedule.clock != "freerun":  # the plant's own word that it held and braked
         plant = central.role_reports.get("plant") or {}
         stop = plant.get("safe_stop")
         report["safe_stop"] = stop if isinstance(stop, dict) else None
@@ -212,21 +211,22 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
 
 def _live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
     """``--foxglove``: the live view's server (runtime/viewer.py), or ``None``."""
-    if not rc.foxglove:
+    if not rc.run.foxglove:
         return None
     from .viewer import LiveView
 
-    host, port = parse_host_port(rc.foxglove, field_name="--foxglove")
-    view = LiveView(host=host, port=port, task=setup.task if rc.clock != "freerun" else None,
-                    period_s=rc.period, cycles=setup.cycles, rate_hz=rc.foxglove_rate,
-                    name=f"ctrlunit {rc.unit}")
+    host, port = parse_host_port(rc.run.foxglove, field_name="--foxglove")
+    task = setup.task if rc.schedule.clock != "freerun" else None
+    view = LiveView(host=host, port=port, task=task, period_s=rc.schedule.period,
+                    cycles=setup.cycles, rate_hz=rc.run.foxglove_rate,
+                    name=f"ctrlunit {rc.transport.unit}")
     echo(f"ctrlunit: live view on {view.url} (in Foxglove: Open connection, Foxglove "
          "WebSocket)")
     return view
 
 
 def _child_names(rc: RunConfig, setup: Setup) -> list[str]:
-    names = [] if rc.clock == "freerun" else ["plant"]
+    names = [] if rc.schedule.clock == "freerun" else ["plant"]
     return names + [f"peripheral-{k + 1}" for k in range(setup.placement.peripherals)]
 
 

@@ -186,12 +186,12 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
 
 
 def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
-    with Node(conf, setup.rc.unit, f"peripheral-{index}") as node:
+    with Node(conf, setup.rc.transport.unit, f"peripheral-{index}") as node:
         try:
             reply = declare(node, index - 1)
-            node.wait_for_go(timeout=setup.rc.startup_timeout)
+            node.wait_for_go(timeout=setup.rc.transport.startup_timeout)
             res = serve(node, setup.engine(), index - 1, reply,
-                        watchdog=max(5.0, 3 * setup.rc.timeout), trace=setup.rc.trace)
+                        watchdog=max(5.0, 3 * setup.rc.transport.timeout), trace=setup.rc.run.trace)
         except TimeoutError as exc:
             print(f"ctrlunit peripheral {index}: {exc}", file=sys.stderr)
             return EXIT_LINK

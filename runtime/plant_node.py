@@ -300,9 +300,9 @@ def run_plant(setup: Setup, conf: Any) -> int:
     initial = initial_command(setup.params, setup.task)
 
     def make_plant(period: float) -> Plant:
-        return Plant(setup.params, PlantConfig(period=period, substeps=rc.plant_substeps,
-                                               lag=rc.plant_lag, friction=rc.plant_friction,
-                                               belt=rc.belt),
+        return Plant(setup.params, PlantConfig(period=period, substeps=rc.plant.substeps,
+                                               lag=rc.plant.lag, friction=rc.plant.friction,
+                                               belt=rc.plant.belt),
                      q0=initial_angles(setup.params, setup.task),
                      p_guess=tuple(setup.task.start()))
 
@@ -311,17 +311,18 @@ def run_plant(setup: Setup, conf: Any) -> int:
         sim.set_command(initial)  # at rest at the task's start, held against gravity
         return sim
 
-    plant = make_plant(rc.period)
-    with Node(conf, rc.unit, "plant") as node:
-        server = PlantServer(node, plant, depth=rc.pipeline, initial=initial,
+    plant = make_plant(rc.schedule.period)
+    with Node(conf, rc.transport.unit, "plant") as node:
+        server = PlantServer(node, plant, depth=rc.schedule.pipeline, initial=initial,
                              trial_plant=trial_plant)
         try:
-            node.wait_for_go(timeout=rc.startup_timeout)
+            node.wait_for_go(timeout=rc.transport.startup_timeout)
         except TimeoutError as exc:
             print(f"ctrlunit plant: {exc}", file=sys.stderr)
             return EXIT_LINK
-        res = serve(node, server, clock=rc.clock, period=rc.period, cycles=setup.cycles,
-                    watchdog=max(5.0, 3 * rc.timeout), delay=rc.delay_periods)
+        res = serve(node, server, clock=rc.schedule.clock, period=rc.schedule.period,
+                    cycles=setup.cycles, watchdog=max(5.0, 3 * rc.transport.timeout),
+                    delay=rc.delay_periods)
         hold = (node.stop_msg or {}).get("hold")
         if isinstance(hold, list) and len(hold) == 3 and all(
                 isinstance(x, float) and math.isfinite(x) for x in hold):

@@ -268,8 +268,8 @@ def _torques(path: Path, s: dict[str, np.ndarray], tau_max: float, kind: str) ->
 
 def _timing(path: Path, s: dict[str, np.ndarray], rc: RunConfig) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), constrained_layout=True)
-    nominal_us = rc.period * 1e6
-    deadline_us = max(rc.delay_periods, 1) * rc.period * 1e6
+    nominal_us = rc.schedule.period * 1e6
+    deadline_us = max(rc.delay_periods, 1) * rc.schedule.period * 1e6
     for ax, key, title in ((axes[0], "period_s", "period (command to command)"),
                            (axes[1], "traversal_s", "traversal (sample to command)")):
         v = s[key][np.isfinite(s[key])] * 1e6
@@ -277,14 +277,14 @@ def _timing(path: Path, s: dict[str, np.ndarray], rc: RunConfig) -> None:
             _empty(ax, f"no {key[:-2]} recorded")
             continue
         ax.hist(v, bins=min(80, max(10, v.size // 20)), color="#1f77b4", alpha=0.85)
-        if rc.clock == "realtime":
+        if rc.schedule.clock == "realtime":
             ax.axvline(nominal_us, color="#2ca02c", ls="--", lw=1.0,
                        label=f"period {nominal_us:g} us")
-        if key == "traversal_s" and rc.clock == "realtime":
+        if key == "traversal_s" and rc.schedule.clock == "realtime":
             ax.axvline(deadline_us, color="#d62728", ls="--", lw=1.0,
                        label=f"deadline {deadline_us:g} us (tick k + {max(rc.delay_periods, 1)})")
         p50, p99 = np.percentile(v, [50, 99])
-        clock = "" if rc.clock == "realtime" else f" ({rc.clock}: wall time)"
+        clock = "" if rc.schedule.clock == "realtime" else f" ({rc.schedule.clock}: wall time)"
         ax.set_title(f"{title}{clock}: p50 {p50:.0f} us, p99 {p99:.0f} us", fontsize=10)
         ax.set_xlabel("us")
         ax.set_ylabel("intervals")
@@ -298,17 +298,17 @@ def _timing(path: Path, s: dict[str, np.ndarray], rc: RunConfig) -> None:
 def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int, int]],
                    fault: dict[str, Any] | None, rc: RunConfig) -> None:
     fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
-    t = s["cycle"] * rc.period
+    t = s["cycle"] * rc.schedule.period
     ax.plot(t, s["period_s"] * 1e6, lw=0.6, color="#7f7f7f", label="period")
-    if rc.clock == "realtime":
-        ax.axhline(rc.period * 1e6, color="#2ca02c", ls="--", lw=0.8, label="nominal")
+    if rc.schedule.clock == "realtime":
+        ax.axhline(rc.schedule.period * 1e6, color="#2ca02c", ls="--", lw=0.8, label="nominal")
     prev_m = prev_s = 0
     miss_t, skip_t = [], []
     for k, m, sk in ev:
         if m > prev_m:
-            miss_t.append(k * rc.period)
+            miss_t.append(k * rc.schedule.period)
         if sk > prev_s:
-            skip_t.append(k * rc.period)
+            skip_t.append(k * rc.schedule.period)
         prev_m, prev_s = max(prev_m, m), max(prev_s, sk)
     for x in miss_t:
         ax.axvline(x, color="#d62728", lw=0.8, alpha=0.7)
@@ -378,7 +378,8 @@ def plot_recording(rec: Recording, out: str | Path, *,
     rc = RunConfig.from_dict(cfg)
     from ..kernels.params import DELTA_IA, load_params
 
-    params = load_params(rc.params) if rc.params and Path(rc.params).exists() else DELTA_IA
+    path = rc.control.params
+    params = load_params(path) if path and Path(path).exists() else DELTA_IA
     s = signals(rec, cycles=cycles)
     ev, fault = _events(rec, cycles)
     out = Path(out)
@@ -388,10 +389,10 @@ def plot_recording(rec: Recording, out: str | Path, *,
     images["path"] = out / "path.png"
     _path(images["path"], s, plots.notes)
     images["tracking_error"] = out / "tracking_error.png"
-    _tracking(images["tracking_error"], s, rc.max_error, plots.notes)
+    _tracking(images["tracking_error"], s, rc.control.max_error, plots.notes)
     images["torques"] = out / "torques.png"
     _torques(images["torques"], s, params.tau_max,
-             "acceleration" if rc.law == "kinematics" else "torque")
+             "acceleration" if rc.control.law == "kinematics" else "torque")
     images["timing"] = out / "timing.png"
     _timing(images["timing"], s, rc)
     images["events"] = out / "events.png"
@@ -401,8 +402,9 @@ def plot_recording(rec: Recording, out: str | Path, *,
     window = gantt_window(gantt_spans(rec, cycles))
     images["gantt"] = out / "gantt.png"
     if window:
-        gantt_figure(images["gantt"], {f"n = {rc.peripherals}, depth {rc.pipeline} "
-                                       "(measured)": window})
+        sch = rc.schedule
+        gantt_figure(images["gantt"],
+                     {f"n = {sch.peripherals}, depth {sch.pipeline} (measured)": window})
     else:
         fig, ax = plt.subplots(figsize=(11, 2.6), constrained_layout=True)
         _empty(ax, "no compute spans in this recording")

@@ -22,8 +22,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     measured again here on the recorded intervals.
     """
     cfg = rec.config
-    rc = RunConfig.from_dict(cfg)
-    rc.record = rc.report = None
+    rc = RunConfig.from_dict(cfg).replace(record=None, report=None)
     setup = make_setup(rc)
     samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
     cmd_ns, sample_ns, commands = [], [], []
@@ -48,7 +47,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
         business = {"central": max(0.0, 1.0 - busy["central_wait_ns"] / wall)}
         for k in range(n):
             business[f"peripheral_{k + 1}"] = busy["periph_busy_ns"][k] / wall
-        if rc.clock != "freerun":
+        if rc.schedule.clock != "freerun":
             business["plant"] = busy["plant_busy_ns"] / wall
     else:  # from the spans
         acc: dict[str, int] = {}
@@ -67,7 +66,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     per_block = json.loads(result.get("block_cost_s", "{}") or "{}")
     if not math.isfinite(t1):
         t1, per_block = measure_t1(lambda: setup.engine(peripherals_plan=False),
-                                   recorded_inputs(rec, setup)[: rc.t1_cycles])
+                                   recorded_inputs(rec, setup)[: rc.run.t1_cycles])
     fault = json.loads(result.get("fault", "null") or "null")
     if rec.salvaged:
         fault = fault or {"process": "recording", "message": rec.note, "code": None}
@@ -76,7 +75,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
         rc=rc, plan=setup.plan, task=task, cmd_ns=cmd_ns, sample_ns=sample_ns,
         digest=command_digest(commands),
         torque_max=max((abs(x) for x in commands), default=math.nan),
-        tracking_errors=tracking_errors(task, rc.period, true_p), business=business,
+        tracking_errors=tracking_errors(task, rc.schedule.period, true_p), business=business,
         deadline_misses=misses,
         skipped=skipped, rejected=rejected, t1_s=t1, per_block_s=per_block, fault=fault,
         wall_s=wall / 1e9,

@@ -63,7 +63,7 @@ class Recorder:
         self.setup = setup
         self.fh = open(path, "wb")
         self.w = LeanWriter(self.fh, chunk_size=CHUNK_SIZE, chunk_age=CHUNK_AGE_NS,
-                            compression=setup.rc.record_compression, background=True)
+                            compression=setup.rc.run.record_compression, background=True)
         self.w.start(profile="", library=f"ctrlunit {version('ctrlunit')}")
         self.channels: dict[str, int] = {}
         self.seq = 0
@@ -84,7 +84,7 @@ class Recorder:
             "host": socket.gethostname(),
             "platform": platform.platform(),
             "cores": str(os.cpu_count()),
-            "clock": rc.clock,
+            "clock": rc.schedule.clock,
             "time_unit": "ns (host monotonic clock)",
         }
         self.w.add_metadata("ctrlunit", meta)
@@ -139,8 +139,9 @@ class Recorder:
         now = iv.cmd_ns
         spans = [s for s in central.spans_of(cycle)]
         self._add("/timing/spans", now, msgpack.packb({"cycle": cycle, "spans": spans}))
-        sig = state_message(iv, period_s=central.rc.period,
-                            task=self.setup.task if central.rc.clock != "freerun" else None,
+        sch = central.rc.schedule
+        sig = state_message(iv, period_s=sch.period,
+                            task=self.setup.task if sch.clock != "freerun" else None,
                             previous_cmd_ns=self.last_cmd_ns)
         self.last_cmd_ns = now
         self._add("/signals/state", now, orjson.dumps(sig), json_signals=True)

@@ -50,9 +50,7 @@ def _setup(rec: Recording) -> Any:
     from .config import RunConfig
     from .setup import make_setup
 
-    rc = RunConfig.from_dict(rec.config)
-    rc.record = rc.report = None
-    return make_setup(rc)
+    return make_setup(RunConfig.from_dict(rec.config).replace(record=None, report=None))
 
 
 def _index(rec: Recording, kind: str) -> dict[tuple[int, ...], dict]:
@@ -94,7 +92,8 @@ def recorded_inputs(rec: Recording, setup: Any) -> list[tuple]:
     from .controller import Controller
 
     engine = setup.engine(peripherals_plan=False)
-    ctl = Controller(engine, setup.rc.period, setup.params.increment, tuple(setup.task.start()))
+    ctl = Controller(engine, setup.rc.schedule.period, setup.params.increment,
+                     tuple(setup.task.start()))
     out = []
     for k, counts in cycles_in_order(rec):
         ctx = ctl.sources(k, counts)
@@ -131,7 +130,8 @@ def verify(
     engine = setup.engine()
     plan = engine.plan
     producer = {o: b.name for b in plan.graph.blocks for o in b.outputs}
-    ctl = Controller(engine, setup.rc.period, setup.params.increment, tuple(setup.task.start()))
+    ctl = Controller(engine, setup.rc.schedule.period, setup.params.increment,
+                     tuple(setup.task.start()))
     requests, replies = _index(rec, "request"), _index(rec, "reply")
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
     held = {(m["peripheral"], m["cycle"], m["stage"]): m["vals"]

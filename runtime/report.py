@@ -103,7 +103,7 @@ def build_report(
     # mean period: when two intervals share one exchange their commands come in pairs and
     # the median period is either the short or the long gap, not the rate)
     period_mean = float(period.mean()) if period.size else math.nan
-    t_par = tq["p50"] if rc.pipeline == 1 else period_mean
+    t_par = tq["p50"] if rc.schedule.pipeline == 1 else period_mean
     eff = t1_s / (t_par * processors) if t_par and t_par > 0 else math.nan
     speedup = t1_s / t_par if t_par and t_par > 0 else math.nan
     graph = plan.graph
@@ -115,18 +115,18 @@ def build_report(
     return {
         "processors": processors,
         "peripherals": n,
-        "pipeline": rc.pipeline,
-        "clock": rc.clock,
+        "pipeline": rc.schedule.pipeline,
+        "clock": rc.schedule.clock,
         "command_delay": command_delay(rc),
         "cycles": len(cmd_ns),
-        "nominal_period_s": rc.period,
-        "law": rc.law,
-        "model": rc.model,
-        "observer": rc.observer,
+        "nominal_period_s": rc.schedule.period,
+        "law": rc.control.law,
+        "model": rc.control.model,
+        "observer": rc.control.observer,
         "task": task.name,
-        "cost_model": rc.cost_model,
-        "cost_scale": rc.cost_scale,
-        "unit": rc.unit,
+        "cost_model": rc.control.cost_model,
+        "cost_scale": rc.control.cost_scale,
+        "unit": rc.transport.unit,
         "round_trips": plan.round_trips,
         "exchanges_per_interval": (exchanges / len(cmd_ns)) if exchanges is not None
         and len(cmd_ns) else None,
@@ -141,14 +141,14 @@ def build_report(
         "business": business,
         "t1_s": t1_s,
         "t_parallel_s": t_par,
-        "t_parallel_is": "traversal p50" if rc.pipeline == 1 else "period mean",
+        "t_parallel_is": "traversal p50" if rc.schedule.pipeline == 1 else "period mean",
         "efficiency": eff,
         "efficiency_n": processors,
         "speedup": speedup,
         "t_s_model_s": t_s,
         "t_p_model_s": t_p,
         "block_cost_s": per_block_s,
-        "tracking_error_m": error_stats(tracking_errors) if rc.clock != "freerun"
+        "tracking_error_m": error_stats(tracking_errors) if rc.schedule.clock != "freerun"
         else {"max": math.nan, "rms": math.nan},
         "torque_nm": {"max": torque_max if len(cmd_ns) else math.nan},
         "command_digest": digest,
@@ -263,9 +263,9 @@ def command_delay(rc: RunConfig) -> dict[str, Any] | None:
     """When the plant applies a command (docs/architecture.md, Clocks): the convention and
     the periods from a sample to the period in which its command acts. None in freerun
     (no plant)."""
-    if rc.clock == "freerun":
+    if rc.schedule.clock == "freerun":
         return None
-    return {"convention": rc.command_delay, "periods": rc.delay_periods}
+    return {"convention": rc.schedule.command_delay, "periods": rc.delay_periods}
 
 
 def _delay_lines(r: dict[str, Any]) -> list[str]:
@@ -318,7 +318,7 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
     business = {"central": max(0.0, 1.0 - central.wait_ns / wall)}
     for k in range(setup.placement.peripherals):
         business[f"peripheral_{k + 1}"] = central.periph_busy_ns[k] / wall
-    if rc.clock != "freerun":
+    if rc.schedule.clock != "freerun":
         business["plant"] = central.plant_busy_ns / wall
     t1, per_block = math.nan, {}
     t1_engines: list[Engine] = []
@@ -328,12 +328,12 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         return t1_engines[-1]
 
     if central.t1_inputs:
-        t1, per_block = measure_t1(t1_engine,
-                                   central.t1_inputs[: (50 if rc.cost_model == "t800" else None)])
+        inputs = central.t1_inputs[: (50 if rc.control.cost_model == "t800" else None)]
+        t1, per_block = measure_t1(t1_engine, inputs)
     cost_err = None
-    if rc.cost_model == "t800":
+    if rc.control.cost_model == "t800":
         # block costs are the emulated T-800 times; the emulation's error is measured
-        per_block = {b.name: b.t800_s(rc.cost_scale) for b in setup.plan.graph.blocks}
+        per_block = {b.name: b.t800_s(rc.control.cost_scale) for b in setup.plan.graph.blocks}
         errs = sorted(central.engine.cost.errors_ns + [e for g in t1_engines
                                                        for e in g.cost.errors_ns])
         if errs:

@@ -36,13 +36,13 @@ class Setup:
     def engine(self, *, peripherals_plan: bool = True, cost: str | None = None) -> Engine:
         plan = self.plan if peripherals_plan else exchange_plan(self.plan.graph,
                                                                 default_placement(0))
-        cfg = BlockConfig.build(self.params, model=self.rc.model,
+        cfg = BlockConfig.build(self.params, model=self.rc.control.model,
                                 gains=Gains.from_bandwidth(self.rc.bandwidth),
-                                task=self.task, period=self.rc.period,
-                                observer=self.rc.observer,
+                                task=self.task, period=self.rc.schedule.period,
+                                observer=self.rc.control.observer,
                                 delay=self.rc.lead_periods)
-        return Engine(plan, cfg, cost=CostModel(cost or self.rc.cost_model,
-                                                scale=self.rc.cost_scale))
+        return Engine(plan, cfg, cost=CostModel(cost or self.rc.control.cost_model,
+                                                scale=self.rc.control.cost_scale))
 
 
 def make_setup(rc: RunConfig) -> Setup:
@@ -55,9 +55,9 @@ def make_setup(rc: RunConfig) -> Setup:
         before any motion.
     """
     rc.validate()
-    params = DELTA_IA if rc.params is None else load_params(rc.params)
+    params = DELTA_IA if rc.control.params is None else load_params(rc.control.params)
     try:
-        task = get_task(rc.task).align(rc.period / 2.0)
+        task = get_task(rc.control.task).align(rc.schedule.period / 2.0)
     except ValueError as exc:
         raise ConfigError(f"task: {exc}") from None
     pts = np.array([task.sample_path(t)[0] for t in np.linspace(0.0, task.duration, 400)])
@@ -65,16 +65,16 @@ def make_setup(rc: RunConfig) -> Setup:
         require_path(params, pts, what=f"task {task.name}")
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    graph = stage_graph(rc.law, rc.model, observer=rc.observer)
-    if rc.placement:
-        placement = load_placement(rc.placement,
+    graph = stage_graph(rc.control.law, rc.control.model, observer=rc.control.observer)
+    if rc.schedule.placement:
+        placement = load_placement(rc.schedule.placement,
                                    block_names={b.name for b in graph.axis_blocks})
-        if placement.peripherals != rc.peripherals:
+        if placement.peripherals != rc.schedule.peripherals:
             raise ConfigError(
-                f"placement {rc.placement} has {placement.peripherals} peripherals but "
-                f"--peripherals is {rc.peripherals}")
+                f"placement {rc.schedule.placement} has {placement.peripherals} peripherals but "
+                f"--peripherals is {rc.schedule.peripherals}")
     else:
-        placement = default_placement(rc.peripherals)
+        placement = default_placement(rc.schedule.peripherals)
     plan = exchange_plan(graph, placement)
     return Setup(rc, params, task, placement, plan, rc.total_cycles(task.period))
 

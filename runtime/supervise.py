@@ -59,7 +59,7 @@ def role_cpus(rc: RunConfig) -> tuple[set[int] | None, set[int] | None]:
     children are given their CPUs explicitly, since they would otherwise inherit the
     central's. A CPU this process may not use is replaced by every CPU it may use.
     """
-    pin = {int(c) for c in rc.pin.split(",") if c.strip()} if rc.pin else None
+    pin = {int(c) for c in rc.schedule.pin.split(",") if c.strip()} if rc.schedule.pin else None
     try:
         mine = set(os.sched_getaffinity(0))
     except OSError:
@@ -68,9 +68,9 @@ def role_cpus(rc: RunConfig) -> tuple[set[int] | None, set[int] | None]:
     def only(cpu: int) -> set[int]:
         return {cpu} if cpu in mine else mine
 
-    if rc.cpus == "same":
+    if rc.schedule.cpus == "same":
         return pin or only(0), only(0)
-    if rc.cpus == "split":
+    if rc.schedule.cpus == "split":
         return pin or only(0), only(1)
     return pin, (mine if pin else None)
 

@@ -7,7 +7,7 @@ lockstep applies its command and publishes the next sample). So the central's
 scheduling, intake, guard and recording are exercised in the test's own process, where
 mutation testing can see them, and a test can hold back any message to build a fault.
 
-    unit = LoopbackUnit(RunConfig(clock="lockstep", peripherals=3, pipeline=2, cycles=50))
+    unit = LoopbackUnit(RunConfig.of(clock="lockstep", peripherals=3, pipeline=2, cycles=50))
     unit.run()                     # the central's loop until every interval is done
     unit.central.log.digest        # the commands, as a live run reports them
 """
@@ -141,28 +141,29 @@ class LoopbackUnit:
         self.rc = rc
         self.setup = setup = make_setup(rc)
         self.bus = Bus()
-        self.node = LoopbackNode(self.bus, rc.unit, "central")
+        self.node = LoopbackNode(self.bus, rc.transport.unit, "central")
         engine = setup.engine()
-        ctl = Controller(engine, rc.period, setup.params.increment, tuple(setup.task.start()))
+        ctl = Controller(engine, rc.schedule.period, setup.params.increment,
+                         tuple(setup.task.start()))
         self.central = Central(self.node, rc, engine, ctl, setup.cycles, on_cycle=on_cycle,
                                on_message=on_message)
         self.peripherals: list[tuple[LoopbackNode, Peripheral]] = []
         for k in range(setup.placement.peripherals):
-            pnode = LoopbackNode(self.bus, rc.unit, f"peripheral-{k + 1}")
+            pnode = LoopbackNode(self.bus, rc.transport.unit, f"peripheral-{k + 1}")
             pnode.route(pnode.keys.request, "request")
-            self.peripherals.append((pnode, Peripheral(setup.engine(), k, rc.unit,
-                                                       trace=rc.trace,
+            self.peripherals.append((pnode, Peripheral(setup.engine(), k, rc.transport.unit,
+                                                       trace=rc.run.trace,
                                                        rejected=pnode.rejected)))
         self.server: PlantServer | None = None
-        if rc.clock != "freerun":
-            pnode = LoopbackNode(self.bus, rc.unit, "plant")
-            plant = Plant(setup.params, PlantConfig(period=rc.period,
-                                                    substeps=rc.plant_substeps,
-                                                    lag=rc.plant_lag,
-                                                    friction=rc.plant_friction, belt=rc.belt),
+        if rc.schedule.clock != "freerun":
+            pnode = LoopbackNode(self.bus, rc.transport.unit, "plant")
+            plant = Plant(setup.params, PlantConfig(period=rc.schedule.period,
+                                                    substeps=rc.plant.substeps,
+                                                    lag=rc.plant.lag,
+                                                    friction=rc.plant.friction, belt=rc.plant.belt),
                           q0=initial_angles(setup.params, setup.task),
                           p_guess=tuple(setup.task.start()))
-            self.server = PlantServer(pnode, plant, depth=rc.pipeline,
+            self.server = PlantServer(pnode, plant, depth=rc.schedule.pipeline,
                                       initial=initial_command(setup.params, setup.task))
         self.muted: set[int] = set()  # peripherals (0-based) whose replies are withheld
         self.withheld: list[tuple[int, bytes]] = []  # (peripheral, reply) not delivered
@@ -205,7 +206,7 @@ class LoopbackUnit:
             if ev.kind == "command":
                 server.take_command(ev.data)
             moved = True
-        if self.rc.clock != "lockstep":
+        if self.rc.schedule.clock != "lockstep":
             return moved
         while server.sample_no < self.setup.cycles:
             due = server.sample_no - self.rc.delay_periods
@@ -235,13 +236,13 @@ class LoopbackUnit:
         from ctrlunit.runtime.codec import decode
 
         key = self.node.keys.command
-        return [decode(d, self.rc.unit)["tau"] for k, d in self.bus.log if k == key]
+        return [decode(d, self.rc.transport.unit)["tau"] for k, d in self.bus.log if k == key]
 
 
 def lockstep_config(unit: str, **kw: Any) -> RunConfig:
     """A lockstep run configuration for the loopback unit."""
     kw.setdefault("clock", "lockstep")
-    return RunConfig(unit=unit, **kw)
+    return RunConfig.of(unit=unit, **kw)
 
 
 def record_lockstep(path: str, unit: str, **kw: Any) -> LoopbackUnit:

@@ -52,7 +52,7 @@ def fault_just_past(c: Any, clock: Clock, limit: int) -> Fault:
 def realtime_unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUnit:
     kw.setdefault("peripherals", 3)
     kw.setdefault("pipeline", 1)
-    return LoopbackUnit(RunConfig(unit=unit_id(tag), clock="realtime", **kw),
+    return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", **kw),
                         on_message=on_message)
 
 
@@ -101,7 +101,7 @@ def reply_vals(u: LoopbackUnit, peripheral: int, cycle: int, stage: int) -> dict
     for k, data in u.bus.log:
         if k != key:
             continue
-        for part in decode(data, u.rc.unit)["parts"]:
+        for part in decode(data, u.rc.transport.unit)["parts"]:
             if (part["cycle"], part["stage"]) == (cycle, stage):
                 return part["vals"]
     raise AssertionError(f"no reply of peripheral {peripheral + 1} to {cycle}/{stage}")
@@ -111,7 +111,7 @@ def request_of(u: LoopbackUnit, cycle: int, stage: int) -> bytes:
     for k, data in u.bus.log:
         if k == u.node.keys.request and any(
                 (p["cycle"], p["stage"]) == (cycle, stage)
-                for p in decode(data, u.rc.unit)["parts"]):
+                for p in decode(data, u.rc.transport.unit)["parts"]):
             return data
     raise AssertionError(f"no request for {cycle}/{stage}")
 
@@ -202,7 +202,7 @@ def test_fault_policy_names_the_peripheral_round_blocks_and_cycle():
 
 
 def test_late_data_is_not_judged_outside_realtime():
-    u = LoopbackUnit(RunConfig(unit=unit_id("lslate"), clock="lockstep", peripherals=3,
+    u = LoopbackUnit(RunConfig.of(unit=unit_id("lslate"), clock="lockstep", peripherals=3,
                                late_policy="fault"))
     c = u.central
     u.start_plant()
@@ -236,7 +236,7 @@ def test_the_silence_limit_is_fault_periods_after_start_up_and_the_timeout_elsew
     assert c._timeout_ns() == 8 * MS
     u = realtime_unit("limit2", period=10e-3, fault_periods=3.0)
     assert u.central._timeout_ns() == 30 * MS  # longer than start-up's floor: kept
-    u = LoopbackUnit(RunConfig(unit=unit_id("limit3"), clock="lockstep", timeout=0.75))
+    u = LoopbackUnit(RunConfig.of(unit=unit_id("limit3"), clock="lockstep", timeout=0.75))
     assert u.central._timeout_ns() == 750 * MS
 
 
@@ -303,7 +303,7 @@ def test_a_silent_plant_is_a_fault_after_the_limit_unless_messages_wait(monkeypa
 
 
 def test_the_plants_silence_counts_from_the_start_before_any_sample(monkeypatch):
-    u = LoopbackUnit(RunConfig(unit=unit_id("plant0"), clock="lockstep", timeout=0.5))
+    u = LoopbackUnit(RunConfig.of(unit=unit_id("plant0"), clock="lockstep", timeout=0.5))
     c = u.central
     c.t_start_ns = 7 * MS
     clock = Clock(7 * MS + 500 * MS)
@@ -312,7 +312,7 @@ def test_the_plants_silence_counts_from_the_start_before_any_sample(monkeypatch)
     clock.now += 1
     with pytest.raises(Fault, match="no sample from the plant for 500.0 ms"):
         c._check_deadlines(500 * MS)
-    u = LoopbackUnit(RunConfig(unit=unit_id("plant1"), clock="freerun", timeout=0.5))
+    u = LoopbackUnit(RunConfig.of(unit=unit_id("plant1"), clock="freerun", timeout=0.5))
     u.central.t_start_ns = 7 * MS
     u.central._check_deadlines(500 * MS)  # freerun: no plant
 
@@ -342,7 +342,7 @@ def test_next_check_is_the_earliest_moment_something_could_fail():
 
 
 def test_next_check_outside_realtime_ignores_silence():
-    u = LoopbackUnit(RunConfig(unit=unit_id("nextls"), clock="lockstep", peripherals=2))
+    u = LoopbackUnit(RunConfig.of(unit=unit_id("nextls"), clock="lockstep", peripherals=2))
     c = u.central
     u.start_plant()
     c._handle(u.node.events.get_nowait())
@@ -435,7 +435,7 @@ def test_the_overload_hint_appears_in_realtime_when_most_deadlines_are_missed():
     assert c._overload_hint().startswith("; 6 commands missed their deadline")
     c.next_cycle = 0
     assert "in 1 periods" in c._overload_hint()
-    u = LoopbackUnit(RunConfig(unit=unit_id("hintls"), clock="lockstep"))
+    u = LoopbackUnit(RunConfig.of(unit=unit_id("hintls"), clock="lockstep"))
     u.central.plant_misses = 10**6
     assert u.central._overload_hint() == ""
 
@@ -555,7 +555,7 @@ def test_limits_and_messages_keep_their_units_at_large_values(monkeypatch):
     first_interval(u)
     c.done = 100
     assert c._timeout_ns() == 1000 * 10**9
-    u2 = LoopbackUnit(RunConfig(unit=unit_id("units2"), clock="lockstep", timeout=600.0))
+    u2 = LoopbackUnit(RunConfig.of(unit=unit_id("units2"), clock="lockstep", timeout=600.0))
     assert u2.central._timeout_ns() == 600 * 10**9
     sample(u, 1)
     settle(u, muted=frozenset({1}))

@@ -32,7 +32,7 @@ def test_lockstep_commands_equal_the_one_process_reference(n, depth):
 def test_a_lost_reply_is_the_peripherals_fault_after_the_timeout():
     u = LoopbackUnit(lockstep_config(unit_id("lblost"), peripherals=3, pipeline=1,
                                      cycles=CYCLES, timeout=0.2))
-    unit = u.rc.unit
+    unit = u.rc.transport.unit
 
     def lose(key: str, data: bytes) -> bool:
         if not key.endswith("/central/reply/2"):

@@ -24,13 +24,13 @@ def _child(code: str) -> dict:
 
 def test_priority_outside_0_to_99_is_refused_with_the_range() -> None:
     with pytest.raises(ConfigError, match=r"--rt-priority = 120: allowed 0 .* to 99"):
-        RunConfig(rt_priority=120).validate()
+        RunConfig.of(rt_priority=120).validate()
     with pytest.raises(ValueError, match="--rt-priority = -1"):
         sched.check_priority(-1)
     with pytest.raises(ValueError, match="--rt-priority = None"):
         sched.check_priority(None)  # type: ignore[arg-type]
-    RunConfig(rt_priority=0).validate()
-    RunConfig(rt_priority=99).validate()
+    RunConfig.of(rt_priority=0).validate()
+    RunConfig.of(rt_priority=99).validate()
 
 
 def test_refused_fifo_is_an_error_that_says_what_it_needs(monkeypatch) -> None:
@@ -110,7 +110,7 @@ def test_a_unit_run_inside_a_longer_process_leaves_its_policy_as_it_was() -> Non
         "from ctrlunit.runtime import sched\n"
         "from ctrlunit.runtime.config import RunConfig\n"
         "from ctrlunit.runtime.launcher import start\n"
-        f"rc = RunConfig(peripherals=1, pipeline=2, clock='freerun', cycles=200,"
+        f"rc = RunConfig.of(peripherals=1, pipeline=2, clock='freerun', cycles=200,"
         f" rt_priority=10, unit='t-rt-{os.getpid()}').validate()\n"
         "code, rep = start(rc, echo=lambda m: None)\n"
         "tids = os.listdir('/proc/self/task')\n"

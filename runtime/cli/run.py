@@ -8,7 +8,7 @@ from typing import Any
 
 import click
 
-from ..config import EXIT_CONFIG, ConfigError, RunConfig, parse_duration
+from ..config import EXIT_CONFIG, FLAT, ConfigError, RunConfig, parse_duration
 from .base import _emit, _fail, _json_safe, cli
 
 
@@ -168,11 +168,9 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
     listen = list(kw.pop("listen", ()) or ()) or None
     connect = list(kw.pop("connect", ()) or ()) or None
     if spec:
-        rc = load_spec(spec)
-        rc.listen = listen  # the central's endpoints are its own, not the children's
-        rc.connect = connect
-        rc.pin = kw.get("pin") or None
-        return rc
+        # the central's endpoints are its own, not the children's
+        return load_spec(spec).replace(listen=listen, connect=connect,
+                                       pin=kw.get("pin") or None)
     unit = kw.pop("unit", None)
     late: dict[str, str] = {}
     for item in kw.pop("late_items", ()) or ():
@@ -185,12 +183,11 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
         from ..admission import LADDER_S
 
         kw["period"], kw["period_auto"] = LADDER_S[0], True
-    rc = RunConfig(**{k: v for k, v in kw.items() if k in RunConfig.__dataclass_fields__})
-    rc.plant_lag = kw.get("plant_lag", 0.0)
-    rc.listen, rc.connect = listen, connect
+    options = {k: v for k, v in kw.items() if k in FLAT}
+    options.update(plant_lag=kw.get("plant_lag", 0.0), listen=listen, connect=connect)
     if unit:
-        rc.unit = unit
-    return rc
+        options["unit"] = unit
+    return RunConfig.of(**options)
 
 
 @cli.command()
@@ -214,7 +211,7 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     if check:
         _check(rc, as_json)
         return
-    if plot_dir and not rc.record:
+    if plot_dir and not rc.run.record:
         from pathlib import Path
 
         try:
@@ -222,7 +219,7 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
         except OSError as exc:
             _fail(f"--plot {plot_dir}: {exc}", EXIT_CONFIG)
             return
-        rc.record = str(Path(plot_dir) / "run.mcap")
+        rc = rc.replace(record=str(Path(plot_dir) / "run.mcap"))
     show = sys.stdout.isatty() if progress is None else progress
     prog, finish = _progress(show)
     code, report = run_start(rc, echo=lambda m: click.echo(m, err=True), progress=prog)
@@ -230,14 +227,14 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     if "cycles" not in report:
         _fail(report["fault"]["message"], code)
         return
-    if rc.report:
-        with open(rc.report, "w") as fh:
+    if rc.run.report:
+        with open(rc.run.report, "w") as fh:
             json.dump(_json_safe(report), fh, indent=2)
     from ..report import summary
 
     click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     if plot_dir:
-        _plot_run(rc.record, plot_dir, summary(report))
+        _plot_run(rc.run.record, plot_dir, summary(report))
     if code:
         f = report.get("fault") or {}
         click.echo(f"ctrlunit: fault in {f.get('process')}: {f.get('message')}", err=True)
@@ -255,19 +252,20 @@ def _check(rc: RunConfig, as_json: bool) -> None:
         return
     plan = setup.plan
     data = {"valid": True, "peripherals": setup.placement.peripherals,
-            "pipeline": rc.pipeline, "clock": rc.clock,
-            "period_s": None if rc.period_auto else rc.period, "period_auto": rc.period_auto,
+            "pipeline": rc.schedule.pipeline, "clock": rc.schedule.clock,
+            "period_s": None if rc.schedule.period_auto else rc.schedule.period,
+            "period_auto": rc.schedule.period_auto,
             "task": setup.task.name, "task_loop_s": setup.task.period,
-            "cycles": setup.cycles, "law": rc.law, "model": rc.model,
+            "cycles": setup.cycles, "law": rc.control.law, "model": rc.control.model,
             "placement": setup.placement.to_dict(), "round_trips": plan.round_trips,
             "command_delay_periods": rc.delay_periods}
-    period = "auto" if rc.period_auto else f"{rc.period * 1e3:g} ms"
+    period = "auto" if rc.schedule.period_auto else f"{rc.schedule.period * 1e3:g} ms"
     _emit(data, as_json,
           f"ctrlunit start: the options are valid; nothing was started.\n"
-          f"  {setup.placement.peripherals} peripheral(s), pipeline depth {rc.pipeline}, "
-          f"clock {rc.clock}, period {period}\n"
+          f"  {setup.placement.peripherals} peripheral(s), pipeline depth {rc.schedule.pipeline}, "
+          f"clock {rc.schedule.clock}, period {period}\n"
           f"  task {setup.task.name} (a loop of {setup.task.period:.3f} s), {setup.cycles} "
-          f"intervals, {rc.law} + {rc.model} model\n"
+          f"intervals, {rc.control.law} + {rc.control.model} model\n"
           f"  {plan.round_trips} round trip(s) per interval:\n    "
           + plan.describe().replace("\n", "\n    "))
 
@@ -341,13 +339,13 @@ def _role_setup(kw: dict[str, Any], *, role: str, index: int | None = None) -> t
     if check:
         click.echo(f"ctrlunit {role}: the options are valid; nothing was started.")
         sys.exit(0)
-    pin_cpus(rc.pin)
+    pin_cpus(rc.schedule.pin)
     try:  # before zenoh.open: its threads inherit it
-        apply_rt(rc.rt_priority)
+        apply_rt(rc.schedule.rt_priority)
     except RtPermissionError as exc:
         _fail(str(exc), EXIT_CONFIG)
-    return setup, make_config(listen=rc.listen, connect=rc.connect,
-                              config_file=rc.zenoh_config)
+    return setup, make_config(listen=rc.transport.listen, connect=rc.transport.connect,
+                              config_file=rc.transport.zenoh_config)
 
 
 @cli.command()
@@ -377,7 +375,7 @@ def central(as_json: bool, **kw: Any) -> None:
     except (ConfigError, ValueError, OSError) as exc:
         _fail(str(exc), EXIT_CONFIG)
         return
-    if not rc.listen:
+    if not rc.transport.listen:
         _fail("central needs --listen ENDPOINT (e.g. tcp/127.0.0.1:7447)", EXIT_CONFIG)
     if check:
         click.echo("ctrlunit central: the options are valid; nothing was started.")
@@ -386,8 +384,8 @@ def central(as_json: bool, **kw: Any) -> None:
     from ..report import summary
 
     if "cycles" in report:
-        if rc.report:
-            with open(rc.report, "w") as fh:
+        if rc.run.report:
+            with open(rc.run.report, "w") as fh:
                 json.dump(_json_safe(report), fh, indent=2)
         click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     else:

@@ -203,7 +203,7 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
     if with_unit:
         from ..launcher import start
 
-        rc = RunConfig(peripherals=peripherals, pipeline=pipeline, clock="realtime",
+        rc = RunConfig.of(peripherals=peripherals, pipeline=pipeline, clock="realtime",
                        period=period_s, trial_only=True)
         code, urep = start(rc, echo=lambda m: click.echo(m, err=True))
         adm = urep.get("admission")

@@ -1,0 +1,68 @@
+"""The run configuration: frozen sections built once from flat option names."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+from ctrlunit.runtime.config import FLAT, ConfigError, RunConfig
+from ctrlunit.runtime.sections import RENAMED, SECTIONS
+
+
+def test_every_section_field_has_exactly_one_flat_name() -> None:
+    fields = [(name, f.name) for name, cls in SECTIONS.items()
+              for f in dataclasses.fields(cls)]
+    assert sorted(FLAT.values()) == sorted(fields)
+    assert len(set(FLAT)) == len(fields)
+    for flat, field in RENAMED.items():
+        assert FLAT[flat] == ("plant", field)
+
+
+def test_a_configuration_and_its_sections_cannot_be_changed() -> None:
+    rc = RunConfig.of(peripherals=2, plant_lag=1e-4)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        rc.schedule.peripherals = 3  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        rc.plant = rc.plant  # type: ignore[misc]
+
+
+def test_options_land_in_their_sections() -> None:
+    rc = RunConfig.of(peripherals=2, pipeline=2, law="pd", plant_lag=1e-4, timeout=0.5,
+                      record="x.mcap", rt_priority=10)
+    assert (rc.schedule.peripherals, rc.schedule.pipeline, rc.control.law, rc.plant.lag,
+            rc.transport.timeout, rc.run.record, rc.schedule.rt_priority) \
+        == (2, 2, "pd", 1e-4, 0.5, "x.mcap", 10)
+    assert rc.option("plant_lag") == 1e-4
+    assert rc.plant == dataclasses.replace(SECTIONS["plant"](), lag=1e-4)
+
+
+def test_replace_gives_a_new_configuration_and_keeps_the_old() -> None:
+    rc = RunConfig.of(period=2e-3, unit="ufixed")
+    new = rc.replace(period=1e-3, record=None)
+    assert (rc.schedule.period, new.schedule.period) == (2e-3, 1e-3)
+    assert new.transport.unit == "ufixed"  # a generated default is carried, not drawn again
+    assert new.control == rc.control and new.plant == rc.plant
+
+
+def test_flat_dict_round_trip_is_exact() -> None:
+    rc = RunConfig.of(peripherals=1, late={"law": "hold"}, listen=["tcp/127.0.0.1:7447"],
+                      plant_friction=0.3, foxglove="8765", cycles=10)
+    data = json.loads(json.dumps(rc.to_dict()))
+    assert set(data) == set(FLAT)
+    assert RunConfig.from_dict(data) == rc
+
+
+@pytest.mark.parametrize("name", ["nope", "plant.lag", "substeps"])
+def test_an_unknown_option_is_named(name: str) -> None:
+    with pytest.raises(ConfigError, match=f"unknown run option '{name}'"):
+        RunConfig.of(**{name: 1})
+    with pytest.raises(ConfigError, match=f"unknown run option '{name}'"):
+        RunConfig.from_dict({name: 1})
+
+
+def test_validation_names_the_flat_option() -> None:
+    with pytest.raises(ConfigError, match=r"--plant-substeps = 0: allowed 1 to 1000"):
+        RunConfig.of(plant_substeps=0).validate()
+    with pytest.raises(ConfigError, match=r"--max-error = 2 m: allowed"):
+        RunConfig.of(max_error=2.0).validate()
