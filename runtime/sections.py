@@ -4,9 +4,9 @@ scheduled, the plant's options, the transport, and the run's length and outputs.
 A :class:`~ctrlunit.runtime.config.RunConfig` holds one of each; it is built and validated
 once from the options of ``ctrlunit start`` (their flat names, e.g. ``--plant-lag`` is
 ``plant.lag``) and never changed: a derived configuration (``--period auto``, a replay) is
-a new one. Each role reads the sections it needs: the peripheral ``control`` (its engine)
-and ``transport``; the plant ``plant``, ``schedule`` (clock, period, delay) and
-``transport``; the central all of them.
+a new one. Every role derives its plan and engine from ``control`` and ``schedule``;
+beyond that the peripheral reads ``transport`` and ``run.trace``, the plant ``plant``,
+``schedule`` (clock, period, delay) and ``transport``; the central every section.
 """
 
 from __future__ import annotations
