@@ -20,14 +20,11 @@ slot is free from a synthetic sample (the reference's inverse kinematics, quanti
 
 from __future__ import annotations
 
-import hashlib
 import queue
 import struct
 import time
-from array import array
 from collections import OrderedDict
-from collections.abc import Callable, Generator
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Any
 
 from ..kernels.kinematics import ik_axis
@@ -37,11 +34,11 @@ from ..topology.pipeline import (
     may_prime,
     may_start,
 )
-from ..topology.plan import Round
 from .blocks import ObserverDiverged
 from .central_guard import CentralGuard, Fault
 from .central_intake import CentralIntake
 from .central_lifecycle import CentralLifecycle
+from .central_state import CycleLog, InFlight
 from .central_warmup import CentralWarmUp
 from .codec import (
     encode,
@@ -50,42 +47,6 @@ from .config import EXIT_OBSERVER, RunConfig
 from .controller import Controller
 from .engine import Engine
 from .node import WARM_RSS_AT, Node, rss_kb
-
-
-@dataclass
-class InFlight:
-    cycle: int
-    gen: Generator[Round, None, Any]
-    ctx: dict
-    sample_ns: int
-    start_ns: int
-    round: Round | None = None
-    waiting: set[int] = field(default_factory=set)
-    deadline_ns: int = 0
-    handed_off: bool = False
-    started: bool = False
-    late_ns: int = 0  # realtime: when this round's data is late (its share of the deadline)
-    finishing: bool = False  # every exchange done; its last central steps are pending
-    dropped: set[int] = field(default_factory=set)  # peripherals whose replies were held
-
-
-@dataclass
-class CycleLog:
-    """Per-cycle measurements, compact so that long runs stay small: two integers per
-    interval, one float per plant sample; the commands only as a running digest and peak.
-    """
-
-    cmd_ns: array = field(default_factory=lambda: array("q"))
-    traversal_ns: array = field(default_factory=lambda: array("i"))  # saturates at 2.1 s
-    errors: array = field(default_factory=lambda: array("d"))
-    digest: Any = field(default_factory=hashlib.sha256)
-    torque_max: float = 0.0
-    true_p: dict[int, tuple[float, float, float]] = field(default_factory=dict)  # recent only
-
-    @property
-    def sample_ns(self) -> list[int]:
-        """Sample times, from command times and traversals."""
-        return [c - t for c, t in zip(self.cmd_ns, self.traversal_ns)]
 
 
 class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):

@@ -25,7 +25,7 @@ from .config import EXIT_OBSERVER, EXIT_PERIPHERAL, EXIT_PLANT
 from .engine import Engine
 
 if TYPE_CHECKING:
-    from .central import InFlight
+    from .central_state import InFlight
 
 
 class Fault(RuntimeError):
