@@ -11,6 +11,7 @@ import time
 
 import jsonschema
 import pytest
+from ctrlunit.runtime.recorder import CHUNK_SIZE
 from ctrlunit.runtime.recording import read
 from ctrlunit.runtime.replay import verify
 from mcap.reader import make_reader
@@ -131,11 +132,14 @@ def test_kill_9_of_the_central_leaves_a_salvageable_recording(tmp_path):
     assert rec.salvaged and "cut off" in rec.note
     salvaged = len(rec.topics["/plant/command"])
     print(f"killed after >= {done} intervals; salvaged {salvaged}")
-    assert salvaged >= 0.99 * done
+    # lost: the open chunk and at most one closed chunk not yet written (an interval here
+    # is over 3 KB uncompressed), and the status file's granularity of 10 intervals
+    chunk_intervals = CHUNK_SIZE // 3000
+    assert done - salvaged <= 2 * chunk_intervals + 10
     res = ctrlunit("report", str(path))
     assert res.returncode == 0 and "salvaged" in res.stderr
     n, div = verify(rec)
-    assert div is None and n >= 0.99 * done
+    assert div is None and n >= salvaged - 1
 
 
 @pytest.fixture(scope="module")
