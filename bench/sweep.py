@@ -350,7 +350,7 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
             done += 1
             if central is not None and rep_i == 0:
                 log = central.log
-                c = np.asarray(log.cmd_ns, dtype=np.int64)
+                c = np.asarray(log.cmd_ns.recent, dtype=np.int64)
                 s = np.asarray(log.sample_ns, dtype=np.int64)
                 warm = min(100, len(c) // 10)
                 samples[cfg.key] = {"period_s": (np.diff(c[warm:]) / 1e9).tolist(),

@@ -209,7 +209,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
             raise
         fault = str(exc)
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
-    trav = np.asarray(probe.log.traversal_ns, dtype=float) / 1e9
+    trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
     out = {"period_s": period}
     out |= rung_verdict(trav, skipped=probe.skipped, budget_s=budget, transit_s=transit_s)
     if fault is not None:

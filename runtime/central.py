@@ -357,8 +357,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             self.on_message("out", self.node.keys.command, f.cycle, "command", payload, now)
         del self.inflight[f.cycle]
         log = self.log
-        log.cmd_ns.append(now)
-        log.traversal_ns.append(min(now - f.sample_ns, 2**31 - 1))
+        log.times.append(now, now - f.sample_ns)
         log.digest.update(struct.pack("<3d", *cmd))
         log.torque_max = max(log.torque_max, abs(cmd[0]), abs(cmd[1]), abs(cmd[2]))
         self.done += 1

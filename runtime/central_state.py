@@ -4,12 +4,12 @@ every finished interval."""
 from __future__ import annotations
 
 import hashlib
-from array import array
 from collections.abc import Generator
 from dataclasses import dataclass, field
 from typing import Any
 
 from ..topology.plan import Round
+from .timing import BoundedSeries, ErrorSeries, IntervalTimes
 
 
 @dataclass
@@ -34,21 +34,31 @@ class InFlight:
 
 @dataclass
 class CycleLog:
-    """Per-cycle measurements, compact so that long runs stay small: two integers per
-    interval, one float per plant sample; the commands only as a running digest and peak.
+    """Per-cycle measurements in bounded memory (a long run does not grow): the intervals'
+    command times and traversals and the tracking errors, exact for the newest ones and
+    summarised before (:mod:`.timing`); the commands only as a running digest and peak.
     """
 
-    cmd_ns: array = field(default_factory=lambda: array("q"))
-    traversal_ns: array = field(default_factory=lambda: array("i"))  # saturates at 2.1 s
-    errors: array = field(default_factory=lambda: array("d"))
+    times: IntervalTimes = field(default_factory=IntervalTimes)
+    errors: ErrorSeries = field(default_factory=ErrorSeries)
     digest: Any = field(default_factory=hashlib.sha256)
     torque_max: float = 0.0
     true_p: dict[int, tuple[float, float, float]] = field(default_factory=dict)  # recent only
 
     @property
+    def cmd_ns(self) -> BoundedSeries:
+        """When each interval's command left (ns)."""
+        return self.times.cmd_ns
+
+    @property
+    def traversal_ns(self) -> BoundedSeries:
+        """Each interval's traversal, sample to command (ns)."""
+        return self.times.traversal_ns
+
+    @property
     def sample_ns(self) -> list[int]:
-        """Sample times, from command times and traversals."""
-        return [c - t for c, t in zip(self.cmd_ns, self.traversal_ns)]
+        """Sample times of the kept intervals, from command times and traversals."""
+        return self.times.sample_ns
 
 
 __all__ = ["CycleLog", "InFlight"]

@@ -11,8 +11,9 @@ from .config import RunConfig
 from .engine import measure_t1
 from .recording import Recording
 from .replay import recorded_inputs
-from .report import CPU_KEYS, build_report, command_digest, tracking_errors
+from .report import CPU_KEYS, build_report, command_digest, error_stats, tracking_errors
 from .setup import make_setup
+from .timing import timing_figures
 
 
 def report_from_recording(rec: Recording) -> dict[str, Any]:
@@ -72,10 +73,10 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
         fault = fault or {"process": "recording", "message": rec.note, "code": None}
     task = setup.task
     rep = build_report(
-        rc=rc, plan=setup.plan, task=task, cmd_ns=cmd_ns, sample_ns=sample_ns,
+        rc=rc, plan=setup.plan, task=task, timing=timing_figures(cmd_ns, sample_ns),
         digest=command_digest(commands),
         torque_max=max((abs(x) for x in commands), default=math.nan),
-        tracking_errors=tracking_errors(task, rc.schedule.period, true_p), business=business,
+        tracking=error_stats(tracking_errors(task, rc.schedule.period, true_p)), business=business,
         deadline_misses=misses,
         skipped=skipped, rejected=rejected, t1_s=t1, per_block_s=per_block, fault=fault,
         wall_s=wall / 1e9,

@@ -21,15 +21,6 @@ CPU_KEYS = ("cpu_per_interval_s", "cpu_cores", "cpu_bound_period_s")
 them; a recording keeps them for ``ctrlunit report``."""
 
 
-def quantiles(values: list[float] | np.ndarray) -> dict[str, float]:
-    """p50, p99 and max (NaN when empty)."""
-    a = np.asarray(values, dtype=float)
-    if a.size == 0:
-        return {"p50": math.nan, "p99": math.nan, "max": math.nan}
-    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
-            "max": float(a.max())}
-
-
 def command_digest(commands: list[float] | np.ndarray) -> str:
     """SHA-256 of the commands as float64 bytes (bit-identity checks)."""
     return hashlib.sha256(np.asarray(commands, dtype="<f8").tobytes()).hexdigest()
@@ -71,11 +62,10 @@ def build_report(
     rc: Any,
     plan: Any,
     task: Task,
-    cmd_ns: list[int],
-    sample_ns: list[int],
+    timing: dict[str, Any],
     digest: str,
     torque_max: float,
-    tracking_errors: list[float] | np.ndarray,
+    tracking: dict[str, float],
     business: dict[str, float],
     deadline_misses: int,
     skipped: int,
@@ -90,19 +80,20 @@ def build_report(
     central_costs: dict[str, float] | None = None,
     gantt: list[tuple[str, int, float, float]] | None = None,
 ) -> dict[str, Any]:
-    """Assemble the report (see the brief's "Interfaces" for the keys)."""
+    """Assemble the report (see the brief's "Interfaces" for the keys).
+
+    ``timing`` holds the run's timing figures (:func:`~.timing.timing_figures` or
+    :meth:`~.timing.IntervalTimes.figures`), ``tracking`` the tracking error's max and RMS
+    (m).
+    """
     n = plan.placement.peripherals
     processors = plan.placement.processors
-    warm = min(100, len(cmd_ns) // 10)
-    c = np.asarray(cmd_ns[warm:], dtype=np.int64)
-    s = np.asarray(sample_ns[warm:], dtype=np.int64)
-    period = np.diff(c) / 1e9 if c.size > 1 else np.array([])
-    trav = (c - s) / 1e9 if c.size else np.array([])
-    pq, tq = quantiles(period), quantiles(trav)
+    cycles = timing["cycles"]
+    pq, tq = timing["period_s"], timing["traversal_s"]
     # depth 1: one interval at a time, its traversal; depth 2: the time per interval (the
     # mean period: when two intervals share one exchange their commands come in pairs and
     # the median period is either the short or the long gap, not the rate)
-    period_mean = float(period.mean()) if period.size else math.nan
+    period_mean = timing["period_mean_s"]
     t_par = tq["p50"] if rc.schedule.pipeline == 1 else period_mean
     eff = t1_s / (t_par * processors) if t_par and t_par > 0 else math.nan
     speedup = t1_s / t_par if t_par and t_par > 0 else math.nan
@@ -111,14 +102,14 @@ def build_report(
     axis_s = sum(v for k, v in per_block_s.items() if graph.block(k).per_axis)
     t_s = central_s + axis_s
     t_p = central_s + axis_s / max(n, 1)
-    jitter = float(np.std(period)) if period.size else math.nan
+    jitter = timing["jitter_std_s"]
     return {
         "processors": processors,
         "peripherals": n,
         "pipeline": rc.schedule.pipeline,
         "clock": rc.schedule.clock,
         "command_delay": command_delay(rc),
-        "cycles": len(cmd_ns),
+        "cycles": cycles,
         "nominal_period_s": rc.schedule.period,
         "law": rc.control.law,
         "model": rc.control.model,
@@ -128,14 +119,15 @@ def build_report(
         "cost_scale": rc.control.cost_scale,
         "unit": rc.transport.unit,
         "round_trips": plan.round_trips,
-        "exchanges_per_interval": (exchanges / len(cmd_ns)) if exchanges is not None
-        and len(cmd_ns) else None,
+        "exchanges_per_interval": (exchanges / cycles) if exchanges is not None
+        and cycles else None,
         "replies": replies,
         "placement": plan.placement.to_dict(),
         "period_s": pq,
         "period_mean_s": period_mean,
         "jitter_s": {"std": jitter, "p99_minus_p50": pq["p99"] - pq["p50"]},
         "traversal_s": tq,
+        "timing": timing["timing"],
         "deadline_misses": deadline_misses,
         "skipped_samples": skipped,
         "business": business,
@@ -148,9 +140,9 @@ def build_report(
         "t_s_model_s": t_s,
         "t_p_model_s": t_p,
         "block_cost_s": per_block_s,
-        "tracking_error_m": error_stats(tracking_errors) if rc.schedule.clock != "freerun"
+        "tracking_error_m": tracking if rc.schedule.clock != "freerun"
         else {"max": math.nan, "rms": math.nan},
-        "torque_nm": {"max": torque_max if len(cmd_ns) else math.nan},
+        "torque_nm": {"max": torque_max if cycles else math.nan},
         "command_digest": digest,
         "rejected_messages": rejected,
         "cost_model_error_s": cost_error_s,
@@ -347,9 +339,9 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         for k, v in (rep.get("rejected") or {}).items():
             rejected[f"{role}:{k}"] = v
     return build_report(
-        rc=rc, plan=setup.plan, task=setup.task, cmd_ns=list(central.log.cmd_ns),
-        sample_ns=list(central.log.sample_ns), digest=central.log.digest.hexdigest(),
-        torque_max=central.log.torque_max, tracking_errors=central.log.errors,
+        rc=rc, plan=setup.plan, task=setup.task, timing=central.log.times.figures(),
+        digest=central.log.digest.hexdigest(),
+        torque_max=central.log.torque_max, tracking=central.log.errors.stats(),
         business=business,
         deadline_misses=central.plant_misses, skipped=central.skipped, rejected=rejected,
         t1_s=t1, per_block_s=per_block, fault=fault,

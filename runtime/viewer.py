@@ -187,11 +187,10 @@ class LiveView:
         if c is None:
             return
         log = c.log
-        n, ne = len(log.cmd_ns), len(log.errors)
-        self.stats.add_many(done=c.done, cmd_ns=log.cmd_ns[self._read:n],
-                            misses=c.plant_misses, skipped=c.skipped,
-                            errors=log.errors[self._errors_read:ne])
-        self._read, self._errors_read = n, ne
+        cmd, self._read = log.cmd_ns.since(self._read)
+        errors, self._errors_read = log.errors.since(self._errors_read)
+        self.stats.add_many(done=c.done, cmd_ns=cmd, misses=c.plant_misses,
+                            skipped=c.skipped, errors=errors)
 
     def running(self) -> dict[str, Any]:
         """The ``/report/running`` message: the figures so far."""

@@ -181,8 +181,11 @@ def fake_central(cycle: int, t_ns: int) -> tuple[Any, dict]:
     ``cycle``."""
     from types import SimpleNamespace
 
-    log = SimpleNamespace(cmd_ns=[t_ns], traversal_ns=[400_000], errors=[1e-4],
-                          true_p={cycle: (0.1, 0.0, -0.35)})
+    from ctrlunit.runtime.central_state import CycleLog
+
+    log = CycleLog(true_p={cycle: (0.1, 0.0, -0.35)})
+    log.times.append(t_ns, 400_000)
+    log.errors.append(1e-4)
     central = SimpleNamespace(log=log, plant_misses=0, skipped=0, done=cycle + 1)
     return central, {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
 
@@ -266,21 +269,19 @@ def test_the_foxglove_layout_plots_fields_the_view_sends():
 def test_the_rate_limits_states_and_the_running_figures_count_every_interval():
     """At 100 Hz a 1 kHz run shows every tenth interval; the running figures still come
     from every interval of the central's logs (period, misses, tracking error)."""
-    from array import array
     from types import SimpleNamespace
 
+    from ctrlunit.runtime.central_state import CycleLog
     from ctrlunit.runtime.viewer import LiveView
 
     n, t0 = 2000, 10**12
-    log = SimpleNamespace(cmd_ns=array("q"), traversal_ns=array("i"), errors=array("d"),
-                          true_p={})
+    log = CycleLog()
     central = SimpleNamespace(log=log, plant_misses=0, skipped=0, done=0)
     ctx = {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
     with LiveView(host="127.0.0.1", port=0, task=None, period_s=1e-3, cycles=n,
                   rate_hz=100) as view:
         for k in range(n):
-            log.cmd_ns.append(t0 + k * 1_000_000 + (700_000 if k == 1234 else 0))
-            log.traversal_ns.append(300_000)
+            log.times.append(t0 + k * 1_000_000 + (700_000 if k == 1234 else 0), 300_000)
             log.errors.append(2e-4 if k == 777 else 1e-4)
             central.done, central.plant_misses = k + 1, k // 500
             view(central, k, ctx)
