@@ -6,6 +6,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from .realtime import markdown_lines
+
 
 def _us(x: Any) -> str:
     return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else (
@@ -168,6 +170,8 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
                       f"period as {_us(pr)} us; measured {_us(m)} us "
                       f"({_pct(err, sign=True)}). Balance there: "
                       f"{t8['recommendations'][0]}."]
+    if r.get("realtime"):
+        lines += ["", *markdown_lines(r["realtime"])]
     lines += ["", "## Figures", ""]
     for f in r.get("figures", []):
         lines.append(f"![{f}]({f})")

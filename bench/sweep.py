@@ -29,6 +29,7 @@ from ..runtime.launcher import start
 from ..runtime.report import gantt_window
 from ..runtime.sched import fifo_permitted
 from .floor import floor
+from .realtime import realtime_stage
 
 THESIS = {
     "inverse_kinematics_3": {"t1_us": 240, "tp_us": 88, "n": 3, "efficiency": 0.91},
@@ -320,8 +321,11 @@ def summarise(reps: list[dict[str, Any]], cfg: Config) -> dict[str, Any]:
 
 def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = None,
           realtime_periods: list[float] | None = None, scale: float = 30.0,
+          realtime_runs: int | None = None, realtime_long_s: float | None = None,
           progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
-    """Run the sweep and write the reports into ``out_dir``."""
+    """Run the sweep and write the reports into ``out_dir``. ``realtime_runs`` main-job
+    runs (default 20; 2 with ``quick``) and a ``realtime_long_s`` run (default 60 s; none
+    with ``quick``) make the realtime stage (:mod:`.realtime`)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     realtime_periods = realtime_periods if realtime_periods is not None else [3e-3]
@@ -330,7 +334,10 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     results: dict[str, list[dict]] = {c.key: [] for c in configs}
     samples: dict[str, dict[str, list[float]]] = {}
     gantt: dict[str, list] = {}
-    total = len(configs) * repeats + 1 + 2 * 2 * repeats + 4 * repeats
+    rt_runs = realtime_runs if realtime_runs is not None else (2 if quick else 20)
+    rt_long = realtime_long_s if realtime_long_s is not None else (0.0 if quick else 60.0)
+    total = (len(configs) * repeats + 1 + 2 * 2 * repeats + 4 * repeats + 2 * rt_runs
+             + (rt_long > 0))
     done = 0
     t_start = time.monotonic()
     rng = random.Random(1994)
@@ -363,6 +370,9 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     done += 2 * 2 * repeats
     target = _target_stage(out, quick=quick, repeats=repeats, progress=progress, done=done,
                            total=total)
+    done += 4 * repeats
+    realtime = realtime_stage(runs=rt_runs, long_s=rt_long, progress=progress, done=done,
+                              total=total)
     recorded = {c.record: (r, results[c.key]) for r, c in zip(runs, configs)
                 if c.tag == "record"}
     rec_off = recorded[None][0]
@@ -392,6 +402,7 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     report = {
         "machine": machine_info(), "floor": fl, "runs": runs, "thesis_1994": THESIS,
         "recording_cost": recording_cost, "balance": balance, "target": target,
+        "realtime": realtime,
         "quick": quick, "repeats": repeats, "cost_scale_thesis_runs": scale,
         "wall_s": time.monotonic() - t_start,
         "method": {

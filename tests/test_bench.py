@@ -62,6 +62,9 @@ def test_quick_bench_writes_reports_and_figures(tmp_path):
         print(f"target: {v['placement']}, {v['scheduling']}: "
               f"{v['period_mean_s'] * 1e6:.0f} us")
     assert "us target: freerun period at n = 3, depth 2" in md
+    rt = rep["realtime"]  # two runs of the main job and two baselines in the quick bench
+    assert rt["main_job"]["runs"] == rt["baseline"]["runs"] == 2 and rt["long"] is None
+    assert "Realtime: does the main job hold its period?" in md
 
 
 def test_t800_cost_model_emulates_the_1994_single_processor_time(tmp_path):
@@ -145,3 +148,57 @@ def test_balance_refuses_a_rerun_with_another_placement(tmp_path):
                    str(rerun))
     assert res.returncode != 0
     assert "placement" in res.stderr and "not the one balance wrote" in res.stderr
+
+
+def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
+    """Misses per 1000 are over the periods of every run (not a mean of ratios); a refusal
+    counts as a run that did not complete; medians skip runs that never moved."""
+    from ctrlunit.bench.realtime import markdown_lines, run_row, summary
+
+    def res(code, cycles, misses, p999, cpu, period=1e-3, fault=None):
+        rep = {} if cycles == 0 else {
+            "nominal_period_s": period, "cycles": cycles, "deadline_misses": misses,
+            "traversal_s": {"p999": p999}, "cpu_per_interval_s": {"total": cpu},
+            "tracking_error_m": {"max": 4e-4}, "fault": fault and {"message": fault}}
+        return {"exit_code": code, "report": rep, "wall_s": 5.0, "output_tail": ""}
+
+    rows = [run_row(res(0, 400, 1, 1.5e-3, 1.2e-3)),
+            run_row(res(0, 600, 0, 1.7e-3, 1.0e-3, period=1.25e-3)),
+            run_row(res(4, 200, 5, 9e-3, 2e-3, fault="no sample from the plant for 5 ms")),
+            run_row(res(7, 0, 0, None, None))]
+    s = summary(rows)
+    assert s["runs"] == 4 and s["completed"] == 2 and s["completed_fraction"] == 0.5
+    assert s["refused"] == 1 and s["periods"] == 1200 and s["deadline_misses"] == 6
+    assert s["misses_per_1000"] == pytest.approx(5.0)
+    assert s["periods_chosen_s"] == [1e-3, 1.25e-3]
+    assert s["traversal_p999_s"] == pytest.approx(1.7e-3)  # median of three runs
+    assert s["cpu_per_interval_s"] == pytest.approx(1.2e-3)
+    st = {"command": "ctrlunit start --peripherals 3 --pipeline 2", "baseline_command": "b",
+          "levers": {"period": "auto"}, "main_job": s, "baseline": summary(rows[:2]),
+          "long": None, "long_s": 0, "rows": {"main_job": rows, "baseline": rows[:2]}}
+    md = "\n".join(markdown_lines(st))
+    assert "| main job | 4 | 2 | 1 | 1200 | 6 | 5.00 | 1.00, 1.25 | 1700 | 1200 | 0.40 |" in md
+    assert "run 3 exit 4: no sample from the plant for 5 ms" in md and "run 4 exit 7" in md
+
+
+def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
+    """``ctrlunit bench --only realtime --realtime-runs 1 --realtime-long 0``: one run of
+    the main job as a user starts it, one baseline, a report that names the levers."""
+    out = tmp_path / "rt"
+    res = ctrlunit("bench", "--only", "realtime", "--realtime-runs", "1", "--realtime-long",
+                   "0", "--out", str(out), timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    st = json.loads((out / "report.json").read_text())["realtime"]
+    assert st["levers"]["period"] == "auto" and st["levers"]["command_delay"] == "full"
+    (star,), (base,) = st["rows"]["main_job"], st["rows"]["baseline"]
+    assert star["exit_code"] in (0, 3, 4, 7), star  # held, faulted or refused: all reported
+    if star["exit_code"] != 7:
+        assert star["cycles"] > 0 and star["cpu_per_interval_s"] > 0
+    assert base["exit_code"] is not None and base["cycles"] > 0  # admission off: it runs
+    assert base["period_s"] == (star["period_s"] or 1e-3)
+    assert "Realtime: does the main job hold its period?" in (out / "report.md").read_text()
+
+
+def test_bench_rejects_a_negative_long_run():
+    res = ctrlunit("bench", "--only", "realtime", "--realtime-long", "-5s", "--check")
+    assert res.returncode != 0 and "--realtime-long" in res.stdout + res.stderr

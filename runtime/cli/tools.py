@@ -23,10 +23,19 @@ from .base import _fail, _json_safe, cli
               show_default=True, help="T-800 time scale of the runs compared with 1994: "
               "large enough that an exchange weighs on the arithmetic about as a "
               "Transputer link did (README, bench).")
+@click.option("--realtime-runs", type=click.IntRange(0, 200), default=None,
+              help="Runs of the main job (each followed by its n = 0 baseline) in the "
+                   "realtime stage.  [default: 20; with --quick 2]")
+@click.option("--realtime-long", "rt_long", default=None,
+              help="Length of the realtime stage's long run of the main job, e.g. 60s; 0: "
+                   "none.  [default: 60s; with --quick 0]")
+@click.option("--only", type=click.Choice(["all", "realtime"]), default="all",
+              show_default=True, help="realtime: the realtime stage alone.")
 @click.option("--check", is_flag=True,
               help="Check the options and list the runs the bench would make; run nothing.")
 def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str, ...],
-          thesis_scale: float, check: bool) -> None:
+          thesis_scale: float, realtime_runs: int | None, rt_long: str | None, only: str,
+          check: bool) -> None:
     """Sweep n x depth x cost model, measure the floor, write reports and figures."""
     from rich.progress import Progress
 
@@ -38,13 +47,29 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
         if not 20e-6 <= p <= 1.0:
             _fail(f"--realtime-period = {p:g} s: allowed 20us to 1s", EXIT_CONFIG)
             return
+    long_s = None if rt_long is None else (
+        0.0 if rt_long.strip() == "0" else parse_duration(rt_long, field_name="--realtime-long"))
+    if long_s is not None and not 0 <= long_s <= 3600:
+        _fail(f"--realtime-long = {long_s:g} s: allowed 0 to 3600s", EXIT_CONFIG)
+        return
+    runs_rt = realtime_runs if realtime_runs is not None else (2 if quick else 20)
+    long_rt = long_s if long_s is not None else (0.0 if quick else 60.0)
+    if only == "realtime":
+        if check:
+            click.echo(f"realtime stage: {runs_rt} main-job runs, each with its baseline"
+                       + (f", then {long_rt:g} s of the main job" if long_rt else ""))
+            return
+        _realtime_only(out_dir, runs_rt, long_rt)
+        return
     if check:
         configs = plan_configs(quick=quick, realtime_periods=periods, scale=thesis_scale)
         runs = repeats or (1 if quick else 3)
         for c in configs:
             click.echo(f"  {c.key}  {cycles_for(c, quick)} intervals x {runs}")
         click.echo(f"{len(configs)} configurations x {runs} repeat(s), plus the floor, the "
-                   f"balance and the target stages; reports into {out_dir}/")
+                   f"balance and the target stages, and the realtime stage ({runs_rt} "
+                   f"main-job runs" + (f", {long_rt:g} s long run" if long_rt else "")
+                   + f"); reports into {out_dir}/")
         return
     with Progress(transient=True) as prog:
         task = prog.add_task("bench", total=None)
@@ -53,9 +78,42 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
             prog.update(task, description=what[:70], completed=done, total=total)
 
         rep = run_bench(out_dir, quick=quick, repeats=repeats, realtime_periods=periods,
-                        scale=thesis_scale, progress=tick)
+                        scale=thesis_scale, realtime_runs=runs_rt, realtime_long_s=long_rt,
+                        progress=tick)
     click.echo(f"wrote {out_dir}/report.md, report.json and {len(rep['figures'])} figures "
                f"in {rep['wall_s']:.0f} s")
+
+
+def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
+    """``ctrlunit bench --only realtime``: the realtime stage into report.json and
+    report.md, its summary on the terminal."""
+    import time
+    from pathlib import Path
+
+    from rich.progress import Progress
+
+    from ...bench.realtime import markdown_lines, realtime_stage
+    from ...bench.sweep import machine_info
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    with Progress(transient=True) as prog:
+        task = prog.add_task("realtime", total=None)
+
+        def tick(what: str, done: int, total: int) -> None:
+            prog.update(task, description=what[:70], completed=done, total=total)
+
+        st = realtime_stage(runs=runs, long_s=long_s, progress=tick, done=0,
+                            total=2 * runs + (long_s > 0))
+    rep = {"machine": machine_info(), "realtime": st, "wall_s": time.monotonic() - t0}
+    (out / "report.json").write_text(json.dumps(_json_safe(rep), indent=2))
+    m = rep["machine"]
+    text = "\n".join(["# ctrlunit benchmark: the realtime stage", "",
+                      f"Machine: {m['platform']}, {m['cores']} cores, Python {m['python']}; "
+                      f"{rep['wall_s']:.0f} s.", "", *markdown_lines(st)])
+    (out / "report.md").write_text(text)
+    click.echo(text)
 
 
 @cli.command(short_help="Where the time goes; recommend and write a placement.")

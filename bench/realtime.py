@@ -1,0 +1,197 @@
+"""The bench's realtime stage: does the main job hold its period, run after run?
+
+``ctrlunit start --peripherals 3 --pipeline 2`` (the main job, default options) is run
+``runs`` times, each followed by the single-process baseline (the same command with
+``--peripherals 0``, at the period the main job ran at, admission off so that it always
+runs): the machine's own stalls show in the baseline, measured in the same minutes. Then
+one long run of the main job (task repeated). Every run is a ``ctrlunit start`` process of
+its own, as a user runs it, and is ended by the stage if it overstays.
+
+Figures: the fraction of runs that completed the task, deadline misses per 1000 periods
+over all runs, traversal p99.9, CPU per interval (all processes), the period each run
+chose, and which levers were on.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+MAIN_JOB = ("--peripherals", "3", "--pipeline", "2")
+
+
+LEVERS = ("period", "admission", "command_delay", "hold_rounds", "replies", "rt_priority",
+          "cpus", "pin", "placement", "late_policy", "fault_periods")
+
+
+def levers() -> dict[str, Any]:
+    """The options of ``ctrlunit start`` that bear on holding the period, at the defaults
+    the main job runs with (read from the command line's own definition)."""
+    from ..runtime.cli.base import cli
+
+    defaults = {p.name: p.default for p in cli.commands["start"].params}
+    return {k: defaults[k] for k in LEVERS}
+
+
+def run_start(args: tuple[str, ...], *, timeout_s: float) -> dict[str, Any]:
+    """One ``ctrlunit start`` with ``args`` in a process group of its own; its report
+    (``{}`` if it wrote none), exit code and wall time. Killed with its children if it
+    runs past ``timeout_s``."""
+    unit = f"rt-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    with tempfile.TemporaryDirectory(prefix="ctrlunit-rt-") as tmp:
+        report = Path(tmp) / "report.json"
+        cmd = [sys.executable, "-m", "ctrlunit.runtime.cli", "start", *args, "--unit", unit,
+               "--report", str(report), "--no-progress"]
+        t0 = time.monotonic()
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                start_new_session=True, text=True)
+        try:
+            out, _ = proc.communicate(timeout=timeout_s)
+            code = proc.returncode
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            out, _ = proc.communicate()
+            code = None
+        finally:
+            try:  # the roles of a run that died early, if any are left
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        rep = json.loads(report.read_text()) if report.exists() else {}
+    return {"exit_code": code, "report": rep, "wall_s": time.monotonic() - t0,
+            "output_tail": out[-400:] if code else ""}
+
+
+def run_row(res: dict[str, Any]) -> dict[str, Any]:
+    """The figures of one run."""
+    r = res["report"]
+    fault = r.get("fault") or {}
+    return {
+        "exit_code": res["exit_code"],
+        "completed": res["exit_code"] == 0,
+        "period_s": r.get("nominal_period_s"),
+        "cycles": r.get("cycles", 0) or 0,
+        "deadline_misses": r.get("deadline_misses", 0) or 0,
+        "traversal_p999_s": (r.get("traversal_s") or {}).get("p999"),
+        "cpu_per_interval_s": (r.get("cpu_per_interval_s") or {}).get("total"),
+        "tracking_max_m": (r.get("tracking_error_m") or {}).get("max"),
+        "fault": fault.get("message"),
+        "wall_s": res["wall_s"],
+    }
+
+
+def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Completed fraction, misses per 1000 periods over every run, medians."""
+    cycles = sum(r["cycles"] for r in rows)
+    misses = sum(r["deadline_misses"] for r in rows)
+
+    def med(key: str) -> float:
+        v = [r[key] for r in rows if isinstance(r[key], (int, float)) and r["cycles"]]
+        return statistics.median(v) if v else math.nan
+
+    return {"runs": len(rows), "completed": sum(r["completed"] for r in rows),
+            "completed_fraction": (sum(r["completed"] for r in rows) / len(rows)
+                                   if rows else math.nan),
+            "refused": sum(r["exit_code"] == 7 for r in rows),
+            "periods": cycles, "deadline_misses": misses,
+            "misses_per_1000": 1000 * misses / cycles if cycles else math.nan,
+            "periods_chosen_s": sorted({r["period_s"] for r in rows
+                                        if r["period_s"] and r["exit_code"] != 7}),
+            "traversal_p999_s": med("traversal_p999_s"),
+            "cpu_per_interval_s": med("cpu_per_interval_s"),
+            "tracking_max_m": med("tracking_max_m")}
+
+
+def realtime_stage(*, runs: int, long_s: float,
+                   progress: Callable[[str, int, int], None] | None = None, done: int = 0,
+                   total: int = 0, timeout_s: float = 120.0) -> dict[str, Any]:
+    """``runs`` main-job runs, each followed by its baseline, then a long run of
+    ``long_s`` seconds (none when 0). See the module's docstring."""
+    star: list[dict[str, Any]] = []
+    base: list[dict[str, Any]] = []
+    for i in range(runs):
+        if progress:
+            progress(f"realtime: main job {i + 1}/{runs}", done, total)
+        row = run_row(run_start(MAIN_JOB, timeout_s=timeout_s))
+        star.append(row)
+        done += 1
+        period = row["period_s"] or 1e-3
+        if progress:
+            progress(f"realtime: baseline {i + 1}/{runs}", done, total)
+        base.append(run_row(run_start(("--peripherals", "0", "--pipeline", "2",
+                                       "--period", f"{period:g}", "--no-admission"),
+                                      timeout_s=timeout_s)))
+        done += 1
+    long_row = None
+    if long_s > 0:
+        if progress:
+            progress(f"realtime: main job for {long_s:g} s", done, total)
+        long_row = run_row(run_start((*MAIN_JOB, "--duration", f"{long_s:g}s"),
+                                     timeout_s=timeout_s + 3 * long_s))
+    return {"command": "ctrlunit start " + " ".join(MAIN_JOB),
+            "baseline_command": "ctrlunit start --peripherals 0 --pipeline 2 "
+                                "--period <the main job's> --no-admission",
+            "levers": levers(), "main_job": summary(star), "baseline": summary(base),
+            "long": long_row, "long_s": long_s, "rows": {"main_job": star, "baseline": base}}
+
+
+
+
+def _fmt(x: Any, scale: float = 1.0, digits: int = 0) -> str:
+    if not isinstance(x, (int, float)) or not math.isfinite(x):
+        return "-"
+    return f"{x * scale:.{digits}f}"
+
+
+def markdown_lines(st: dict[str, Any]) -> list[str]:
+    """The stage as a section of ``report.md``."""
+    lines = [
+        "## Realtime: does the main job hold its period?",
+        "",
+        f"`{st['command']}` (default options), {st['main_job']['runs']} run(s), each "
+        f"followed by the baseline `{st['baseline_command']}`"
+        + (f"; then the main job for {st['long_s']:g} s." if st["long"] else "."),
+        "Levers on: " + ", ".join(f"{k} {v}" for k, v in st["levers"].items()) + ".",
+        "",
+        "| | runs | completed | refused (exit 7) | periods | misses | misses / 1000 | "
+        "periods run (ms) | traversal p99.9 (us) | CPU / interval (us) | "
+        "tracking max (mm) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, s in (("main job", st["main_job"]), ("baseline (n = 0)", st["baseline"])):
+        lines.append(
+            f"| {name} | {s['runs']} | {s['completed']} | {s['refused']} | {s['periods']} | "
+            f"{s['deadline_misses']} | {_fmt(s['misses_per_1000'], 1, 2)} | "
+            f"{', '.join(_fmt(p, 1e3, 2) for p in s['periods_chosen_s'])} | "
+            f"{_fmt(s['traversal_p999_s'], 1e6)} | {_fmt(s['cpu_per_interval_s'], 1e6)} | "
+            f"{_fmt(s['tracking_max_m'], 1e3, 2)} |")
+    r = st["long"]
+    if r:
+        per = 1000 * r["deadline_misses"] / r["cycles"] if r["cycles"] else math.nan
+        lines += ["", f"Long run ({st['long_s']:g} s): exit {r['exit_code']}, period "
+                  f"{_fmt(r['period_s'], 1e3, 2)} ms, {r['cycles']} periods, "
+                  f"{r['deadline_misses']} misses ({_fmt(per, 1, 2)} per 1000), traversal "
+                  f"p99.9 {_fmt(r['traversal_p999_s'], 1e6)} us, CPU / interval "
+                  f"{_fmt(r['cpu_per_interval_s'], 1e6)} us"
+                  + (f"; fault: {r['fault']}" if r["fault"] else "") + "."]
+    faults = [(i + 1, r["exit_code"], r["fault"]) for i, r in
+              enumerate(st["rows"]["main_job"]) if not r["completed"]]
+    if faults:
+        lines += ["", "Main-job runs that did not complete: " + "; ".join(
+            f"run {i} exit {c}: {f}" for i, c, f in faults) + "."]
+    return lines + [""]
+
+
+__all__ = ["LEVERS", "MAIN_JOB", "levers", "markdown_lines", "realtime_stage", "run_row",
+           "run_start", "summary"]
