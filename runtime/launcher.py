@@ -9,6 +9,7 @@ launcher says stop, waits briefly, then terminates and kills what is left.
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import shutil
@@ -32,7 +33,7 @@ from .config import (
     parse_host_port,
 )
 from .controller import Controller
-from .node import Node, rss_kb
+from .node import Node, freeze_heap, rss_kb
 from .report import cpu_budget, finish_report, text_or_none
 from .setup import Setup, make_setup
 from .supervise import end_children, role_cpus, spawn_role, unit_cores
@@ -137,6 +138,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
             admission = admit(central)
         if not rc.schedule.trial_only:
+            freeze_heap(collect=True)  # this process may host many runs (bench, tests)
             central.say("start")
             central.run()
     except Fault as exc:
@@ -150,6 +152,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         fault = {"process": "user", "message": "interrupted", "code": code}
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # finish cleaning up
+        gc.unfreeze()  # what the run kept alive may be collected again
         central.t_end_ns = central.t_end_ns or time.monotonic_ns()
         try:
             zenoh_ids = central.zenoh_identity()

@@ -16,6 +16,7 @@ process outlives a central that died.
 
 from __future__ import annotations
 
+import gc
 import os
 import queue
 import threading
@@ -289,6 +290,17 @@ def rss_kb() -> int:
 WARM_RSS_AT = 1000  # intervals after which memory counts as warmed up
 
 
+def freeze_heap(*, collect: bool = False) -> None:
+    """Move every object alive now (the role's set-up and warm-up) out of the cyclic
+    collector's reach, so that a collection during the run scans only what the run
+    made: the collections that scanned the whole heap took about 1.4 ms in the central,
+    more than a period at 1 ms. Costs microseconds (``collect``: a full collection first,
+    milliseconds, for a process that hosts many runs); call it when the run starts."""
+    if collect:
+        gc.collect()
+    gc.freeze()
+
+
 def is_stop(node: Node, ev: Event) -> bool:
     """True if ``ev`` is a stop order from the central (and note that it spoke, and when
     it said ``start``: see :func:`cpu_used`)."""
@@ -300,6 +312,7 @@ def is_stop(node: Node, ev: Event) -> bool:
     node.last_heard_ns = time.monotonic_ns()
     if msg["stage"] == "start" and node.cpu_start_s is None:
         node.cpu_start_s = time.process_time()
+        freeze_heap()
     if msg["stage"] == "stop":
         node.stop_msg = msg
         return True

@@ -81,3 +81,30 @@ def test_rt_priority_without_the_right_to_it_is_refused_before_anything_starts(t
     assert "--rt-priority 10: this process may not use SCHED_FIFO" in res.stderr + res.stdout
     assert "ulimit -r" in res.stderr + res.stdout
     assert "cycles" not in res.stdout  # no report: nothing ran
+
+
+def test_the_heap_is_frozen_for_the_run_and_released_after_it(monkeypatch):
+    """The set-up's objects are out of the collector's reach while the unit runs (a full
+    collection took longer than a period), and a process that hosts runs (bench, tests)
+    gets them back afterwards; the commands are those of the reference."""
+    import gc
+
+    from ctrlunit.runtime.central import Central
+    from ctrlunit.runtime.config import RunConfig
+    from ctrlunit.runtime.launcher import start
+
+    frozen: list[int] = []
+    run = Central.run
+
+    def run_seen(self):
+        frozen.append(gc.get_freeze_count())
+        return run(self)
+
+    monkeypatch.setattr(Central, "run", run_seen)
+    rc = RunConfig.of(peripherals=1, pipeline=1, clock="lockstep", cycles=CYCLES,
+                      unit=unit_id("freeze"))
+    code, rep = start(rc, echo=lambda m: None)
+    assert code == 0, rep.get("fault")
+    assert frozen and frozen[0] > 1000  # the set-up: tens of thousands of objects
+    assert gc.get_freeze_count() == 0
+    assert rep["command_digest"] == reference_digest()
