@@ -165,7 +165,9 @@ def admit(central: Central) -> dict[str, Any]:
 def predicted_tracking(central: Central, period: float) -> float:
     """Max tracking error (m) of the task in the one-process closed loop at ``period`` with
     the run's law, model, observer, gains and command delay (runtime/controller.py's
-    ``simulate``, lockstep: no misses). NaN for the kinematics law (no torques)."""
+    ``simulate``, lockstep: no misses), over the run or one loop of the task, whichever is
+    shorter (a long run repeats the loop; simulating a 60 s run took longer than the
+    roles wait in silence). NaN for the kinematics law (no torques)."""
     from ..kernels.laws import Gains
     from ..kernels.trajectory import get_task
     from .controller import simulate
@@ -176,7 +178,8 @@ def predicted_tracking(central: Central, period: float) -> float:
     task = get_task(rc.control.task)
     res = simulate(central.engine.cfg.params, task, law=rc.control.law, model=rc.control.model,
                    gains=Gains.from_bandwidth(rc.bandwidth), period=period,
-                   cycles=rc.total_cycles(task.period), delay=rc.delay_periods,
+                   cycles=min(rc.total_cycles(task.period), round(task.period / period) + 1),
+                   delay=rc.delay_periods,
                    observer=rc.control.observer)
     ref = np.asarray(res.references, dtype=float)
     pos = np.asarray(res.positions, dtype=float)

@@ -106,3 +106,31 @@ def test_latency_refuses_a_period_out_of_range():
     res = ctrlunit("latency", "--period", "5s", "--duration", "1s", timeout=30)
     assert res.returncode == 1
     assert "period" in res.stderr and "20us to 1s" in res.stderr
+
+
+def test_the_tracking_prediction_of_a_long_run_simulates_one_loop_of_the_task(monkeypatch):
+    """A 60 s or hour-long run repeats the task: its admission predicts the tracking from
+    one loop (simulating every interval of the run took longer than the roles wait)."""
+    from types import SimpleNamespace
+
+    import ctrlunit.runtime.controller as controller
+    from ctrlunit.kernels.params import DELTA_IA
+    from ctrlunit.kernels.trajectory import get_task
+    from ctrlunit.runtime.admission import predicted_tracking
+    from ctrlunit.runtime.config import RunConfig
+
+    asked: list[int] = []
+    real = controller.simulate
+
+    def counted(*a, cycles, **kw):
+        asked.append(cycles)
+        return real(*a, cycles=cycles, **kw)
+
+    monkeypatch.setattr(controller, "simulate", counted)
+    engine = SimpleNamespace(cfg=SimpleNamespace(params=DELTA_IA))
+    loop = get_task("pick-place").period
+    short = predicted_tracking(SimpleNamespace(rc=RunConfig.of(), engine=engine), 2e-3)
+    long = predicted_tracking(SimpleNamespace(rc=RunConfig.of(duration=3600.0),
+                                              engine=engine), 2e-3)
+    assert asked == [round(loop / 2e-3) + 1] * 2
+    assert long == short and 0 < short < 0.02
