@@ -146,8 +146,6 @@ def realtime_stage(*, runs: int, long_s: float,
             "long": long_row, "long_s": long_s, "rows": {"main_job": star, "baseline": base}}
 
 
-
-
 def _fmt(x: Any, scale: float = 1.0, digits: int = 0) -> str:
     if not isinstance(x, (int, float)) or not math.isfinite(x):
         return "-"

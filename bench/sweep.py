@@ -28,6 +28,7 @@ from ..runtime.config import RunConfig
 from ..runtime.launcher import start
 from ..runtime.report import gantt_window
 from ..runtime.sched import fifo_permitted
+from ..runtime.timing import warm_intervals
 from .floor import floor
 from .realtime import realtime_stage
 
@@ -359,7 +360,7 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
                 log = central.log
                 c = np.asarray(log.cmd_ns.recent, dtype=np.int64)
                 s = np.asarray(log.sample_ns, dtype=np.int64)
-                warm = min(100, len(c) // 10)
+                warm = warm_intervals(len(c))
                 samples[cfg.key] = {"period_s": (np.diff(c[warm:]) / 1e9).tolist(),
                                     "traversal_s": ((c[warm:] - s[warm:]) / 1e9).tolist()}
                 if cfg.tag == "thesis" and cfg.peripherals == 3 and cfg.law != "kinematics":

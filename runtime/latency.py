@@ -12,7 +12,6 @@ the period for the work.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
@@ -20,6 +19,7 @@ import numpy as np
 
 from .admission import LADDER_S
 from .plant_node import SLEEP_SLICE_S
+from .timing import quantiles
 
 
 def wakeup_latencies(period_s: float, duration_s: float) -> np.ndarray:
@@ -47,14 +47,6 @@ def wakeup_latencies(period_s: float, duration_s: float) -> np.ndarray:
         if woke > next_tick:  # more than a period late: the next tick is already gone
             next_tick += ((woke - next_tick) // tick_ns + 1) * tick_ns
     return out[:n]
-
-
-def quantiles(x: np.ndarray) -> dict[str, float]:
-    """p50, p99, p99.9 and max of ``x`` (NaN when empty)."""
-    if x.size == 0:
-        return {"p50": math.nan, "p99": math.nan, "p999": math.nan, "max": math.nan}
-    return {"p50": float(np.quantile(x, 0.5)), "p99": float(np.quantile(x, 0.99)),
-            "p999": float(np.quantile(x, 0.999)), "max": float(x.max())}
 
 
 def sustainable_from_wakeup(p999_s: float) -> float | None:

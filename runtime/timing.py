@@ -270,7 +270,8 @@ class IntervalTimes:
                            "quantile_resolution": 10 ** (0.5 / LogHistogram.PER_DECADE) - 1}}
 
 
-def _quantiles(x: np.ndarray) -> dict[str, float]:
+def quantiles(x: np.ndarray) -> dict[str, float]:
+    """p50, p99, p99.9 and max of ``x`` (numpy's linear quantiles; NaN when empty)."""
     if x.size == 0:
         return {"p50": math.nan, "p99": math.nan, "p999": math.nan, "max": math.nan}
     q = np.quantile(x, [0.5, 0.99, 0.999])
@@ -287,10 +288,10 @@ def timing_figures(cmd_ns: Any, sample_ns: Any) -> dict[str, Any]:
     s = np.asarray(sample_ns, dtype=np.int64)[warm:]
     period = np.diff(c) / 1e9 if c.size > 1 else np.array([])
     trav = (c - s) / 1e9 if c.size else np.array([])
-    return {"cycles": int(cmd.size), "period_s": _quantiles(period),
+    return {"cycles": int(cmd.size), "period_s": quantiles(period),
             "period_mean_s": float(period.mean()) if period.size else math.nan,
             "jitter_std_s": float(np.std(period)) if period.size else math.nan,
-            "traversal_s": _quantiles(trav),
+            "traversal_s": quantiles(trav),
             "timing": {"exact": True, "exact_last_intervals": int(cmd.size),
                        "quantile_resolution": 0.0}}
 
@@ -324,4 +325,4 @@ class ErrorSeries(BoundedSeries):
 
 
 __all__ = ["BLOCK", "WINDOW", "BoundedSeries", "ErrorSeries", "IntervalTimes",
-           "LogHistogram", "Moments", "timing_figures", "warm_intervals"]
+           "LogHistogram", "Moments", "quantiles", "timing_figures", "warm_intervals"]

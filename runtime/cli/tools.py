@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import click
@@ -37,8 +39,6 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
           thesis_scale: float, realtime_runs: int | None, rt_long: str | None, only: str,
           check: bool) -> None:
     """Sweep n x depth x cost model, measure the floor, write reports and figures."""
-    from rich.progress import Progress
-
     from ...bench.sweep import bench as run_bench
     from ...bench.sweep import cycles_for, plan_configs
 
@@ -71,17 +71,26 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
                    f"main-job runs" + (f", {long_rt:g} s long run" if long_rt else "")
                    + f"); reports into {out_dir}/")
         return
-    with Progress(transient=True) as prog:
-        task = prog.add_task("bench", total=None)
-
-        def tick(what: str, done: int, total: int) -> None:
-            prog.update(task, description=what[:70], completed=done, total=total)
-
+    with _ticker("bench") as tick:
         rep = run_bench(out_dir, quick=quick, repeats=repeats, realtime_periods=periods,
                         scale=thesis_scale, realtime_runs=runs_rt, realtime_long_s=long_rt,
                         progress=tick)
     click.echo(f"wrote {out_dir}/report.md, report.json and {len(rep['figures'])} figures "
                f"in {rep['wall_s']:.0f} s")
+
+
+@contextlib.contextmanager
+def _ticker(label: str) -> Iterator[Callable[[str, int, int], None]]:
+    """A transient progress bar and the ``progress(what, done, total)`` that moves it."""
+    from rich.progress import Progress
+
+    with Progress(transient=True) as prog:
+        task = prog.add_task(label, total=None)
+
+        def tick(what: str, done: int, total: int) -> None:
+            prog.update(task, description=what[:70], completed=done, total=total)
+
+        yield tick
 
 
 def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
@@ -90,20 +99,13 @@ def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
     import time
     from pathlib import Path
 
-    from rich.progress import Progress
-
     from ...bench.realtime import markdown_lines, realtime_stage
     from ...bench.sweep import machine_info
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    with Progress(transient=True) as prog:
-        task = prog.add_task("realtime", total=None)
-
-        def tick(what: str, done: int, total: int) -> None:
-            prog.update(task, description=what[:70], completed=done, total=total)
-
+    with _ticker("realtime") as tick:
         st = realtime_stage(runs=runs, long_s=long_s, progress=tick, done=0,
                             total=2 * runs + (long_s > 0))
     rep = {"machine": machine_info(), "realtime": st, "wall_s": time.monotonic() - t0}
