@@ -30,6 +30,7 @@ from typing import Any
 from ..kernels.kinematics import ik_axis
 from ..topology.pipeline import (
     handoff_step,
+    hold_rule,
     holds_lone_round,
     may_prime,
     may_start,
@@ -92,7 +93,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.n = self.plan.placement.peripherals
         self.depth = rc.schedule.pipeline
         self.hand = handoff_step(self.plan)
-        self.hold = rc.schedule.hold_rounds == "always"
+        self.hold = hold_rule(rc.schedule.hold_rounds, clock=rc.schedule.clock)
         self.round_step = {}
         for k, s in enumerate(self.plan.steps):
             if s.round is not None:

@@ -9,6 +9,7 @@ import typing
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+from ..topology.pipeline import HOLD_RULES
 from .sections import (
     RENAMED,
     SECTIONS,
@@ -221,8 +222,8 @@ class RunConfig:
             parse_host_port(self.run.foxglove, field_name="--foxglove")
         if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
             raise bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
-        if self.schedule.hold_rounds not in ("always", "never"):
-            raise bad("hold_rounds", "always or never")
+        if self.schedule.hold_rounds not in HOLD_RULES:
+            raise bad("hold_rounds", ", ".join(HOLD_RULES))
         if self.schedule.command_delay not in COMMAND_DELAYS:
             raise bad("command_delay", ", ".join(COMMAND_DELAYS))
         if self.schedule.replies not in REPLY_MODES:

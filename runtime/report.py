@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..kernels.trajectory import Task
+from ..topology.pipeline import hold_rule
 from .config import RunConfig
 from .engine import Engine, measure_t1
 
@@ -122,6 +123,9 @@ def build_report(
         "exchanges_per_interval": (exchanges / cycles) if exchanges is not None
         and cycles else None,
         "replies": replies,
+        "hold_rounds": {"asked": rc.schedule.hold_rounds,
+                        "held": hold_rule(rc.schedule.hold_rounds, clock=rc.schedule.clock)}
+        if n and rc.schedule.pipeline > 1 else None,
         "placement": plan.placement.to_dict(),
         "period_s": pq,
         "period_mean_s": period_mean,
@@ -213,7 +217,9 @@ def summary(r: dict[str, Any]) -> str:
                 " (rounds of consecutive intervals fused)"
                 if r["exchanges_per_interval"] < r["round_trips"] - 0.01 else "")
             if r.get("exchanges_per_interval") else "") + (
-            "; replies per round" if (r.get("replies") or {}).get("mode") == "each" else ""),
+            "; replies per round" if (r.get("replies") or {}).get("mode") == "each" else "") + (
+            "; lone rounds go at once" if (r.get("hold_rounds") or {}).get("held") is False
+            else ""),
         f"  period      p50 {us(r['period_s']['p50'])}  p99 {us(r['period_s']['p99'])}  "
         f"max {us(r['period_s']['max'])}  mean {us(r.get('period_mean_s', math.nan))}",
         f"  traversal   p50 {us(r['traversal_s']['p50'])}  p99 {us(r['traversal_s']['p99'])}  "

@@ -48,7 +48,7 @@ class ScheduleConfig:
     """When the plant applies a command (config.COMMAND_DELAYS)."""
     placement: str | None = None
     replies: str = "auto"
-    hold_rounds: str = "always"
+    hold_rounds: str = "auto"
     """``--hold-rounds`` (topology/pipeline.py, ``HOLD_RULES``)."""
     late_policy: str = "wait"
     late: dict[str, str] = field(default_factory=dict)

@@ -9,6 +9,7 @@ from ctrlunit.topology.pipeline import (
     EST_NAMES,
     finishes_after_next_request,
     handoff_step,
+    hold_rule,
     holds_lone_round,
     may_prime,
     may_start,
@@ -57,6 +58,14 @@ def test_a_lone_round_waits_only_for_the_interval_right_after_it():
     assert not holds_lone_round(**(held | {"handed_off": False}))
     assert not holds_lone_round(**(held | {"next_cycle": 6}))  # the next one started
     assert not holds_lone_round(**(held | {"cycles": 5}))  # no next interval to wait for
+
+
+def test_auto_holds_lone_rounds_except_in_realtime_and_a_bad_rule_is_named():
+    assert [hold_rule("auto", clock=c) for c in ("realtime", "lockstep", "freerun")] == [
+        False, True, True]
+    assert hold_rule("always", clock="realtime") and not hold_rule("never", clock="freerun")
+    with pytest.raises(ValueError, match="'sometimes'.*auto, always, never"):
+        hold_rule("sometimes", clock="realtime")
 
 
 def test_replies_each_answer_first_rounds_first_and_auto_weighs_the_round_trip():

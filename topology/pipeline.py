@@ -11,9 +11,9 @@ the few facts it needs as plain values (no clock, no message):
   handed off;
 - **run ahead** (:func:`may_prime`): at depth 2 the next interval's sample-free steps run
   as soon as the newest interval has handed off;
-- **hold** (:func:`holds_lone_round`): at depth 2 a lone round of an interval past its
-  hand-off waits to travel with the next interval's first round (one exchange for two
-  rounds);
+- **hold** (:func:`holds_lone_round`, :func:`hold_rule`): at depth 2 a lone round of an
+  interval past its hand-off waits to travel with the next interval's first round (one
+  exchange for two rounds), except in realtime by default;
 - **finish late** (:func:`finishes_after_next_request`): at depth 2 an interval whose last
   round came back finishes after the next request is out;
 - **replies** (:func:`reply_mode`): ``each`` (a reply per round, first rounds first) when
@@ -68,13 +68,28 @@ def may_prime(*, depth: int, primed: bool, next_cycle: int, cycles: int,
     return newest_handed_off is None or newest_handed_off
 
 
-HOLD_RULES = ("always", "never")
+HOLD_RULES = ("auto", "always", "never")
 """``--hold-rounds``: whether a lone round ready early waits to be fused with the next
 interval's first round (``always``: one exchange per interval instead of two), or goes at
-once (``never``). In realtime the next sample comes a period later, so holding can put up
-to a period into an interval's traversal; side by side on 2026-11-22 neither was better
-at 1 and 2 ms on the 2-core machine (docs/measurements/2026-11-22-realtime.md), so the
-default stays ``always``."""
+once (``never``); ``auto`` (:func:`hold_rule`): never in realtime, always otherwise."""
+
+
+def hold_rule(asked: str, *, clock: str) -> bool:
+    """Whether lone rounds are held (:func:`holds_lone_round`) for ``--hold-rounds asked``.
+
+    ``auto`` holds them except in realtime. Holding trades latency for throughput: it saves
+    an exchange per interval, but in realtime the next interval's first round exists only
+    once its sample has come, a period later, so a held round puts up to a period into
+    its interval's traversal, whose budget is the command delay (``depth`` periods). In
+    freerun the next interval is ready at once and holding only saves; in lockstep the
+    commands are the same either way. Side by side on 2026-11-23 (2-core machine, n = 3,
+    depth 2, admission trials from 1 ms up, docs/measurements/2026-11-23-realtime.md),
+    holding held no period up to 3.2 ms, not holding held 2-3.2 ms."""
+    if asked not in HOLD_RULES:
+        raise ValueError(f"hold rule {asked!r}: expected one of {', '.join(HOLD_RULES)}")
+    if asked == "auto":
+        return clock != "realtime"
+    return asked == "always"
 
 
 def holds_lone_round(*, depth: int, ready: int, handed_off: bool, cycle: int,

@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from ...topology.pipeline import HOLD_RULES
 from ..config import EXIT_CONFIG, FLAT, ConfigError, RunConfig, parse_duration
 from .base import _emit, _fail, _json_safe, cli
 
@@ -121,11 +122,13 @@ def run_options(fn: Any) -> Any:
                      "so the central works on one interval while they work on the other "
                      "(each); auto: each when the central's work between two rounds "
                      "exceeds a round trip measured at warm-up."),
-        click.option("--hold-rounds", type=click.Choice(["always", "never"]),
-                     default="always", show_default=True,
+        click.option("--hold-rounds", type=click.Choice(list(HOLD_RULES)),
+                     default="auto", show_default=True,
                      help="Depth 2: a lone round ready early waits to travel with the next "
                      "interval's first round (always: one exchange per interval), or goes "
-                     "at once (never: two exchanges, no wait for the next sample)."),
+                     "at once (never: two exchanges, no wait for the next sample); auto: "
+                     "never in realtime (a held round waits up to a period for the next "
+                     "sample), always otherwise."),
         click.option("--pin", default=None, help="CPUs for this process, e.g. 0 or 0,1."),
         click.option("--cpus", type=click.Choice(["same", "split"]), default=None,
                      help="start: pin every role on CPU 0 (same), or the central on 0 and "
