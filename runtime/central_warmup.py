@@ -13,6 +13,7 @@ import time
 from typing import Any
 
 from ..kernels.kinematics import inverse_kinematics
+from ..topology.balance import auto_central_blocks
 from ..topology.pipeline import (
     reply_mode,
 )
@@ -142,15 +143,21 @@ class CentralWarmUp:
         self.replies_info = info
         return info
 
-    def central_between_rounds_s(self, *, repeat: int = 20) -> float:
+    def central_between_rounds_s(self) -> float:
         """The central's work from the end of one round to the send of the next interval's
         first round: every central step except those after the last round and, at depth
-        2, the sample-free ones run ahead (:meth:`_prime`). T-800 costs from the cost
-        model; native costs measured here on throw-away intervals."""
+        2, the sample-free ones run ahead (:meth:`_prime`)."""
         names = self.plan.middle_blocks(ahead=self.depth > 1)
+        costs = self.block_costs_s()
+        return sum(costs[b] for b in names if b in costs)
+
+    def block_costs_s(self, *, repeat: int = 20) -> dict[str, float]:
+        """Each block's time on the central for one interval (all the axes it runs on):
+        T-800 costs from the cost model; native costs measured here, medians over
+        ``repeat`` throw-away intervals run whole in this process."""
+        graph = self.plan.graph
         if self.engine.cost.name == "t800":
-            graph = self.plan.graph
-            return sum(graph.block(b).t800_s(self.engine.cost.scale) for b in names)
+            return {b.name: b.t800_s(self.engine.cost.scale) for b in graph.blocks}
         acc: dict[str, list[int]] = {}
         old = self.engine.span
         self.engine.span = lambda name, t0, t1: acc.setdefault(name, []).append(t1 - t0)
@@ -161,4 +168,20 @@ class CentralWarmUp:
             pass
         finally:
             self.engine.span = old
-        return sum(statistics.median(acc[b]) for b in names if b in acc) / 1e9
+        return {b: statistics.median(v) / 1e9 for b, v in acc.items()}
+
+    def choose_placement(self) -> dict[str, Any]:
+        """``--placement auto``: which rounds the central runs itself
+        (:func:`~ctrlunit.topology.balance.auto_central_blocks`), from the warm-up's round
+        trip and the blocks' costs here. Returns the choice and its figures (for the
+        report); ``central_blocks`` is the placement to run."""
+        rtt = statistics.median(self.warm_rtt_s) if self.warm_rtt_s else math.inf
+        blocks, rounds = auto_central_blocks(self.plan, self.block_costs_s(), rtt)
+        moved = [r for r in rounds if r["moved"]]
+        why = ("; ".join(f"round {r['round']} ({', '.join(r['blocks'])}) costs the central "
+                         f"{r['arithmetic_s'] * 1e6:.0f} us against a {rtt * 1e6:.0f} us round "
+                         "trip: on the central" for r in moved)
+               or "every round but the last costs more on the central than its round trip "
+               "(or there is only one): the peripherals keep their blocks")
+        return {"asked": "auto", "central_blocks": sorted(blocks), "round_trip_s": rtt,
+                "rounds": rounds, "why": why}

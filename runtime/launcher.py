@@ -52,10 +52,24 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     policy is what it was before when it returns (see :mod:`.sched`)."""
     saved = sched.current()
     tried: list[dict] = []
+    chosen: dict | None = None
+    view: list[Any] = []  # the live view, kept across starts (its viewers stay connected)
+    affinity = os.sched_getaffinity(0)  # a start pins this process (--cpus, --pin)
     try:
-        for attempt in range(len(LADDER_S)):  # --period auto: each start climbs the ladder
+        # --placement auto: one more start with the placement chosen at warm-up;
+        # --period auto: each start climbs the ladder
+        for attempt in range(len(LADDER_S) + 1):
+            os.sched_setaffinity(0, affinity)  # each start chooses the roles' CPUs afresh
             code, report = _start(rc, echo=echo, progress=progress, spawn=spawn,
-                                  inspect=inspect)
+                                  inspect=inspect, view=view)
+            choice = report.get("placement_choice")
+            if choice and choice.get("restart"):
+                chosen = choice
+                echo(f"ctrlunit: --placement auto: {choice['why']}; starting again")
+                rc = rc.replace(central_blocks=choice["central_blocks"])
+                continue
+            if chosen is not None:
+                report["placement_choice"] = chosen
             adm = report.get("admission") or {}
             tried += [r | {"start": attempt} for r in adm.get("rungs") or []]
             held = adm.get("sustainable_period_s")
@@ -69,21 +83,30 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
             report["admission"]["rungs"] = tried
         return code, report
     finally:
+        for v in view:
+            v.close()
+        os.sched_setaffinity(0, affinity)
         sched.restore(saved)
 
 
 def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
-           inspect: dict | None) -> tuple[int, dict]:
+           inspect: dict | None, view: list[Any]) -> tuple[int, dict]:
+    """One start of the unit; ``view`` holds the live view across starts (made at the
+    first, closed by the caller)."""
     viewer = None
     try:
         setup = make_setup(rc)
         # before the real-time policy: the view's threads stay at normal priority
-        viewer = _live_view(rc, setup, echo)
+        if view:
+            viewer = view[0]
+            viewer.rerun(task=_view_task(rc, setup), period_s=rc.schedule.period,
+                         cycles=setup.cycles)
+        else:
+            viewer = _live_view(rc, setup, echo)
+            view += [viewer] if viewer is not None else []
         # before zenoh.open and the children: Zenoh's threads and the roles inherit it
         policy = sched.apply_rt(rc.schedule.rt_priority)
     except (ConfigError, ValueError, OSError, sched.RtPermissionError) as exc:
-        if viewer is not None:
-            viewer.close()
         return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
                                        "code": EXIT_CONFIG}}
     rc = rc.replace(trace=bool(rc.run.record))
@@ -113,6 +136,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     children: list[subprocess.Popen] = []
     code, fault = EXIT_OK, None
     admission: dict | None = None
+    placement_choice: dict | None = None
     old_int = signal.getsignal(signal.SIGINT)
     try:
         if not spawn:
@@ -135,6 +159,14 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         central.handshake()
         central.warm_up()
         central.choose_replies()
+        if (rc.schedule.placement_auto and rc.schedule.central_blocks is None
+                and setup.placement.peripherals):
+            placement_choice = central.choose_placement()
+            if not spawn:  # the roles were started by hand with their own placement
+                placement_choice["applied"] = False
+            elif placement_choice["central_blocks"] != sorted(setup.placement.central_blocks):
+                placement_choice["restart"] = True
+                raise _StartAgain
         if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
             admission = admit(central)
         if not rc.schedule.trial_only:
@@ -147,6 +179,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     except Unsustainable as exc:
         code, admission = exc.code, exc.info
         fault = {"process": "admission", "message": str(exc), "code": exc.code}
+    except _StartAgain:
+        pass
     except KeyboardInterrupt:
         code = EXIT_INTERRUPTED
         fault = {"process": "user", "message": "interrupted", "code": code}
@@ -168,7 +202,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             if recorder is not None:
                 recorder.close(central)
             if viewer is not None:
-                viewer.close()
+                viewer.flush()
             signal.signal(signal.SIGINT, old_int)
     for p, name in zip(children, _child_names(rc, setup), strict=False):
         if p.returncode not in (0, None) and fault is None and p.returncode != -15:
@@ -183,6 +217,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     report = finish_report(setup, central, fault)
     if admission is not None:
         report["admission"] = admission
+    if placement_choice is not None:
+        report["placement_choice"] = placement_choice
     report["zenoh"] = zenoh_ids
     report["late"] = {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),
                       "misses_per_axis": list(central.late_per_axis)}
@@ -212,6 +248,10 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     return code, report
 
 
+class _StartAgain(Exception):
+    """``--placement auto`` chose another placement at warm-up: stop and start again."""
+
+
 def _live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
     """``--foxglove``: the live view's server (runtime/viewer.py), or ``None``."""
     if not rc.run.foxglove:
@@ -219,13 +259,18 @@ def _live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
     from .viewer import LiveView
 
     host, port = parse_host_port(rc.run.foxglove, field_name="--foxglove")
-    task = setup.task if rc.schedule.clock != "freerun" else None
-    view = LiveView(host=host, port=port, task=task, period_s=rc.schedule.period,
+    view = LiveView(host=host, port=port, task=_view_task(rc, setup),
+                    period_s=rc.schedule.period,
                     cycles=setup.cycles, rate_hz=rc.run.foxglove_rate,
                     name=f"ctrlunit {rc.transport.unit}")
     echo(f"ctrlunit: live view on {view.url} (in Foxglove: Open connection, Foxglove "
          "WebSocket)")
     return view
+
+
+def _view_task(rc: RunConfig, setup: Setup) -> Any:
+    """The reference the live view draws (none in freerun)."""
+    return setup.task if rc.schedule.clock != "freerun" else None
 
 
 def _child_names(rc: RunConfig, setup: Setup) -> list[str]:

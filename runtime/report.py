@@ -239,6 +239,11 @@ def summary(r: dict[str, Any]) -> str:
     ]
     if not r["cycles"]:  # refused or failed before the first interval: nothing measured
         lines = lines[:2] if r.get("command_delay") else lines[:1]
+    choice = r.get("placement_choice")
+    if choice:
+        lines.append(f"  placement   auto: {choice['why']}"
+                     + ("" if choice.get("applied", True) else
+                        " (not applied: the roles were started by hand)"))
     adm = r.get("admission")
     if adm and adm.get("period_s"):
         lines.append(f"  admission   {adm['period_s'] * 1e3:g} ms held in a trial of "

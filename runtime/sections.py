@@ -47,6 +47,15 @@ class ScheduleConfig:
     command_delay: str = "full"
     """When the plant applies a command (config.COMMAND_DELAYS)."""
     placement: str | None = None
+    """A placement file (``--placement FILE``); None: the placement of
+    ``central_blocks``."""
+    placement_auto: bool = False
+    """``--placement auto``: the warm-up chooses which rounds the central runs itself
+    (topology/balance.py, ``auto_central_blocks``) and the launcher starts the unit again
+    with them in ``central_blocks``."""
+    central_blocks: list[str] | None = None
+    """Per-axis blocks the central runs for every axis, with the default spread of the axes
+    (the placement's ``central_blocks``); None: none, or not chosen yet (auto)."""
     replies: str = "auto"
     hold_rounds: str = "auto"
     """``--hold-rounds`` (topology/pipeline.py, ``HOLD_RULES``)."""

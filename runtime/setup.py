@@ -15,7 +15,13 @@ from ..kernels.params import DELTA_IA, DeltaParams, load_params
 from ..kernels.trajectory import Task, get_task
 from ..kernels.workspace import require_path
 from ..topology.graph import stage_graph
-from ..topology.placement import Placement, default_placement, load_placement
+from ..topology.placement import (
+    Placement,
+    PlacementError,
+    default_placement,
+    load_placement,
+    placement_from_mapping,
+)
 from ..topology.plan import ExchangePlan, exchange_plan
 from .blocks import BlockConfig
 from .config import ConfigError, RunConfig
@@ -74,7 +80,13 @@ def make_setup(rc: RunConfig) -> Setup:
                 f"placement {rc.schedule.placement} has {placement.peripherals} peripherals but "
                 f"--peripherals is {rc.schedule.peripherals}")
     else:
-        placement = default_placement(rc.schedule.peripherals)
+        try:
+            placement = placement_from_mapping(
+                {"peripherals": rc.schedule.peripherals,
+                 "central_blocks": rc.schedule.central_blocks or []},
+                block_names={b.name for b in graph.axis_blocks}, source="central_blocks")
+        except PlacementError as exc:
+            raise ConfigError(str(exc)) from None
     plan = exchange_plan(graph, placement)
     return Setup(rc, params, task, placement, plan, rc.total_cycles(task.period))
 

@@ -125,6 +125,7 @@ class LiveView:
         self._read = 0  # intervals of the central's logs read into the running figures
         self._errors_read = 0
         self._wall_offset_ns = time.time_ns() - time.monotonic_ns()
+        self._lock = threading.Lock()  # the run's figures against rerun()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ctrlunit-foxglove",
                                         daemon=True)
@@ -210,12 +211,30 @@ class LiveView:
     def _run(self) -> None:
         next_running = time.monotonic() + RUNNING_EVERY_S
         while not self._stop.wait(SEND_EVERY_S):
+            with self._lock:
+                self._send_pending()
+                if time.monotonic() >= next_running:
+                    next_running += RUNNING_EVERY_S
+                    self._send_running()
+        self.flush()
+
+    def flush(self) -> None:
+        """Send what is queued and the running figures now (the end of a run)."""
+        with self._lock:
             self._send_pending()
-            if time.monotonic() >= next_running:
-                next_running += RUNNING_EVERY_S
-                self._send_running()
-        self._send_pending()
-        self._send_running()
+            self._send_running()
+
+    def rerun(self, *, task: Any | None, period_s: float, cycles: int) -> None:
+        """The unit starts again (``--period auto``, ``--placement auto``): the same server
+        and viewers, the figures of the new run from zero. Call it from the central's
+        thread between runs."""
+        with self._lock:
+            self._queue.clear()
+            self.task, self.period_s, self.cycles = task, period_s, cycles
+            self.stats = LiveStats(cycles)
+            self._central, self._due_ns = None, None
+            self._read = self._errors_read = 0
+            self.appended = self.sent = 0
 
     # -- end ---------------------------------------------------------------------------
 

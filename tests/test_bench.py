@@ -85,9 +85,10 @@ def test_t800_cost_model_emulates_the_1994_single_processor_time(tmp_path):
 
 
 def _balance_pair(tmp_path, tag):
-    """A run, balance on it, a re-run with its placement, and the comparison."""
+    """A run with the thesis's placement, balance on it, a re-run with its placement, and
+    the comparison."""
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--clock", "freerun",
-                                "--cycles", "2000", tag=tag)
+                                "--cycles", "2000", "--placement", "axes", tag=tag)
     assert code == 0, out
     report = tmp_path / f"{tag}-run.json"
     report.write_text(json.dumps(rep))

@@ -23,7 +23,8 @@ beyond this VM's stalls of up to ~45 ms: only the frozen peripheral is late."""
 
 
 def freeze_briefly(tmp_path, policy: str, *extra: str) -> tuple[int, dict, str]:
-    """Run a unit at 100 ms and freeze peripheral 2 for 250 ms after 15 intervals. Whatever
+    """Run a unit at 100 ms (the thesis's placement: two rounds) and freeze peripheral 2 for
+    250 ms after 15 intervals. Whatever
     the phase of the freeze, both rounds of one interval miss their deadlines (50 and 100
     ms after the sample) while it lasts; the liveness limit is five periods (500 ms)."""
     unit = unit_id(f"late{policy}")
@@ -33,7 +34,7 @@ def freeze_briefly(tmp_path, policy: str, *extra: str) -> tuple[int, dict, str]:
          "realtime", "--period", f"{PERIOD_MS}ms", "--no-admission", "--cycles", "40",
          "--task", slow_task(tmp_path), "--late-policy", policy, "--max-error", "1",
          "--fault-periods", "5", "--report", str(report), "--status-file", str(status),
-         *extra],
+         "--placement", "axes", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         wait_status(status, 15)

@@ -38,7 +38,8 @@ def test_a_model_observer_or_plant_option_gives_the_reference_of_that_option(
         tmp_path, option, value, reference):
     args = [option] if value is None else [option, value]
     code, rep, out = start_json(tmp_path, "--peripherals", "1", "--clock", "lockstep",
-                                "--cycles", str(CYCLES), "--max-error", "1", *args,
+                                "--cycles", str(CYCLES), "--max-error", "1",
+                                "--placement", "axes", *args,
                                 tag=option.strip("-"))
     assert code == 0, out
     assert rep["command_digest"] == reference_digest(**reference)
@@ -52,9 +53,10 @@ def test_a_model_observer_or_plant_option_gives_the_reference_of_that_option(
 @pytest.mark.parametrize("mode", ["fused", "each"])
 def test_replies_fused_answer_once_an_interval_and_each_once_a_round(tmp_path, mode):
     """Depth 2, freerun: with fused replies a peripheral answers each interval's fused
-    request once; with each, once per round (two rounds: twice)."""
+    request once; with each, once per round (the thesis's placement, two rounds: twice)."""
     code, rep, out = start_json(tmp_path, "--peripherals", "1", "--pipeline", "2", "--clock",
-                                "freerun", "--cycles", "300", "--replies", mode, tag=mode)
+                                "freerun", "--cycles", "300", "--replies", mode,
+                                "--placement", "axes", tag=mode)
     assert code == 0, out
     assert rep["replies"]["mode"] == mode
     per_interval = rep["central_costs_s"]["replies_per_interval"]  # n = 1: per peripheral

@@ -102,3 +102,25 @@ def test_moving_the_last_round_recommends_one_processor_not_idle_peripherals():
     # the earlier round of the default placement is still moved as a round, peripherals kept
     first = candidates(GRAPH, default_placement(3), business, arithmetic=0.05)
     assert all(p.peripherals == 3 for why, p in first if "round 0" in why)
+
+
+def test_placement_auto_moves_a_round_only_when_it_costs_less_than_its_round_trip():
+    """--placement auto's rule: every round but the last goes to the central when its
+    arithmetic for the three axes costs less than the round trip; the last never does,
+    and a block without a measured cost stays."""
+    from ctrlunit.topology.balance import auto_central_blocks
+
+    plan = exchange_plan(GRAPH, default_placement(3))
+    first, last = plan.rounds[0], plan.rounds[-1]
+    cost = {b.name: 10e-6 for r in plan.rounds for b in r.blocks}
+    moved, rounds = auto_central_blocks(plan, cost, 200e-6)  # 30 us against 200 us
+    assert moved == {b.name for b in first.blocks}
+    assert [r["round"] for r in rounds] == [first.index] and rounds[0]["moved"]
+    assert math.isclose(rounds[0]["arithmetic_s"], 10e-6 * len(first.blocks))
+    assert not moved & {b.name for b in last.blocks}
+    kept, _ = auto_central_blocks(plan, cost, 10e-6 * len(first.blocks))  # not cheaper
+    assert kept == frozenset()
+    unknown, _ = auto_central_blocks(plan, {first.blocks[0].name: 1e-9}, 1.0)
+    assert unknown == frozenset()
+    alone, none = auto_central_blocks(exchange_plan(GRAPH, default_placement(0)), cost, 1.0)
+    assert alone == frozenset() and none == []

@@ -94,7 +94,8 @@ def test_realtime_at_1ms_reports_misses(tmp_path, depth):
 def test_freerun_depth_two_completes_and_reports_round_trips(tmp_path):
     cycles = int(os.environ.get("CTRLUNIT_FREERUN_CYCLES", "10000"))
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",
-                                "freerun", "--cycles", str(cycles), tag="free", timeout=400)
+                                "freerun", "--cycles", str(cycles), "--placement", "axes",
+                                tag="free", timeout=400)
     assert code == 0, out
     assert rep["cycles"] == cycles
     assert rep["round_trips"] == 2
@@ -227,3 +228,27 @@ def test_a_finished_run_leaves_no_run_directory(tmp_path):
     assert bad.returncode == 5, bad.stdout + bad.stderr
     kept = list(tmp_path.glob("ctrlunit-*"))
     assert len(kept) == 1 and str(kept[0]) in bad.stderr
+
+
+def test_placement_auto_moves_the_observer_round_when_messages_cost_more_same_commands(
+        tmp_path):
+    """--placement auto (the default): here a round trip costs far more than the observer's
+    round of arithmetic, so that round runs on the central after one more start, with the
+    commands of the thesis's placement bit for bit; with T-800 block times ten times over
+    the round stays on the peripherals, at the first start."""
+    args = ("--peripherals", "3", "--pipeline", "2", "--clock", "lockstep", "--cycles", "60")
+    code, auto, out = start_json(tmp_path, *args, tag="pauto")
+    assert code == 0, out
+    choice = auto["placement_choice"]
+    assert choice["restart"] and choice["rounds"][0]["moved"], choice
+    assert auto["placement"]["central_blocks"] == choice["central_blocks"] != []
+    assert auto["round_trips"] == 1 and "--placement auto: round 0" in out
+    code, axes, out = start_json(tmp_path, *args, "--placement", "axes", tag="paxes")
+    assert code == 0, out
+    assert "placement_choice" not in axes and axes["round_trips"] == 2
+    assert axes["command_digest"] == auto["command_digest"]
+    code, slow, out = start_json(tmp_path, *args, "--cost-model", "t800", "--cost-scale", "10",
+                                 tag="pt800")
+    assert code == 0, out
+    assert slow["placement_choice"]["central_blocks"] == [] and slow["round_trips"] == 2
+    assert "restart" not in slow["placement_choice"] and "starting again" not in out

@@ -16,7 +16,10 @@ central's message costs):
   the peripherals are under-used, group two peripherals' work (n - 1) or give moved
   blocks back. The best candidate is recommended when it is predicted at least
   :data:`MARGIN` faster; its placement is written for ``ctrlunit start --placement``;
-* :func:`compare`: a re-run with that placement against the prediction.
+* :func:`compare`: a re-run with that placement against the prediction;
+* :func:`auto_central_blocks`: the rule ``ctrlunit start --placement auto`` applies at
+  warm-up, from that run's own figures (no report, no model): a round whose arithmetic
+  costs the central less than the round trip it needs runs on the central.
 """
 
 from __future__ import annotations
@@ -430,3 +433,42 @@ def compare(analysis: dict[str, Any], rerun: Any, *, source: str = "re-run") \
 
 def write_placement(analysis: dict[str, Any], path: str | Path) -> None:
     save_placement(placement_of(analysis), path)
+
+
+def auto_central_blocks(plan: ExchangePlan, block_s: dict[str, float], round_trip_s: float
+                        ) -> tuple[frozenset[str], list[dict[str, Any]]]:
+    """``--placement auto``: the per-axis blocks the central should run itself (§ IV.7.2:
+    a block goes where it costs least).
+
+    Every round but the last moves to the central when its blocks, run there for all
+    three axes, cost less than the round trip that carries them; the last round stays
+    (moving it too would leave the peripherals nothing: the one-processor unit, n = 0,
+    which is what ``--peripherals 0`` asks for). Balance's candidates include the same
+    move, judged by the calibrated model of a whole run; this rule needs only what the
+    warm-up measured.
+
+    Parameters
+    ----------
+    plan : the plan of the placement the unit started with.
+    block_s : seconds of each block for all the axes it runs on (one interval); a block
+        without a figure counts as infinitely costly (it stays).
+    round_trip_s : one round trip less the peripherals' compute (the warm-up's median).
+
+    Returns
+    -------
+    The placement's central blocks with the moved rounds' blocks added, and per round
+    ``{"round", "blocks", "arithmetic_s", "round_trip_s", "moved"}``.
+    """
+    moved: set[str] = set(plan.placement.central_blocks)
+    rounds = []
+    if plan.placement.peripherals == 0:
+        return frozenset(moved), rounds
+    for rnd in plan.rounds[:-1]:
+        names = [b.name for b in rnd.blocks]
+        cost = sum(block_s.get(b, math.inf) for b in names)
+        move = cost < round_trip_s
+        if move:
+            moved.update(names)
+        rounds.append({"round": rnd.index, "blocks": names, "arithmetic_s": cost,
+                       "round_trip_s": round_trip_s, "moved": move})
+    return frozenset(moved), rounds

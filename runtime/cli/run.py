@@ -89,7 +89,13 @@ def run_options(fn: Any) -> Any:
         click.option("--cost-scale", type=click.FloatRange(0.01, 1000.0), default=1.0,
                      show_default=True, help="Multiply the T-800 block times (t800 cost "
                      "model): reproduce the 1994 ratio of arithmetic to communication."),
-        click.option("--placement", type=click.Path(dir_okay=False), default=None),
+        click.option("--placement", default="auto", show_default=True, metavar="auto|axes|FILE",
+                     help="Which process runs which block. axes: each peripheral runs "
+                     "every per-axis block of its axes (§ IV.7); auto: at warm-up, a round "
+                     "whose arithmetic costs the central less than its round trip runs on "
+                     "the central (the unit then starts again with it; the report's "
+                     "placement_choice says why); FILE: a placement written by ctrlunit "
+                     "balance."),
         click.option("--params", type=click.Path(dir_okay=False), default=None,
                      help="TOML file of Delta parameters."),
         click.option("--observer", type=click.Choice(["predict", "previous"]),
@@ -182,6 +188,9 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
             raise ConfigError(f"--late {item!r}: expected BLOCK=POLICY (wait, hold, fault)")
         late[block] = pol
     kw["late"] = late
+    placement = kw.get("placement")
+    if placement in ("auto", "axes"):
+        kw["placement"], kw["placement_auto"] = None, placement == "auto"
     if kw.get("period") == "auto":
         from ..admission import LADDER_S
 
@@ -261,6 +270,7 @@ def _check(rc: RunConfig, as_json: bool) -> None:
             "task": setup.task.name, "task_loop_s": setup.task.period,
             "cycles": setup.cycles, "law": rc.control.law, "model": rc.control.model,
             "placement": setup.placement.to_dict(), "round_trips": plan.round_trips,
+            "placement_auto": rc.schedule.placement_auto,
             "command_delay_periods": rc.delay_periods}
     period = "auto" if rc.schedule.period_auto else f"{rc.schedule.period * 1e3:g} ms"
     _emit(data, as_json,
@@ -269,8 +279,10 @@ def _check(rc: RunConfig, as_json: bool) -> None:
           f"clock {rc.schedule.clock}, period {period}\n"
           f"  task {setup.task.name} (a loop of {setup.task.period:.3f} s), {setup.cycles} "
           f"intervals, {rc.control.law} + {rc.control.model} model\n"
-          f"  {plan.round_trips} round trip(s) per interval:\n    "
-          + plan.describe().replace("\n", "\n    "))
+          f"  {plan.round_trips} round trip(s) per interval"
+          + (" (placement auto: the warm-up may move a round to the central)"
+             if rc.schedule.placement_auto and setup.placement.peripherals else "")
+          + ":\n    " + plan.describe().replace("\n", "\n    "))
 
 
 def _plot_run(record: str | None, plot_dir: str, text: str) -> None:
