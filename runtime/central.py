@@ -153,6 +153,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.reply_each = False
         self.replies_info: dict[str, Any] = {"mode": "fused"}
         self.warm_rtt_s: list[float] = []
+        self.block_costs: dict[str, float] | None = None  # measured once (warm-up)
 
     # -- the loop ---------------------------------------------------------------------
 

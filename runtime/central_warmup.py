@@ -153,11 +153,15 @@ class CentralWarmUp:
 
     def block_costs_s(self, *, repeat: int = 20) -> dict[str, float]:
         """Each block's time on the central for one interval (all the axes it runs on):
-        T-800 costs from the cost model; native costs measured here, medians over
-        ``repeat`` throw-away intervals run whole in this process."""
+        T-800 costs from the cost model; native costs measured here once, medians over
+        ``repeat`` throw-away intervals run whole in this process (the reply rule and the
+        placement rule both read them)."""
+        if self.block_costs is not None:
+            return self.block_costs
         graph = self.plan.graph
         if self.engine.cost.name == "t800":
-            return {b.name: b.t800_s(self.engine.cost.scale) for b in graph.blocks}
+            self.block_costs = {b.name: b.t800_s(self.engine.cost.scale) for b in graph.blocks}
+            return self.block_costs
         acc: dict[str, list[int]] = {}
         old = self.engine.span
         self.engine.span = lambda name, t0, t1: acc.setdefault(name, []).append(t1 - t0)
@@ -168,7 +172,8 @@ class CentralWarmUp:
             pass
         finally:
             self.engine.span = old
-        return {b: statistics.median(v) / 1e9 for b, v in acc.items()}
+        self.block_costs = {b: statistics.median(v) / 1e9 for b, v in acc.items()}
+        return self.block_costs
 
     def choose_placement(self) -> dict[str, Any]:
         """``--placement auto``: which rounds the central runs itself
