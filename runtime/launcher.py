@@ -63,7 +63,7 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
             code, report = _start(rc, echo=echo, progress=progress, spawn=spawn,
                                   inspect=inspect, view=view)
             choice = report.get("placement_choice")
-            if choice and choice.get("restart"):
+            if choice and choice.get("restart") and code != EXIT_INTERRUPTED:
                 chosen = choice
                 echo(f"ctrlunit: --placement auto: {choice['why']}; starting again")
                 rc = rc.replace(central_blocks=choice["central_blocks"])
@@ -82,6 +82,9 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         if adm:
             report["admission"]["rungs"] = tried
         return code, report
+    except KeyboardInterrupt:  # between two starts: no role is running
+        return EXIT_INTERRUPTED, {"fault": {"process": "user", "message": "interrupted",
+                                            "code": EXIT_INTERRUPTED}}
     finally:
         for v in view:
             v.close()
@@ -137,6 +140,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     code, fault = EXIT_OK, None
     admission: dict | None = None
     placement_choice: dict | None = None
+    ctrl_c: list[bool] = []
     old_int = signal.getsignal(signal.SIGINT)
     try:
         if not spawn:
@@ -185,7 +189,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         code = EXIT_INTERRUPTED
         fault = {"process": "user", "message": "interrupted", "code": code}
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # finish cleaning up
+        # finish cleaning up; a Ctrl-C meanwhile is kept (it ends the run, no start again)
+        signal.signal(signal.SIGINT, lambda *_: ctrl_c.append(True))
         gc.unfreeze()  # what the run kept alive may be collected again
         central.t_end_ns = central.t_end_ns or time.monotonic_ns()
         try:
@@ -204,6 +209,9 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             if viewer is not None:
                 viewer.flush()
             signal.signal(signal.SIGINT, old_int)
+    if ctrl_c and code != EXIT_INTERRUPTED:
+        code = EXIT_INTERRUPTED
+        fault = {"process": "user", "message": "interrupted", "code": code}
     for p, name in zip(children, _child_names(rc, setup), strict=False):
         if p.returncode not in (0, None) and fault is None and p.returncode != -15:
             log = (run_dir / f"{name}.log").read_text(errors="replace")[-2000:]

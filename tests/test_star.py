@@ -144,6 +144,35 @@ def test_ctrl_c_leaves_no_process_behind():
             proc.kill()
 
 
+def test_ctrl_c_while_the_unit_starts_again_ends_it_with_exit_130():
+    """--placement auto starts the unit again after its warm-up; a Ctrl-C at that moment
+    (once ignored while the first start cleaned up, so the second ran on) ends the run."""
+    unit = unit_id("sigint2")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
+         "lockstep", "--duration", "600s", "--no-progress"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        seen = ""
+        deadline = time.monotonic() + 30
+        while "starting again" not in seen and time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            seen += line
+        assert "starting again" in seen, seen
+        os.killpg(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=20) == 130, proc.stdout.read()
+        t0 = time.monotonic()
+        while pids_of(unit) and time.monotonic() - t0 < 10.0:
+            time.sleep(0.05)
+        assert not pids_of(unit)
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+
+
 def _threads_cpus(pid: int) -> set[frozenset[int]]:
     """The CPU sets of every thread of ``pid`` (Zenoh's included)."""
     out = set()
