@@ -43,17 +43,17 @@ def free_fall(substeps: int | None) -> tuple[float, float, list[float]]:
 
 
 def test_free_fall_conserves_energy_and_constraints():
-    """The default sub-step (0.25 ms at 1 ms periods) and 0.1 ms: energy kept, constraints
-    kept, and the drift falls as h^4 (RK4: (0.25 / 0.1)^4 = 39)."""
-    assert PlantConfig().n_substeps == 4
+    """The default sub-step (0.5 ms at 1 ms periods) and 0.1 ms: energy kept, constraints
+    kept, and the drift falls as h^4 (RK4: (0.5 / 0.1)^4 = 625)."""
+    assert PlantConfig().n_substeps == 2
     coarse, res_coarse, q = free_fall(None)
     fine, res_fine, _ = free_fall(10)
-    print(f"energy drift over 2 s: {coarse:.2e} of |E0| at h = 0.25 ms, {fine:.2e} at 0.1 ms "
+    print(f"energy drift over 2 s: {coarse:.2e} of |E0| at h = 0.5 ms, {fine:.2e} at 0.1 ms "
           f"(ratio {coarse / fine:.1f}); constraint residual {max(res_coarse, res_fine):.1e} m;"
           f" arms now at {np.degrees(q).round(1)} deg")
-    assert coarse < 1e-5
+    assert coarse < 2e-4
     assert fine < 1e-6
-    assert 20 < coarse / fine < 80
+    assert 300 < coarse / fine < 1300
     assert max(res_coarse, res_fine) < 1e-9
     assert max(abs(a - b) for a, b in zip(q, (-0.3, -0.5, -0.4))) > 0.5  # it did move
 
@@ -74,14 +74,14 @@ def test_state_stays_plain_floats_from_numpy_inputs():
 
 
 def test_automatic_substeps_follow_the_period_and_the_belt():
-    assert [PlantConfig(period=t).n_substeps for t in (1e-4, 1e-3, 1.1e-3, 6e-3)] == [1, 4, 5, 24]
+    assert [PlantConfig(period=t).n_substeps for t in (1e-4, 1e-3, 1.1e-3, 6e-3)] == [1, 2, 3, 12]
     assert PlantConfig(belt=True).n_substeps == 10
     assert PlantConfig(substeps=3, belt=True).n_substeps == 3
 
 
 def test_default_substep_changes_nothing_the_encoders_see():
     """Closed loop, pick & place, resolved acceleration at 1 ms: the platform path with
-    the default sub-step against one 10 times shorter, far below one increment."""
+    the default sub-step against one 20 times shorter, far below one increment."""
     from ctrlunit.kernels.laws import Gains
     from ctrlunit.runtime.controller import simulate
 
