@@ -100,22 +100,24 @@ WRONG = st.one_of(
 
 def spoil(value: Any, data: st.DataObject) -> Any:
     """``value`` with one element (or the whole) replaced by something it may not hold,
-    or its shape changed."""
-    if type(value) is not list or not value or data.draw(st.integers(0, 4)) == 0:
+    or its shape changed (a tuple is a list on the wire)."""
+    if type(value) not in (list, tuple) or not value or data.draw(st.integers(0, 4)) == 0:
         return data.draw(WRONG)
     how = data.draw(st.integers(0, 2))
     if how == 0:  # one element wrong, maybe a nested one
         i = data.draw(st.integers(0, len(value) - 1))
         return [*value[:i], spoil(value[i], data), *value[i + 1:]]
     if how == 1:  # one element too many or too few
-        return [*value, 0.0] if data.draw(st.booleans()) else value[:-1]
-    return {"x": value}  # not a list at all
+        return [*value, 0.0] if data.draw(st.booleans()) else list(value[:-1])
+    return {"x": list(value)}  # not a list at all
 
 
 def well_formed_like(x: Any, like: Any) -> bool:
     """Whether ``x`` has the nested shape of ``like`` with finite numbers of at most 1e12
-    (not bool): a value the codec must accept, so no spoiled one."""
-    if type(like) is list:
+    (not bool): a value the codec must accept, so no spoiled one. The central's values are
+    often tuples: on the wire they are lists like any other, so a drawn ``[0.0, 0.0, 0.0]``
+    in place of a 3-tuple is well formed (it once failed the test as a "spoiled" value)."""
+    if type(like) in (list, tuple):
         return type(x) is list and len(x) == len(like) and all(
             well_formed_like(a, b) for a, b in zip(x, like, strict=True))
     return (type(x) in (int, float) and math.isfinite(x) and abs(x) <= 1e12)
