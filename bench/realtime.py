@@ -32,7 +32,7 @@ MAIN_JOB = ("--peripherals", "3", "--pipeline", "2")
 
 
 LEVERS = ("period", "admission", "command_delay", "hold_rounds", "replies", "rt_priority",
-          "cpus", "pin", "placement", "late_policy", "fault_periods")
+          "cpus", "pin", "placement", "late_policy", "fault_periods", "model_state")
 
 
 def levers() -> dict[str, Any]:

@@ -56,6 +56,7 @@ class Config:
     placement: str | None = None  # a placement file (the balance stage)
     rt_priority: int = 0  # SCHED_FIFO for every role (the target stage)
     foxglove: bool = False  # --foxglove, with a viewer reading everything
+    model_state: str = "acting"  # sample: the thesis's graph (no block ``ahead``)
 
     @property
     def key(self) -> str:
@@ -64,7 +65,8 @@ class Config:
                 f"{f':record-{self.record}' if self.record else ''}"
                 f"{':placed' if self.placement else ''}"
                 f"{f':fifo{self.rt_priority}' if self.rt_priority else ''}"
-                f"{':foxglove' if self.foxglove else ''}")
+                f"{':foxglove' if self.foxglove else ''}"
+                f"{f':model-{self.model_state}' if self.model_state != 'acting' else ''}")
 
 
 def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) -> list[Config]:
@@ -89,7 +91,8 @@ def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) ->
             for d in (1, 2):
                 if law == "kinematics" and d == 2:
                     continue
-                out.append(Config(n, d, "t800", cost_scale=scale, law=law, tag="thesis"))
+                out.append(Config(n, d, "t800", cost_scale=scale, law=law, tag="thesis",
+                                  model_state="sample"))
     return out
 
 
@@ -111,6 +114,7 @@ def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str
                    period=cfg.period, cost_model=cfg.cost_model, cost_scale=cfg.cost_scale,
                    law=cfg.law, cycles=cycles, max_error=1.0, t1_cycles=200,
                    placement=cfg.placement, rt_priority=cfg.rt_priority,
+                   model_state=cfg.model_state,
                    unit=f"bench-{os.getpid()}-{random.randrange(1 << 30)}")
     viewer = None
     if cfg.foxglove:

@@ -164,7 +164,7 @@ def admit(central: Central) -> dict[str, Any]:
 
 def predicted_tracking(central: Central, period: float) -> float:
     """Max tracking error (m) of the task in the one-process closed loop at ``period`` with
-    the run's law, model, observer, gains and command delay (runtime/controller.py's
+    the run's law, model, observer, model state, gains and command delay (runtime/controller.py's
     ``simulate``, lockstep: no misses), over the run or one loop of the task, whichever is
     shorter (a long run repeats the loop; simulating a 60 s run took longer than the
     roles wait in silence). NaN for the kinematics law (no torques)."""
@@ -180,7 +180,7 @@ def predicted_tracking(central: Central, period: float) -> float:
                    gains=Gains.from_bandwidth(rc.bandwidth), period=period,
                    cycles=min(rc.total_cycles(task.period), round(task.period / period) + 1),
                    delay=rc.delay_periods,
-                   observer=rc.control.observer)
+                   observer=rc.control.observer, model_state=rc.control.model_state)
     ref = np.asarray(res.references, dtype=float)
     pos = np.asarray(res.positions, dtype=float)
     return float(np.max(np.linalg.norm(ref - pos, axis=1))) if ref.size else math.nan

@@ -43,7 +43,8 @@ class BlockConfig:
     lead: float = 0.0
     """Feed-forward lead (s): the reference acceleration is taken at the middle of the
     period in which the command will act, ``(delay + 1/2) T`` after the sample, where
-    ``delay`` is the number of periods from the sample to that period's start."""
+    ``delay`` is the number of periods from the sample to that period's start; the block
+    ``ahead`` predicts the state at that instant."""
 
     @classmethod
     def build(
@@ -188,6 +189,18 @@ def k_law(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
                                       c[n["pd"]])
 
 
+def k_ahead(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    """The state where the command acts, ``L = lead`` after the sample: the observed
+    ``p, pdot`` carried forward at the commanded ``pddot``, ``pa = p + pdot L + pddot
+    L^2/2``, ``pda = pdot + pddot L`` (docs/architecture.md, where the model is evaluated)."""
+    p, pd, a = c[n["p"]], c[n["pd"]], c[n["pdd"]]
+    L = cfg.lead
+    h = 0.5 * L * L
+    c[n["pa"]] = (p[0] + pd[0] * L + a[0] * h, p[1] + pd[1] * L + a[1] * h,
+                  p[2] + pd[2] * L + a[2] * h)
+    c[n["pda"]] = (pd[0] + a[0] * L, pd[1] + a[1] * L, pd[2] + a[2] * L)
+
+
 def k_task_accel(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     rows = c[n["row_i"]]
     j = kin.inv3((tuple(rows[0]), tuple(rows[1]), tuple(rows[2])))
@@ -235,7 +248,7 @@ AXIS_KERNELS: dict[str, Callable[[Ctx, int, BlockConfig, dict[str, str]], None]]
 }
 CENTRAL_KERNELS: dict[str, Callable[[Ctx, BlockConfig, dict[str, str]], None]] = {
     "reference": k_reference, "predict": k_predict, "observer": k_observer,
-    "velocity": k_velocity, "law": k_law, "task_accel": k_task_accel,
+    "velocity": k_velocity, "law": k_law, "ahead": k_ahead, "task_accel": k_task_accel,
     "dyn_central": k_dyn_central, "gravity_central": k_gravity_central,
     "collect": k_collect, "output": k_output,
 }

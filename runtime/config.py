@@ -9,6 +9,7 @@ import typing
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+from ..topology.graph import MODEL_STATES
 from ..topology.pipeline import HOLD_RULES
 from .sections import (
     RENAMED,
@@ -197,6 +198,8 @@ class RunConfig:
             raise bad("cost_model", "native or t800")
         if self.control.observer not in ("predict", "previous"):
             raise bad("observer", "predict or previous")
+        if self.control.model_state not in MODEL_STATES:
+            raise bad("model_state", ", ".join(MODEL_STATES))
         if self.control.bandwidth_hz is not None and not 0.1 <= self.control.bandwidth_hz <= 200.0:
             raise bad("bandwidth_hz", "0.1 to 200 Hz")
         if not 0.01 <= self.transport.timeout <= 600.0:
@@ -281,7 +284,8 @@ class RunConfig:
     @classmethod
     def from_dict(cls, data: Any, *, source: str = "configuration") -> RunConfig:
         """A configuration as written by :meth:`to_dict` (a spec file, a recording); one
-        written before ``command_delay`` existed used the ``short`` convention.
+        written before ``command_delay`` existed used the ``short`` convention, one written
+        before ``model_state`` existed evaluated the model at the sample.
 
         Every field is checked for its type (a :class:`ConfigError` names the field, the
         value and the type allowed); ranges are :meth:`validate`'s."""
@@ -290,6 +294,7 @@ class RunConfig:
                               f"{type(data).__name__}")
         data = dict(data)
         data.setdefault("command_delay", "short")
+        data.setdefault("model_state", "sample")
         for k, v in data.items():
             if k not in _FLAT_TYPES:
                 raise ConfigError(f"{source}: unknown run option {k!r}")

@@ -122,10 +122,12 @@ def build_engine(
     peripherals: int = 0,
     cost: str = "native",
     delay: int = 0,
+    model_state: str = "acting",
 ) -> Engine:
     """The one-process engine of a law; ``delay``: periods from a sample to the start of
-    the period in which its command acts (the feed-forward lead, :class:`BlockConfig`)."""
-    graph = stage_graph(law, model, observer=observer)
+    the period in which its command acts (the feed-forward lead, :class:`BlockConfig`);
+    ``model_state``: where the model is evaluated (topology/graph.py, ``MODEL_STATES``)."""
+    graph = stage_graph(law, model, observer=observer, model_state=model_state)
     plan = exchange_plan(graph, default_placement(peripherals))
     cfg = BlockConfig.build(params, model=model, gains=gains, task=task, period=period,
                             observer=observer, delay=delay)
@@ -144,13 +146,14 @@ def simulate(
     delay: int = 0,
     observer: str = "predict",
     plant_config: PlantConfig | None = None,
+    model_state: str = "acting",
 ) -> SimResult:
     """Closed loop in one process: sample k -> interval k -> command applied during period
     ``k + delay`` (the distributed unit's ``RunConfig.delay_periods``: the depth, or one
     less with ``--command-delay short``)."""
     task.align(period / 2.0)  # as the distributed unit does
     engine = build_engine(params, task, law=law, model=model, gains=gains, period=period,
-                          observer=observer, delay=delay)
+                          observer=observer, delay=delay, model_state=model_state)
     pc = plant_config or PlantConfig(period=period)
     plant = Plant(params, pc, q0=initial_angles(params, task), p_guess=tuple(task.start()))
     ctl = Controller(engine, period, params.increment, tuple(task.start()))

@@ -115,6 +115,7 @@ def build_report(
         "law": rc.control.law,
         "model": rc.control.model,
         "observer": rc.control.observer,
+        "model_state": plan.graph.model_state,
         "task": task.name,
         "cost_model": rc.control.cost_model,
         "cost_scale": rc.control.cost_scale,
@@ -275,8 +276,10 @@ def _delay_lines(r: dict[str, Any]) -> list[str]:
     d = r.get("command_delay")
     if not d:
         return []
+    where = {"acting": "; model at the state where it acts",
+             "sample": "; model at the sample"}.get(r.get("model_state"), "")
     return [f"  command delay {d['periods']} period(s) from sample to the period it acts in "
-            f"({d['convention']})"]
+            f"({d['convention']}){where}"]
 
 
 def text_or_none(x: Any) -> str | None:

@@ -24,6 +24,8 @@ class ControlConfig:
     law: str = "resolved-acceleration"
     model: str = "complete"
     observer: str = "predict"
+    model_state: str = "acting"
+    """Where resolved acceleration evaluates its model (topology/graph.py, MODEL_STATES)."""
     bandwidth_hz: float | None = None
     params: str | None = None
     max_error: float = 0.02

@@ -278,6 +278,7 @@ BAD_REPORTS = [  # (change to the run's report, words the one-line error must ho
     (lambda r: [r], "must be a JSON object, got a list"),
     (lambda r: r | {"law": ["pd"]}, "law = ['pd']; allowed: resolved-acceleration"),
     (lambda r: r | {"pipeline": 3}, "pipeline = 3; allowed: 1 or 2"),
+    (lambda r: r | {"model_state": "later"}, "model_state = 'later'; allowed: acting, sample"),
     (lambda r: r | {"block_cost_s": {}}, "block_cost_s = {}"),
     (lambda r: r | {"block_cost_s": r["block_cost_s"] | {"ik": "7e-6"}},
      "block_cost_s.ik = '7e-6'; allowed: a number of seconds in [0, 10]"),
@@ -325,6 +326,23 @@ def test_balance_reads_a_report_of_the_observer_that_starts_from_the_previous_es
         a = json.loads(res.stdout)
         assert "ik_obs1" in a["block_cost_s"]
         assert a["t_s_s"] == pytest.approx(sum(older["block_cost_s"].values()), rel=1e-12)
+
+
+def test_balance_reads_a_report_written_before_the_model_state(work, recorded):
+    """A report names where its model was evaluated; one written before says it by the
+    block ``ahead`` (absent: the model at the sample, the thesis's graph)."""
+    _, report = recorded
+    assert report["model_state"] == "acting" and "ahead" in report["block_cost_s"]
+    older = {k: v for k, v in report.items() if k != "model_state"}
+    thesis = older | {"block_cost_s": {k: v for k, v in older["block_cost_s"].items()
+                                       if k != "ahead"}}
+    for doc, state in ((older, "acting"), (thesis, "sample")):
+        f = work / "older.json"
+        f.write_text(json.dumps(doc))
+        res = invoke("balance", str(f), "--write", str(work / "p.json"), "--json")
+        assert res.exit_code == 0, res.output
+        a = json.loads(res.stdout)
+        assert (a["model_state"], a["block_cost_s"]) == (state, doc["block_cost_s"])
 
 
 def documented_errors() -> list[tuple[list[str], str, int]]:

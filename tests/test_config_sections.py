@@ -53,6 +53,14 @@ def test_flat_dict_round_trip_is_exact() -> None:
     assert RunConfig.from_dict(data) == rc
 
 
+def test_a_configuration_recorded_before_the_model_state_evaluates_it_at_the_sample() -> None:
+    data = RunConfig.of(unit="uold").to_dict()
+    assert data.pop("model_state") == "acting"  # the default of a run today
+    assert RunConfig.from_dict(data).control.model_state == "sample"
+    with pytest.raises(ConfigError, match=r"--model-state = 'later': allowed acting, sample"):
+        RunConfig.of(model_state="later").validate()
+
+
 @pytest.mark.parametrize("name", ["nope", "plant.lag", "substeps"])
 def test_an_unknown_option_is_named(name: str) -> None:
     with pytest.raises(ConfigError, match=f"unknown run option '{name}'"):

@@ -30,5 +30,5 @@ def test_the_reference_commands_are_those_recorded_before_the_redesign(key):
     ref = simulate(P, TASKS[task](), law=law, model=model, observer=observer,
                    gains=Gains.from_bandwidth(20.0), cycles=150,
                    delay=int(delay.removeprefix("delay")),
-                   plant_config=PlantConfig(substeps=4))
+                   plant_config=PlantConfig(substeps=4), model_state="sample")
     assert command_digest([x for c in ref.commands for x in c]) == PINNED[key]

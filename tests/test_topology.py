@@ -57,8 +57,36 @@ def test_requests_carry_only_what_the_round_needs():
     r0, r1 = plan.rounds
     assert set(r0.send) == {"p_lin0", "qmeas_i"}
     assert set(r0.recv) == {"rowo0_i", "r0_i"}
-    assert set(r1.send) == {"p", "pd", "pdd"}
+    assert set(r1.send) == {"pa", "pda", "pdd"}  # the model at the state where it acts
     assert set(r1.recv) == {"row_i", "tauq_i", "f_i"}
+    thesis = exchange_plan(stage_graph(model_state="sample"), default_placement(3))
+    assert set(thesis.rounds[1].send) == {"p", "pd", "pdd"}
+
+
+def test_the_model_state_moves_the_second_round_to_the_predicted_state():
+    acting, sample = stage_graph(), stage_graph(model_state="sample")
+    assert (acting.model_state, sample.model_state) == ("acting", "sample")
+    names = [b.name for b in acting.blocks]
+    assert names.index("law") < names.index("ahead") < names.index("ik")
+    assert acting.block("ahead").inputs == ("p", "pd", "pdd")
+    assert acting.block("ik").inputs == ("pa",) and "pda" in acting.block("jdot").inputs
+    assert "ahead" not in [b.name for b in sample.blocks]
+    assert sample.block("ik").inputs == ("p",) and "pd" in sample.block("jdot").inputs
+    # every other block (the observer, the law, the estimate handed off) is the same
+    assert [b for b in acting.blocks if b.name not in ("ahead", "ik", "jdot")] == [
+        b for b in sample.blocks if b.name not in ("ik", "jdot")]
+
+
+@pytest.mark.parametrize("law", [x for x in LAWS if x != "resolved-acceleration"])
+def test_the_other_laws_evaluate_their_model_at_the_sample(law):
+    g = stage_graph(law)
+    assert g.model_state == "sample" and "ahead" not in [b.name for b in g.blocks]
+    assert g == stage_graph(law, model_state="sample")
+
+
+def test_an_unknown_model_state_is_refused_with_the_allowed_list():
+    with pytest.raises(ValueError, match="model state must be one of acting, sample"):
+        stage_graph(model_state="later")
 
 
 def test_moving_a_block_to_the_central_changes_the_plan():

@@ -28,7 +28,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .graph import LAWS, OBSERVERS, StageGraph, stage_graph
+from .graph import LAWS, MODEL_STATES, OBSERVERS, StageGraph, stage_graph
 from .placement import Placement, default_placement, placement_from_mapping, save_placement
 from .plan import ExchangePlan, exchange_plan
 from .schedule import Costs, Schedule, fit_latency, simulate
@@ -134,7 +134,10 @@ def read_report(doc: Any, *, source: str = "report") -> dict[str, Any]:
     # reports written before the observer was recorded: its second iteration's blocks say it
     observer = _choice(source, "observer", doc.get("observer"), OBSERVERS,
                        "previous" if "ik_obs1" in blocks_raw else "predict")
-    graph = stage_graph(law, model, observer=observer)
+    # reports written before the model state was recorded evaluated it at the sample
+    model_state = _choice(source, "model_state", doc.get("model_state"), MODEL_STATES,
+                          "acting" if "ahead" in blocks_raw else "sample")
+    graph = stage_graph(law, model, observer=observer, model_state=model_state)
     names = [b.name for b in graph.blocks]
     if not blocks_raw:
         raise _bad(source, "block_cost_s", doc.get("block_cost_s"),
@@ -144,7 +147,8 @@ def read_report(doc: Any, *, source: str = "report") -> dict[str, Any]:
     for k, v in blocks_raw.items():
         if k not in names:
             raise _bad(source, "a key of block_cost_s", k,
-                       f"the blocks of {law}/{model}/{observer}: {', '.join(names)}")
+                       f"the blocks of {law}/{model}/{observer}/model at {model_state}: "
+                       f"{', '.join(names)}")
         block[k] = _seconds(source, _key("block_cost_s", k), v, optional=False)  # type: ignore
     depth = doc.get("pipeline")
     if depth is None:
@@ -204,7 +208,8 @@ def read_report(doc: Any, *, source: str = "report") -> dict[str, Any]:
         raise _bad(source, "gantt_ms", gantt,
                    "a list of [process, cycle, start ms, end ms] with finite times in [0, 1e9]")
     return {
-        "law": law, "model": model, "observer": observer, "pipeline": depth,
+        "law": law, "model": model, "observer": observer, "model_state": model_state,
+        "pipeline": depth,
         "placement": placement.to_dict(), "block_cost_s": block,
         "replies": {"asked": _choice(source, "replies.asked", replies.get("asked"),
                                      ("auto", "each", "fused"), "auto"),
@@ -267,7 +272,8 @@ def calibrate(report: dict[str, Any]) -> tuple[StageGraph, Costs, dict[str, Any]
 
     The report is read by :func:`read_report` (idempotent on its own output)."""
     report = read_report(report)
-    graph = stage_graph(report["law"], report["model"], observer=report["observer"])
+    graph = stage_graph(report["law"], report["model"], observer=report["observer"],
+                        model_state=report["model_state"])
     plan = exchange_plan(graph, placement_of(report))
     costs = model_costs(report, plan)
     depth = int(report.get("pipeline") or 1)
@@ -388,7 +394,8 @@ def analyse(report: Any, *, source: str = "report") -> dict[str, Any]:
                 "business": s.business()}
 
     return {
-        "law": graph.law, "model": graph.model, "peripherals": n, "pipeline": depth,
+        "law": graph.law, "model": graph.model, "observer": graph.observer,
+        "model_state": graph.model_state, "peripherals": n, "pipeline": depth,
         "block_cost_s": dict(block), "t_s_s": t_s, "t_p_s": t_p, "business": business,
         "central_arithmetic_share": arithmetic,
         "model_costs_s": {"send": costs.send_s, "reply": costs.reply_s,

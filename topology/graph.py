@@ -24,6 +24,11 @@ KINEMATICS = "kinematics"
 (observer, J^-1, d/dt(J^-1) pdot, acceleration mapper), for the thesis's 'all kinematics'
 efficiency (1320 us on one T-800, 582 us on four)."""
 OBSERVERS = ("predict", "previous")
+MODEL_STATES = ("acting", "sample")
+"""Where resolved acceleration evaluates its model (the second round's kinematics and the
+dynamics of Eq. V.50): ``acting``, at the state predicted for the middle of the period in
+which the command acts (block ``ahead``); ``sample``, at the sample's estimate, as the
+thesis. The other laws evaluate at the sample (or at the reference) either way."""
 MEASURED = ("qmeas_i", "qdmeas_i")
 """The sources that come from the plant's sample (the others, ``t`` and ``est``, are known
 before the sample arrives)."""
@@ -72,6 +77,9 @@ class StageGraph:
     iterations: int
     blocks: tuple[Block, ...]
     sources: tuple[str, ...]
+    model_state: str = "sample"
+    """Where the model is evaluated (:data:`MODEL_STATES`): ``acting`` only when the graph
+    has the block ``ahead``."""
 
     def block(self, name: str) -> Block:
         for b in self.blocks:
@@ -100,6 +108,7 @@ T800 = {
     "velocity": 20.0,  # pdot = J qdot (solve with the LU)
     "jdot": 268.0 / 3.0,
     "accel": 12.0,  # 18 FLOP (§ V.3.4)
+    "ahead": 12.0,  # 18 FLOP, as accel
     "law": 30.0,
     "dyn_axis": 30.0,
     "dyn_central": 284.0 - 30.0 - 3 * 30.0,  # rest of the 127 FLOP law after the axis part
@@ -149,13 +158,14 @@ def _observer_blocks(iterations: int, observer: str) -> list[Block]:
     return out
 
 
-def _state_blocks() -> list[Block]:
-    """Per-axis kinematics at the observed state: q_i, the J^-1 row and its derivative
-    times pdot (Eq. V.16-V.30)."""
+def _state_blocks(p: str = "p", pd: str = "pd") -> list[Block]:
+    """Per-axis kinematics at the state ``p``, ``pd`` (by default the observed one): q_i,
+    the J^-1 row and its derivative times pdot (Eq. V.16-V.30)."""
     return [
-        _b("ik", AXIS, "ik", "p", "ax_i q_i", "V.16-V.21"),
+        _b("ik", AXIS, "ik", p, "ax_i q_i", "V.16-V.21", (("p", p),) if p != "p" else ()),
         _b("jinv", AXIS, "jinv", "ax_i", "row_i", "V.24-V.26"),
-        _b("jdot", AXIS, "jdot", "ax_i row_i pd", "qd_i jdp_i", "V.28-V.30"),
+        _b("jdot", AXIS, "jdot", f"ax_i row_i {pd}", "qd_i jdp_i", "V.28-V.30",
+           (("pd", pd),) if pd != "pd" else ()),
     ]
 
 
@@ -176,6 +186,7 @@ def stage_graph(
     *,
     observer: str = "predict",
     iterations: int | None = None,
+    model_state: str = "acting",
 ) -> StageGraph:
     """The stage graph of one interval for a control law and model.
 
@@ -186,6 +197,10 @@ def stage_graph(
     observer : ``predict`` (start the Newton-Raphson from a prediction) or ``previous``
         (from the previous estimate, as the thesis).
     iterations : Newton-Raphson iterations; default 1 with ``predict``, 2 with ``previous``.
+    model_state : where resolved acceleration evaluates its model (:data:`MODEL_STATES`);
+        ``acting`` adds the central block ``ahead`` between the law and the second round,
+        whose kinematics and dynamics then run at its predicted state ``pa, pda``. The
+        graph's ``model_state`` is ``sample`` for the other laws.
     """
     if law not in (*LAWS, KINEMATICS):
         raise ValueError(f"law must be one of {', '.join(LAWS)}, got {law!r}")
@@ -193,6 +208,9 @@ def stage_graph(
         raise ValueError(f"model must be complete or simplified, got {model!r}")
     if observer not in OBSERVERS:
         raise ValueError(f"observer must be one of {', '.join(OBSERVERS)}, got {observer!r}")
+    if model_state not in MODEL_STATES:
+        raise ValueError(f"model state must be one of {', '.join(MODEL_STATES)}, "
+                         f"got {model_state!r}")
     if iterations is None:
         iterations = 1 if observer == "predict" else 2
     if not 1 <= iterations <= 5:
@@ -200,10 +218,15 @@ def stage_graph(
     ref = [_b("reference", CENTRAL, "reference", "t", "pc vc ac", "II.33")]
     out = [_b("output", CENTRAL, "output", "tau", "cmd", "saturation, command out")]
     blocks: list[Block]
+    acting = law == "resolved-acceleration" and model_state == "acting"
     if law == "resolved-acceleration":
+        ahead = [_b("ahead", CENTRAL, "ahead", "p pd pdd", "pa pda",
+                    "the state where the command acts: p + pdot L + pddot L^2/2, "
+                    "pdot + pddot L")] if acting else []
         blocks = ref + _observer_blocks(iterations, observer) + [
             _b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14"),
-            *_state_blocks(),
+            *ahead,
+            *(_state_blocks("pa", "pda") if acting else _state_blocks()),
             _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
             _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qdd_i pdd", "tauq_i f_i",
                "V.50 joint part (qA qddot + qg + coupling)"),
@@ -256,7 +279,8 @@ def stage_graph(
             _b("collect", CENTRAL, "collect", "taufb_i", "tau", "tau = feedback"),
         ] + out
     sources = ("t", "est", "qmeas_i", "qdmeas_i")
-    graph = StageGraph(law, model, observer, iterations, tuple(blocks), sources)
+    graph = StageGraph(law, model, observer, iterations, tuple(blocks), sources,
+                       "acting" if acting else "sample")
     validate_graph(graph)
     return graph
 

@@ -101,6 +101,12 @@ def run_options(fn: Any) -> Any:
         click.option("--observer", type=click.Choice(["predict", "previous"]),
                      default="predict", show_default=True,
                      help="Newton-Raphson start: prediction (1 iteration) or previous (2)."),
+        click.option("--model-state", type=click.Choice(["acting", "sample"]),
+                     default="acting", show_default=True,
+                     help="Resolved acceleration: evaluate the model (second round's "
+                     "kinematics, dynamics) at the state predicted for the period in which "
+                     "the command acts (acting), or at the sample's estimate as the thesis "
+                     "(sample)."),
         click.option("--bandwidth", "bandwidth_hz", type=float, default=None,
                      help="Closed-loop bandwidth of the gains in Hz (default: 20, at most "
                      "1/(50 period))."),
