@@ -5,7 +5,10 @@ gives the reference's commands bit for bit, for n = 0..3 and depth 1 and 2; this
 shows the reference itself has not moved, so the two together keep lockstep commands
 bit-identical across any rework of the runtime. The plant integrates with the 0.25 ms
 sub-step the digests were recorded with (the default became 0.5 ms later: a choice of the
-plant's, not of the controller's arithmetic these digests guard)."""
+plant's, not of the controller's arithmetic these digests guard), and resolved acceleration
+evaluates its model at the sample as it then did (``model_state="sample"``; the model at
+the state where the command acts, the default since, is checked against its oracle in
+tests/test_law_oracles.py)."""
 
 from __future__ import annotations
 
