@@ -26,8 +26,10 @@ CYCLES = 150
 
 @pytest.mark.parametrize("law", LAWS)
 def test_lockstep_commands_are_bit_identical_for_n_0_to_3(tmp_path, law):
+    """Every spread of the axes (n = 1, 2: a peripheral with several) for the default law;
+    the others, whose blocks run on the same engine, at n = 0 and 3 (the suite's time)."""
     digests = set()
-    for n in (0, 1, 2, 3):
+    for n in ((0, 1, 2, 3) if law == "resolved-acceleration" else (0, 3)):
         code, rep, out = start_json(tmp_path, "--peripherals", str(n), "--clock", "lockstep",
                                     "--cycles", str(CYCLES), "--law", law, "--max-error", "1",
                                     tag=f"bit{n}")
