@@ -29,6 +29,20 @@ def test_lockstep_commands_equal_the_one_process_reference(n, depth):
     assert u.central.done == CYCLES and not u.node.rejected
 
 
+@pytest.mark.parametrize("law", ["computed-torque", "pd-feedforward", "pd-gravity", "pd"])
+@pytest.mark.parametrize(("n", "depth"), [(1, 1), (2, 1), (1, 2), (2, 2)])
+def test_every_law_gives_the_one_process_commands_with_the_axes_spread_unevenly(law, n, depth):
+    """The other laws with one or two peripherals (a peripheral holding several axes);
+    tests/test_star.py runs them through ``ctrlunit start`` at n = 0 and 3."""
+    u = LoopbackUnit(lockstep_config(unit_id("lblaw"), peripherals=n, pipeline=depth,
+                                     cycles=CYCLES, law=law, max_error=1.0))
+    u.run()
+    ref = simulate(P, pick_place_task(), law=law, gains=Gains.from_bandwidth(20.0),
+                   cycles=CYCLES, delay=u.rc.delay_periods)
+    assert u.commands() == [[float(x) for x in c] for c in ref.commands]
+    assert u.central.done == CYCLES and not u.node.rejected
+
+
 def test_a_lost_reply_is_the_peripherals_fault_after_the_timeout():
     u = LoopbackUnit(lockstep_config(unit_id("lblost"), peripherals=3, pipeline=1,
                                      cycles=CYCLES, timeout=0.2))

@@ -27,7 +27,7 @@ CYCLES = 150
 @pytest.mark.parametrize("law", LAWS)
 def test_lockstep_commands_are_bit_identical_for_n_0_to_3(tmp_path, law):
     """Every spread of the axes (n = 1, 2: a peripheral with several) for the default law;
-    the others, whose blocks run on the same engine, at n = 0 and 3 (the suite's time)."""
+    the others at n = 0 and 3 here, at n = 1 and 2 in process (tests/test_loopback.py)."""
     digests = set()
     for n in ((0, 1, 2, 3) if law == "resolved-acceleration" else (0, 3)):
         code, rep, out = start_json(tmp_path, "--peripherals", str(n), "--clock", "lockstep",
