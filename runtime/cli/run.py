@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from ...plant.simulator import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S
 from ...topology.pipeline import HOLD_RULES
 from ..config import EXIT_CONFIG, FLAT, ConfigError, RunConfig, parse_duration
 from .base import _emit, _fail, _json_safe, cli
@@ -154,7 +155,8 @@ def run_options(fn: Any) -> Any:
                      "to 50 ms a second."),
         click.option("--plant-substeps", type=click.IntRange(1, 1000), default=None,
                      help="RK4 sub-steps of the plant per period; default: the fewest of "
-                     "at most 0.25 ms (0.1 ms with --belt)."),
+                     f"at most {MAX_SUBSTEP_S * 1e3:g} ms ({MAX_SUBSTEP_BELT_S * 1e3:g} ms "
+                     "with --belt)."),
         click.option("--plant-lag", default="0s", callback=_duration_or_zero,
                      help="Actuator time constant (Eq. IV.6)."),
         click.option("--plant-friction", type=click.FloatRange(0.0, 100.0), default=0.0,
