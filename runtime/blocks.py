@@ -145,7 +145,7 @@ def k_reference(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
 
 
 def k_predict(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
-    p, pd, pdd = c[n["est"]]
+    p, pd, pdd = c[n["est"]][:3]
     if cfg.observer == "predict":
         T = cfg.period
         h = 0.5 * T * T
@@ -182,6 +182,26 @@ def k_velocity(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     a = c[n["est"]][2]
     h = 0.5 * cfg.period
     c[n["pd"]] = (v[0] + h * a[0], v[1] + h * a[1], v[2] + h * a[2])
+
+
+def k_velocity_diff(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    """``pdot`` at the sample's instant from the observed positions: the difference of
+    this estimate and the previous one, ``(p - p_prev) / dt``, is the velocity half-way
+    between them; ``dt/2`` of the previous interval's commanded acceleration brings it to
+    the sample. ``J qdot`` of the backward-difference rates (:func:`k_velocity`) maps the
+    rate of half a period ago with this sample's Jacobian, off by ``dt/2 Jdot qdot``
+    (docs/architecture.md, where the model is evaluated). With no earlier estimate (the
+    first interval) the handed-off velocity is kept."""
+    est = c[n["est"]]
+    p_prev, pd_prev, a, t_prev = est[0], est[1], est[2], est[3] if len(est) > 3 else None
+    dt = c[n["t"]] - t_prev if t_prev is not None else 0.0
+    if dt <= 0.0:
+        c[n["pd"]] = tuple(pd_prev)
+        return
+    p = c[n["p"]]
+    h = 0.5 * dt
+    c[n["pd"]] = ((p[0] - p_prev[0]) / dt + h * a[0], (p[1] - p_prev[1]) / dt + h * a[1],
+                  (p[2] - p_prev[2]) / dt + h * a[2])
 
 
 def k_law(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
@@ -248,7 +268,8 @@ AXIS_KERNELS: dict[str, Callable[[Ctx, int, BlockConfig, dict[str, str]], None]]
 }
 CENTRAL_KERNELS: dict[str, Callable[[Ctx, BlockConfig, dict[str, str]], None]] = {
     "reference": k_reference, "predict": k_predict, "observer": k_observer,
-    "velocity": k_velocity, "law": k_law, "ahead": k_ahead, "task_accel": k_task_accel,
+    "velocity": k_velocity, "velocity_diff": k_velocity_diff, "law": k_law, "ahead": k_ahead,
+    "task_accel": k_task_accel,
     "dyn_central": k_dyn_central, "gravity_central": k_gravity_central,
     "collect": k_collect, "output": k_output,
 }

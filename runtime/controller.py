@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from ..kernels.dynamics import gravity_torques
 from ..kernels.kinematics import inverse_kinematics
@@ -40,6 +41,20 @@ def initial_angles(params: DeltaParams, task: Task) -> list[float]:
     return [float(x) for x in inverse_kinematics(params, task.start())]
 
 
+class Estimate(NamedTuple):
+    """The observer's estimate handed from one interval to the next (the source ``est``).
+
+    ``p, pd, pdd`` : position, velocity and commanded acceleration, 3-tuples of floats;
+    ``t`` : the time of the sample they were estimated from (s), ``None`` for the
+    starting estimate (no sample yet).
+    """
+
+    p: tuple[float, float, float]
+    pd: tuple[float, float, float]
+    pdd: tuple[float, float, float]
+    t: float | None = None
+
+
 @dataclass
 class Controller:
     """Sources and observer state of consecutive intervals."""
@@ -57,7 +72,7 @@ class Controller:
     def __post_init__(self) -> None:
         # plain floats: a numpy scalar here would make every value computed from the
         # estimate a numpy scalar too, and the kernels several times slower (docs/message-costs.md)
-        self.est = (tuple(float(x) for x in self.p0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        self.est = Estimate(tuple(float(x) for x in self.p0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
     def sources(self, cycle: int, counts: list[int]) -> dict:
         """Context of interval ``cycle`` from its encoder counts."""
@@ -90,10 +105,11 @@ class Controller:
 
     def handoff(self, ctx: dict) -> None:
         """Take the observer's estimate from an interval at its hand-off point."""
-        self.est = (
+        self.est = Estimate(
             tuple(ctx.get("p", self.est[0])),
             tuple(ctx.get("pd", (0.0, 0.0, 0.0))),
             tuple(ctx.get("pdd", (0.0, 0.0, 0.0))),
+            ctx["t"],
         )
 
 

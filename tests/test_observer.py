@@ -41,3 +41,40 @@ def test_prediction_lets_one_iteration_suffice(task):
     print(f"{task.name}: 1 iteration: predicted start {one_pred:.3f}, previous {one_prev:.3f}")
     assert one_pred >= 0.98
     assert one_prev < one_pred  # the prediction is what makes the difference
+
+
+def velocity_from_positions(p, est, t: float, period: float = 1e-3):
+    """``pd`` of the kernel ``velocity_diff`` for observed position ``p`` at time ``t``."""
+    from ctrlunit.kernels.laws import Gains
+    from ctrlunit.runtime.blocks import BlockConfig, k_velocity_diff
+
+    cfg = BlockConfig.build(P, model="complete", gains=Gains.from_bandwidth(20.0), task=None,
+                            period=period, observer="predict")
+    ctx = {"t": t, "p": p, "est": est}
+    k_velocity_diff(ctx, cfg, {"t": "t", "p": "p", "est": "est", "pd": "pd"})
+    return ctx["pd"]
+
+
+@pytest.mark.parametrize("gap", [1, 2, 5])
+def test_velocity_from_positions_is_exact_at_constant_acceleration(gap):
+    """On a path of constant acceleration ``a`` the difference of two estimates ``gap``
+    periods apart (samples skipped in between) plus ``dt/2 a`` is the velocity at the newer
+    one, to rounding; a sign or a factor wrong in either term misses by ``a dt`` or more."""
+    from ctrlunit.runtime.controller import Estimate
+
+    p0, v0 = np.array([0.05, -0.1, -0.9]), np.array([1.5, -2.0, 0.7])
+    a = np.array([40.0, 25.0, -60.0])
+    dt = gap * 1e-3
+    p1, v1 = p0 + v0 * dt + 0.5 * a * dt**2, v0 + a * dt
+    est = Estimate(tuple(p0), (9.0, 9.0, 9.0), tuple(a), 0.2)
+    got = velocity_from_positions(tuple(p1), est, 0.2 + dt)
+    assert got == pytest.approx(tuple(v1), abs=1e-9)
+
+
+def test_velocity_from_positions_keeps_the_handed_off_velocity_without_an_earlier_sample():
+    from ctrlunit.runtime.controller import Estimate
+
+    est = Estimate((0.0, 0.0, -0.9), (0.25, 0.5, 0.75), (0.0, 0.0, 0.0))  # t = None: the start
+    assert velocity_from_positions((0.1, 0.1, -0.8), est, 0.0) == (0.25, 0.5, 0.75)
+    later = est._replace(t=0.004)  # an estimate not older than the sample: no difference
+    assert velocity_from_positions((0.1, 0.1, -0.8), later, 0.004) == (0.25, 0.5, 0.75)

@@ -72,9 +72,14 @@ def test_the_model_state_moves_the_second_round_to_the_predicted_state():
     assert acting.block("ik").inputs == ("pa",) and "pda" in acting.block("jdot").inputs
     assert "ahead" not in [b.name for b in sample.blocks]
     assert sample.block("ik").inputs == ("p",) and "pd" in sample.block("jdot").inputs
+    # the velocity at the sample from the observed positions, not J qdot
+    assert acting.block("velocity").kernel == "velocity_diff"
+    assert acting.block("velocity").inputs == ("t", "p", "est")
+    assert sample.block("velocity").kernel == "velocity"
     # every other block (the observer, the law, the estimate handed off) is the same
-    assert [b for b in acting.blocks if b.name not in ("ahead", "ik", "jdot")] == [
-        b for b in sample.blocks if b.name not in ("ik", "jdot")]
+    moved = ("ahead", "ik", "jdot", "velocity")
+    assert [b for b in acting.blocks if b.name not in moved] == [
+        b for b in sample.blocks if b.name not in moved]
 
 
 @pytest.mark.parametrize("law", [x for x in LAWS if x != "resolved-acceleration"])

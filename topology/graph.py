@@ -27,8 +27,10 @@ OBSERVERS = ("predict", "previous")
 MODEL_STATES = ("acting", "sample")
 """Where resolved acceleration evaluates its model (the second round's kinematics and the
 dynamics of Eq. V.50): ``acting``, at the state predicted for the middle of the period in
-which the command acts (block ``ahead``); ``sample``, at the sample's estimate, as the
-thesis. The other laws evaluate at the sample (or at the reference) either way."""
+which the command acts (block ``ahead``), from a velocity at the sample's instant taken
+from the observed positions (kernel ``velocity_diff``); ``sample``, at the sample's
+estimate with ``pdot = J qdot`` of the backward-difference rates, as the thesis. The other
+laws evaluate at the sample (or at the reference) either way."""
 MEASURED = ("qmeas_i", "qdmeas_i")
 """The sources that come from the plant's sample (the others, ``t`` and ``est``, are known
 before the sample arrives)."""
@@ -106,6 +108,7 @@ T800 = {
     "residual": 4.0,
     "observer": 24.0 + 36.0,  # LU of J^-1 + solve and update
     "velocity": 20.0,  # pdot = J qdot (solve with the LU)
+    "velocity_diff": 12.0,  # 15 FLOP, as accel
     "jdot": 268.0 / 3.0,
     "accel": 12.0,  # 18 FLOP (§ V.3.4)
     "ahead": 12.0,  # 18 FLOP, as accel
@@ -135,9 +138,12 @@ def _b(name: str, kind: str, kernel: str, inputs: str, outputs: str, eq: str,
                  T800[kernel], bind)
 
 
-def _observer_blocks(iterations: int, observer: str) -> list[Block]:
+def _observer_blocks(iterations: int, observer: str, *, velocity: str = "jacobian"
+                     ) -> list[Block]:
     """Newton-Raphson observer (Eq. II.20): ``iterations`` rounds of IK + J^-1 row +
-    residual on the axes, update on the central."""
+    residual on the axes, update on the central; then the velocity at the sample,
+    ``jacobian`` (``pdot = J qdot``, the thesis) or ``difference`` (of the observed
+    positions, docs/architecture.md, where the model is evaluated)."""
     out = [_b("predict", CENTRAL, "predict", "est", "p_lin0",
               "prediction p + pdot T + pddot T^2/2" if observer == "predict" else "previous p")]
     for k in range(iterations):
@@ -154,7 +160,12 @@ def _observer_blocks(iterations: int, observer: str) -> list[Block]:
                f"{nxt} J", "II.20 (errata sign), LU of J^-1",
                (("p_lin", lin), ("row_i", f"rowo{s}_i"), ("r_i", f"r{s}_i"), ("p", nxt))),
         ]
-    out.append(_b("velocity", CENTRAL, "velocity", "J qdmeas_i est", "pd", "pdot = J qdot"))
+    if velocity == "difference":
+        out.append(_b("velocity", CENTRAL, "velocity_diff", "t p est", "pd",
+                      "pdot = (p - p_prev) / dt + pddot dt/2"))
+    else:
+        out.append(_b("velocity", CENTRAL, "velocity", "J qdmeas_i est", "pd",
+                      "pdot = J qdot"))
     return out
 
 
@@ -199,8 +210,10 @@ def stage_graph(
     iterations : Newton-Raphson iterations; default 1 with ``predict``, 2 with ``previous``.
     model_state : where resolved acceleration evaluates its model (:data:`MODEL_STATES`);
         ``acting`` adds the central block ``ahead`` between the law and the second round,
-        whose kinematics and dynamics then run at its predicted state ``pa, pda``. The
-        graph's ``model_state`` is ``sample`` for the other laws.
+        whose kinematics and dynamics then run at its predicted state ``pa, pda``, and
+        takes the velocity at the sample from the observed positions (``velocity_diff``)
+        rather than ``J qdot``. The graph's ``model_state`` is ``sample`` for the other
+        laws.
     """
     if law not in (*LAWS, KINEMATICS):
         raise ValueError(f"law must be one of {', '.join(LAWS)}, got {law!r}")
@@ -223,7 +236,8 @@ def stage_graph(
         ahead = [_b("ahead", CENTRAL, "ahead", "p pd pdd", "pa pda",
                     "the state where the command acts: p + pdot L + pddot L^2/2, "
                     "pdot + pddot L")] if acting else []
-        blocks = ref + _observer_blocks(iterations, observer) + [
+        velocity = "difference" if acting else "jacobian"
+        blocks = ref + _observer_blocks(iterations, observer, velocity=velocity) + [
             _b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14"),
             *ahead,
             *(_state_blocks("pa", "pda") if acting else _state_blocks()),

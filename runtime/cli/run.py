@@ -106,8 +106,9 @@ def run_options(fn: Any) -> Any:
                      default="acting", show_default=True,
                      help="Resolved acceleration: evaluate the model (second round's "
                      "kinematics, dynamics) at the state predicted for the period in which "
-                     "the command acts (acting), or at the sample's estimate as the thesis "
-                     "(sample)."),
+                     "the command acts, from a velocity taken from the observed positions "
+                     "(acting), or at the sample's estimate with pdot = J qdot as the "
+                     "thesis (sample)."),
         click.option("--bandwidth", "bandwidth_hz", type=float, default=None,
                      help="Closed-loop bandwidth of the gains in Hz (default: 20, at most "
                      "1/(50 period))."),
