@@ -110,7 +110,10 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
                                         if r["period_s"] and r["exit_code"] != 7}),
             "traversal_p999_s": med("traversal_p999_s"),
             "cpu_per_interval_s": med("cpu_per_interval_s"),
-            "tracking_max_m": med("tracking_max_m")}
+            "tracking_max_m": med("tracking_max_m"),
+            "tracking_worst_m": max((r["tracking_max_m"] for r in rows
+                                     if isinstance(r["tracking_max_m"], (int, float))
+                                     and r["cycles"]), default=math.nan)}
 
 
 def realtime_stage(*, runs: int, long_s: float,
@@ -163,8 +166,8 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
         "Levers on: " + ", ".join(f"{k} {v}" for k, v in st["levers"].items()) + ".",
         "",
         "| | runs | completed | refused (exit 7) | periods | misses | misses / 1000 | "
-        "periods run (ms) | traversal p99.9 (us) | CPU / interval (us) | "
-        "tracking max (mm) |",
+        "periods run (ms) | traversal p99.9, median (us) | CPU / interval, median (us) | "
+        "tracking max, median / worst run (mm) |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, s in (("main job", st["main_job"]), ("baseline (n = 0)", st["baseline"])):
@@ -173,7 +176,7 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
             f"{s['deadline_misses']} | {_fmt(s['misses_per_1000'], 1, 2)} | "
             f"{', '.join(_fmt(p, 1e3, 2) for p in s['periods_chosen_s'])} | "
             f"{_fmt(s['traversal_p999_s'], 1e6)} | {_fmt(s['cpu_per_interval_s'], 1e6)} | "
-            f"{_fmt(s['tracking_max_m'], 1e3, 2)} |")
+            f"{_fmt(s['tracking_max_m'], 1e3, 2)} / {_fmt(s['tracking_worst_m'], 1e3, 2)} |")
     r = st["long"]
     if r:
         per = 1000 * r["deadline_misses"] / r["cycles"] if r["cycles"] else math.nan
@@ -181,7 +184,8 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
                   f"{_fmt(r['period_s'], 1e3, 2)} ms, {r['cycles']} periods, "
                   f"{r['deadline_misses']} misses ({_fmt(per, 1, 2)} per 1000), traversal "
                   f"p99.9 {_fmt(r['traversal_p999_s'], 1e6)} us, CPU / interval "
-                  f"{_fmt(r['cpu_per_interval_s'], 1e6)} us"
+                  f"{_fmt(r['cpu_per_interval_s'], 1e6)} us, tracking max "
+                  f"{_fmt(r['tracking_max_m'], 1e3, 2)} mm"
                   + (f"; fault: {r['fault']}" if r["fault"] else "") + "."]
     faults = [(i + 1, r["exit_code"], r["fault"]) for i, r in
               enumerate(st["rows"]["main_job"]) if not r["completed"]]

@@ -153,19 +153,21 @@ def test_balance_refuses_a_rerun_with_another_placement(tmp_path):
 
 def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     """Misses per 1000 are over the periods of every run (not a mean of ratios); a refusal
-    counts as a run that did not complete; medians skip runs that never moved."""
+    counts as a run that did not complete; medians skip runs that never moved; the worst
+    tracking is the worst run's."""
     from ctrlunit.bench.realtime import markdown_lines, run_row, summary
 
-    def res(code, cycles, misses, p999, cpu, period=1e-3, fault=None):
+    def res(code, cycles, misses, p999, cpu, period=1e-3, fault=None, track=4e-4):
         rep = {} if cycles == 0 else {
             "nominal_period_s": period, "cycles": cycles, "deadline_misses": misses,
             "traversal_s": {"p999": p999}, "cpu_per_interval_s": {"total": cpu},
-            "tracking_error_m": {"max": 4e-4}, "fault": fault and {"message": fault}}
+            "tracking_error_m": {"max": track}, "fault": fault and {"message": fault}}
         return {"exit_code": code, "report": rep, "wall_s": 5.0, "output_tail": ""}
 
     rows = [run_row(res(0, 400, 1, 1.5e-3, 1.2e-3)),
             run_row(res(0, 600, 0, 1.7e-3, 1.0e-3, period=1.25e-3)),
-            run_row(res(4, 200, 5, 9e-3, 2e-3, fault="no sample from the plant for 5 ms")),
+            run_row(res(4, 200, 5, 9e-3, 2e-3, fault="no sample from the plant for 5 ms",
+                        track=2e-3)),
             run_row(res(7, 0, 0, None, None))]
     s = summary(rows)
     assert s["runs"] == 4 and s["completed"] == 2 and s["completed_fraction"] == 0.5
@@ -174,11 +176,13 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     assert s["periods_chosen_s"] == [1e-3, 1.25e-3]
     assert s["traversal_p999_s"] == pytest.approx(1.7e-3)  # median of three runs
     assert s["cpu_per_interval_s"] == pytest.approx(1.2e-3)
+    assert s["tracking_max_m"] == pytest.approx(4e-4) and s["tracking_worst_m"] == 2e-3
     st = {"command": "ctrlunit start --peripherals 3 --pipeline 2", "baseline_command": "b",
           "levers": {"period": "auto"}, "main_job": s, "baseline": summary(rows[:2]),
           "long": None, "long_s": 0, "rows": {"main_job": rows, "baseline": rows[:2]}}
     md = "\n".join(markdown_lines(st))
-    assert "| main job | 4 | 2 | 1 | 1200 | 6 | 5.00 | 1.00, 1.25 | 1700 | 1200 | 0.40 |" in md
+    assert ("| main job | 4 | 2 | 1 | 1200 | 6 | 5.00 | 1.00, 1.25 | 1700 | 1200 | 0.40 / 2.00 |"
+            in md)
     assert "run 3 exit 4: no sample from the plant for 5 ms" in md and "run 4 exit 7" in md
 
 
