@@ -145,7 +145,7 @@ def k_reference(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
 
 
 def k_predict(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
-    p, pd, pdd = c[n["est"]][:3]
+    p, pd, pdd, _ = c[n["est"]]
     if cfg.observer == "predict":
         T = cfg.period
         h = 0.5 * T * T
@@ -192,8 +192,7 @@ def k_velocity_diff(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     rate of half a period ago with this sample's Jacobian, off by ``dt/2 Jdot qdot``
     (docs/architecture.md, where the model is evaluated). With no earlier estimate (the
     first interval) the handed-off velocity is kept."""
-    est = c[n["est"]]
-    p_prev, pd_prev, a, t_prev = est[0], est[1], est[2], est[3] if len(est) > 3 else None
+    p_prev, pd_prev, a, t_prev = c[n["est"]]
     dt = c[n["t"]] - t_prev if t_prev is not None else 0.0
     if dt <= 0.0:
         c[n["pd"]] = tuple(pd_prev)

@@ -250,10 +250,11 @@ def test_shape_of_each_exchanged_value_is_the_shape_the_unit_computes(law, obser
     engine = build_engine(P, task, law=law, model="complete", gains=Gains.from_bandwidth(20.0),
                           period=1e-3, observer=observer, peripherals=3)
     from ctrlunit.kernels.kinematics import inverse_kinematics
+    from ctrlunit.runtime.controller import Estimate
 
     q = [float(x) for x in inverse_kinematics(P, task.start())]
-    ctx = engine.run_local(engine.new_ctx(0.01, (tuple(task.start()), (0.0,) * 3,
-                                                 (0.0,) * 3), q, [0.0] * 3))
+    ctx = engine.run_local(engine.new_ctx(0.01, Estimate(tuple(task.start()), (0.0,) * 3,
+                                                         (0.0,) * 3), q, [0.0] * 3))
     names = {n for r in engine.plan.rounds for n in (*r.send, *r.recv)}
     assert names
     for name in names:

@@ -21,6 +21,7 @@ from ctrlunit.runtime.config import (
     EXIT_PLANT,
     RunConfig,
 )
+from ctrlunit.runtime.controller import Estimate
 from loopback import LoopbackUnit
 from runner import unit_id
 
@@ -444,14 +445,14 @@ def test_hold_torques_hold_the_last_estimate_against_gravity_or_are_zero():
     u = realtime_unit("holdtau")
     c = u.central
     p = tuple(u.setup.task.start())
-    c.ctl.est = (p, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    c.ctl.est = Estimate(p, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     want = [float(x) for x in gravity_torques(u.setup.params, p)]
     got = c.hold_torques()
     assert got == want and all(type(x) is float for x in got)
     assert max(abs(x) for x in got) > 0.1
-    c.ctl.est = ((0.0, 0.0, -2.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    c.ctl.est = Estimate((0.0, 0.0, -2.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     assert c.hold_torques() == [0.0, 0.0, 0.0]
-    c.ctl.est = ((math.nan, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    c.ctl.est = Estimate((math.nan, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     assert c.hold_torques() == [0.0, 0.0, 0.0]
 
 

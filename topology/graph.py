@@ -108,7 +108,7 @@ T800 = {
     "residual": 4.0,
     "observer": 24.0 + 36.0,  # LU of J^-1 + solve and update
     "velocity": 20.0,  # pdot = J qdot (solve with the LU)
-    "velocity_diff": 12.0,  # 15 FLOP, as accel
+    "velocity_diff": 12.0,  # 14 FLOP, as accel
     "jdot": 268.0 / 3.0,
     "accel": 12.0,  # 18 FLOP (§ V.3.4)
     "ahead": 12.0,  # 18 FLOP, as accel
