@@ -45,6 +45,8 @@ class BlockConfig:
     period in which the command will act, ``(delay + 1/2) T`` after the sample, where
     ``delay`` is the number of periods from the sample to that period's start; the block
     ``ahead`` predicts the state at that instant."""
+    delay: int = 0
+    """Periods from a sample to the start of the period in which its command acts."""
 
     @classmethod
     def build(
@@ -59,7 +61,7 @@ class BlockConfig:
         delay: int = 0,
     ) -> BlockConfig:
         return cls(params, coefficients(params, model), gains, nominal_joint_inertia(params),
-                   task, period, observer, (delay + 0.5) * period)
+                   task, period, observer, (delay + 0.5) * period, delay)
 
 
 class ObserverDiverged(RuntimeError):
@@ -144,8 +146,20 @@ def k_reference(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     c[n["ac"]] = (float(a[0]), float(a[1]), float(a[2]))
 
 
+def k_reference_acting(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    """:func:`k_reference`, and the reference position and velocity at the start of the
+    period in which the command acts, ``delay`` periods after the sample (``pcd, vcd``),
+    which the law servoes the predicted state to (:func:`k_inflight`)."""
+    k_reference(c, cfg, n)
+    assert cfg.task is not None
+    p, v, _ = cfg.task.sample(c[n["t"]] + cfg.delay * cfg.period)
+    c[n["pcd"]] = (float(p[0]), float(p[1]), float(p[2]))
+    c[n["vcd"]] = (float(v[0]), float(v[1]), float(v[2]))
+
+
 def k_predict(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
-    p, pd, pdd, _ = c[n["est"]]
+    est = c[n["est"]]
+    p, pd, pdd = est[0], est[1], est[2]
     if cfg.observer == "predict":
         T = cfg.period
         h = 0.5 * T * T
@@ -184,23 +198,73 @@ def k_velocity(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     c[n["pd"]] = (v[0] + h * a[0], v[1] + h * a[1], v[2] + h * a[2])
 
 
+def acting_acceleration(est: tuple, start: float, cfg: BlockConfig
+                        ) -> tuple[float, float, float]:
+    """The commanded acceleration acting in the period that begins at ``start`` (s): that
+    of the newest interval in the estimate's history whose command is due by then (sample
+    time plus ``delay`` periods), as the plant applies the newest command it has; zero
+    before the first one (the plant holds the starting command, which keeps the robot
+    still)."""
+    due = start - cfg.delay * cfg.period + 0.5 * cfg.period  # half a period of rounding
+    a = (0.0, 0.0, 0.0)
+    for t_s, pdd in est[4]:
+        if t_s <= due:
+            a = pdd
+    return a
+
+
 def k_velocity_diff(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
-    """``pdot`` at the sample's instant from the observed positions: the difference of
-    this estimate and the previous one, ``(p - p_prev) / dt``, is the velocity half-way
-    between them; ``dt/2`` of the previous interval's commanded acceleration brings it to
-    the sample. ``J qdot`` of the backward-difference rates (:func:`k_velocity`) maps the
-    rate of half a period ago with this sample's Jacobian, off by ``dt/2 Jdot qdot``
-    (docs/architecture.md, where the model is evaluated). With no earlier estimate (the
-    first interval) the handed-off velocity is kept."""
-    p_prev, pd_prev, a, t_prev = c[n["est"]]
-    dt = c[n["t"]] - t_prev if t_prev is not None else 0.0
+    """``pdot`` at the sample's instant from the observed positions. On the span ``dt``
+    since the previous estimate, ``p - p_prev = pdot dt - integral (s - t_prev) pddot(s)
+    ds``; with the accelerations of the commands that acted period by period
+    (:func:`acting_acceleration`) this gives ``pdot = (p - p_prev)/dt + sum_m pddot_m T
+    (s_m - t_prev)/dt``, ``s_m`` the middle of period ``m`` (``(p - p_prev)/dt +
+    pddot dt/2`` at constant acceleration). ``J qdot`` of the backward-difference rates
+    (:func:`k_velocity`) maps the rate of half a period ago with this sample's Jacobian,
+    off by ``dt/2 Jdot qdot`` (docs/architecture.md, where the model is evaluated). With
+    no earlier estimate (the first interval) the handed-off velocity is kept."""
+    est = c[n["est"]]
+    p_prev, pd_prev, t_prev = est[0], est[1], est[3]
+    t = c[n["t"]]
+    dt = t - t_prev if t_prev is not None else 0.0
     if dt <= 0.0:
         c[n["pd"]] = tuple(pd_prev)
         return
+    T = cfg.period
+    m = max(1, round(dt / T))
+    w = T / dt
+    cx = cy = cz = 0.0
+    for k in range(m):
+        a = acting_acceleration(est, t_prev + k * T, cfg)
+        s = (k + 0.5) * T * w
+        cx += a[0] * s
+        cy += a[1] * s
+        cz += a[2] * s
     p = c[n["p"]]
-    h = 0.5 * dt
-    c[n["pd"]] = ((p[0] - p_prev[0]) / dt + h * a[0], (p[1] - p_prev[1]) / dt + h * a[1],
-                  (p[2] - p_prev[2]) / dt + h * a[2])
+    c[n["pd"]] = ((p[0] - p_prev[0]) / dt + cx, (p[1] - p_prev[1]) / dt + cy,
+                  (p[2] - p_prev[2]) / dt + cz)
+
+
+def k_inflight(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    """The state at the start of the period in which this interval's command acts,
+    ``delay`` periods after the sample: the observed ``p, pdot`` carried forward period by
+    period at the accelerations of the commands already sent (:func:`acting_acceleration`),
+    ``p += pdot T + pddot T^2/2``, ``pdot += pddot T`` (a Smith predictor: the law then
+    servoes the state its command will meet, docs/architecture.md)."""
+    est = c[n["est"]]
+    t, T = c[n["t"]], cfg.period
+    (px, py, pz), (vx, vy, vz) = c[n["p"]], c[n["pd"]]
+    h = 0.5 * T * T
+    for k in range(cfg.delay):
+        a = acting_acceleration(est, t + k * T, cfg)
+        px += vx * T + a[0] * h
+        py += vy * T + a[1] * h
+        pz += vz * T + a[2] * h
+        vx += a[0] * T
+        vy += a[1] * T
+        vz += a[2] * T
+    c[n["p0"]] = (px, py, pz)
+    c[n["v0"]] = (vx, vy, vz)
 
 
 def k_law(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
@@ -209,11 +273,12 @@ def k_law(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
 
 
 def k_ahead(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
-    """The state where the command acts, ``L = lead`` after the sample: the observed
-    ``p, pdot`` carried forward at the commanded ``pddot``, ``pa = p + pdot L + pddot
-    L^2/2``, ``pda = pdot + pddot L`` (docs/architecture.md, where the model is evaluated)."""
+    """The state in the middle of the period in which the command acts: the state at its
+    start (:func:`k_inflight`) carried forward half a period at the commanded ``pddot``,
+    ``pa = p0 + pdot0 L + pddot L^2/2``, ``pda = pdot0 + pddot L``, ``L = T/2``
+    (docs/architecture.md, where the model is evaluated)."""
     p, pd, a = c[n["p"]], c[n["pd"]], c[n["pdd"]]
-    L = cfg.lead
+    L = 0.5 * cfg.period
     h = 0.5 * L * L
     c[n["pa"]] = (p[0] + pd[0] * L + a[0] * h, p[1] + pd[1] * L + a[1] * h,
                   p[2] + pd[2] * L + a[2] * h)
@@ -266,8 +331,9 @@ AXIS_KERNELS: dict[str, Callable[[Ctx, int, BlockConfig, dict[str, str]], None]]
     "joint_pd": k_joint_pd, "joint_pd_static": k_joint_pd_static,
 }
 CENTRAL_KERNELS: dict[str, Callable[[Ctx, BlockConfig, dict[str, str]], None]] = {
-    "reference": k_reference, "predict": k_predict, "observer": k_observer,
-    "velocity": k_velocity, "velocity_diff": k_velocity_diff, "law": k_law, "ahead": k_ahead,
+    "reference": k_reference, "reference_acting": k_reference_acting, "predict": k_predict,
+    "observer": k_observer, "velocity": k_velocity, "velocity_diff": k_velocity_diff,
+    "inflight": k_inflight, "law": k_law, "ahead": k_ahead,
     "task_accel": k_task_accel,
     "dyn_central": k_dyn_central, "gravity_central": k_gravity_central,
     "collect": k_collect, "output": k_output,

@@ -46,13 +46,18 @@ class Estimate(NamedTuple):
 
     ``p, pd, pdd`` : position, velocity and commanded acceleration, 3-tuples of floats;
     ``t`` : the time of the sample they were estimated from (s), ``None`` for the
-    starting estimate (no sample yet).
+    starting estimate (no sample yet);
+    ``acc`` : the commanded accelerations of the latest intervals, ``(t, pdd)`` pairs oldest
+    first, at most ``delay + 1`` of them: the commands acting from the period that ends at
+    the next sample to the last one before the next interval's command acts
+    (runtime/blocks.py, :func:`acting_acceleration`).
     """
 
     p: tuple[float, float, float]
     pd: tuple[float, float, float]
     pdd: tuple[float, float, float]
     t: float | None = None
+    acc: tuple[tuple[float, tuple[float, float, float]], ...] = ()
 
 
 @dataclass
@@ -63,7 +68,7 @@ class Controller:
     period: float
     increment: float
     p0: tuple[float, float, float]
-    est: tuple = field(init=False)
+    est: Estimate = field(init=False)
     first_cycle: int = 0
     """The cycle at t = 0 (the admission's trial intervals count from a base of their own)."""
     q_prev: list[float] | None = field(default=None, init=False)
@@ -105,11 +110,14 @@ class Controller:
 
     def handoff(self, ctx: dict) -> None:
         """Take the observer's estimate from an interval at its hand-off point."""
+        pdd = tuple(ctx.get("pdd", (0.0, 0.0, 0.0)))
+        keep = self.engine.cfg.delay + 1
         self.est = Estimate(
             tuple(ctx.get("p", self.est[0])),
             tuple(ctx.get("pd", (0.0, 0.0, 0.0))),
-            tuple(ctx.get("pdd", (0.0, 0.0, 0.0))),
+            pdd,
             ctx["t"],
+            (*self.est.acc, (ctx["t"], pdd))[-keep:],
         )
 
 

@@ -67,17 +67,27 @@ def test_the_model_state_moves_the_second_round_to_the_predicted_state():
     acting, sample = stage_graph(), stage_graph(model_state="sample")
     assert (acting.model_state, sample.model_state) == ("acting", "sample")
     names = [b.name for b in acting.blocks]
-    assert names.index("law") < names.index("ahead") < names.index("ik")
-    assert acting.block("ahead").inputs == ("p", "pd", "pdd")
+    assert names.index("velocity") < names.index("inflight") < names.index("law") < names.index(
+        "ahead") < names.index("ik")
+    # the law servoes the state predicted at the acting period's start to the reference
+    # there, and the model is evaluated half a period further on
+    assert acting.block("inflight").inputs == ("t", "p", "pd", "est")
+    assert acting.block("inflight").outputs == ("p0", "v0")
+    assert acting.block("reference").kernel == "reference_acting"
+    assert acting.block("reference").outputs == ("pc", "vc", "ac", "pcd", "vcd")
+    assert acting.block("law").inputs == ("pcd", "vcd", "ac", "p0", "v0")
+    assert acting.block("ahead").inputs == ("p0", "v0", "pdd")
     assert acting.block("ik").inputs == ("pa",) and "pda" in acting.block("jdot").inputs
     assert "ahead" not in [b.name for b in sample.blocks]
+    assert "inflight" not in [b.name for b in sample.blocks]
+    assert sample.block("law").inputs == ("pc", "vc", "ac", "p", "pd")
     assert sample.block("ik").inputs == ("p",) and "pd" in sample.block("jdot").inputs
     # the velocity at the sample from the observed positions, not J qdot
     assert acting.block("velocity").kernel == "velocity_diff"
     assert acting.block("velocity").inputs == ("t", "p", "est")
     assert sample.block("velocity").kernel == "velocity"
-    # every other block (the observer, the law, the estimate handed off) is the same
-    moved = ("ahead", "ik", "jdot", "velocity")
+    # every other block (the observer, the estimate handed off, the dynamics) is the same
+    moved = ("reference", "inflight", "law", "ahead", "ik", "jdot", "velocity")
     assert [b for b in acting.blocks if b.name not in moved] == [
         b for b in sample.blocks if b.name not in moved]
 

@@ -112,6 +112,8 @@ T800 = {
     "jdot": 268.0 / 3.0,
     "accel": 12.0,  # 18 FLOP (§ V.3.4)
     "ahead": 12.0,  # 18 FLOP, as accel
+    "inflight": 24.0,  # 18 FLOP per period of delay, two periods (depth 2)
+    "reference_acting": 90.0,  # the profile generator once more, at the acting period
     "law": 30.0,
     "dyn_axis": 30.0,
     "dyn_central": 284.0 - 30.0 - 3 * 30.0,  # rest of the 127 FLOP law after the axis part
@@ -162,7 +164,7 @@ def _observer_blocks(iterations: int, observer: str, *, velocity: str = "jacobia
         ]
     if velocity == "difference":
         out.append(_b("velocity", CENTRAL, "velocity_diff", "t p est", "pd",
-                      "pdot = (p - p_prev) / dt + pddot dt/2"))
+                      "pdot = (p - p_prev) / dt + the acting pddot, weighted by time"))
     else:
         out.append(_b("velocity", CENTRAL, "velocity", "J qdmeas_i est", "pd",
                       "pdot = J qdot"))
@@ -228,18 +230,27 @@ def stage_graph(
         iterations = 1 if observer == "predict" else 2
     if not 1 <= iterations <= 5:
         raise ValueError(f"observer iterations must be in [1, 5], got {iterations}")
-    ref = [_b("reference", CENTRAL, "reference", "t", "pc vc ac", "II.33")]
+    acting = law == "resolved-acceleration" and model_state == "acting"
+    ref = [_b("reference", CENTRAL, "reference_acting", "t", "pc vc ac pcd vcd",
+              "II.33, also at the acting period's start")] if acting else [
+        _b("reference", CENTRAL, "reference", "t", "pc vc ac", "II.33")]
     out = [_b("output", CENTRAL, "output", "tau", "cmd", "saturation, command out")]
     blocks: list[Block]
-    acting = law == "resolved-acceleration" and model_state == "acting"
     if law == "resolved-acceleration":
-        ahead = [_b("ahead", CENTRAL, "ahead", "p pd pdd", "pa pda",
-                    "the state where the command acts: p + pdot L + pddot L^2/2, "
-                    "pdot + pddot L")] if acting else []
         velocity = "difference" if acting else "jacobian"
+        law_blocks = [
+            _b("inflight", CENTRAL, "inflight", "t p pd est", "p0 v0",
+               "the state where the command starts to act: p, pdot carried forward at "
+               "the commands in flight"),
+            _b("law", CENTRAL, "law", "pcd vcd ac p0 v0", "pdd",
+               "IV.14 at the acting period's start",
+               (("pc", "pcd"), ("vc", "vcd"), ("p", "p0"), ("pd", "v0"))),
+            _b("ahead", CENTRAL, "ahead", "p0 v0 pdd", "pa pda",
+               "the middle of the acting period: p0 + pdot0 T/2 + pddot T^2/8, "
+               "pdot0 + pddot T/2", (("p", "p0"), ("pd", "v0"))),
+        ] if acting else [_b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14")]
         blocks = ref + _observer_blocks(iterations, observer, velocity=velocity) + [
-            _b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14"),
-            *ahead,
+            *law_blocks,
             *(_state_blocks("pa", "pda") if acting else _state_blocks()),
             _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
             _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qdd_i pdd", "tauq_i f_i",
