@@ -261,10 +261,16 @@ class RunConfig:
     @property
     def bandwidth(self) -> float:
         """Closed-loop bandwidth of the gains (Hz): ``--bandwidth``, else 20 Hz but at most
-        ``1 / (50 T)`` so that slower periods keep their phase margin."""
+        ``1 / (50 T)`` so that slower periods keep their phase margin against the delay
+        from a sample to its command's action; at most ``1 / (12.5 T)`` where the law
+        servoes the state predicted for the period in which its command acts (resolved
+        acceleration at the ``acting`` model state), whose loop the delay no longer
+        slows (docs/architecture.md, the commands in flight)."""
         if self.control.bandwidth_hz is not None:
             return self.control.bandwidth_hz
-        return min(20.0, 1.0 / (50.0 * self.schedule.period))
+        predicted = (self.control.law == "resolved-acceleration"
+                     and self.control.model_state == "acting")
+        return min(20.0, 1.0 / ((12.5 if predicted else 50.0) * self.schedule.period))
 
     @property
     def delay_periods(self) -> int:

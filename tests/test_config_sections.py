@@ -61,6 +61,24 @@ def test_a_configuration_recorded_before_the_model_state_evaluates_it_at_the_sam
         RunConfig.of(model_state="later").validate()
 
 
+@pytest.mark.parametrize(("period", "law", "state", "hz"), [
+    (1e-3, "resolved-acceleration", "acting", 20.0),
+    (4e-3, "resolved-acceleration", "acting", 20.0),
+    (8e-3, "resolved-acceleration", "acting", 10.0),
+    (1e-3, "resolved-acceleration", "sample", 20.0),
+    (4e-3, "resolved-acceleration", "sample", 5.0),
+    (4e-3, "computed-torque", "acting", 5.0),
+])
+def test_the_default_bandwidth_is_capped_by_the_delay_the_law_does_not_predict(
+        period: float, law: str, state: str, hz: float) -> None:
+    """20 Hz, at most 1 / (12.5 T) where the law servoes the state predicted for the
+    period its command acts in, 1 / (50 T) where it servoes the sample's; ``--bandwidth``
+    is taken as given."""
+    rc = RunConfig.of(period=period, law=law, model_state=state)
+    assert rc.bandwidth == pytest.approx(hz)
+    assert rc.replace(bandwidth_hz=33.0).bandwidth == 33.0
+
+
 @pytest.mark.parametrize("name", ["nope", "plant.lag", "substeps"])
 def test_an_unknown_option_is_named(name: str) -> None:
     with pytest.raises(ConfigError, match=f"unknown run option '{name}'"):

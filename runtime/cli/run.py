@@ -104,14 +104,16 @@ def run_options(fn: Any) -> Any:
                      help="Newton-Raphson start: prediction (1 iteration) or previous (2)."),
         click.option("--model-state", type=click.Choice(["acting", "sample"]),
                      default="acting", show_default=True,
-                     help="Resolved acceleration: evaluate the model (second round's "
-                     "kinematics, dynamics) at the state predicted for the period in which "
-                     "the command acts, from a velocity taken from the observed positions "
-                     "(acting), or at the sample's estimate with pdot = J qdot as the "
+                     help="Resolved acceleration: servo the state predicted for the period "
+                     "in which the command acts (carried forward at the commands in flight) "
+                     "and evaluate the model (second round's kinematics, dynamics) there, "
+                     "from a velocity taken from the observed positions (acting), or servo "
+                     "and evaluate at the sample's estimate with pdot = J qdot as the "
                      "thesis (sample)."),
         click.option("--bandwidth", "bandwidth_hz", type=float, default=None,
                      help="Closed-loop bandwidth of the gains in Hz (default: 20, at most "
-                     "1/(50 period))."),
+                     "1/(12.5 period) with resolved acceleration at the acting state, "
+                     "1/(50 period) otherwise)."),
         click.option("--listen", multiple=True, help="Zenoh endpoint to listen on."),
         click.option("--connect", multiple=True, help="Zenoh endpoint to connect to."),
         click.option("--zenoh-config", type=click.Path(dir_okay=False), default=None),
