@@ -326,7 +326,7 @@ def test_the_velocity_from_the_observed_positions_removes_the_half_period_lag(mo
     sample graph) is the rate of half a period earlier mapped with this sample's Jacobian:
     off by ``T/2 Jdot qdot``, a velocity-squared error the feedback then rejects. Side by
     side on the same graph, the kernel swapped: pick & place, depth 2 (2 periods of
-    delay), bandwidth at most 1 / (50 T) (measured 2026-11-24 with the commands in flight
+    delay), bandwidth at most 1 / (50 T) (measured 2026-11-23 with the commands in flight
     carried forward: at 1 ms 0.019 mm against 0.333 mm; at 2 ms 0.162 mm against 1.146
     mm)."""
     import ctrlunit.runtime.blocks as blocks
@@ -351,7 +351,7 @@ def test_the_commands_in_flight_keep_the_loop_at_20_hz_where_the_command_acts_la
     its loop then keeps a 20 Hz bandwidth at 2 and 4 ms (the default up to 1 / (12.5 T))
     and tracks pick & place within 0.5 mm. Side by side, the same graph told that the
     last command computed is the one acting (the acceleration a period or two off) loses
-    the robot or misses by ten times as much (measured 2026-11-24: 0.089 and 0.451 mm
+    the robot or misses by ten times as much (measured 2026-11-23: 0.089 and 0.451 mm
     against the observer diverging at both)."""
     import ctrlunit.runtime.blocks as blocks
 
