@@ -43,8 +43,9 @@ class BlockConfig:
     lead: float = 0.0
     """Feed-forward lead (s): the reference acceleration is taken at the middle of the
     period in which the command will act, ``(delay + 1/2) T`` after the sample, where
-    ``delay`` is the number of periods from the sample to that period's start; the block
-    ``ahead`` predicts the state at that instant."""
+    ``delay`` is the number of periods from the sample to that period's start; the blocks
+    ``inflight`` (to the period's start) and ``ahead`` (half a period on) predict the state
+    at that instant."""
     delay: int = 0
     """Periods from a sample to the start of the period in which its command acts."""
 
