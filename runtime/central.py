@@ -84,20 +84,13 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.node = node
         self.trial = trial
         self.rc = rc
-        self.engine = engine
-        self.ctl = controller
         self.cycles = cycles
         self.on_cycle = on_cycle
         self.on_message = on_message
-        self.plan = engine.plan
-        self.n = self.plan.placement.peripherals
+        self.n = engine.plan.placement.peripherals
         self.depth = rc.schedule.pipeline
-        self.hand = handoff_step(self.plan)
         self.hold = hold_rule(rc.schedule.hold_rounds, clock=rc.schedule.clock)
-        self.round_step = {}
-        for k, s in enumerate(self.plan.steps):
-            if s.round is not None:
-                self.round_step[s.round.index] = k
+        self.use(engine, controller)
         keys = node.keys
         self.pub_req = node.publisher(keys.request) if self.n else None
         self.pub_cmd = node.publisher(keys.command)
@@ -136,7 +129,6 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.late_per_axis = [0, 0, 0]
         self.held: set[tuple[int, int, int]] = set()
         self.last_reply_ns = [0] * self.n
-        self.late_policy = self._late_policies()
         self.cycle_spans: dict[int, list[tuple[str, int, int]]] = {}
         self.child_check: Callable[[], tuple[str, int] | None] | None = None
         self._next_child_check = 0.0
@@ -149,11 +141,23 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.admit_ns = 0  # starting intervals (sample, context), not their steps
         self.finish_ns = 0  # finishing them (checks, command, logs, progress)
         self.period_ns = int(rc.schedule.period * 1e9)
-        self.last_round = self.plan.rounds[-1].index if self.plan.rounds else -1
         self.reply_each = False
         self.replies_info: dict[str, Any] = {"mode": "fused"}
-        self.warm_rtt_s: list[float] = []
         self.block_costs: dict[str, float] | None = None  # measured once (warm-up)
+
+    def use(self, engine: Engine, controller: Controller) -> None:
+        """Run ``engine``'s plan with ``controller`` (at construction, and when the
+        placement changes before the run: :meth:`place`); the warm-up's round trips,
+        which were of the old plan, are dropped."""
+        self.engine = engine
+        self.ctl = controller
+        self.plan = engine.plan
+        self.hand = handoff_step(self.plan)
+        self.round_step = {s.round.index: k for k, s in enumerate(self.plan.steps)
+                           if s.round is not None}
+        self.last_round = self.plan.rounds[-1].index if self.plan.rounds else -1
+        self.late_policy = self._late_policies()
+        self.warm_rtt_s: list[float] = []
 
     # -- the loop ---------------------------------------------------------------------
 

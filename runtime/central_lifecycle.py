@@ -15,7 +15,9 @@ from .codec import (
     encode,
     short_text,
 )
-from .config import EXIT_LINK
+from .config import EXIT_LINK, RunConfig
+from .controller import Controller
+from .engine import Engine
 
 
 class CentralLifecycle:
@@ -51,11 +53,56 @@ class CentralLifecycle:
                 pass  # the plant's first sample may only follow go
         self.say("go")
 
-    def say(self, stage: str, **extra: Any) -> None:
-        """Publish a control order (go, start, stop) to every other role."""
+    def say(self, stage: str, *, peripherals_only: bool = False, **extra: Any) -> None:
+        """Publish a control order (go, place, start, stop) to every other role (or only
+        to the peripherals)."""
         payload = encode(self.node.unit, 0, stage, **extra)
-        for pub in self.pub_ctl:
+        for pub in self.pub_ctl[:1] if peripherals_only else self.pub_ctl:
             pub.put(payload)
+
+    def place(self, rc: RunConfig, engine: Engine, controller: Controller) -> None:
+        """Switch the unit to ``engine``'s placement before the run (``--placement auto``'s
+        choice at warm-up), without starting it again: every peripheral is told the
+        blocks the central now runs, rebuilds its plan and says ``placed``; this returns
+        once each has, and then runs the new plan itself. Warm up again before measuring
+        (the round trips kept were of the old plan).
+
+        Raises
+        ------
+        Fault
+            If a peripheral does not confirm within the start-up timeout.
+        """
+        blocks = sorted(engine.plan.placement.central_blocks)
+        waiting = {f"peripheral-{k + 1}" for k in range(self.n)}
+        deadline = time.monotonic() + self.rc.transport.startup_timeout
+        next_say = 0.0
+        while waiting:
+            now = time.monotonic()
+            if now > deadline:
+                missing = ", ".join(sorted(waiting))
+                raise Fault(f"{missing} did not take the placement chosen at warm-up within "
+                            f"{self.rc.transport.startup_timeout} s", process=missing,
+                            code=EXIT_LINK)
+            if now >= next_say:  # again until each has it (an order may race a route)
+                self.say("place", peripherals_only=True, central_blocks=blocks)
+                next_say = now + 0.1
+            self._check_children()
+            try:
+                ev = self.node.events.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            if ev.kind == "hello":
+                msg = self.node.decode(ev.data)
+                if (msg is not None and msg.get("stage") == "placed"
+                        and msg.get("central_blocks") == blocks):
+                    waiting.discard(msg.get("role"))
+                elif msg is not None:
+                    self._handle(ev)
+            elif ev.kind == "sample":
+                self._on_sample(ev.data, ev.rx_ns)
+            # a reply now is the warm-up's, of the old plan: dropped
+        self.rc = rc
+        self.use(engine, controller)
 
     def zenoh_identity(self) -> dict[str, Any]:
         """This central's Zenoh id and the ids of the peers it is connected to."""

@@ -32,7 +32,6 @@ from .config import (
     RunConfig,
     parse_host_port,
 )
-from .controller import Controller
 from .node import Node, freeze_heap, rss_kb
 from .report import cpu_budget, finish_report, text_or_none
 from .setup import Setup, make_setup
@@ -52,24 +51,14 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     policy is what it was before when it returns (see :mod:`.sched`)."""
     saved = sched.current()
     tried: list[dict] = []
-    chosen: dict | None = None
     view: list[Any] = []  # the live view, kept across starts (its viewers stay connected)
     affinity = os.sched_getaffinity(0)  # a start pins this process (--cpus, --pin)
     try:
-        # --placement auto: one more start with the placement chosen at warm-up;
         # --period auto: each start climbs the ladder
-        for attempt in range(len(LADDER_S) + 1):
+        for attempt in range(len(LADDER_S)):
             os.sched_setaffinity(0, affinity)  # each start chooses the roles' CPUs afresh
             code, report = _start(rc, echo=echo, progress=progress, spawn=spawn,
                                   inspect=inspect, view=view)
-            choice = report.get("placement_choice")
-            if choice and choice.get("restart") and code != EXIT_INTERRUPTED:
-                chosen = choice
-                echo(f"ctrlunit: --placement auto: {choice['why']}; starting again")
-                rc = rc.replace(central_blocks=choice["central_blocks"])
-                continue
-            if chosen is not None:
-                report["placement_choice"] = chosen
             adm = report.get("admission") or {}
             tried += [r | {"start": attempt} for r in adm.get("rungs") or []]
             held = adm.get("sustainable_period_s")
@@ -126,7 +115,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     node = Node(make_config(listen=[endpoint], connect=rc.transport.connect,
                             config_file=rc.transport.zenoh_config), rc.transport.unit, "central")
     engine = setup.engine()
-    ctl = Controller(engine, rc.schedule.period, setup.params.increment, tuple(setup.task.start()))
+    ctl = setup.controller(engine)
     recorder = None
     if rc.run.record:
         from .recorder import Recorder
@@ -166,15 +155,21 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         if (rc.schedule.placement_auto and rc.schedule.central_blocks is None
                 and setup.placement.peripherals):
             placement_choice = central.choose_placement()
-            if not spawn:  # the roles were started by hand with their own placement
-                placement_choice["applied"] = False
-            elif placement_choice["central_blocks"] != sorted(setup.placement.central_blocks):
-                placement_choice["restart"] = True
-                raise _StartAgain
+            if placement_choice["central_blocks"] != sorted(setup.placement.central_blocks):
+                # the roles take the new plan where they are: no start again
+                setup = setup.with_central_blocks(placement_choice["central_blocks"])
+                rc = rc.replace(central_blocks=setup.rc.schedule.central_blocks)
+                engine = setup.engine()
+                central.place(rc, engine, setup.controller(engine))
+                echo(f"ctrlunit: --placement auto: {placement_choice['why']}")
+                central.warm_up()  # the new plan's path, and its round trip
+                central.choose_replies()
         if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
             admission = admit(central)
         if not rc.schedule.trial_only:
             freeze_heap(collect=True)  # this process may host many runs (bench, tests)
+            if recorder is not None:
+                recorder.begin(setup)
             central.say("start")
             central.run()
     except Fault as exc:
@@ -183,8 +178,6 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     except Unsustainable as exc:
         code, admission = exc.code, exc.info
         fault = {"process": "admission", "message": str(exc), "code": exc.code}
-    except _StartAgain:
-        pass
     except KeyboardInterrupt:
         code = EXIT_INTERRUPTED
         fault = {"process": "user", "message": "interrupted", "code": code}
@@ -254,10 +247,6 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         report["live_view"] = {"url": viewer.url, "sent": viewer.sent,
                                "dropped": viewer.dropped}
     return code, report
-
-
-class _StartAgain(Exception):
-    """``--placement auto`` chose another placement at warm-up: stop and start again."""
 
 
 def _live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:

@@ -301,22 +301,28 @@ def freeze_heap(*, collect: bool = False) -> None:
     gc.freeze()
 
 
-def is_stop(node: Node, ev: Event) -> bool:
-    """True if ``ev`` is a stop order from the central (and note that it spoke, and when
-    it said ``start``: see :func:`cpu_used`)."""
+def control_order(node: Node, ev: Event) -> dict[str, Any] | None:
+    """The central's order in a control event (None if ``ev`` is none or does not
+    decode), noting that the central spoke, when it said ``start`` (see :func:`cpu_used`)
+    and the ``stop`` order (:attr:`Node.stop_msg`)."""
     if ev.kind != "control":
-        return False
+        return None
     msg = node.decode(ev.data)
     if msg is None:
-        return False
+        return None
     node.last_heard_ns = time.monotonic_ns()
     if msg["stage"] == "start" and node.cpu_start_s is None:
         node.cpu_start_s = time.process_time()
         freeze_heap()
     if msg["stage"] == "stop":
         node.stop_msg = msg
-        return True
-    return False
+    return msg
+
+
+def is_stop(node: Node, ev: Event) -> bool:
+    """True if ``ev`` is a stop order from the central (:func:`control_order` noted it)."""
+    order = control_order(node, ev)
+    return order is not None and order["stage"] == "stop"
 
 
 def cpu_used(node: Node) -> float | None:

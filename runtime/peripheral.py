@@ -19,14 +19,15 @@ import queue
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable
 from typing import Any
 
 from ..topology.pipeline import reply_order
 from . import sched
 from .codec import BadMessage, check_vals, decode, encode, parts_of
-from .config import EXIT_LINK, EXIT_OK
+from .config import EXIT_LINK, EXIT_OK, ConfigError
 from .engine import Engine
-from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb, say_bye
+from .node import WARM_RSS_AT, Node, control_order, cpu_used, rss_kb, say_bye
 from .setup import Setup
 
 MAX_KEPT_CYCLES = 8
@@ -44,22 +45,51 @@ class Peripheral:
     trace : also return every intermediate value (recording, ``replay --verify``).
     rejected : the counter that rejections are added to (the node's, so that the role's
         report has them all); a fresh one by default.
+    place : ``place(central_blocks) -> Engine``, the engine of the same run with those
+        blocks on the central (raises :class:`~.config.ConfigError` on anything but a list
+        of the law's per-axis block names); None: ``place`` orders are refused.
     """
 
     def __init__(self, engine: Engine, index: int, unit: str, *, trace: bool = False,
-                 rejected: Counter[str] | None = None) -> None:
-        self.engine = engine
+                 rejected: Counter[str] | None = None,
+                 place: Callable[[Any], Engine] | None = None) -> None:
         self.unit = unit
-        self.axes = engine.plan.placement.axes[index]
+        self.place = place
+        self.index = index
         self.trace = trace
         self.rejected: Counter[str] = rejected if rejected is not None else Counter()
+        self.served = 0
+        self.busy_ns = 0
+        self.rss_warm = -1
+        self.use(engine)
+
+    def use(self, engine: Engine) -> None:
+        """Answer from now on by ``engine``'s plan (a central's ``place`` order, before the
+        run starts); the values kept for cycles of the old plan are dropped."""
+        self.engine = engine
+        self.axes = engine.plan.placement.axes[self.index]
         self._rounds = {r.index: r for r in engine.plan.rounds}
         self._trace_names = {r.index: [o for b in r.blocks for o in b.outputs
                                        if o not in r.recv] for r in engine.plan.rounds}
         self._ctxs: dict[int, dict] = {}
-        self.served = 0
-        self.busy_ns = 0
-        self.rss_warm = -1
+
+    def on_place(self, order: dict[str, Any], role: str, *, started: bool) -> bytes | None:
+        """A central's ``place`` order (``central_blocks``: the blocks it now runs): switch
+        to that plan and return the acknowledgement to publish (``placed``, with the
+        blocks); None, the order counted as rejected, when it cannot be taken: once the
+        run has ``started`` its plan stays (``bad_stage``), and names that are not the
+        law's per-axis blocks change nothing (``bad_value``). Never raises."""
+        if self.place is None or started:
+            self.rejected["bad_stage"] += 1
+            return None
+        try:
+            engine = self.place(order.get("central_blocks"))
+        except ConfigError:
+            self.rejected["bad_value"] += 1
+            return None
+        self.use(engine)
+        return encode(self.unit, 0, "placed", role=role,
+                      central_blocks=sorted(engine.plan.placement.central_blocks))
 
     def _parts(self, data: bytes) -> tuple[list[tuple[int, Any, dict]], bool]:
         """Decode and validate a whole request: ``([(cycle, round, vals)], each)``.
@@ -146,7 +176,8 @@ def declare(node: Node, index: int) -> Any:
 
 
 def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float,
-          trace: bool = False) -> dict[str, Any]:
+          trace: bool = False, place: Callable[[Any], Engine] | None = None
+          ) -> dict[str, Any]:
     """Answer requests until stopped; returns counters.
 
     Parameters
@@ -156,8 +187,12 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
     index : 0-based peripheral index.
     reply : the publisher from :func:`declare`.
     watchdog : seconds of silence from the central after which the role exits.
+    place : as :class:`Peripheral`'s; a ``place`` order it takes is acknowledged on the
+        hello key (:meth:`Peripheral.on_place`).
     """
-    role = Peripheral(engine, index, node.unit, trace=trace, rejected=node.rejected)
+    role = Peripheral(engine, index, node.unit, trace=trace, rejected=node.rejected,
+                      place=place)
+    said = node.publisher(node.keys.hello)
     t_start = time.monotonic_ns()
 
     def result(exit_reason: str) -> dict[str, Any]:
@@ -173,8 +208,15 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
                 return result("watchdog")
             continue
         if ev.kind == "control":
-            if is_stop(node, ev):
+            order = control_order(node, ev)
+            if order is None:
+                continue
+            if order["stage"] == "stop":
                 return result("stop")
+            if order["stage"] == "place":
+                ack = role.on_place(order, node.role, started=node.cpu_start_s is not None)
+                if ack is not None:
+                    said.put(ack)
             continue
         if ev.kind != "request":
             continue
@@ -191,7 +233,8 @@ def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
             reply = declare(node, index - 1)
             node.wait_for_go(timeout=setup.rc.transport.startup_timeout)
             res = serve(node, setup.engine(), index - 1, reply,
-                        watchdog=max(5.0, 3 * setup.rc.transport.timeout), trace=setup.rc.run.trace)
+                        watchdog=max(5.0, 3 * setup.rc.transport.timeout), trace=setup.rc.run.trace,
+                        place=lambda blocks: setup.with_central_blocks(blocks).engine())
         except TimeoutError as exc:
             print(f"ctrlunit peripheral {index}: {exc}", file=sys.stderr)
             return EXIT_LINK

@@ -55,7 +55,8 @@ class Recorder:
     Parameters
     ----------
     path : output file.
-    setup : the run's :class:`~ctrlunit.runtime.setup.Setup`.
+    setup : the run's :class:`~ctrlunit.runtime.setup.Setup` (the header is written by
+        :meth:`begin`, with the set-up the run starts with).
     """
 
     def __init__(self, path: str, setup: Any) -> None:
@@ -73,6 +74,21 @@ class Recorder:
         self.closed = False
         self.pending: list[tuple[str, int, bytes]] = []
         self.topics: dict[str, str] = {}  # Zenoh key -> topic
+        self.began = False
+        self.raw_schema = self.w.register_schema("", "", b"")
+        self.central_outputs = [o for b in setup.plan.graph.blocks if not b.per_axis
+                                for o in b.outputs]
+        self.json_schema = self.w.register_schema(
+            "ctrlunit.State", "jsonschema", json.dumps(SIGNALS_SCHEMA).encode())
+
+    def begin(self, setup: Any) -> None:
+        """Write the header (metadata ``ctrlunit``) of the run about to start: its
+        configuration and the placement it runs (``--placement auto`` chooses it at
+        warm-up, after this recorder noted the first exchanges)."""
+        if self.began or self.closed:
+            return
+        self.began = True
+        self.setup = setup
         rc = setup.rc
         meta = {
             "config": json.dumps(rc.to_dict()),
@@ -88,11 +104,6 @@ class Recorder:
             "time_unit": "ns (host monotonic clock)",
         }
         self.w.add_metadata("ctrlunit", meta)
-        self.raw_schema = self.w.register_schema("", "", b"")
-        self.central_outputs = [o for b in setup.plan.graph.blocks if not b.per_axis
-                                for o in b.outputs]
-        self.json_schema = self.w.register_schema(
-            "ctrlunit.State", "jsonschema", json.dumps(SIGNALS_SCHEMA).encode())
 
     def channel(self, topic: str, *, json_signals: bool = False) -> int:
         cid = self.channels.get(topic)
@@ -163,6 +174,7 @@ class Recorder:
         """Write the last counters (the report follows in :meth:`write_report`)."""
         if self.closed:
             return
+        self.begin(self.setup)  # a run that ended before its first interval: still a header
         self._drain()
         now = time.monotonic_ns()
         self._add("/faults/rejected", now, msgpack.packb(dict(central.node.rejected)))

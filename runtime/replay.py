@@ -89,11 +89,9 @@ def cycles_in_order(rec: Recording) -> list[tuple[int, list[int]]]:
 
 def recorded_inputs(rec: Recording, setup: Any) -> list[tuple]:
     """``(t, est, qmeas, qdmeas)`` of the recorded intervals (for ``t_1``)."""
-    from .controller import Controller
 
     engine = setup.engine(peripherals_plan=False)
-    ctl = Controller(engine, setup.rc.schedule.period, setup.params.increment,
-                     tuple(setup.task.start()))
+    ctl = setup.controller(engine)
     out = []
     for k, counts in cycles_in_order(rec):
         ctx = ctl.sources(k, counts)
@@ -123,15 +121,13 @@ def verify(
     -------
     (intervals compared, first divergence or None)
     """
-    from .controller import Controller
     from .engine import Engine
 
     setup = _setup(rec)
     engine = setup.engine()
     plan = engine.plan
     producer = {o: b.name for b in plan.graph.blocks for o in b.outputs}
-    ctl = Controller(engine, setup.rc.schedule.period, setup.params.increment,
-                     tuple(setup.task.start()))
+    ctl = setup.controller(engine)
     requests, replies = _index(rec, "request"), _index(rec, "reply")
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
     held = {(m["peripheral"], m["cycle"], m["stage"]): m["vals"]

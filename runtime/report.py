@@ -242,9 +242,7 @@ def summary(r: dict[str, Any]) -> str:
         lines = lines[:2] if r.get("command_delay") else lines[:1]
     choice = r.get("placement_choice")
     if choice:
-        lines.append(f"  placement   auto: {choice['why']}"
-                     + ("" if choice.get("applied", True) else
-                        " (not applied: the roles were started by hand)"))
+        lines.append(f"  placement   auto: {choice['why']}")
     adm = r.get("admission")
     if adm and adm.get("period_s"):
         lines.append(f"  admission   {adm['period_s'] * 1e3:g} ms held in a trial of "

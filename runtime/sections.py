@@ -53,8 +53,8 @@ class ScheduleConfig:
     ``central_blocks``."""
     placement_auto: bool = False
     """``--placement auto``: the warm-up chooses which rounds the central runs itself
-    (topology/balance.py, ``auto_central_blocks``) and the launcher starts the unit again
-    with them in ``central_blocks``."""
+    (topology/balance.py, ``auto_central_blocks``); the central then tells the
+    peripherals (a ``place`` order) and runs with them in ``central_blocks``."""
     central_blocks: list[str] | None = None
     """Per-axis blocks the central runs for every axis, with the default spread of the axes
     (the placement's ``central_blocks``); None: none, or not chosen yet (auto)."""

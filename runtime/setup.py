@@ -4,9 +4,12 @@ plan, and the engine each role runs."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -14,7 +17,7 @@ from ..kernels.laws import Gains
 from ..kernels.params import DELTA_IA, DeltaParams, load_params
 from ..kernels.trajectory import Task, get_task
 from ..kernels.workspace import require_path
-from ..topology.graph import stage_graph
+from ..topology.graph import StageGraph, stage_graph
 from ..topology.placement import (
     Placement,
     PlacementError,
@@ -25,6 +28,7 @@ from ..topology.placement import (
 from ..topology.plan import ExchangePlan, exchange_plan
 from .blocks import BlockConfig
 from .config import ConfigError, RunConfig
+from .controller import Controller
 from .engine import CostModel, Engine
 
 
@@ -49,6 +53,38 @@ class Setup:
                                 delay=self.rc.lead_periods)
         return Engine(plan, cfg, cost=CostModel(cost or self.rc.control.cost_model,
                                                 scale=self.rc.control.cost_scale))
+
+    def controller(self, engine: Engine) -> Controller:
+        """The sources and observer state of a run of ``engine`` (the central's, replay's)."""
+        return Controller(engine, self.rc.schedule.period, self.params.increment,
+                          tuple(self.task.start()))
+
+    def with_central_blocks(self, blocks: Sequence[str]) -> Setup:
+        """This set-up with the per-axis blocks ``blocks`` run on the central (``--placement
+        auto``'s choice at warm-up, or a central's ``place`` order): same peripherals, axes,
+        task and options, the plan derived again.
+
+        Raises
+        ------
+        ConfigError
+            If ``blocks`` is not a list of the law's per-axis block names.
+        """
+        placement = _placement_of(self.plan.graph, {
+            "peripherals": self.placement.peripherals,
+            "axes": [list(g) for g in self.placement.axes], "central_blocks": blocks})
+        return dataclasses.replace(
+            self, rc=self.rc.replace(central_blocks=sorted(placement.central_blocks)),
+            placement=placement, plan=exchange_plan(self.plan.graph, placement))
+
+
+def _placement_of(graph: StageGraph, mapping: dict[str, Any]) -> Placement:
+    """A placement from its fields (``peripherals``, ``axes``, ``central_blocks``), its
+    central blocks checked against ``graph``'s per-axis blocks."""
+    try:
+        return placement_from_mapping(mapping, block_names={b.name for b in graph.axis_blocks},
+                                      source="central_blocks")
+    except PlacementError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def make_setup(rc: RunConfig) -> Setup:
@@ -81,13 +117,8 @@ def make_setup(rc: RunConfig) -> Setup:
                 f"placement {rc.schedule.placement} has {placement.peripherals} peripherals but "
                 f"--peripherals is {rc.schedule.peripherals}")
     else:
-        try:
-            placement = placement_from_mapping(
-                {"peripherals": rc.schedule.peripherals,
-                 "central_blocks": rc.schedule.central_blocks or []},
-                block_names={b.name for b in graph.axis_blocks}, source="central_blocks")
-        except PlacementError as exc:
-            raise ConfigError(str(exc)) from None
+        placement = _placement_of(graph, {"peripherals": rc.schedule.peripherals,
+                                          "central_blocks": rc.schedule.central_blocks or []})
     plan = exchange_plan(graph, placement)
     return Setup(rc, params, task, placement, plan, rc.total_cycles(task.period))
 

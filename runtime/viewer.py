@@ -225,9 +225,8 @@ class LiveView:
             self._send_running()
 
     def rerun(self, *, task: Any | None, period_s: float, cycles: int) -> None:
-        """The unit starts again (``--period auto``, ``--placement auto``): the same server
-        and viewers, the figures of the new run from zero. Call it from the central's
-        thread between runs."""
+        """The unit starts again (``--period auto``): the same server and viewers, the
+        figures of the new run from zero. Call it from the central's thread between runs."""
         with self._lock:
             self._queue.clear()
             self.task, self.period_s, self.cycles = task, period_s, cycles

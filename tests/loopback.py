@@ -252,6 +252,7 @@ def record_lockstep(path: str, unit: str, **kw: Any) -> LoopbackUnit:
 
     rc = lockstep_config(unit, record=str(path), trace=True, **kw)
     recorder = Recorder(str(path), make_setup(rc))
+    recorder.begin(recorder.setup)
     unit_ = LoopbackUnit(rc, on_cycle=recorder.on_cycle, on_message=recorder.on_message)
     try:
         unit_.run()

@@ -79,8 +79,10 @@ def run_star(tmp_path, central: str, hosts: list[str], tag: str,
     to (default: the central's address on its veth link)."""
     unit = f"mh-{tag}-{os.getpid()}"
     report = tmp_path / f"{tag}.json"
+    # the thesis's placement: two round trips per interval to each peripheral, whatever
+    # --placement auto would choose on these links
     common = ["--unit", unit, "--clock", "lockstep", "--cycles", "300", "--peripherals", "3",
-              "--timeout", "5s"]
+              "--timeout", "5s", "--placement", "axes"]
     py = [sys.executable, "-m", "ctrlunit.runtime.cli"]
     procs = [subprocess.Popen(["ip", "netns", "exec", central, *py, "central", *common,
                                "--listen", "tcp/0.0.0.0:7447", "--report", str(report)],

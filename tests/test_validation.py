@@ -13,12 +13,14 @@ import pytest
 from ctrlunit.kernels.kinematics import inverse_kinematics
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
-from ctrlunit.kernels.trajectory import pick_place_task
+from ctrlunit.kernels.trajectory import Task, pick_place_task
 from ctrlunit.runtime.central_guard import role_report
 from ctrlunit.runtime.codec import MAX_ABS, SCHEMA_VERSION, BadMessage, check_vals, decode, encode
+from ctrlunit.runtime.config import ConfigError, RunConfig
 from ctrlunit.runtime.controller import Controller, build_engine
 from ctrlunit.runtime.engine import Engine
 from ctrlunit.runtime.peripheral import Peripheral
+from ctrlunit.runtime.setup import make_setup
 from ctrlunit.topology.graph import LAWS
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
@@ -32,6 +34,11 @@ def real_requests(law: str) -> tuple[Engine, list[dict[str, Any]]]:
     task = pick_place_task()
     engine = build_engine(P, task, law=law, model="complete", gains=Gains.from_bandwidth(20.0),
                           period=1e-3, peripherals=3)
+    return engine, first_interval(engine, task)
+
+
+def first_interval(engine: Engine, task: Task) -> list[dict[str, Any]]:
+    """The parts of every round of ``engine``'s first interval on ``task``."""
     ctl = Controller(engine, 1e-3, P.increment, tuple(task.start()))
     q = inverse_kinematics(P, task.start())
     ctx = ctl.sources(0, [round(float(x) / P.increment) + 3 for x in q])
@@ -46,8 +53,8 @@ def real_requests(law: str) -> tuple[Engine, list[dict[str, Any]]]:
             rnd = gen.send(None)
     except StopIteration:
         pass
-    assert parts, law
-    return engine, parts
+    assert parts
+    return parts
 
 
 def request(part: dict[str, Any], **envelope: Any) -> bytes:
@@ -162,3 +169,35 @@ def test_a_forged_role_report_keeps_only_well_typed_fields():
     forged = {"cpu_s": True, "rejected": {"a": 1, "b": "x", "c": True}, "sched": ["x"],
               "rss_kb": {"warm": 1}, "safe_stop": 3, "exit": "stop", "extra": 1}
     assert role_report(forged) == {"rejected": {"a": 1}, "rss_kb": {"warm": 1}, "exit": "stop"}
+
+
+def test_a_place_order_switches_the_plan_before_the_run_and_nothing_else_does():
+    """``--placement auto`` re-places the roles where they are: a peripheral given the
+    blocks of the first round answers the next interval as one built with that placement;
+    unknown names, a non-list, an order after the run started, or a role that cannot
+    re-place are counted rejections that leave its plan as it was."""
+    setup = make_setup(RunConfig.of(unit=UNIT, peripherals=3, pipeline=2, clock="lockstep"))
+    moved = sorted(b.name for b in setup.plan.rounds[0].blocks)
+    placed = setup.with_central_blocks(moved)
+    assert placed.plan.round_trips == setup.plan.round_trips - 1
+    assert placed.rc.schedule.central_blocks == moved
+    parts = first_interval(placed.engine(), placed.task)
+    per = Peripheral(setup.engine(), 1, UNIT,
+                     place=lambda blocks: setup.with_central_blocks(blocks).engine())
+    for order, started, reason in (({"central_blocks": ["nope"]}, False, "bad_value"),
+                                   ({"central_blocks": "ik_obs0"}, False, "bad_value"),
+                                   ({}, False, "bad_value"),
+                                   ({"central_blocks": moved}, True, "bad_stage")):
+        before = sum(per.rejected.values())
+        assert per.on_place(order, "peripheral-2", started=started) is None
+        assert per.rejected[reason] >= 1 and sum(per.rejected.values()) == before + 1
+        assert per.engine.plan.round_trips == setup.plan.round_trips
+    ack = decode(per.on_place({"central_blocks": moved}, "peripheral-2", started=False), UNIT)
+    assert (ack["stage"], ack["role"], ack["central_blocks"]) == ("placed", "peripheral-2", moved)
+    assert per.engine.plan.round_trips == placed.plan.round_trips
+    fresh = Peripheral(placed.engine(), 1, UNIT)
+    assert answers_of_a_good_interval(per, parts) == answers_of_a_good_interval(fresh, parts)
+    assert Peripheral(setup.engine(), 1, UNIT).on_place(
+        {"central_blocks": moved}, "peripheral-2", started=False) is None
+    with pytest.raises(ConfigError, match=r"central_blocks \['nope'\] .* allowed: "):
+        setup.with_central_blocks(["nope"])

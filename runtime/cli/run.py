@@ -94,9 +94,9 @@ def run_options(fn: Any) -> Any:
                      help="Which process runs which block. axes: each peripheral runs "
                      "every per-axis block of its axes (§ IV.7); auto: at warm-up, a round "
                      "whose arithmetic costs the central less than its round trip runs on "
-                     "the central (the unit then starts again with it; the report's "
-                     "placement_choice says why); FILE: a placement written by ctrlunit "
-                     "balance."),
+                     "the central (the roles take the new plan before the first interval; "
+                     "the report's placement_choice says why); FILE: a placement written "
+                     "by ctrlunit balance."),
         click.option("--params", type=click.Path(dir_okay=False), default=None,
                      help="TOML file of Delta parameters."),
         click.option("--observer", type=click.Choice(["predict", "previous"]),
