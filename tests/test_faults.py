@@ -34,19 +34,21 @@ class EndedEarly(RuntimeError):
 
 
 def run_and_break(tmp_path: Path, how: str, role: str, index: int | None, *,
-                  clock: str = "lockstep", extra: tuple[str, ...] = ()
+                  clock: str = "lockstep", extra: tuple[str, ...] = (), after: int = 300
                   ) -> tuple[int, str, float, Path]:
-    """Start a unit, wait for 300 intervals, then kill (``how`` = kill) or freeze (stop)
-    one role; returns (exit code, output, seconds to exit, recording). A unit that ends
-    on its own before the injection fails the test (asserted once, never re-run)."""
+    """Start a unit, wait for ``after`` intervals, then kill (``how`` = kill) or freeze
+    (stop) one role; returns (exit code, output, seconds to exit, recording). A unit that
+    ends on its own before the injection fails the test (asserted once, never re-run)."""
     try:
-        return _run_and_break(tmp_path, how, role, index, clock=clock, extra=extra)
+        return _run_and_break(tmp_path, how, role, index, clock=clock, extra=extra,
+                              after=after)
     except EndedEarly as exc:
         raise AssertionError(str(exc)) from None
 
 
 def _run_and_break(tmp_path: Path, how: str, role: str, index: int | None, *,
-                   clock: str, extra: tuple[str, ...]) -> tuple[int, str, float, Path]:
+                   clock: str, extra: tuple[str, ...], after: int
+                   ) -> tuple[int, str, float, Path]:
     unit = unit_id(f"f{how[:4]}")
     rec, status = tmp_path / f"{unit}.mcap", tmp_path / f"{unit}.status"
     proc = subprocess.Popen(
@@ -56,7 +58,7 @@ def _run_and_break(tmp_path: Path, how: str, role: str, index: int | None, *,
          *(("--no-admission",) if clock == "realtime" else ()), *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
-        wait_status(status, 300)
+        wait_status(status, after)
         if proc.poll() is not None:
             raise EndedEarly(f"the unit ended before the fault was injected (exit "
                              f"{proc.returncode}): {proc.communicate()[0][-600:]}")
@@ -144,7 +146,8 @@ def test_killed_plant_is_named_with_its_own_exit_code(tmp_path):
 def test_frozen_role_in_realtime_is_detected_within_three_periods(tmp_path, role, index, code):
     # 20 ms: this shared VM stalls for up to ~45 ms now and then, which three periods of
     # 5 ms would already call a failure before the process is frozen
-    got, out, _, _ = run_and_break(tmp_path, "stop", role, index, clock="realtime",
+    # 50 intervals (1 s) in: the loop runs at its period; 300 took 6 s for nothing more
+    got, out, _, _ = run_and_break(tmp_path, "stop", role, index, clock="realtime", after=50,
                                    extra=("--period", "20ms", "--task", slow_task(tmp_path)))
     silent = [float(m) for m in re.findall(r"for ([0-9.]+) ms", out)]
     print(f"realtime 20 ms, {role} frozen: exit {got}, detected after {silent} ms of silence")

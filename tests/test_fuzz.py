@@ -19,7 +19,7 @@ from ctrlunit.runtime.zsession import Keys, make_config
 from ctrlunit.topology.graph import stage_graph
 from ctrlunit.topology.placement import default_placement
 from ctrlunit.topology.plan import exchange_plan
-from runner import kill_unit, unit_id, wait_status
+from runner import kill_unit, start_json, unit_id, wait_status
 
 pytestmark = pytest.mark.zenoh
 N_FUZZ = 10_000
@@ -111,13 +111,13 @@ def fuzz_payloads(unit: str, rng: random.Random, key: str, near: int = 0) -> byt
                                                      "span": [1, 2]}]})
 
 
-def run_unit(tmp_path, unit: str, fuzz: bool, cycles: int) -> tuple[int, dict, str, int]:
+def run_unit(tmp_path, unit: str, cycles: int) -> tuple[int, dict, str, int]:
     """The roles one by one (as on several hosts), each also listening on its own loopback
     endpoint, so that a stranger can reach every key: in peer mode the central does not
     route for others, so a peer connected to it alone only reaches the central's keys.
 
-    Returns the central's exit code, its report, its output and (fuzzing) the intervals
-    done when the last payload was sent."""
+    Returns the central's exit code, its report, its output and the intervals done when
+    the last payload was sent."""
     ports = [free_port() for _ in range(5)]
     eps = [f"tcp/127.0.0.1:{p}" for p in ports]
     report, status = tmp_path / f"{unit}.json", tmp_path / f"{unit}.status"
@@ -133,43 +133,39 @@ def run_unit(tmp_path, unit: str, fuzz: bool, cycles: int) -> tuple[int, dict, s
         roles.append(subprocess.Popen(
             cli + ["peripheral", "--index", str(k), *common, "--connect", eps[0], "--listen",
                    eps[1 + k]], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-    done_at_end = 0
     try:
-        if fuzz:
-            # every role listens once the intervals run; connect before they are far along
-            assert wait_status(status, 10) >= 10, "the unit did not start"
-            keys = Keys(unit)
-            targets = [keys.sample, keys.command, keys.request, keys.reply(1), keys.reply(2),
-                       keys.reply(3), keys.hello, keys.control("peripheral"),
-                       keys.control("plant")]
-            rng = random.Random(7)
-            # the central's keys through a session connected to the central alone: one
-            # connected to all five sometimes delivered 24 of ~5 500 payloads to it
-            with zenoh.open(make_config(connect=eps[1:])) as s, \
-                    zenoh.open(make_config(connect=eps[:1])) as sc:
-                t0 = time.monotonic()  # connected to the processes before fuzzing
-                while (len(list(s.info.peers_zid())) < 4 or not list(sc.info.peers_zid())) \
-                        and time.monotonic() - t0 < 10:
-                    time.sleep(0.05)
-                assert len(list(s.info.peers_zid())) >= 4 and list(sc.info.peers_zid())
-                # BLOCK: a payload Zenoh drops in transit would prove nothing either way
-                pubs = [(sc if "/central/" in k else s).declare_publisher(
-                    k, congestion_control=zenoh.CongestionControl.BLOCK) for k in targets]
-                # past cycle 1: a stale sample for cycle 0 or 1 must not be a real one
-                wait_status(status, 100)
-                near = 100
-                for i in range(N_FUZZ):
-                    k = i % len(targets)
-                    pubs[k].put(fuzz_payloads(unit, rng, targets[k], near))
-                    if i % 200 == 0:
-                        time.sleep(0.01)
-                        near = int(status.read_text() or near)
-                done_at_end = int(status.read_text() or 0)
-                # the session stays open until the unit ends: closing it would drop the
-                # payloads still queued for a role that reads slowly (the central, on a
-                # loaded machine, had read 24 of its ~5 500 when the session closed)
-                out, _ = central.communicate(timeout=300)
-        else:
+        # every role listens once the intervals run; connect before they are far along
+        assert wait_status(status, 10) >= 10, "the unit did not start"
+        keys = Keys(unit)
+        targets = [keys.sample, keys.command, keys.request, keys.reply(1), keys.reply(2),
+                   keys.reply(3), keys.hello, keys.control("peripheral"),
+                   keys.control("plant")]
+        rng = random.Random(7)
+        # the central's keys through a session connected to the central alone: one
+        # connected to all five sometimes delivered 24 of ~5 500 payloads to it
+        with zenoh.open(make_config(connect=eps[1:])) as s, \
+                zenoh.open(make_config(connect=eps[:1])) as sc:
+            t0 = time.monotonic()  # connected to the processes before fuzzing
+            while (len(list(s.info.peers_zid())) < 4 or not list(sc.info.peers_zid())) \
+                    and time.monotonic() - t0 < 10:
+                time.sleep(0.05)
+            assert len(list(s.info.peers_zid())) >= 4 and list(sc.info.peers_zid())
+            # BLOCK: a payload Zenoh drops in transit would prove nothing either way
+            pubs = [(sc if "/central/" in k else s).declare_publisher(
+                k, congestion_control=zenoh.CongestionControl.BLOCK) for k in targets]
+            # past cycle 1: a stale sample for cycle 0 or 1 must not be a real one
+            wait_status(status, 100)
+            near = 100
+            for i in range(N_FUZZ):
+                k = i % len(targets)
+                pubs[k].put(fuzz_payloads(unit, rng, targets[k], near))
+                if i % 200 == 0:
+                    time.sleep(0.01)
+                    near = int(status.read_text() or near)
+            done_at_end = int(status.read_text() or 0)
+            # the session stays open until the unit ends: closing it would drop the
+            # payloads still queued for a role that reads slowly (the central, on a
+            # loaded machine, had read 24 of its ~5 500 when the session closed)
             out, _ = central.communicate(timeout=300)
         for p in roles:
             p.wait(timeout=10)
@@ -185,12 +181,15 @@ def test_fuzzed_payloads_are_rejected_and_change_nothing(tmp_path):
     # the payloads must all be sent while the unit runs (the roles count only then): they
     # take ~700 lockstep intervals here, so the run is long enough for a 5x slower day
     cycles = 4000
-    code, fuzzed, out, done_at_end = run_unit(tmp_path, unit_id("fuzz"), True, cycles)
+    code, fuzzed, out, done_at_end = run_unit(tmp_path, unit_id("fuzz"), cycles)
     assert code == 0, out
     assert done_at_end < cycles - 100, (
         f"the unit had done {done_at_end} of {cycles} intervals when the last payload left: "
         "the fuzzing did not overlap the run")
-    code, clean, out, _ = run_unit(tmp_path, unit_id("clean"), False, cycles)
+    # undisturbed: the one-process unit, whose commands the star's equal bit for bit
+    # (tests/test_star.py), and whose plant then moves the same way
+    code, clean, out = start_json(tmp_path, "--clock", "lockstep", "--cycles", str(cycles),
+                                  "--peripherals", "0", tag="clean")
     assert code == 0, out
     rejected = sum(fuzzed["rejected_messages"].values())
     print(f"fuzz: {N_FUZZ} payloads while the unit did intervals up to {done_at_end} of "

@@ -35,11 +35,11 @@ def test_peer_without_credentials_cannot_publish_commands(tmp_path):
     conf, port = auth_config(tmp_path), free_port()
     unit = unit_id("auth")
     report, status = tmp_path / "r.json", tmp_path / "status"
-    common = ["--clock", "lockstep", "--cycles", "1500", "--peripherals", "3"]
+    common = ["--clock", "lockstep", "--cycles", "1500"]
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
          "--zenoh-config", conf, "--listen", f"tcp/127.0.0.1:{port}", "--report", str(report),
-         "--status-file", str(status), *common],
+         "--status-file", str(status), *common, "--peripherals", "3"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + 60
@@ -60,7 +60,8 @@ def test_peer_without_credentials_cannot_publish_commands(tmp_path):
     assert proc.returncode == 0, out
     assert refused, "the unauthenticated peer was admitted"
     rep = json.loads(report.read_text())
-    _, clean, _ = start_json(tmp_path, *common, tag="authclean")
+    # undisturbed: the one-process unit (the star's commands equal its bit for bit)
+    _, clean, _ = start_json(tmp_path, *common, "--peripherals", "0", tag="authclean")
     assert rep["command_digest"] == clean["command_digest"]
     assert rep["tracking_error_m"] == clean["tracking_error_m"]
     print(f"intruder refused; {rep['cycles']} intervals as without it, rejections "
