@@ -96,7 +96,7 @@ def test_realtime_at_1ms_reports_misses(tmp_path, depth):
 
 
 def test_freerun_depth_two_completes_and_reports_round_trips(tmp_path):
-    cycles = int(os.environ.get("CTRLUNIT_FREERUN_CYCLES", "10000"))
+    cycles = int(os.environ.get("CTRLUNIT_FREERUN_CYCLES", "4000"))
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",
                                 "freerun", "--cycles", str(cycles), "--placement", "axes",
                                 tag="free", timeout=400)
