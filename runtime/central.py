@@ -23,7 +23,7 @@ from __future__ import annotations
 import queue
 import struct
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from typing import Any
 
@@ -119,6 +119,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.spans: list[tuple[str, int, int, int]] = []  # (process, cycle, t0, t1), bounded
         self.max_spans = 4_000  # the first few hundred intervals: Gantt charts
         self.last_sample_ns = 0
+        # the plant's silences over two periods (from, to), the newest: see _fault_at
+        self.plant_gaps: deque[tuple[int, int]] = deque(maxlen=8)
         self.t1_inputs: list[tuple] = []
         self.newest_sample = -1
         self.peers_seen: set[str] = set()

@@ -59,6 +59,28 @@ class CentralGuard:
     """Realtime: until this many intervals are done the silence limit is at least
     ``STARTUP_LIMIT_S`` (first samples, first real values through every process)."""
 
+    def _fault_at(self, since: int, now: int, timeout_ns: int) -> int:
+        """When a process silent since ``since`` becomes a fault: ``since + timeout_ns``;
+        in realtime, once that has passed, later by the part of the silence the plant's
+        samples shared (gaps in them longer than two periods, less the period a sample
+        takes anyway), up to one more limit. A silence the whole unit shares is a stall of
+        the machine (all five processes stopped: a busy host's stalls run 6-13 ms), not a
+        failed process; a frozen process is still named while the plant goes on talking.
+        """
+        end = since + timeout_ns
+        if end >= now or self.rc.schedule.clock != "realtime":
+            return end
+        shared = 0
+        for a, b in (*self.plant_gaps, (self.last_sample_ns, now)):
+            if a and b - a > 2 * self.period_ns:
+                shared += max(0, min(b, now) - max(a, since) - self.period_ns)
+        return end + min(shared, timeout_ns)
+
+    def _shared_note(self, since: int, now: int, timeout_ns: int) -> str:
+        """For a fault's message: how much of a silence was not counted (:meth:`_fault_at`)."""
+        shared = self._fault_at(since, now, timeout_ns) - since - timeout_ns
+        return f", plus {shared / 1e6:.1f} ms the plant was silent too" if shared > 0 else ""
+
     def _next_check(self, now: int, timeout_ns: int, hold_until: int) -> int:
         """When the loop must look at the clock again, however quiet the inbox: a held
         round's release, a round's deadline or late-data time, and in realtime the moment
@@ -68,13 +90,14 @@ class CentralGuard:
             wake = min(wake, hold_until)
         for f in self.inflight.values():
             if f.waiting:
-                wake = min(wake, f.deadline_ns)
+                wake = min(wake, self._fault_at(f.deadline_ns - timeout_ns, now, timeout_ns))
                 if f.late_ns:
                     wake = min(wake, f.late_ns)
                 if self.rc.schedule.clock == "realtime":  # liveness: wake when it would fail
                     for k in f.waiting:
                         if self.last_reply_ns[k]:
-                            wake = min(wake, self.last_reply_ns[k] + timeout_ns)
+                            wake = min(wake, self._fault_at(self.last_reply_ns[k], now,
+                                                            timeout_ns))
         if self.rc.schedule.clock == "realtime" and self.last_sample_ns:
             wake = min(wake, self.last_sample_ns + timeout_ns)
         return wake
@@ -94,21 +117,24 @@ class CentralGuard:
         now = time.monotonic_ns()
         if self.rc.schedule.clock == "realtime" and self.done:
             for k, t in enumerate(self.last_reply_ns):  # alive, even when its data is held
-                if t and now - t > timeout_ns and any(k in f.dropped or k in f.waiting
-                                                      for f in self.inflight.values()):
+                if t and now > self._fault_at(t, now, timeout_ns) and any(
+                        k in f.dropped or k in f.waiting for f in self.inflight.values()):
                     raise Fault(f"peripheral {k + 1} has not answered for "
-                                f"{(now - t) / 1e6:.1f} ms (limit {timeout_ns / 1e6:.1f} ms)"
+                                f"{(now - t) / 1e6:.1f} ms (limit {timeout_ns / 1e6:.1f} ms"
+                                f"{self._shared_note(t, now, timeout_ns)})"
                                 f"{self._overload_hint()}",
                                 process=f"peripheral-{k + 1}",
                                 code=EXIT_PERIPHERAL)
         for f in self.inflight.values():
-            if f.waiting and now > f.deadline_ns:
+            if f.waiting and now > self._fault_at(f.deadline_ns - timeout_ns, now, timeout_ns):
                 k = min(f.waiting)
                 silent = (now - f.deadline_ns + timeout_ns) / 1e6
                 raise Fault(
                     f"peripheral {k + 1} did not answer round {f.round.index if f.round else '?'}"
                     f" of cycle {f.cycle}: silent for {silent:.1f} ms (limit "
-                    f"{timeout_ns / 1e6:.1f} ms){self._overload_hint()}",
+                    f"{timeout_ns / 1e6:.1f} ms"
+                    f"{self._shared_note(f.deadline_ns - timeout_ns, now, timeout_ns)})"
+                    f"{self._overload_hint()}",
                     process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
         if (self.rc.schedule.clock != "freerun" and not self.samples
                 and self.next_cycle < self.cycles

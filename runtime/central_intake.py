@@ -76,6 +76,8 @@ class CentralIntake:
         if cycle < self.next_cycle or cycle >= self.cycles + self.depth + 1:
             self.node.reject("stale_cycle" if cycle < self.next_cycle else "future_cycle")
             return
+        if self.last_sample_ns and rx - self.last_sample_ns > 2 * self.period_ns:
+            self.plant_gaps.append((self.last_sample_ns, rx))  # the plant silent too
         self.last_sample_ns = rx
         self.newest_sample = max(self.newest_sample, cycle)
         self.samples[cycle] = (counts, t_ns)

@@ -1,0 +1,73 @@
+"""When silence is a fault (runtime/central_guard.py, ``CentralGuard._fault_at``): a
+process silent for the limit is failed while the plant goes on talking; the part of a
+silence the plant's samples shared (a stall of the whole machine) is not counted, up to
+one more limit; lockstep and freerun keep their plain timeout."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import pytest
+from ctrlunit.runtime.central_guard import CentralGuard
+from ctrlunit.runtime.config import RunConfig
+
+MS = 1_000_000
+PERIOD = 4 * MS
+LIMIT = 3 * PERIOD
+
+
+class Guard(CentralGuard):
+    """The state :meth:`CentralGuard._fault_at` reads, set by hand."""
+
+    def __init__(self, clock: str = "realtime") -> None:
+        self.rc = RunConfig.of(clock=clock, period=PERIOD / 1e9)
+        self.period_ns = PERIOD
+        self.plant_gaps: deque[tuple[int, int]] = deque(maxlen=8)
+        self.last_sample_ns = 0
+
+
+def test_before_the_limit_and_without_a_plant_silence_the_limit_stands():
+    g = Guard()
+    g.last_sample_ns = 100 * MS
+    assert g._fault_at(90 * MS, 95 * MS, LIMIT) == 90 * MS + LIMIT  # not yet due
+    # the plant sampled a period ago: the peripheral alone was silent
+    assert g._fault_at(90 * MS, 103 * MS, LIMIT) == 90 * MS + LIMIT
+
+
+def test_the_plant_silent_too_moves_the_fault_by_the_shared_part_up_to_one_limit():
+    g = Guard()
+    g.last_sample_ns = 89 * MS  # the plant's last sample before the stall
+    since, now = 90 * MS, 103 * MS
+    # shared: 13 ms of the silence without a sample, less the period one takes anyway
+    assert g._fault_at(since, now, LIMIT) == since + LIMIT + (now - since - PERIOD)
+    # a long stall: at most one more limit
+    assert g._fault_at(since, 200 * MS, LIMIT) == since + 2 * LIMIT
+    # a gap of two periods or less is the plant's own jitter, not a stall
+    g.last_sample_ns = 102 * MS - 2 * PERIOD + 1
+    assert g._fault_at(since, 102 * MS, LIMIT) == since + LIMIT
+
+
+def test_a_past_plant_gap_counts_only_where_it_overlaps_the_silence():
+    g = Guard()
+    g.plant_gaps.append((80 * MS, 97 * MS))  # the plant silent 80-97 ms, then talking
+    g.last_sample_ns = 101 * MS
+    since, now = 90 * MS, 103 * MS
+    assert g._fault_at(since, now, LIMIT) == since + LIMIT + (97 - 90) * MS - PERIOD
+    g.plant_gaps.clear()
+    g.plant_gaps.append((60 * MS, 85 * MS))  # ended before the silence began
+    assert g._fault_at(since, now, LIMIT) == since + LIMIT
+
+
+@pytest.mark.parametrize("clock", ["lockstep", "freerun"])
+def test_lockstep_and_freerun_keep_the_plain_timeout(clock):
+    g = Guard(clock)
+    g.last_sample_ns = 10 * MS
+    assert g._fault_at(90 * MS, 500 * MS, LIMIT) == 90 * MS + LIMIT
+
+
+def test_a_fault_message_says_what_was_not_counted():
+    g = Guard()
+    g.last_sample_ns = 89 * MS
+    assert g._shared_note(90 * MS, 103 * MS, LIMIT) == ", plus 9.0 ms the plant was silent too"
+    g.last_sample_ns = 102 * MS
+    assert g._shared_note(90 * MS, 103 * MS, LIMIT) == ""
