@@ -254,6 +254,8 @@ def test_a_silent_peripheral_is_a_fault_just_after_its_limit(monkeypatch):
     f.deadline_ns = 10**18  # the round's own deadline out of the way
     clock = Clock(c.last_reply_ns[1] + limit)
     monkeypatch.setattr(central_guard, "time", clock)
+    c.plant_gaps.clear()  # the plant goes on sampling: the peripheral alone is silent
+    c.last_sample_ns = clock.now
     exc = fault_just_past(c, clock, limit)
     assert exc.process == "peripheral-2" and exc.code == EXIT_PERIPHERAL
     assert str(exc).startswith("peripheral 2 has not answered for 3.0 ms (limit 3.0 ms)")
@@ -263,6 +265,29 @@ def test_a_silent_peripheral_is_a_fault_just_after_its_limit(monkeypatch):
         c._check_deadlines(limit)
     f.dropped.clear()  # neither waited for nor held: its silence is no fault
     c._check_deadlines(limit)
+
+
+def test_a_silence_the_plant_shared_is_not_counted_up_to_one_more_limit(monkeypatch):
+    """The machine stalled every process: the plant's last sample is as old as the
+    peripheral's last reply, so the silence counts only past twice the limit."""
+    u = realtime_unit("shared", late_policy="hold")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({1}))
+    c.done = 100
+    limit = c._timeout_ns()
+    c.inflight[1].deadline_ns = 10**18
+    c.plant_gaps.clear()
+    c.last_sample_ns = c.last_reply_ns[1] - 2 * MS  # silent since before the reply
+    clock = Clock(c.last_reply_ns[1] + limit + 1)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c._check_deadlines(limit)  # past the limit, but the plant was silent too
+    clock.now = c.last_reply_ns[1] + 2 * limit
+    exc = fault_just_past(c, clock, limit)
+    assert exc.process == "peripheral-2"
+    assert str(exc).startswith("peripheral 2 has not answered for 6.0 ms (limit 3.0 ms, "
+                               "plus 3.0 ms the plant was silent too)"), str(exc)
 
 
 def test_the_first_interval_is_judged_by_its_rounds_deadline_only(monkeypatch):
@@ -565,6 +590,8 @@ def test_limits_and_messages_keep_their_units_at_large_values(monkeypatch):
     clock = Clock(c.last_reply_ns[1] + limit + 1)
     f.deadline_ns = clock.now + 1
     monkeypatch.setattr(central_guard, "time", clock)
+    c.plant_gaps.clear()  # the plant goes on sampling: the peripheral alone is silent
+    c.last_sample_ns = clock.now
     with pytest.raises(Fault, match=r"for 123456\.8 ms \(limit 123456\.8 ms\)"):
         c._check_deadlines(limit)
     c.last_reply_ns[1] = 0
