@@ -11,8 +11,10 @@ now and its maximum so far.
 from __future__ import annotations
 
 import math
+import shutil
+import threading
 import time
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -23,6 +25,10 @@ TOP_S = 0.1
 """Periods from this up land in the last bin (shown as ">= 100000 us")."""
 REFRESH_S = 0.25
 """The line is rebuilt at most this often."""
+COARSE = 1000
+"""Fine bins per coarse bin: a percentile reads the coarse counts (101) and then one
+coarse bin's fine counts, not all 100 001 of them (1.3 ms per line, in the central's
+thread, before 2026-11-24)."""
 
 
 class LiveStats:
@@ -36,6 +42,7 @@ class LiveStats:
     def __init__(self, total: int) -> None:
         self.total = total
         self.hist = np.zeros(round(TOP_S / BIN_S) + 1, dtype=np.int64)  # 800 KB
+        self.coarse = np.zeros(self.hist.size // COARSE + 1, dtype=np.int64)
         self.count = 0
         self.done = 0
         self.misses = 0
@@ -50,8 +57,9 @@ class LiveStats:
         position ``p`` and reference ``p_c`` (3-vectors, m) when the interval has them."""
         self.done = done
         if self._last_ns is not None:
-            i = (cmd_ns - self._last_ns) // BIN_NS
-            self.hist[min(max(i, 0), self.hist.size - 1)] += 1
+            i = min(max((cmd_ns - self._last_ns) // BIN_NS, 0), self.hist.size - 1)
+            self.hist[i] += 1
+            self.coarse[i // COARSE] += 1
             self.count += 1
         self._last_ns = cmd_ns
         self.misses, self.skipped = misses, skipped
@@ -72,6 +80,7 @@ class LiveStats:
                 c = np.concatenate(([self._last_ns], c))
             i = np.clip(np.diff(c) // BIN_NS, 0, self.hist.size - 1)
             self.hist += np.bincount(i, minlength=self.hist.size)
+            self.coarse += np.bincount(i // COARSE, minlength=self.coarse.size)
             self.count += int(i.size)
             self._last_ns = int(c[-1])
         e = np.asarray(errors, dtype=float)
@@ -88,8 +97,11 @@ class LiveStats:
         if self.count == 0:
             return math.nan
         rank = max(1, math.ceil(q / 100.0 * self.count))
-        i = int(np.searchsorted(np.cumsum(self.hist), rank))
-        return i * BIN_S
+        cum = np.cumsum(self.coarse)
+        j = int(np.searchsorted(cum, rank))
+        before = int(cum[j - 1]) if j else 0
+        fine = np.cumsum(self.hist[j * COARSE:(j + 1) * COARSE])
+        return (j * COARSE + int(np.searchsorted(fine, rank - before))) * BIN_S
 
     def line(self) -> str:
         """``interval k/N  period p50 X us  p99 Y us  misses M  skipped S  error E mm
@@ -128,3 +140,97 @@ class LiveLine:
         if now >= self._next or central.done == central.cycles:
             self._next = now + REFRESH_S
             self.show(self.stats.line(), central.done, central.cycles)
+
+
+class TerminalLine:
+    """The live line drawn on a terminal: a bar, the figures so far and the time left.
+
+    It shares a process with the central, so it must cost the central next to nothing.
+    :meth:`show` (the central's thread, a few times a second) only formats a string and
+    hands it over; a thread of its own writes it, so a terminal that blocks never holds
+    the central, and the write gives the GIL back while it waits. A progress-bar library
+    that lays its columns out in Python on each refresh (rich: 1.1 ms here, holding the
+    GIL) made the main job at 2 ms miss 8-14 deadlines per run against 0-13 without it
+    (docs/measurements/2026-11-24-realtime.md).
+
+    Parameters
+    ----------
+    stream : the terminal (text stream).
+    width : columns; ``None``: the terminal's, read at each write.
+    """
+
+    BAR = 24
+    """Width of the bar in characters."""
+
+    def __init__(self, stream: TextIO, *, width: int | None = None) -> None:
+        self._stream = stream
+        self._width = width
+        self._cond = threading.Condition()  # the newest line: never held while writing
+        self._write = threading.Lock()  # the stream
+        self._pending: str | None = None
+        self._drawn = False
+        self._closed = False
+        self._t0: float | None = None
+        self._thread = threading.Thread(target=self._run, name="ctrlunit-line", daemon=True)
+        self._thread.start()
+
+    def show(self, text: str, done: int, total: int) -> None:
+        """Show ``text`` after a bar at ``done`` of ``total`` (the :class:`LiveLine`
+        callback); the newest line replaces one not yet written."""
+        now = time.monotonic()
+        if self._t0 is None:
+            self._t0 = now
+        frac = min(max(done / total, 0.0), 1.0) if total > 0 else 0.0
+        full = round(frac * self.BAR)
+        left = ""
+        if 0 < done < total:
+            left = f"  {(now - self._t0) * (total - done) / done:.0f} s left"
+        line = f"ctrlunit [{'#' * full}{'-' * (self.BAR - full)}] {frac:4.0%}  {text}{left}"
+        with self._cond:
+            self._pending = line
+            self._cond.notify()
+
+    def above(self, message: str, stream: TextIO) -> None:
+        """Write ``message`` (and a newline) on ``stream`` with the line cleared first; the
+        next :meth:`show` draws it again."""
+        with self._write:
+            self._clear()
+            stream.write(message + "\n")
+            stream.flush()
+
+    def close(self) -> None:
+        """Write what is pending, clear the line and stop the thread."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._thread.join(timeout=1.0)
+        with self._write:
+            self._clear()
+
+    def __enter__(self) -> TerminalLine:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _clear(self) -> None:
+        """Erase the drawn line (the caller holds the stream's lock)."""
+        if self._drawn:
+            self._stream.write("\r\x1b[2K")
+            self._stream.flush()
+            self._drawn = False
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while self._pending is None and not self._closed:
+                    self._cond.wait(0.5)
+                line, self._pending, closed = self._pending, None, self._closed
+            if line is not None:
+                cols = self._width or shutil.get_terminal_size((100, 24)).columns
+                with self._write:
+                    self._stream.write("\r\x1b[2K" + line[:max(cols - 1, 1)])
+                    self._stream.flush()
+                    self._drawn = True
+            if closed:
+                return

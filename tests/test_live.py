@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 import pty
 import select
@@ -11,7 +12,7 @@ import time
 
 import numpy as np
 import pytest
-from ctrlunit.runtime.live import LiveStats
+from ctrlunit.runtime.live import LiveStats, TerminalLine
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from runner import kill_unit, unit_id
@@ -30,6 +31,20 @@ def test_period_percentiles_so_far_match_the_exact_ones_to_a_bin(periods_us):
     for q in (50, 99):
         exact = float(np.percentile(a, q, method="inverted_cdf"))
         assert exact - 1e-12 <= s.percentile_s(q) <= exact + 1e-12, q  # whole us: exact
+
+
+@settings(max_examples=40, deadline=None)
+@given(periods_us=st.lists(st.integers(1, 150_000), min_size=1, max_size=300))
+def test_intervals_added_at_once_give_the_percentiles_of_intervals_added_one_by_one(periods_us):
+    one, many = LiveStats(1000), LiveStats(1000)
+    t = np.cumsum([10**9] + [us * 1000 for us in periods_us])
+    for k, c in enumerate(t):
+        one.add(done=k, cmd_ns=int(c))
+    many.add_many(done=len(t) - 1, cmd_ns=t[:5], misses=0, skipped=0)
+    many.add_many(done=len(t) - 1, cmd_ns=t[5:], misses=0, skipped=0)
+    assert np.array_equal(one.hist, many.hist) and np.array_equal(one.coarse, many.coarse)
+    for q in (1, 50, 99, 100):
+        assert one.percentile_s(q) == many.percentile_s(q)
 
 
 def test_line_names_interval_misses_and_the_largest_error():
@@ -83,3 +98,43 @@ def test_the_live_line_shows_on_a_terminal_and_is_quiet_in_a_pipe():
     piped = _run(args, tty=False, unit=unit_id("livepipe"))
     assert "period p50" not in piped and "\x1b[" not in piped
     assert "400 intervals" in piped  # the summary itself
+
+
+def _drawn(out: str) -> list[str]:
+    """The lines drawn on the terminal (each write starts by erasing the line)."""
+    return [x for x in out.split("\r\x1b[2K") if x]
+
+
+def test_terminal_line_draws_bar_figures_and_time_left_then_clears_itself():
+    out = io.StringIO()
+    line = TerminalLine(out, width=200)
+    line.show("interval 1/4", 1, 4)
+    line.close()
+    drawn = _drawn(out.getvalue())
+    assert drawn and drawn[-1].startswith("ctrlunit [######------------------]  25%  interval 1/4")
+    assert drawn[-1].endswith(" s left")
+    assert out.getvalue().endswith("\r\x1b[2K")  # cleared: the report starts on a clean line
+
+
+def test_terminal_line_writes_the_newest_line_last_and_cuts_it_to_the_width():
+    out = io.StringIO()
+    with TerminalLine(out, width=50) as line:
+        for k in range(1, 201):
+            line.show(f"interval {k}/200 " + "x" * 50, k, 200)
+    drawn = _drawn(out.getvalue())
+    assert 1 <= len(drawn) <= 200 and all(len(d) <= 49 for d in drawn)
+    assert drawn[-1].startswith("ctrlunit [########################] 100%")
+
+
+def test_a_message_during_the_run_is_written_on_a_cleared_line():
+    out = io.StringIO()
+    line = TerminalLine(out, width=200)
+    line.show("interval 1/2", 1, 2)
+    for _ in range(200):  # the writer thread draws it (bounded wait)
+        if out.getvalue():
+            break
+        time.sleep(0.005)
+    line.above("ctrlunit: a message", out)
+    line.close()
+    text = out.getvalue()
+    assert "interval 1/2  0 s left\r\x1b[2Kctrlunit: a message\n" in text

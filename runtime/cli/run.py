@@ -244,9 +244,11 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
             return
         rc = rc.replace(record=str(Path(plot_dir) / "run.mcap"))
     show = sys.stdout.isatty() if progress is None else progress
-    prog, finish = _progress(show)
-    code, report = run_start(rc, echo=lambda m: click.echo(m, err=True), progress=prog)
-    finish()
+    prog, echo, finish = _progress(show)
+    try:
+        code, report = run_start(rc, echo=echo, progress=prog)
+    finally:
+        finish()
     if "cycles" not in report:
         _fail(report["fault"]["message"], code)
         return
@@ -309,29 +311,19 @@ def _plot_run(record: str | None, plot_dir: str, text: str) -> None:
     click.echo(f"ctrlunit: figures of the run in {plots.index}", err=True)
 
 
-def _progress(show: bool) -> tuple[Any, Any]:
-    """The live line (runtime/live.py) under a progress bar, on the terminal only."""
+def _progress(show: bool) -> tuple[Any, Any, Any]:
+    """The live line (runtime/live.py) on the terminal only: the central's ``on_cycle``
+    callback, ``echo`` for messages during the run (written above the line), and the
+    function that clears it."""
+    def echo(m: str) -> None:
+        click.echo(m, err=True)
+
     if not show:
-        return None, lambda: None
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+        return None, echo, lambda: None
+    from ..live import LiveLine, TerminalLine
 
-    from ..live import LiveLine
-
-    prog = Progress(TextColumn("[bold]ctrlunit"), BarColumn(), TextColumn("{task.fields[stat]}"),
-                    TimeRemainingColumn(), transient=True, refresh_per_second=4)
-    state: dict[str, Any] = {}
-
-    def show(text: str, done: int, total: int) -> None:
-        if "task" not in state:
-            prog.start()
-            state["task"] = prog.add_task("run", total=total, stat="")
-        prog.update(state["task"], completed=done, stat=text)
-
-    def finish() -> None:
-        if "task" in state:
-            prog.stop()
-
-    return LiveLine(show), finish
+    line = TerminalLine(sys.stdout)
+    return LiveLine(line.show), lambda m: line.above(m, sys.stderr), line.close
 
 
 @cli.command()
