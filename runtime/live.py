@@ -28,7 +28,7 @@ REFRESH_S = 0.25
 COARSE = 1000
 """Fine bins per coarse bin: a percentile reads the coarse counts (101) and then one
 coarse bin's fine counts, not all 100 001 of them (1.3 ms per line, in the central's
-thread, before 2026-11-24)."""
+thread, until 2026-11-23)."""
 
 
 class LiveStats:
@@ -151,7 +151,7 @@ class TerminalLine:
     the central, and the write gives the GIL back while it waits. A progress-bar library
     that lays its columns out in Python on each refresh (rich: 1.1 ms here, holding the
     GIL) made the main job at 2 ms miss 8-14 deadlines per run against 0-13 without it
-    (docs/measurements/2026-11-24-realtime.md).
+    (docs/measurements/2026-11-23-realtime.md).
 
     Parameters
     ----------
