@@ -150,8 +150,8 @@ class TerminalLine:
     hands it over; a thread of its own writes it, so a terminal that blocks never holds
     the central, and the write gives the GIL back while it waits. A progress-bar library
     that lays its columns out in Python on each refresh (rich: 1.1 ms here, holding the
-    GIL) made the main job at 2 ms miss 8-14 deadlines per run against 0-13 without it
-    (docs/measurements/2026-11-23-realtime.md).
+    GIL) made the main job at 2 ms miss 70 deadlines in six runs against 19 without a
+    line (docs/measurements/2026-11-23-realtime.md).
 
     Parameters
     ----------
@@ -193,10 +193,15 @@ class TerminalLine:
     def above(self, message: str, stream: TextIO) -> None:
         """Write ``message`` (and a newline) on ``stream`` with the line cleared first; the
         next :meth:`show` draws it again."""
-        with self._write:
-            self._clear()
+        locked = self._write.acquire(timeout=1.0)  # a write stuck on the terminal: skip
+        try:
+            if locked:
+                self._clear()
             stream.write(message + "\n")
             stream.flush()
+        finally:
+            if locked:
+                self._write.release()
 
     def close(self) -> None:
         """Write what is pending, clear the line and stop the thread."""
@@ -204,8 +209,11 @@ class TerminalLine:
             self._closed = True
             self._cond.notify()
         self._thread.join(timeout=1.0)
-        with self._write:
-            self._clear()
+        if self._write.acquire(timeout=1.0):  # not if a write is stuck on the terminal
+            try:
+                self._clear()
+            finally:
+                self._write.release()
 
     def __enter__(self) -> TerminalLine:
         return self
