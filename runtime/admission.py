@@ -9,7 +9,10 @@ that follow the reference, computes each command and sends none. A trial interva
 sample's time plus ``depth`` periods; the traversal counts from the sample's time stamp and
 adds the command's one-way transit measured at warm-up); a skipped sample is late too. The
 period is *held* when at most one trial interval in 200 is late and the 99th percentile of
-the traversal, transit included, uses at most :data:`HEADROOM` of the budget. A period that
+the traversal, transit included, uses at most :data:`HEADROOM` of the budget; under
+SCHED_FIFO, also when no CPU was busy more than ``ADMIT_BUSY_SHARE`` of the kernel's
+real-time budget during the trial (runtime/sched.py: FIFO tasks win every CPU they want, so
+a trial can hold at a load the kernel would throttle in a longer run). A period that
 holds is admitted only if the task can be tracked at it (:func:`predicted_tracking`).
 
 When it is not held the trial goes on up :data:`LADDER_S` and stops at the first period
@@ -30,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from . import sched
 from .config import EXIT_UNSUSTAINABLE
 
 if TYPE_CHECKING:
@@ -74,7 +78,8 @@ def trial_intervals(period_s: float, *, seconds: float = 0.3, least: int = 50,
 
 
 def rung_verdict(traversal_s: np.ndarray, *, skipped: int, budget_s: float,
-                 transit_s: float) -> dict[str, Any]:
+                 transit_s: float, busy_share: float | None = None,
+                 busy_limit: float | None = None) -> dict[str, Any]:
     """The figures of one trial and whether they hold (module notes).
 
     Parameters
@@ -83,13 +88,20 @@ def rung_verdict(traversal_s: np.ndarray, *, skipped: int, budget_s: float,
     skipped : samples skipped because the central was behind.
     budget_s : the command delay's periods: from the sample to the tick it is due at.
     transit_s : one-way time of the command to the plant.
+    busy_share : the busiest CPU's busy share during the trial (every process).
+    busy_limit : under SCHED_FIFO, the busy share above which the period does not hold
+        (runtime/sched.py: a run near the kernel's real-time budget would be throttled);
+        None: no limit.
     """
     t = np.asarray(traversal_s, dtype=float) + transit_s
     n = int(t.size) + skipped
     late = int(np.count_nonzero(t > budget_s)) + skipped
     p99 = float(np.quantile(t, 0.99)) if t.size else math.inf
     held = n > 0 and late <= n * LATE_SHARE and p99 <= HEADROOM * budget_s
+    if busy_limit is not None and (busy_share is None or busy_share > busy_limit):
+        held = False
     return {"intervals": n, "late": late, "skipped": skipped, "budget_s": budget_s,
+            "busy_share": busy_share, "busy_limit": busy_limit,
             "traversal_p50_s": float(np.median(t)) if t.size else math.inf,
             "traversal_p99_s": p99,
             "traversal_p999_s": float(np.quantile(t, 0.999)) if t.size else math.inf,
@@ -154,7 +166,9 @@ def admit(central: Central) -> dict[str, Any]:
         f"the period of {asked * 1e3:g} ms cannot be held here: in a trial of "
         f"{first['intervals']} intervals before any motion, {first['late']} were late and "
         f"the traversal p99 was {first['traversal_p99_s'] * 1e3:.2f} ms of a "
-        f"{first['budget_s'] * 1e3:.2f} ms budget ({rc.schedule.pipeline} period(s)); {found}. "
+        f"{first['budget_s'] * 1e3:.2f} ms budget ({rc.schedule.pipeline} period(s))"
+        + (f", and a CPU was {first['busy_share']:.0%} busy under SCHED_FIFO (limit "
+           f"{first['busy_limit']:.0%})" if _busy_over(first) else "") + f"; {found}. "
         + ("" if rc.schedule.period_auto and held_at else "Try "
            + ("--period auto or " if held_at and not rc.schedule.period_auto else "")
            + (f"--period {held_at * 1e3:g}ms, " if held_at else "")
@@ -186,6 +200,21 @@ def predicted_tracking(central: Central, period: float) -> float:
     return float(np.max(np.linalg.norm(ref - pos, axis=1))) if ref.size else math.nan
 
 
+def _busy_over(rung: dict[str, Any]) -> bool:
+    limit, share = rung.get("busy_limit"), rung.get("busy_share")
+    return limit is not None and share is not None and share > limit
+
+
+def fifo_busy_limit() -> float | None:
+    """Under SCHED_FIFO where the kernel throttles real-time tasks, the busy
+    share a trial may reach (``ADMIT_BUSY_SHARE`` of the real-time budget,
+    runtime/sched.py); None otherwise."""
+    budget = sched.rt_budget()
+    if budget is None or not sched.fifo_in_force():
+        return None
+    return sched.ADMIT_BUSY_SHARE * budget
+
+
 def trial(central: Central, period: float, *, base: int, transit_s: float) -> dict[str, Any]:
     """One rung: the plant ticks ``trial_intervals(period)`` trial samples at ``period``; a
     trial central (a :class:`~.central.Central` with ``trial=True`` on the same node and a
@@ -204,6 +233,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
     probe.reply_each = central.reply_each
     central.say("probe", period=period, ticks=n, base=base)
     t0 = time.monotonic()
+    busy0 = sched.cpu_times()
     fault = None
     try:
         probe.run()
@@ -211,10 +241,12 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
         if central.child_check is not None and central.child_check() is not None:
             raise
         fault = str(exc)
+    busy = sched.busy_share(busy0, sched.cpu_times())
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
     trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
     out = {"period_s": period}
-    out |= rung_verdict(trav, skipped=probe.skipped, budget_s=budget, transit_s=transit_s)
+    out |= rung_verdict(trav, skipped=probe.skipped, budget_s=budget, transit_s=transit_s,
+                        busy_share=busy, busy_limit=fifo_busy_limit())
     if fault is not None:
         out["held"] = False
         out["fault"] = fault

@@ -97,7 +97,9 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             viewer = _live_view(rc, setup, echo)
             view += [viewer] if viewer is not None else []
         # before zenoh.open and the children: Zenoh's threads and the roles inherit it
-        policy = sched.apply_rt(rc.schedule.rt_priority)
+        sched_choice = sched.apply_choice(
+            rc.schedule.rt_priority, clock=rc.schedule.clock,
+            admission=rc.schedule.admission or rc.schedule.trial_only)[1]
     except (ConfigError, ValueError, OSError, sched.RtPermissionError) as exc:
         return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
                                        "code": EXIT_CONFIG}}
@@ -116,6 +118,12 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
                             config_file=rc.transport.zenoh_config), rc.transport.unit, "central")
     engine = setup.engine()
     ctl = setup.controller(engine)
+    children: list[subprocess.Popen] = []
+    guard = None  # under FIFO: back to the default policy before the kernel throttles
+    if sched.fifo_in_force() and sched_choice["budget"] is not None:
+        guard = sched.BusyGuard(
+            lambda: [os.getpid()] + [p.pid for p in children if p.poll() is None],
+            sched_choice["budget"], say=echo)
     recorder = None
     if rc.run.record:
         from .recorder import Recorder
@@ -123,9 +131,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         recorder = Recorder(rc.run.record, setup)
     central = Central(node, rc, engine, ctl, setup.cycles,
                       on_cycle=_chain(recorder.on_cycle if recorder else None, progress,
-                                      viewer, _status_writer(rc.run.status_file)),
+                                      viewer, _status_writer(rc.run.status_file), guard),
                       on_message=recorder.on_message if recorder else None)
-    children: list[subprocess.Popen] = []
     code, fault = EXIT_OK, None
     admission: dict | None = None
     placement_choice: dict | None = None
@@ -220,6 +227,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         report["admission"] = admission
     if placement_choice is not None:
         report["placement_choice"] = placement_choice
+    report["scheduling_choice"] = sched_choice
+    report["scheduling_fallback"] = guard.event if guard is not None else None
     report["zenoh"] = zenoh_ids
     report["late"] = {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),
                       "misses_per_axis": list(central.late_per_axis)}
@@ -230,7 +239,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         if isinstance(rep.get("rss_kb"), dict):
             report["memory_kb"][role] = rep["rss_kb"]
     report.update(cpu_budget(central, _child_names(rc, setup), cores))
-    report["scheduling"] = {"central": policy} | {
+    report["scheduling"] = {"central": sched.policy_name()} | {
         name.replace("-", "_"): text_or_none((central.role_reports.get(name) or {}).get("sched"))
         for name in (_child_names(rc, setup) if spawn else [])}
     if rc.schedule.clock != "freerun":  # the plant's own word that it held and braked

@@ -184,8 +184,18 @@ def _sched_lines(r: dict[str, Any]) -> list[str]:
         return []
     values = set(pol.values())
     if len(values) == 1:
-        return [f"  scheduling  {next(iter(values))}, every role"]
-    return ["  scheduling  " + "  ".join(f"{k} {v or 'not reported'}" for k, v in pol.items())]
+        lines = [f"  scheduling  {next(iter(values))}, every role"]
+    else:
+        lines = ["  scheduling  " + "  ".join(f"{k} {v or 'not reported'}"
+                                             for k, v in pol.items())]
+    choice, fell = r.get("scheduling_choice") or {}, r.get("scheduling_fallback")
+    if choice.get("asked") == "auto" and choice.get("why"):
+        lines.append(f"              auto: {choice['why']}")
+    if fell:
+        lines.append(f"              back to the default policy at interval {fell['cycle']}: "
+                     f"a CPU {fell['busy_share']:.0%} busy over {fell['window_s']:g} s "
+                     f"(limit {fell['limit']:.0%})")
+    return lines
 
 
 def _safe_stop_line(stop: Any) -> str:

@@ -9,17 +9,25 @@ Measured on this 2-core VM (n = 3, depth 2, side by side; README): freerun mean 
 -22 to -27 %, CPU per interval -15 %. Roles at a lower FIFO priority than the central,
 or under ``SCHED_BATCH``, were slower.
 
-Why it is not the default: when the unit needs more CPU than the machine has (realtime at
-1 ms here), the kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``,
-95 % of each second) freezes every FIFO task for up to 50 ms a second: 33-35 ms periods
-were measured, where the default policy's longest was 4 ms. Use it at a period the
-machine sustains, or in freerun.
+The risk: when the unit needs more CPU than the machine has (realtime at 1 ms here, or
+``--no-admission`` at a period it cannot hold), the kernel's real-time throttling
+(``/proc/sys/kernel/sched_rt_runtime_us``, 95 % of each second) freezes every FIFO task
+for up to 50 ms a second: 33-35 ms periods were measured, where the default policy's
+longest was 4 ms. Two guards keep the unit below that budget: the admission refuses a
+period whose trial kept a CPU busier than :data:`ADMIT_BUSY_SHARE` of it
+(runtime/admission.py), and during the run :class:`BusyGuard` puts every role back under
+the default policy when a CPU grows busier than :data:`DEMOTE_BUSY_SHARE` of it (the
+kernel throttles CPU by CPU).
 
-``0`` (the default) leaves the policy as it is (the default policy, unless the unit was
-started under another, e.g. with ``chrt``); 1-99 needs root, CAP_SYS_NICE or
-``ulimit -r`` (an error names them otherwise). Roles started by ``ctrlunit start``
-inherit the launcher's policy; the report names each role's.
+``auto`` (the default, :func:`choose`) uses FIFO at :data:`AUTO_PRIORITY` only where both
+guards stand: the realtime clock with the admission on, a kernel that throttles, and a
+process permitted to use FIFO; otherwise the default policy, with the reason in the
+report (``scheduling_choice``). ``0`` leaves the policy as it is (the default policy,
+unless the unit was started under another, e.g. with ``chrt``); 1-99 needs root,
+CAP_SYS_NICE or ``ulimit -r`` (an error names them otherwise). Roles started by
+``ctrlunit start`` inherit the launcher's policy; the report names each role's.
 """
+
 
 from __future__ import annotations
 
@@ -27,8 +35,27 @@ import contextlib
 import os
 import subprocess
 import sys
+import time
+from collections.abc import Callable, Iterable
+from typing import Any
 
 MAX_PRIORITY = 99
+
+AUTO = "auto"
+AUTO_PRIORITY = 10
+"""The FIFO priority ``--rt-priority auto`` chooses (every role at one priority: none
+preempts another on wake-up)."""
+
+ADMIT_BUSY_SHARE = 0.8
+"""Under FIFO, a trial that kept a CPU busier than this share of the kernel's
+real-time budget does not hold: the rest is margin for the run's longer tail."""
+
+DEMOTE_BUSY_SHARE = 0.95
+"""Under FIFO, a run that keeps a CPU busier than this share of the real-time
+budget over :data:`GUARD_WINDOW_S` goes back to the default policy (:class:`BusyGuard`)."""
+
+GUARD_WINDOW_S = 0.5
+"""The window over which :class:`BusyGuard` measures the busiest CPU's busy share."""
 
 
 class RtPermissionError(PermissionError):
@@ -72,12 +99,182 @@ def policy_name(tid: int = 0) -> str:
     return name
 
 
-def check_priority(priority: int) -> None:
-    """0 to 99, else a ``ValueError`` naming the option and the range."""
+def check_priority(priority: int | str) -> None:
+    """``auto`` or 0 to 99, else a ``ValueError`` naming the option and the range."""
+    if priority == AUTO:
+        return
     if isinstance(priority, bool) or not isinstance(priority, int) or not (
             0 <= priority <= MAX_PRIORITY):
-        raise ValueError(f"--rt-priority = {priority!r}: allowed 0 (leave the policy as it is) to "
-                         f"{MAX_PRIORITY} (SCHED_FIFO priority)")
+        raise ValueError(f"--rt-priority = {priority!r}: allowed auto, 0 (leave the policy as "
+                         f"it is) or 1 to {MAX_PRIORITY} (SCHED_FIFO priority)")
+
+
+def rt_budget() -> float | None:
+    """The share of each CPU's time the kernel lets real-time tasks use before it throttles
+    them (``sched_rt_runtime_us / sched_rt_period_us``, 0.95 by default); None when it
+    does not throttle (``-1``) or the files cannot be read."""
+    try:
+        with open("/proc/sys/kernel/sched_rt_runtime_us") as fh:
+            runtime = int(fh.read())
+        with open("/proc/sys/kernel/sched_rt_period_us") as fh:
+            period = int(fh.read())
+    except (OSError, ValueError):
+        return None
+    return runtime / period if 0 <= runtime < period and period > 0 else None
+
+
+def cpu_times() -> list[tuple[int, int]]:
+    """``(busy, total)`` jiffies of each CPU since boot (``/proc/stat``; idle and iowait
+    are not busy); ``[]`` where it cannot be read. :func:`busy_share` of two readings is
+    the busiest CPU's busy share between them."""
+    out = []
+    try:
+        with open("/proc/stat") as fh:
+            for line in fh:
+                name, *values = line.split()
+                if not name.startswith("cpu"):
+                    break
+                if name == "cpu":
+                    continue
+                fields = [int(v) for v in values[:8]]
+                total = sum(fields)
+                out.append((total - fields[3] - fields[4], total))
+    except (OSError, ValueError):
+        return []
+    return out
+
+
+def busy_share(before: list[tuple[int, int]], after: list[tuple[int, int]]) -> float | None:
+    """The busiest CPU's share of busy time between two :func:`cpu_times` readings (the
+    kernel throttles real-time tasks CPU by CPU); None when no time passed on any CPU or
+    the readings do not match."""
+    if len(before) != len(after):
+        return None
+    shares = [(a[0] - b[0]) / (a[1] - b[1]) for b, a in zip(before, after, strict=True)
+              if a[1] > b[1]]
+    return max(shares) if shares else None
+
+
+def fifo_in_force(tid: int = 0) -> bool:
+    """Whether thread ``tid`` (0: this one) runs under a real-time policy."""
+    return os.sched_getscheduler(tid) in (os.SCHED_FIFO, os.SCHED_RR)
+
+
+def choose(asked: int | str, *, clock: str, admission: bool, budget: float | None,
+           guarded: bool = True) -> tuple[int, str | None]:
+    """The FIFO priority to try for ``--rt-priority asked`` (0: the policy as it is) and,
+    for ``auto``, why (module notes). A number is taken as it is (no reason).
+    ``guarded``: the unit's processes are watched by a :class:`BusyGuard` (``ctrlunit
+    start``; a role started on its own is not)."""
+    check_priority(asked)
+    if asked != AUTO:
+        return int(asked), None
+    if not guarded:
+        return 0, "a role started on its own: only ctrlunit start guards the unit's load"
+    if clock != "realtime":
+        return 0, f"the {clock} clock has no deadlines to keep"
+    if not admission:
+        return 0, ("without the admission nothing keeps the unit's load under the kernel's "
+                   "real-time budget")
+    if budget is None:
+        return 0, ("the kernel does not throttle real-time tasks (sched_rt_runtime_us -1): "
+                   "a unit under FIFO could hold the CPUs")
+    return AUTO_PRIORITY, (f"the realtime clock with the admission, and the kernel throttles "
+                           f"real-time tasks at {budget:.0%} of each second")
+
+
+def apply_choice(asked: int | str, *, clock: str, admission: bool,
+                 guarded: bool = True) -> tuple[str, dict[str, Any]]:
+    """:func:`choose`, then :func:`apply_rt`; ``auto`` falls back to the policy as it is
+    where FIFO is not permitted. Returns the policy in force and the choice for the report
+    (``asked``, ``priority``, ``why``, ``budget``).
+
+    Raises
+    ------
+    RtPermissionError
+        A number 1-99 was asked and this process may not use SCHED_FIFO.
+    """
+    budget = rt_budget()
+    priority, why = choose(asked, clock=clock, admission=admission, budget=budget,
+                           guarded=guarded)
+    try:
+        policy = apply_rt(priority)
+    except RtPermissionError:
+        if asked != AUTO:
+            raise
+        priority, why = 0, "this process may not use SCHED_FIFO (root, CAP_SYS_NICE, ulimit -r)"
+        policy = apply_rt(0)
+    if asked == AUTO:
+        why = (f"{policy}: {why}" if priority else f"{policy} (no SCHED_FIFO): {why}")
+    return policy, {"asked": asked, "priority": priority, "why": why, "budget": budget}
+
+
+def demote(pids: Iterable[int]) -> list[int]:
+    """Every thread of each process in ``pids`` under the default policy; the pids whose
+    threads could all be reached (a process that has exited is skipped)."""
+    done = []
+    param = os.sched_param(0)
+    for pid in pids:
+        try:
+            tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+        except OSError:
+            continue
+        for tid in tids:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.sched_setscheduler(tid, os.SCHED_OTHER, param)
+        done.append(pid)
+    return done
+
+
+class BusyGuard:
+    """Under FIFO, puts the unit back under the default policy before the kernel's
+    real-time throttling can freeze it.
+
+    Called every interval (``on_cycle``): once per :data:`GUARD_WINDOW_S` it reads the
+    busiest CPU's busy share since the last reading (:func:`busy_share`, about 30 us);
+    over ``share`` of the real-time budget, every process of ``pids()`` goes to the
+    default policy, once, and :attr:`event` says when and why (the report's
+    ``scheduling_fallback``).
+
+    Parameters
+    ----------
+    pids : the unit's processes on this machine (this one and its children).
+    budget : :func:`rt_budget`.
+    share, window_s : the threshold and the window (module constants by default).
+    read, clock : the busy counters and the clock (tests give their own).
+    """
+
+    def __init__(self, pids: Callable[[], Iterable[int]], budget: float, *,
+                 share: float = DEMOTE_BUSY_SHARE, window_s: float = GUARD_WINDOW_S,
+                 read: Callable[[], list[tuple[int, int]]] = cpu_times,
+                 clock: Callable[[], float] = time.monotonic,
+                 say: Callable[[str], None] | None = None) -> None:
+        self.pids, self.limit, self.window_s = pids, share * budget, window_s
+        self.read, self.clock, self.say = read, clock, say
+        self.event: dict[str, Any] | None = None
+        self._t = 0.0
+        self._last: list[tuple[int, int]] | None = None  # the first call starts the window
+
+    def __call__(self, _central: Any = None, cycle: int | None = None, *_: Any) -> None:
+        now = self.clock()
+        if self.event is not None or (self._last is not None and now - self._t < self.window_s):
+            return
+        cur = self.read()
+        if self._last is None:
+            self._t, self._last = now, cur
+            return
+        share = busy_share(self._last, cur)
+        self._t, self._last = now, cur
+        if share is None or share <= self.limit:
+            return
+        demoted = demote(self.pids())
+        self.event = {"cycle": cycle, "busy_share": share, "limit": self.limit,
+                      "window_s": self.window_s, "processes": len(demoted)}
+        if self.say is not None:
+            self.say(f"ctrlunit: a CPU was {share:.0%} busy over {self.window_s:g} s "
+                     f"under SCHED_FIFO (limit {self.limit:.0%}, near the kernel's real-time "
+                     f"throttling): every role back under the default policy at interval "
+                     f"{cycle}")
 
 
 def apply_rt(priority: int) -> str:
@@ -96,6 +293,8 @@ def apply_rt(priority: int) -> str:
         ``priority`` 1-99 and this process may not use SCHED_FIFO.
     """
     check_priority(priority)
+    if priority == AUTO:
+        raise ValueError("--rt-priority auto: choose() the priority before applying it")
     if priority == 0:
         return policy_name()
     try:

@@ -69,7 +69,8 @@ class ScheduleConfig:
     trial_only: bool = False
     """Run the admission trial and stop before the first command (``ctrlunit latency
     --unit``)."""
-    rt_priority: int = 0
+    rt_priority: int | str = "auto"
+    """``--rt-priority``: ``auto`` (runtime/sched.py, ``choose``), 0 or a FIFO priority."""
     pin: str | None = None
     cpus: str | None = None
 

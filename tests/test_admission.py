@@ -37,6 +37,19 @@ def test_skipped_samples_and_the_transit_count_against_the_budget():
                             transit_s=(HEADROOM - 0.49) * budget)["held"]
 
 
+def test_under_fifo_a_trial_that_kept_the_machine_too_busy_does_not_hold():
+    budget = 2e-3
+    t = np.full(400, 0.5 * budget)
+    v = rung_verdict(t, skipped=0, budget_s=budget, transit_s=0.0, busy_share=0.7,
+                     busy_limit=0.76)
+    assert v["held"] and v["busy_share"] == 0.7
+    assert not rung_verdict(t, skipped=0, budget_s=budget, transit_s=0.0, busy_share=0.8,
+                            busy_limit=0.76)["held"]
+    assert not rung_verdict(t, skipped=0, budget_s=budget, transit_s=0.0, busy_share=None,
+                            busy_limit=0.76)["held"]  # unmeasured is not within the limit
+    assert rung_verdict(t, skipped=0, budget_s=budget, transit_s=0.0, busy_share=0.99)["held"]
+
+
 def test_an_empty_trial_never_holds():
     assert not rung_verdict(np.array([]), skipped=0, budget_s=1e-3, transit_s=0.0)["held"]
 
@@ -85,6 +98,18 @@ def test_period_auto_runs_at_the_period_the_trial_held_and_says_so(tmp_path):
     assert final[-1]["held"] and final[-1]["period_s"] == adm["period_s"]
     assert not any(r["held"] for r in final[:-1])
     assert rep["cycles"] == 200 and rep["plant_commands"] > 0
+    # --rt-priority auto: FIFO where permitted and the kernel throttles, and then the
+    # admission held the machine's busy share to its limit
+    from ctrlunit.runtime import sched
+
+    fifo = sched.rt_budget() is not None and sched.fifo_permitted()
+    choice = rep["scheduling_choice"]
+    assert choice["asked"] == "auto" and choice["priority"] == (sched.AUTO_PRIORITY if fifo else 0)
+    assert set(rep["scheduling"].values()) == {"SCHED_FIFO 10" if fifo else "SCHED_OTHER"}
+    limit = final[-1]["busy_limit"]
+    assert (limit == pytest.approx(sched.ADMIT_BUSY_SHARE * sched.rt_budget())) if fifo \
+        else limit is None
+    assert not fifo or final[-1]["busy_share"] <= limit
 
 
 def test_latency_reports_ordered_quantiles_and_a_histogram(tmp_path):

@@ -22,9 +22,14 @@ def _child(code: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def test_priority_outside_0_to_99_is_refused_with_the_range() -> None:
-    with pytest.raises(ConfigError, match=r"--rt-priority = 120: allowed 0 .* to 99"):
+def test_priority_outside_auto_and_0_to_99_is_refused_with_the_range() -> None:
+    with pytest.raises(ConfigError, match=r"--rt-priority = 120: allowed auto, 0 .* to 99"):
         RunConfig.of(rt_priority=120).validate()
+    with pytest.raises(ConfigError, match=r"--rt-priority = 'fast': allowed auto"):
+        RunConfig.of(rt_priority="fast").validate()
+    with pytest.raises(ValueError, match="choose"):
+        sched.apply_rt("auto")  # type: ignore[arg-type]
+    assert RunConfig.of().schedule.rt_priority == "auto"
     with pytest.raises(ValueError, match="--rt-priority = -1"):
         sched.check_priority(-1)
     with pytest.raises(ValueError, match="--rt-priority = None"):
@@ -41,6 +46,98 @@ def test_refused_fifo_is_an_error_that_says_what_it_needs(monkeypatch) -> None:
     with pytest.raises(sched.RtPermissionError, match=r"--rt-priority 20: .*ulimit -r"):
         sched.apply_rt(20)
     assert sched.apply_rt(0) == sched.policy_name()  # 0 asks for nothing
+
+
+def test_auto_chooses_fifo_only_where_both_guards_stand() -> None:
+    """FIFO at AUTO_PRIORITY only in realtime, with the admission, on a kernel that
+    throttles, for a unit ctrlunit start watches; each refusal names its reason."""
+    def choose(**kw: object) -> tuple[int, str | None]:
+        args: dict = {"clock": "realtime", "admission": True, "budget": 0.95} | kw
+        return sched.choose("auto", **args)
+
+    assert choose() == (sched.AUTO_PRIORITY, choose()[1])
+    assert "95%" in choose()[1]
+    for kw, reason in [({"clock": "lockstep"}, "lockstep clock has no deadlines"),
+                       ({"admission": False}, "without the admission"),
+                       ({"budget": None}, "does not throttle"),
+                       ({"guarded": False}, "a role started on its own")]:
+        prio, why = choose(**kw)
+        assert prio == 0 and reason in why, (kw, why)
+    assert sched.choose(7, clock="lockstep", admission=False, budget=None) == (7, None)
+    assert sched.choose(0, clock="realtime", admission=True, budget=0.95) == (0, None)
+
+
+def test_auto_falls_back_to_the_policy_as_it_is_where_fifo_is_refused(monkeypatch) -> None:
+    def refuse(*_a: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(sched.os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(sched, "rt_budget", lambda: 0.95)
+    policy, choice = sched.apply_choice("auto", clock="realtime", admission=True)
+    assert policy == sched.policy_name()
+    assert choice["priority"] == 0 and "may not use SCHED_FIFO" in choice["why"]
+    with pytest.raises(sched.RtPermissionError):  # a number asked for is not softened
+        sched.apply_choice(10, clock="realtime", admission=True)
+
+
+def test_busy_share_is_the_busiest_cpus_busy_time_over_its_time() -> None:
+    before = [(100, 1000), (500, 1000)]
+    assert sched.busy_share(before, [(160, 1100), (520, 1100)]) == pytest.approx(0.6)
+    assert sched.busy_share(before, [(110, 1100), (590, 1100)]) == pytest.approx(0.9)
+    assert sched.busy_share(before, before) is None  # no time passed
+    assert sched.busy_share(before, before[:1]) is None  # readings that do not match
+    now = sched.cpu_times()
+    assert len(now) == os.cpu_count() and all(0 <= b <= t for b, t in now)
+
+
+def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limit(
+        monkeypatch) -> None:
+    """One reading per window; the first call only starts the first window; over the
+    limit, every process goes back to the default policy once and the event says when."""
+    readings = iter([[(0, 0), (0, 0)], [(50, 100), (10, 100)], [(150, 200), (20, 200)],
+                     [(250, 300), (30, 300)]])
+    now = [0.0]
+    demoted: list[list[int]] = []
+    monkeypatch.setattr(sched, "demote", lambda pids: demoted.append(list(pids)) or list(pids))
+    said: list[str] = []
+    guard = sched.BusyGuard(lambda: [11, 12], 0.95, share=0.95, window_s=0.5,
+                            read=lambda: next(readings), clock=lambda: now[0], say=said.append)
+    guard(None, 0)  # starts the window at (0, 0)
+    now[0] = 0.2
+    guard(None, 1)  # inside the window: nothing read
+    now[0] = 0.6
+    guard(None, 2)  # the busiest CPU 50 of 100 busy: under 0.9025
+    assert demoted == [] and guard.event is None
+    now[0] = 1.2
+    guard(None, 3)  # 100 of 100 busy: over
+    assert demoted == [[11, 12]]
+    assert guard.event == {"cycle": 3, "busy_share": 1.0, "limit": pytest.approx(0.9025),
+                           "window_s": 0.5, "processes": 2}
+    assert "interval 3" in said[0] and "default policy" in said[0]
+    now[0] = 2.0
+    guard(None, 4)  # once only
+    assert len(demoted) == 1
+
+
+def test_demote_puts_every_thread_of_a_fifo_process_back_under_the_default_policy() -> None:
+    if not sched.fifo_permitted():
+        pytest.skip("this process may not use SCHED_FIFO")
+    code = ("import os, threading, time\n"
+            "os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(3))\n"
+            "threading.Thread(target=time.sleep, args=(30,), daemon=True).start()\n"
+            "print('ready', flush=True)\n"
+            "time.sleep(30)\n")
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "ready"
+        tids = [int(t) for t in os.listdir(f"/proc/{child.pid}/task")]
+        assert len(tids) == 2
+        assert {sched.policy_name(t) for t in tids} == {"SCHED_FIFO 3"}
+        assert sched.demote([child.pid, 2 ** 22 + 1]) == [child.pid]  # the gone one skipped
+        assert {sched.policy_name(t) for t in tids} == {"SCHED_OTHER"}
+    finally:
+        child.kill()
+        child.wait(timeout=10)
 
 
 def test_policy_reaches_threads_started_later_and_is_restored() -> None:
@@ -84,7 +181,7 @@ def test_zero_leaves_a_policy_given_from_outside_alone() -> None:
 @pytest.mark.zenoh
 def test_every_role_of_a_unit_reports_the_launchers_policy(tmp_path) -> None:
     """The roles inherit the launcher's policy; the report names each role's. Without
-    the option nothing changes (the default policy)."""
+    the option, in freerun, nothing changes (auto: no deadlines to keep)."""
     permitted = sched.fifo_permitted()
     code, rep, out = start_json(tmp_path, "--peripherals", "2", "--pipeline", "2", "--clock",
                                 "freerun", "--cycles", "300", "--rt-priority",
@@ -97,6 +194,9 @@ def test_every_role_of_a_unit_reports_the_launchers_policy(tmp_path) -> None:
                                 "--cycles", "100", tag="rt0")
     assert code == 0, out
     assert rep["scheduling"] == {"central": "SCHED_OTHER", "peripheral_1": "SCHED_OTHER"}
+    assert rep["scheduling_choice"]["priority"] == 0
+    assert "freerun clock has no deadlines" in rep["scheduling_choice"]["why"]
+    assert rep["scheduling_fallback"] is None
 
 
 @pytest.mark.zenoh

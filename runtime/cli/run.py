@@ -29,6 +29,19 @@ def _period(ctx: Any, param: click.Parameter, value: str) -> float | str:
     return _duration(ctx, param, value) or 0.0
 
 
+def _rt_priority(_ctx: Any, _param: click.Parameter, value: str | int) -> str | int:
+    if isinstance(value, str) and value.strip() == "auto":
+        return "auto"
+    try:
+        priority = int(value)
+    except (TypeError, ValueError):
+        priority = -1
+    if not 0 <= priority <= 99:
+        raise click.BadParameter(f"{value!r}: allowed auto, 0 (leave the policy as it is) "
+                                 "or 1 to 99 (SCHED_FIFO priority)")
+    return priority
+
+
 def run_options(fn: Any) -> Any:
     """Options shared by start and the single roles (see the brief's Interfaces)."""
     opts = [
@@ -149,13 +162,16 @@ def run_options(fn: Any) -> Any:
         click.option("--cpus", type=click.Choice(["same", "split"]), default=None,
                      help="start: pin every role on CPU 0 (same), or the central on 0 and "
                      "the others on 1 (split); default: no pinning."),
-        click.option("--rt-priority", type=click.IntRange(0, 99), default=0,
-                     show_default=True,
+        click.option("--rt-priority", default="auto", show_default=True,
+                     callback=_rt_priority, metavar="auto|0-99",
                      help="SCHED_FIFO priority of every role of the unit (the roles "
-                     "inherit it from start); 0: leave the policy as it is. Needs root, "
-                     "CAP_SYS_NICE or ulimit -r. Use it at a period the machine sustains: "
-                     "when overloaded, the kernel's RT throttling freezes the unit for up "
-                     "to 50 ms a second."),
+                     "inherit it from start); 0: leave the policy as it is (1-99 needs "
+                     "root, CAP_SYS_NICE or ulimit -r). auto: FIFO at 10 in realtime with "
+                     "the admission, where permitted and the kernel throttles real-time "
+                     "tasks; the admission then refuses a period that keeps a CPU "
+                     "over 80 % of the kernel's real-time budget, and the run goes back to "
+                     "the default policy if it passes 95 % of it (the report says which "
+                     "and why)."),
         click.option("--plant-substeps", type=click.IntRange(1, 1000), default=None,
                      help="RK4 sub-steps of the plant per period; default: the fewest of "
                      f"at most {MAX_SUBSTEP_S * 1e3:g} ms ({MAX_SUBSTEP_BELT_S * 1e3:g} ms "
@@ -340,7 +356,7 @@ def peripheral(index: int, **kw: Any) -> None:
 def _role_setup(kw: dict[str, Any], *, role: str, index: int | None = None) -> tuple[Any, Any]:
     """Setup and Zenoh configuration of a single role (exits on a configuration error;
     with ``--check``, exits 0 once everything is checked, before anything starts)."""
-    from ..sched import RtPermissionError, apply_rt
+    from ..sched import RtPermissionError, apply_choice
     from ..setup import make_setup
     from ..zsession import make_config, pin_cpus
 
@@ -359,7 +375,8 @@ def _role_setup(kw: dict[str, Any], *, role: str, index: int | None = None) -> t
         sys.exit(0)
     pin_cpus(rc.schedule.pin)
     try:  # before zenoh.open: its threads inherit it
-        apply_rt(rc.schedule.rt_priority)
+        apply_choice(rc.schedule.rt_priority, clock=rc.schedule.clock,
+                     admission=rc.schedule.admission, guarded=False)
     except RtPermissionError as exc:
         _fail(str(exc), EXIT_CONFIG)
     return setup, make_config(listen=rc.transport.listen, connect=rc.transport.connect,
