@@ -91,14 +91,15 @@ def rung_verdict(traversal_s: np.ndarray, *, skipped: int, budget_s: float,
     busy_share : the busiest CPU's busy share during the trial (every process).
     busy_limit : under SCHED_FIFO, the busy share above which the period does not hold
         (runtime/sched.py: a run near the kernel's real-time budget would be throttled);
-        None: no limit.
+        None: no limit. A share that could not be measured (None) is judged on the
+        traversal alone: the run's guard still watches.
     """
     t = np.asarray(traversal_s, dtype=float) + transit_s
     n = int(t.size) + skipped
     late = int(np.count_nonzero(t > budget_s)) + skipped
     p99 = float(np.quantile(t, 0.99)) if t.size else math.inf
     held = n > 0 and late <= n * LATE_SHARE and p99 <= HEADROOM * budget_s
-    if busy_limit is not None and (busy_share is None or busy_share > busy_limit):
+    if busy_limit is not None and busy_share is not None and busy_share > busy_limit:
         held = False
     return {"intervals": n, "late": late, "skipped": skipped, "budget_s": budget_s,
             "busy_share": busy_share, "busy_limit": busy_limit,
@@ -241,7 +242,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
         if central.child_check is not None and central.child_check() is not None:
             raise
         fault = str(exc)
-    busy = sched.busy_share(busy0, sched.cpu_times())
+    busy = sched.busy_share(busy0, sched.cpu_times(), elapsed_s=time.monotonic() - t0)
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
     trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
     out = {"period_s": period}

@@ -144,15 +144,19 @@ def cpu_times() -> list[tuple[int, int]]:
     return out
 
 
-def busy_share(before: list[tuple[int, int]], after: list[tuple[int, int]]) -> float | None:
+def busy_share(before: list[tuple[int, int]], after: list[tuple[int, int]], *,
+               elapsed_s: float | None = None) -> float | None:
     """The busiest CPU's share of busy time between two :func:`cpu_times` readings (the
-    kernel throttles real-time tasks CPU by CPU); None when no time passed on any CPU or
-    the readings do not match."""
-    if len(before) != len(after):
+    kernel throttles real-time tasks CPU by CPU); None when the readings do not match or
+    do not cover the time between them: no time passed, or, given ``elapsed_s``, some
+    CPU's counters advanced by less than half of it (counters not kept up to date; seen
+    once on this VM as a 0 % reading during a loaded trial)."""
+    if len(before) != len(after) or not before:
         return None
-    shares = [(a[0] - b[0]) / (a[1] - b[1]) for b, a in zip(before, after, strict=True)
-              if a[1] > b[1]]
-    return max(shares) if shares else None
+    least = 0.5 * elapsed_s * os.sysconf("SC_CLK_TCK") if elapsed_s else 1
+    if any(a[1] - b[1] < least for b, a in zip(before, after, strict=True)):
+        return None
+    return max((a[0] - b[0]) / (a[1] - b[1]) for b, a in zip(before, after, strict=True))
 
 
 def fifo_in_force(tid: int = 0) -> bool:
@@ -263,7 +267,7 @@ class BusyGuard:
         if self._last is None:
             self._t, self._last = now, cur
             return
-        share = busy_share(self._last, cur)
+        share = busy_share(self._last, cur, elapsed_s=now - self._t)
         self._t, self._last = now, cur
         if share is None or share <= self.limit:
             return

@@ -45,8 +45,8 @@ def test_under_fifo_a_trial_that_kept_the_machine_too_busy_does_not_hold():
     assert v["held"] and v["busy_share"] == 0.7
     assert not rung_verdict(t, skipped=0, budget_s=budget, transit_s=0.0, busy_share=0.8,
                             busy_limit=0.76)["held"]
-    assert not rung_verdict(t, skipped=0, budget_s=budget, transit_s=0.0, busy_share=None,
-                            busy_limit=0.76)["held"]  # unmeasured is not within the limit
+    assert rung_verdict(t, skipped=0, budget_s=budget, transit_s=0.0, busy_share=None,
+                        busy_limit=0.76)["held"]  # unmeasured: the traversal alone decides
     assert rung_verdict(t, skipped=0, budget_s=budget, transit_s=0.0, busy_share=0.99)["held"]
 
 

@@ -86,6 +86,12 @@ def test_busy_share_is_the_busiest_cpus_busy_time_over_its_time() -> None:
     assert sched.busy_share(before, [(110, 1100), (590, 1100)]) == pytest.approx(0.9)
     assert sched.busy_share(before, before) is None  # no time passed
     assert sched.busy_share(before, before[:1]) is None  # readings that do not match
+    # counters that did not keep up with the time that passed: not a measurement
+    tick = os.sysconf("SC_CLK_TCK")
+    late = [(100, 1000), (500 + tick // 4, 1000 + tick // 4)]
+    assert sched.busy_share(before, late, elapsed_s=1.0) is None
+    assert sched.busy_share(before, [(100 + tick, 1000 + tick), (500, 1000 + tick)],
+                            elapsed_s=1.0) == pytest.approx(1.0)
     now = sched.cpu_times()
     assert len(now) == os.cpu_count() and all(0 <= b <= t for b, t in now)
 
@@ -95,7 +101,7 @@ def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limi
     """One reading per window; the first call only starts the first window; over the
     limit, every process goes back to the default policy once and the event says when."""
     readings = iter([[(0, 0), (0, 0)], [(50, 100), (10, 100)], [(150, 200), (20, 200)],
-                     [(250, 300), (30, 300)]])
+                     [(250, 300), (30, 300)]])  # 100 ticks a window: more than half of it
     now = [0.0]
     demoted: list[list[int]] = []
     monkeypatch.setattr(sched, "demote", lambda pids: demoted.append(list(pids)) or list(pids))
