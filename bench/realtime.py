@@ -2,8 +2,9 @@
 
 ``ctrlunit start --peripherals 3 --pipeline 2`` (the main job, default options) is run
 ``runs`` times, each followed by the single-process baseline (the same command with
-``--peripherals 0``, at the period the main job ran at, admission off so that it always
-runs): the machine's own stalls show in the baseline, measured in the same minutes. Then
+``--peripherals 0``, at the period and under the scheduling policy the main job ran
+at, admission off so that it always runs): the machine's own stalls show in the baseline,
+measured in the same minutes. Then
 one long run of the main job (task repeated). Every run is a ``ctrlunit start`` process of
 its own, as a user runs it, and is ended by the stage if it overstays.
 
@@ -24,6 +25,7 @@ import sys
 import tempfile
 import time
 import uuid
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -88,6 +90,9 @@ def run_row(res: dict[str, Any]) -> dict[str, Any]:
         "tracking_max_m": (r.get("tracking_error_m") or {}).get("max"),
         "fault": fault.get("message"),
         "wall_s": res["wall_s"],
+        "scheduling": (r.get("scheduling") or {}).get("central"),
+        "rt_priority": (r.get("scheduling_choice") or {}).get("priority", 0),
+        "fell_back": bool(r.get("scheduling_fallback")),
     }
 
 
@@ -108,6 +113,9 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "misses_per_1000": 1000 * misses / cycles if cycles else math.nan,
             "periods_chosen_s": sorted({r["period_s"] for r in rows
                                         if r["period_s"] and r["exit_code"] != 7}),
+            "scheduling": dict(Counter(str(r.get("scheduling")) for r in rows
+                                       if r["exit_code"] != 7)),
+            "fell_back": sum(bool(r.get("fell_back")) for r in rows),
             "traversal_p999_s": med("traversal_p999_s"),
             "cpu_per_interval_s": med("cpu_per_interval_s"),
             "tracking_max_m": med("tracking_max_m"),
@@ -132,8 +140,11 @@ def realtime_stage(*, runs: int, long_s: float,
         period = row["period_s"] or 1e-3
         if progress:
             progress(f"realtime: baseline {i + 1}/{runs}", done, total)
+        # the baseline under the policy the main job ran under (without the admission,
+        # --rt-priority auto would leave it at the default policy)
         base.append(run_row(run_start(("--peripherals", "0", "--pipeline", "2",
-                                       "--period", f"{period:g}", "--no-admission"),
+                                       "--period", f"{period:g}", "--no-admission",
+                                       "--rt-priority", str(row["rt_priority"] or 0)),
                                       timeout_s=timeout_s)))
         done += 1
     long_row = None
@@ -144,7 +155,8 @@ def realtime_stage(*, runs: int, long_s: float,
                                      timeout_s=timeout_s + 3 * long_s))
     return {"command": "ctrlunit start " + " ".join(MAIN_JOB),
             "baseline_command": "ctrlunit start --peripherals 0 --pipeline 2 "
-                                "--period <the main job's> --no-admission",
+                                "--period <the main job's> --no-admission "
+                                "--rt-priority <the main job's>",
             "levers": levers(), "main_job": summary(star), "baseline": summary(base),
             "long": long_row, "long_s": long_s, "rows": {"main_job": star, "baseline": base}}
 
@@ -177,6 +189,10 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
             f"{', '.join(_fmt(p, 1e3, 2) for p in s['periods_chosen_s'])} | "
             f"{_fmt(s['traversal_p999_s'], 1e6)} | {_fmt(s['cpu_per_interval_s'], 1e6)} | "
             f"{_fmt(s['tracking_max_m'], 1e3, 2)} / {_fmt(s['tracking_worst_m'], 1e3, 2)} |")
+    sched = ", ".join(f"{k} in {v}" for k, v in st["main_job"].get("scheduling", {}).items())
+    if sched:
+        lines += ["", f"The main job's runs ran under {sched}; back to the default policy "
+                  f"during the run (the throttling guard) in {st['main_job']['fell_back']}."]
     r = st["long"]
     if r:
         per = 1000 * r["deadline_misses"] / r["cycles"] if r["cycles"] else math.nan

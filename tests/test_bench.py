@@ -157,18 +157,23 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     tracking is the worst run's."""
     from ctrlunit.bench.realtime import markdown_lines, run_row, summary
 
-    def res(code, cycles, misses, p999, cpu, period=1e-3, fault=None, track=4e-4):
+    def res(code, cycles, misses, p999, cpu, period=1e-3, fault=None, track=4e-4,
+            policy="SCHED_FIFO 10", fell=None):
         rep = {} if cycles == 0 else {
             "nominal_period_s": period, "cycles": cycles, "deadline_misses": misses,
             "traversal_s": {"p999": p999}, "cpu_per_interval_s": {"total": cpu},
-            "tracking_error_m": {"max": track}, "fault": fault and {"message": fault}}
+            "tracking_error_m": {"max": track}, "fault": fault and {"message": fault},
+            "scheduling": {"central": policy}, "scheduling_fallback": fell,
+            "scheduling_choice": {"priority": 10 if "FIFO" in policy else 0}}
         return {"exit_code": code, "report": rep, "wall_s": 5.0, "output_tail": ""}
 
     rows = [run_row(res(0, 400, 1, 1.5e-3, 1.2e-3)),
-            run_row(res(0, 600, 0, 1.7e-3, 1.0e-3, period=1.25e-3)),
+            run_row(res(0, 600, 0, 1.7e-3, 1.0e-3, period=1.25e-3, policy="SCHED_OTHER",
+                        fell={"cycle": 300})),
             run_row(res(4, 200, 5, 9e-3, 2e-3, fault="no sample from the plant for 5 ms",
                         track=2e-3)),
             run_row(res(7, 0, 0, None, None))]
+    assert [r["rt_priority"] for r in rows] == [10, 0, 10, 0]  # the baseline's policy
     s = summary(rows)
     assert s["runs"] == 4 and s["completed"] == 2 and s["completed_fraction"] == 0.5
     assert s["refused"] == 1 and s["periods"] == 1200 and s["deadline_misses"] == 6
@@ -177,6 +182,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     assert s["traversal_p999_s"] == pytest.approx(1.7e-3)  # median of three runs
     assert s["cpu_per_interval_s"] == pytest.approx(1.2e-3)
     assert s["tracking_max_m"] == pytest.approx(4e-4) and s["tracking_worst_m"] == 2e-3
+    assert s["scheduling"] == {"SCHED_FIFO 10": 2, "SCHED_OTHER": 1}  # the refusal ran none
+    assert s["fell_back"] == 1
     st = {"command": "ctrlunit start --peripherals 3 --pipeline 2", "baseline_command": "b",
           "levers": {"period": "auto"}, "main_job": s, "baseline": summary(rows[:2]),
           "long": None, "long_s": 0, "rows": {"main_job": rows, "baseline": rows[:2]}}
@@ -184,6 +191,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     assert ("| main job | 4 | 2 | 1 | 1200 | 6 | 5.00 | 1.00, 1.25 | 1700 | 1200 | 0.40 / 2.00 |"
             in md)
     assert "run 3 exit 4: no sample from the plant for 5 ms" in md and "run 4 exit 7" in md
+    assert "ran under SCHED_FIFO 10 in 2, SCHED_OTHER in 1; back to the default policy " \
+        "during the run (the throttling guard) in 1." in md
 
 
 def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
@@ -201,6 +210,8 @@ def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
         assert star["cycles"] > 0 and star["cpu_per_interval_s"] > 0
     assert base["exit_code"] is not None and base["cycles"] > 0  # admission off: it runs
     assert base["period_s"] == (star["period_s"] or 1e-3)
+    if star["exit_code"] != 7:  # the baseline under the main job's policy
+        assert base["scheduling"] == star["scheduling"] or star["fell_back"]
     assert "Realtime: does the main job hold its period?" in (out / "report.md").read_text()
 
 
