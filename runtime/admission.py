@@ -173,7 +173,8 @@ def admit(central: Central) -> dict[str, Any]:
         + ("" if rc.schedule.period_auto and held_at else "Try "
            + ("--period auto or " if held_at and not rc.schedule.period_auto else "")
            + (f"--period {held_at * 1e3:g}ms, " if held_at else "")
-           + "--rt-priority, a placement from ctrlunit balance, or fewer --peripherals "
+           + ("" if sched.fifo_in_force() else "--rt-priority (as root), ")
+           + "a placement from ctrlunit balance, or fewer --peripherals "
            "(ctrlunit latency measures this machine)"), info)
 
 
