@@ -28,7 +28,6 @@ CAP_SYS_NICE or ``ulimit -r`` (an error names them otherwise). Roles started by
 ``ctrlunit start`` inherit the launcher's policy; the report names each role's.
 """
 
-
 from __future__ import annotations
 
 import contextlib

@@ -30,15 +30,15 @@ def _period(ctx: Any, param: click.Parameter, value: str) -> float | str:
 
 
 def _rt_priority(_ctx: Any, _param: click.Parameter, value: str | int) -> str | int:
-    if isinstance(value, str) and value.strip() == "auto":
-        return "auto"
+    from ..sched import AUTO, check_priority
+
+    text = str(value).strip()
+    priority: str | int = AUTO if text == AUTO else (
+        int(text) if text.lstrip("-").isdigit() else text)
     try:
-        priority = int(value)
-    except (TypeError, ValueError):
-        priority = -1
-    if not 0 <= priority <= 99:
-        raise click.BadParameter(f"{value!r}: allowed auto, 0 (leave the policy as it is) "
-                                 "or 1 to 99 (SCHED_FIFO priority)")
+        check_priority(priority)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
     return priority
 
 
