@@ -83,15 +83,19 @@ class CentralGuard:
 
     def _next_check(self, now: int, timeout_ns: int, hold_until: int) -> int:
         """When the loop must look at the clock again, however quiet the inbox: a held
-        round's release, a round's deadline or late-data time, and in realtime the moment
-        a silent peripheral or plant would become a fault."""
+        round's release, a round's deadline, its late-data time where the round's policy
+        acts on it (``hold`` or ``fault``: under ``wait``, the default, lateness changes
+        nothing, and each such wake cost the central a wake-up of its inbox's ticker
+        thread), and in realtime the moment a silent peripheral or plant would become a
+        fault."""
         wake = now + timeout_ns
         if hold_until:
             wake = min(wake, hold_until)
         for f in self.inflight.values():
             if f.waiting:
                 wake = min(wake, self._fault_at(f.deadline_ns - timeout_ns, now, timeout_ns))
-                if f.late_ns:
+                if f.late_ns and f.round is not None \
+                        and self.late_policy[f.round.index] != "wait":
                     wake = min(wake, f.late_ns)
                 if self.rc.schedule.clock == "realtime":  # liveness: wake when it would fail
                     for k in f.waiting:
