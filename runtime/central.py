@@ -133,6 +133,11 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.last_reply_ns = [0] * self.n
         self.cycle_spans: dict[int, list[tuple[str, int, int]]] = {}
         self.child_check: Callable[[], tuple[str, int] | None] | None = None
+        # what a role's process is doing (supervise.process_state), for the roles this
+        # central started; None: unknown (roles started by hand, on other hosts)
+        self.role_state: Callable[[str], str] | None = None
+        self.excused: dict[str, tuple[int, int]] = {}  # role -> (silent since, until)
+        self.excuses = 0  # silences past their limit excused (central_guard._excuse)
         self._next_child_check = 0.0
         self.outbox: list[InFlight] = []  # intervals whose next round waits to be sent
         self.primed: tuple[int, dict] | None = None  # next interval, sample-free steps run

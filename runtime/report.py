@@ -78,6 +78,7 @@ def build_report(
     cost_error_s: dict[str, Any] | None = None,
     exchanges: int | None = None,
     replies: dict[str, Any] | None = None,
+    silences_excused: int = 0,
     central_costs: dict[str, float] | None = None,
     gantt: list[tuple[str, int, float, float]] | None = None,
 ) -> dict[str, Any]:
@@ -135,6 +136,7 @@ def build_report(
         "timing": timing["timing"],
         "deadline_misses": deadline_misses,
         "skipped_samples": skipped,
+        "silences_excused": silences_excused,
         "business": business,
         "t1_s": t1_s,
         "t_parallel_s": t_par,
@@ -236,7 +238,9 @@ def summary(r: dict[str, Any]) -> str:
         f"  traversal   p50 {us(r['traversal_s']['p50'])}  p99 {us(r['traversal_s']['p99'])}  "
         f"max {us(r['traversal_s']['max'])}",
         f"  jitter      std {us(r['jitter_s']['std'])}",
-        f"  deadline misses {r['deadline_misses']}   skipped samples {r['skipped_samples']}",
+        f"  deadline misses {r['deadline_misses']}   skipped samples {r['skipped_samples']}"
+        + (f"   silences excused {r['silences_excused']} (the silent process was runnable)"
+           if r.get("silences_excused") else ""),
         "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
         *_cpu_lines(r),
         *_sched_lines(r),
@@ -371,4 +375,5 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         exchanges=central.exchanges if setup.placement.peripherals else None,
         replies=central.replies_info if setup.placement.peripherals else None,
         central_costs=central.costs(), gantt=gantt_window(central.spans),
+        silences_excused=central.excuses,
     )

@@ -290,6 +290,97 @@ def test_a_silence_the_plant_shared_is_not_counted_up_to_one_more_limit(monkeypa
                                "plus 3.0 ms the plant was silent too)"), str(exc)
 
 
+def silent_peripheral_2(tag: str, monkeypatch) -> tuple[Any, Clock, int]:
+    """A unit past start-up whose peripheral 2 alone went silent (the plant samples on),
+    the guard's clock at its limit."""
+    u = realtime_unit(tag, late_policy="hold")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({1}))
+    c.done = 100
+    limit = c._timeout_ns()
+    c.inflight[1].deadline_ns = 10**18  # the round's own deadline and late time out of
+    c.inflight[1].late_ns = 0  # the way: its silence alone is judged
+    c.plant_gaps.clear()
+    clock = Clock(c.last_reply_ns[1] + limit)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c.last_sample_ns = clock.now
+    return c, clock, limit
+
+
+def test_a_runnable_silent_process_has_one_more_limit_and_is_then_a_fault(monkeypatch):
+    """The silent peripheral's process is runnable (waiting for a CPU): the machine is
+    slow, not the process; its silence counts only past twice the limit, once."""
+    c, clock, limit = silent_peripheral_2("runnable", monkeypatch)
+    asked: list[str] = []
+    c.role_state = lambda role: asked.append(role) or "runnable"
+    since = c.last_reply_ns[1]
+    clock.now += 1
+    c._check_deadlines(limit)  # past the limit, but runnable: excused
+    assert asked == ["peripheral-2"] and c.excuses == 1
+    assert c._next_check(clock.now, limit, 0) == since + 2 * limit  # no busy wait
+    clock.now = c.last_sample_ns = since + 2 * limit  # the plant samples on
+    c._check_deadlines(limit)
+    clock.now += 1
+    with pytest.raises(Fault) as info:  # still runnable, still silent: now a fault
+        c._check_deadlines(limit)
+    assert info.value.process == "peripheral-2" and c.excuses == 1
+    assert str(info.value).startswith(
+        "peripheral 2 has not answered for 6.0 ms (limit 3.0 ms); its process was runnable "
+        "(after its limit was extended once while it was runnable)"), str(info.value)
+
+
+def test_a_silence_is_excused_once_while_the_centrals_own_zenoh_thread_is_runnable(
+        monkeypatch):
+    """The peripheral sleeps (it waits for the request, or has answered) while the
+    central's own Zenoh thread has yet to send or read: the central was the slow one."""
+    c, clock, limit = silent_peripheral_2("central-busy", monkeypatch)
+    c.role_state = lambda role: "runnable" if role == "central" else "sleeping"
+    clock.now += 1
+    c._check_deadlines(limit)
+    assert c.excuses == 1
+    clock.now = c.last_sample_ns = c.last_reply_ns[1] + 2 * limit + 1
+    with pytest.raises(Fault, match="its process was sleeping"):
+        c._check_deadlines(limit)
+
+
+@pytest.mark.parametrize("state", ["sleeping", "stopped", "exited", "blocked"])
+def test_a_silent_process_that_is_not_runnable_is_a_fault_at_its_limit(monkeypatch, state):
+    c, clock, limit = silent_peripheral_2(f"not-{state}", monkeypatch)
+    c.role_state = lambda role: state
+    exc = fault_just_past(c, clock, limit)
+    assert exc.process == "peripheral-2" and c.excuses == 0
+    assert str(exc).startswith(f"peripheral 2 has not answered for 3.0 ms (limit 3.0 ms); "
+                               f"its process was {state}"), str(exc)
+
+
+def test_a_silent_plant_that_is_runnable_is_excused_once(monkeypatch):
+    u = realtime_unit("plant-runnable")
+    c = u.central
+    first_interval(u)
+    c.done = 100
+    c.last_sample_ns = 5 * MS
+    clock = Clock(5 * MS + 3 * MS + 1)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c.role_state = lambda role: "runnable" if role == "plant" else "sleeping"
+    c._check_deadlines(3 * MS)
+    assert c.excuses == 1
+    clock.now = 5 * MS + 6 * MS
+    exc = fault_just_past(c, clock, 3 * MS)
+    assert exc.process == "plant" and str(exc).startswith(
+        "no sample from the plant for 6.0 ms (cycle 1 awaited, newest seen 0); its process "
+        "was runnable"), str(exc)
+
+
+def test_no_silence_is_excused_outside_realtime_or_where_the_process_is_unknown(monkeypatch):
+    c, clock, limit = silent_peripheral_2("unknown", monkeypatch)
+    c.role_state = None  # a role started by hand, maybe on another host
+    exc = fault_just_past(c, clock, limit)
+    assert exc.process == "peripheral-2" and "its process" not in str(exc)
+    assert c.excuses == 0
+
+
 def test_the_first_interval_is_judged_by_its_rounds_deadline_only(monkeypatch):
     u = realtime_unit("first")
     c = u.central
