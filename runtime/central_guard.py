@@ -100,10 +100,11 @@ class CentralGuard:
         (its Zenoh thread; a recorder's or viewer's), is runnable (running or waiting for
         a CPU), once per silence and for at most one more limit. Then the machine, not the
         process, is slow: the silent process is working through what it was sent, or the
-        central's own process has yet to send the request or to read the answer (on 2026-11-24 a 60 s run at 1 ms ended 30
-        intervals before its end on a peripheral silent 3.3 ms against a 3 ms limit). A
-        stopped, sleeping or exited process with nothing in transit is a fault at once,
-        and one that stays runnable past the extra limit (e.g. in an endless loop) too."""
+        central's own process has yet to send the request or to read the answer (on
+        2026-11-24 a 60 s run at 1 ms ended 30 intervals before its end on a peripheral
+        silent 3.3 ms against a 3 ms limit). A stopped, sleeping or exited process with
+        nothing in transit is a fault at once, and one that stays runnable past the extra
+        limit (e.g. in an endless loop) too."""
         if self.rc.schedule.clock != "realtime" or self.role_state is None \
                 or self.excused.get(role, (None,))[0] == since:
             return False

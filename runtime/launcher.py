@@ -124,7 +124,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     if sched.fifo_in_force() and sched_choice["budget"] is not None:
         guard = sched.BusyGuard(
             lambda: [os.getpid()] + [p.pid for p in children if p.poll() is None],
-            sched_choice["budget"], say=echo)
+            sched_choice["budget"], priority=sched_choice["priority"], say=echo)
     recorder = None
     if rc.run.record:
         from .recorder import Recorder
@@ -239,7 +239,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     if placement_choice is not None:
         report["placement_choice"] = placement_choice
     report["scheduling_choice"] = sched_choice
-    report["scheduling_fallback"] = guard.event if guard is not None else None
+    report["scheduling_fallback"] = guard.report() if guard is not None else None
     report["zenoh"] = zenoh_ids
     report["late"] = {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),
                       "misses_per_axis": list(central.late_per_axis)}

@@ -56,6 +56,14 @@ budget over :data:`GUARD_WINDOW_S` goes back to the default policy (:class:`Busy
 GUARD_WINDOW_S = 0.5
 """The window over which :class:`BusyGuard` measures the busiest CPU's busy share."""
 
+RESTORE_WINDOWS = 4
+"""After a fall-back, this many consecutive windows with every CPU at most
+:data:`ADMIT_BUSY_SHARE` of the budget busy put the unit back under SCHED_FIFO."""
+
+MAX_RESTORES = 3
+"""How many times a run goes back to SCHED_FIFO after falling back; after that it stays
+under the default policy (a load that keeps coming back would otherwise flap)."""
+
 
 class RtPermissionError(PermissionError):
     """SCHED_FIFO was asked for with ``--rt-priority N`` and this process may not use it."""
@@ -212,11 +220,13 @@ def apply_choice(asked: int | str, *, clock: str, admission: bool,
     return policy, {"asked": asked, "priority": priority, "why": why, "budget": budget}
 
 
-def demote(pids: Iterable[int]) -> list[int]:
-    """Every thread of each process in ``pids`` under the default policy; the pids whose
-    threads could all be reached (a process that has exited is skipped)."""
+def demote(pids: Iterable[int], *, priority: int = 0) -> list[int]:
+    """Every thread of each process in ``pids`` under the default policy, or with
+    ``priority`` 1-99 under SCHED_FIFO at it; the pids whose threads could be reached (a
+    process that has exited is skipped)."""
     done = []
-    param = os.sched_param(0)
+    policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
+    param = os.sched_param(priority)
     for pid in pids:
         try:
             tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
@@ -224,43 +234,64 @@ def demote(pids: Iterable[int]) -> list[int]:
             continue
         for tid in tids:
             with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.sched_setscheduler(tid, os.SCHED_OTHER, param)
+                os.sched_setscheduler(tid, policy, param)
         done.append(pid)
     return done
 
 
 class BusyGuard:
     """Under FIFO, puts the unit back under the default policy before the kernel's
-    real-time throttling can freeze it.
+    real-time throttling can freeze it, and under FIFO again once the load has fallen.
 
     Called every interval (``on_cycle``): once per :data:`GUARD_WINDOW_S` it reads the
     busiest CPU's busy share since the last reading (:func:`busy_share`, about 30 us);
     over ``share`` of the real-time budget, every process of ``pids()`` goes to the
-    default policy, once, and :attr:`event` says when and why (the report's
-    ``scheduling_fallback``).
+    default policy, and :attr:`event` says when and why (the report's
+    ``scheduling_fallback``). Under the default policy a period that needed FIFO does not
+    hold (on 2026-11-24 a 60 s run at 1 ms fell back at interval 47 000 and lost the
+    robot's tracking within 0.2 s), so once ``restore_windows`` windows in a row kept
+    every CPU at most ``restore_share`` of the budget busy, the processes go back under
+    FIFO at ``priority``; at most ``max_restores`` times a run, every change listed in
+    :attr:`changes`.
 
     Parameters
     ----------
     pids : the unit's processes on this machine (this one and its children).
     budget : :func:`rt_budget`.
+    priority : the FIFO priority the unit runs at (0: never go back to FIFO).
     share, window_s : the threshold and the window (module constants by default).
+    restore_share, restore_windows, max_restores : the way back (module constants).
     read, clock : the busy counters and the clock (tests give their own).
     """
 
     def __init__(self, pids: Callable[[], Iterable[int]], budget: float, *,
-                 share: float = DEMOTE_BUSY_SHARE, window_s: float = GUARD_WINDOW_S,
+                 priority: int = 0, share: float = DEMOTE_BUSY_SHARE,
+                 window_s: float = GUARD_WINDOW_S, restore_share: float = ADMIT_BUSY_SHARE,
+                 restore_windows: int = RESTORE_WINDOWS, max_restores: int = MAX_RESTORES,
                  read: Callable[[], list[tuple[int, int]]] = cpu_times,
                  clock: Callable[[], float] = time.monotonic,
                  say: Callable[[str], None] | None = None) -> None:
         self.pids, self.limit, self.window_s = pids, share * budget, window_s
+        self.priority = priority
+        self.restore_limit = restore_share * budget
+        self.restore_windows, self.max_restores = restore_windows, max_restores
         self.read, self.clock, self.say = read, clock, say
         self.event: dict[str, Any] | None = None
+        self.changes: list[dict[str, Any]] = []
+        """Every change of policy: ``{cycle, busy_share, policy}``, ``policy`` the one
+        taken (``default`` or ``fifo``)."""
+        self.fifo = True
+        self._calm = 0  # consecutive windows under the restore limit, under the default
         self._t = 0.0
         self._last: list[tuple[int, int]] | None = None  # the first call starts the window
 
+    @property
+    def restores(self) -> int:
+        return sum(1 for c in self.changes if c["policy"] == "fifo")
+
     def __call__(self, _central: Any = None, cycle: int | None = None, *_: Any) -> None:
         now = self.clock()
-        if self.event is not None or (self._last is not None and now - self._t < self.window_s):
+        if self._last is not None and now - self._t < self.window_s:
             return
         cur = self.read()
         if self._last is None:
@@ -268,16 +299,43 @@ class BusyGuard:
             return
         share = busy_share(self._last, cur, elapsed_s=now - self._t)
         self._t, self._last = now, cur
-        if share is None or share <= self.limit:
+        if share is None:
             return
+        if self.fifo:
+            if share > self.limit:
+                self._fall_back(share, cycle)
+            return
+        self._calm = self._calm + 1 if share <= self.restore_limit else 0
+        if (self._calm >= self.restore_windows and self.priority
+                and self.restores < self.max_restores):
+            demote(self.pids(), priority=self.priority)
+            self.fifo, self._calm = True, 0
+            self.changes.append({"cycle": cycle, "busy_share": share, "policy": "fifo"})
+            if self.say is not None:
+                self.say(f"ctrlunit: every CPU at most {self.restore_limit:.0%} busy over "
+                         f"{self.restore_windows * self.window_s:g} s: every role under "
+                         f"SCHED_FIFO {self.priority} again at interval {cycle}")
+
+    def _fall_back(self, share: float, cycle: int | None) -> None:
         demoted = demote(self.pids())
-        self.event = {"cycle": cycle, "busy_share": share, "limit": self.limit,
-                      "window_s": self.window_s, "processes": len(demoted)}
+        self.fifo, self._calm = False, 0
+        self.changes.append({"cycle": cycle, "busy_share": share, "policy": "default"})
+        if self.event is None:
+            self.event = {"cycle": cycle, "busy_share": share, "limit": self.limit,
+                          "window_s": self.window_s, "processes": len(demoted)}
         if self.say is not None:
             self.say(f"ctrlunit: a CPU was {share:.0%} busy over {self.window_s:g} s "
                      f"under SCHED_FIFO (limit {self.limit:.0%}, near the kernel's real-time "
                      f"throttling): every role back under the default policy at interval "
                      f"{cycle}")
+
+    def report(self) -> dict[str, Any] | None:
+        """The report's ``scheduling_fallback``: the first fall-back (None if none), with
+        every change of policy and how many times FIFO came back."""
+        if self.event is None:
+            return None
+        return {**self.event, "changes": list(self.changes), "restored": self.restores,
+                "fifo_at_end": self.fifo}
 
 
 def apply_rt(priority: int) -> str:

@@ -125,6 +125,70 @@ def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limi
     assert len(demoted) == 1
 
 
+def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of_times(
+        monkeypatch) -> None:
+    """After a fall-back, four windows in a row with every CPU at most 0.8 of the budget
+    busy put the roles under FIFO at their priority again; a busy window in between
+    starts the count again; at most max_restores times."""
+    calls: list[tuple[list[int], int]] = []
+    monkeypatch.setattr(sched, "demote", lambda pids, priority=0:
+                        calls.append((list(pids), priority)) or list(pids))
+    busy = [0]  # cumulative busy ticks of CPU 0; 100 ticks a window
+    now = [0.0]
+
+    def read() -> list[tuple[int, int]]:
+        return [(busy[0], int(now[0] * 200))]
+
+    said: list[str] = []
+    guard = sched.BusyGuard(lambda: [11], 0.95, priority=10, max_restores=2, read=read,
+                            clock=lambda: now[0], say=said.append)
+
+    def window(share: float, cycle: int) -> None:
+        now[0] += 0.5
+        busy[0] += round(100 * share)
+        guard(None, cycle)
+
+    guard(None, 0)
+    window(1.0, 1)  # over 0.9025: fall back
+    assert calls == [([11], 0)] and not guard.fifo
+    for c in (2, 3, 4):
+        window(0.7, c)  # calm, but three windows only
+    window(0.8, 5)  # 0.8 > 0.76: busy, the count starts again
+    for c in (6, 7, 8):
+        window(0.5, c)
+    assert len(calls) == 1
+    window(0.5, 9)  # the fourth calm window in a row
+    assert calls[-1] == ([11], 10) and guard.fifo and "SCHED_FIFO 10 again" in said[-1]
+    window(0.96, 10)  # busy under FIFO again: back to the default
+    assert calls[-1] == ([11], 0) and not guard.fifo
+    for c in range(11, 15):
+        window(0.1, c)
+    assert calls[-1] == ([11], 10)  # the second way back
+    window(1.0, 15)
+    for c in range(16, 30):
+        window(0.1, c)
+    assert calls[-1] == ([11], 0) and guard.restores == 2  # no third way back
+    rep = guard.report()
+    assert rep["cycle"] == 1 and rep["restored"] == 2 and rep["fifo_at_end"] is False
+    assert [(c["cycle"], c["policy"]) for c in rep["changes"]] == [
+        (1, "default"), (9, "fifo"), (10, "default"), (14, "fifo"), (15, "default")]
+
+
+def test_a_busy_guard_without_a_priority_never_goes_back_to_fifo(monkeypatch) -> None:
+    calls: list[int] = []
+    monkeypatch.setattr(sched, "demote", lambda pids, priority=0:
+                        calls.append(priority) or list(pids))
+    readings = iter([[(0, 0)], [(100, 100)]] + [[(100 + 10 * k, 100 + 100 * k)]
+                                                for k in range(1, 10)])
+    now = [0.0]
+    guard = sched.BusyGuard(lambda: [11], 0.95, read=lambda: next(readings),
+                            clock=lambda: now[0])
+    for k in range(11):
+        guard(None, k)
+        now[0] += 0.5
+    assert calls == [0] and guard.report()["restored"] == 0
+
+
 def test_demote_puts_every_thread_of_a_fifo_process_back_under_the_default_policy() -> None:
     if not sched.fifo_permitted():
         pytest.skip("this process may not use SCHED_FIFO")
