@@ -5,8 +5,9 @@
 ``--peripherals 0``, at the period and under the scheduling policy the main job ran
 at, admission off so that it always runs): the machine's own stalls show in the baseline,
 measured in the same minutes. Then
-one long run of the main job (task repeated). Every run is a ``ctrlunit start`` process of
-its own, as a user runs it, and is ended by the stage if it overstays.
+one long run of the main job (task repeated), followed by the baseline for as long at the
+long run's period. Every run is a ``ctrlunit start`` process of its own, as a user runs it,
+and is ended by the stage if it overstays.
 
 Figures: the fraction of runs that completed the task, deadline misses per 1000 periods
 over all runs, traversal p99.9, CPU per interval (all processes), the period each run
@@ -124,11 +125,24 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
                                      and r["cycles"]), default=math.nan)}
 
 
+def stage_steps(runs: int, long_s: float) -> int:
+    """How many ``ctrlunit start`` processes the stage runs (for progress)."""
+    return 2 * runs + (2 if long_s > 0 else 0)
+
+
+def baseline_args(row: dict[str, Any], *extra: str) -> tuple[str, ...]:
+    """The baseline of a main-job run ``row``: one control process at the period it ran
+    and under the policy it ran under (without the admission, ``--rt-priority auto``
+    would leave it at the default policy)."""
+    return ("--peripherals", "0", "--pipeline", "2", "--period", f"{row['period_s'] or 1e-3:g}",
+            "--no-admission", "--rt-priority", str(row["rt_priority"] or 0), *extra)
+
+
 def realtime_stage(*, runs: int, long_s: float,
                    progress: Callable[[str, int, int], None] | None = None, done: int = 0,
                    total: int = 0, timeout_s: float = 120.0) -> dict[str, Any]:
     """``runs`` main-job runs, each followed by its baseline, then a long run of
-    ``long_s`` seconds (none when 0). See the module's docstring."""
+    ``long_s`` seconds and its baseline (none when 0). See the module's docstring."""
     star: list[dict[str, Any]] = []
     base: list[dict[str, Any]] = []
     for i in range(runs):
@@ -137,28 +151,33 @@ def realtime_stage(*, runs: int, long_s: float,
         row = run_row(run_start(MAIN_JOB, timeout_s=timeout_s))
         star.append(row)
         done += 1
-        period = row["period_s"] or 1e-3
         if progress:
             progress(f"realtime: baseline {i + 1}/{runs}", done, total)
-        # the baseline under the policy the main job ran under (without the admission,
-        # --rt-priority auto would leave it at the default policy)
-        base.append(run_row(run_start(("--peripherals", "0", "--pipeline", "2",
-                                       "--period", f"{period:g}", "--no-admission",
-                                       "--rt-priority", str(row["rt_priority"] or 0)),
-                                      timeout_s=timeout_s)))
+        base.append(run_row(run_start(baseline_args(row), timeout_s=timeout_s)))
         done += 1
-    long_row = None
+    long_row = long_base = None
     if long_s > 0:
         if progress:
             progress(f"realtime: main job for {long_s:g} s", done, total)
         long_row = run_row(run_start((*MAIN_JOB, "--duration", f"{long_s:g}s"),
                                      timeout_s=timeout_s + 3 * long_s))
+        done += 1
+        if progress:
+            progress(f"realtime: baseline for {long_s:g} s", done, total)
+        long_base = run_row(run_start(baseline_args(long_row, "--duration", f"{long_s:g}s"),
+                                      timeout_s=timeout_s + 3 * long_s))
     return {"command": "ctrlunit start " + " ".join(MAIN_JOB),
             "baseline_command": "ctrlunit start --peripherals 0 --pipeline 2 "
                                 "--period <the main job's> --no-admission "
                                 "--rt-priority <the main job's>",
             "levers": levers(), "main_job": summary(star), "baseline": summary(base),
-            "long": long_row, "long_s": long_s, "rows": {"main_job": star, "baseline": base}}
+            "long": long_row, "long_baseline": long_base, "long_s": long_s,
+            "rows": {"main_job": star, "baseline": base}}
+
+
+def per_1000(row: dict[str, Any]) -> float:
+    """A run's deadline misses per 1000 periods."""
+    return 1000 * row["deadline_misses"] / row["cycles"] if row["cycles"] else math.nan
 
 
 def _fmt(x: Any, scale: float = 1.0, digits: int = 0) -> str:
@@ -174,7 +193,8 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
         "",
         f"`{st['command']}` (default options), {st['main_job']['runs']} run(s), each "
         f"followed by the baseline `{st['baseline_command']}`"
-        + (f"; then the main job for {st['long_s']:g} s." if st["long"] else "."),
+        + (f"; then the main job for {st['long_s']:g} s and its baseline as long."
+           if st["long"] else "."),
         "Levers on: " + ", ".join(f"{k} {v}" for k, v in st["levers"].items()) + ".",
         "",
         "| | runs | completed | refused (exit 7) | periods | misses | misses / 1000 | "
@@ -193,13 +213,14 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
     if sched:
         lines += ["", f"The main job's runs ran under {sched}; back to the default policy "
                   f"during the run (the throttling guard) in {st['main_job']['fell_back']}."]
-    r = st["long"]
-    if r:
-        per = 1000 * r["deadline_misses"] / r["cycles"] if r["cycles"] else math.nan
-        lines += ["", f"Long run ({st['long_s']:g} s): exit {r['exit_code']}, period "
+    for title, r in ((f"Long run ({st['long_s']:g} s)", st["long"]),
+                     (f"Its baseline ({st['long_s']:g} s, n = 0)", st.get("long_baseline"))):
+        if not r:
+            continue
+        lines += ["", f"{title}: exit {r['exit_code']}, period "
                   f"{_fmt(r['period_s'], 1e3, 2)} ms, {r['cycles']} periods, "
-                  f"{r['deadline_misses']} misses ({_fmt(per, 1, 2)} per 1000), traversal "
-                  f"p99.9 {_fmt(r['traversal_p999_s'], 1e6)} us, CPU / interval "
+                  f"{r['deadline_misses']} misses ({_fmt(per_1000(r), 1, 2)} per 1000), "
+                  f"traversal p99.9 {_fmt(r['traversal_p999_s'], 1e6)} us, CPU / interval "
                   f"{_fmt(r['cpu_per_interval_s'], 1e6)} us, tracking max "
                   f"{_fmt(r['tracking_max_m'], 1e3, 2)} mm"
                   + (f"; fault: {r['fault']}" if r["fault"] else "") + "."]
@@ -211,5 +232,5 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
     return lines + [""]
 
 
-__all__ = ["LEVERS", "MAIN_JOB", "levers", "markdown_lines", "realtime_stage", "run_row",
-           "run_start", "summary"]
+__all__ = ["LEVERS", "MAIN_JOB", "baseline_args", "levers", "markdown_lines", "per_1000",
+           "realtime_stage", "run_row", "run_start", "stage_steps", "summary"]

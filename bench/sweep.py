@@ -30,7 +30,7 @@ from ..runtime.report import gantt_window
 from ..runtime.sched import fifo_permitted
 from ..runtime.timing import warm_intervals
 from .floor import floor
-from .realtime import realtime_stage
+from .realtime import realtime_stage, stage_steps
 
 THESIS = {
     "inverse_kinematics_3": {"t1_us": 240, "tp_us": 88, "n": 3, "efficiency": 0.91},
@@ -341,8 +341,8 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     gantt: dict[str, list] = {}
     rt_runs = realtime_runs if realtime_runs is not None else (2 if quick else 20)
     rt_long = realtime_long_s if realtime_long_s is not None else (0.0 if quick else 60.0)
-    total = (len(configs) * repeats + 1 + 2 * 2 * repeats + 4 * repeats + 2 * rt_runs
-             + (rt_long > 0))
+    total = (len(configs) * repeats + 1 + 2 * 2 * repeats + 4 * repeats
+             + stage_steps(rt_runs, rt_long))
     done = 0
     t_start = time.monotonic()
     rng = random.Random(1994)

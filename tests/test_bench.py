@@ -195,6 +195,38 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
         "during the run (the throttling guard) in 1." in md
 
 
+def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monkeypatch):
+    """The long run's baseline: one control process for as long, at the period the long
+    run chose and under its policy; both get a line of the report, with misses per 1000."""
+    from ctrlunit.bench import realtime
+
+    started: list[tuple[str, ...]] = []
+
+    def fake_start(args: tuple[str, ...], *, timeout_s: float) -> dict:
+        started.append(args)
+        cycles = 1250 if "--duration" in args else 400
+        rep = {"nominal_period_s": 1.6e-3 if args[1] == "3" else
+               float(args[args.index("--period") + 1]),
+               "cycles": cycles, "deadline_misses": 5 if args[1] == "3" else 1,
+               "traversal_s": {"p999": 1e-3}, "cpu_per_interval_s": {"total": 1e-3},
+               "tracking_error_m": {"max": 1e-4}, "fault": None,
+               "scheduling": {"central": "SCHED_FIFO 10"}, "scheduling_fallback": None,
+               "scheduling_choice": {"priority": 10}}
+        return {"exit_code": 0, "report": rep, "wall_s": 1.0, "output_tail": ""}
+
+    monkeypatch.setattr(realtime, "run_start", fake_start)
+    assert realtime.stage_steps(1, 2.0) == 4 and realtime.stage_steps(3, 0) == 6
+    st = realtime.realtime_stage(runs=1, long_s=2.0)
+    assert started[2] == (*realtime.MAIN_JOB, "--duration", "2s")
+    assert started[3] == ("--peripherals", "0", "--pipeline", "2", "--period", "0.0016",
+                          "--no-admission", "--rt-priority", "10", "--duration", "2s")
+    assert st["long_baseline"]["deadline_misses"] == 1
+    md = "\n".join(realtime.markdown_lines(st))
+    assert "Long run (2 s): exit 0, period 1.60 ms, 1250 periods, 5 misses (4.00 per 1000)" in md
+    assert "Its baseline (2 s, n = 0): exit 0, period 1.60 ms, 1250 periods, 1 misses " \
+        "(0.80 per 1000)" in md
+
+
 def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
     """``ctrlunit bench --only realtime --realtime-runs 1 --realtime-long 0``: one run of
     the main job as a user starts it, one baseline, a report that names the levers."""

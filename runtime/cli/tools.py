@@ -99,7 +99,7 @@ def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
     import time
     from pathlib import Path
 
-    from ...bench.realtime import markdown_lines, realtime_stage
+    from ...bench.realtime import markdown_lines, realtime_stage, stage_steps
     from ...bench.sweep import machine_info
 
     out = Path(out_dir)
@@ -107,7 +107,7 @@ def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
     t0 = time.monotonic()
     with _ticker("realtime") as tick:
         st = realtime_stage(runs=runs, long_s=long_s, progress=tick, done=0,
-                            total=2 * runs + (long_s > 0))
+                            total=stage_steps(runs, long_s))
     rep = {"machine": machine_info(), "realtime": st, "wall_s": time.monotonic() - t0}
     (out / "report.json").write_text(json.dumps(_json_safe(rep), indent=2))
     m = rep["machine"]
