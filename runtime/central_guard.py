@@ -96,19 +96,21 @@ class CentralGuard:
 
     def _excuse(self, role: str, since: int, now: int, timeout_ns: int) -> bool:
         """Realtime, a role this central started: a silence past its limit is not yet a
-        fault while the silent process, or another thread of the central's own process
-        (its Zenoh thread; a recorder's or viewer's), is runnable (running or waiting for
-        a CPU), once per silence and for at most one more limit. Then the machine, not the
-        process, is slow: the silent process is working through what it was sent, or the
-        central's own process has yet to send the request or to read the answer (on
-        2026-11-24 a 60 s run at 1 ms ended 30 intervals before its end on a peripheral
-        silent 3.3 ms against a 3 ms limit). A stopped, sleeping or exited process with
-        nothing in transit is a fault at once, and one that stays runnable past the extra
-        limit (e.g. in an endless loop) too."""
+        fault while the silent process is runnable (running or waiting for a CPU), or
+        while it sleeps and one of the central's own Zenoh threads is runnable, once per
+        silence and for at most one more limit. Then the machine, not the process, is
+        slow: the silent process is working through what it was sent, or the central's
+        own Zenoh thread has yet to send the request or to read the answer (on 2026-11-24
+        a 60 s run at 1 ms ended 30 intervals before its end on a peripheral silent 3.3
+        ms against a 3 ms limit). A stopped or exited process is a fault at once, a
+        sleeping one with nothing in transit too, and one that stays runnable past the
+        extra limit (e.g. in an endless loop) too."""
         if self.rc.schedule.clock != "realtime" or self.role_state is None \
                 or self.excused.get(role, (None,))[0] == since:
             return False
-        if self.role_state(role) != "runnable" and self.role_state("central") != "runnable":
+        state = self.role_state(role)
+        if not (state == "runnable"
+                or (state == "sleeping" and self.role_state("central") == "runnable")):
             return False
         self.excused[role] = (since, self._limit_end(role, since, now, timeout_ns) + timeout_ns)
         self.excuses += 1

@@ -16,7 +16,6 @@ import shutil
 import signal
 import subprocess
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -36,7 +35,14 @@ from .config import (
 from .node import Node, freeze_heap, rss_kb
 from .report import cpu_budget, finish_report, text_or_none
 from .setup import Setup, make_setup
-from .supervise import end_children, process_state, role_cpus, spawn_role, unit_cores
+from .supervise import (
+    ZENOH_THREADS,
+    end_children,
+    process_state,
+    role_cpus,
+    spawn_role,
+    unit_cores,
+)
 from .zsession import default_endpoint, make_config
 
 
@@ -159,11 +165,10 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         central.child_check = check
         if spawn:  # what the silent process is doing, where this central can see it
             pids = {name: p.pid for p, name in zip(children, names, strict=False)}
-            me = threading.get_native_id()  # the central's own Zenoh threads: not this one
 
             def role_state(role: str) -> str:
-                if role == "central":
-                    return process_state(os.getpid(), exclude=me)
+                if role == "central":  # its Zenoh threads: is anything in transit here?
+                    return process_state(os.getpid(), threads=ZENOH_THREADS)
                 return process_state(pids[role]) if role in pids else "unknown"
 
             central.role_state = role_state

@@ -345,10 +345,23 @@ def test_a_silence_is_excused_once_while_the_centrals_own_zenoh_thread_is_runnab
         c._check_deadlines(limit)
 
 
+@pytest.mark.parametrize("state", ["stopped", "exited", "blocked"])
+def test_a_frozen_or_exited_process_is_a_fault_whatever_the_central_is_doing(monkeypatch,
+                                                                              state):
+    """A process stopped by a signal cannot answer, whatever is in transit: the frozen-role
+    tests' case (tests/test_faults.py)."""
+    c, clock, limit = silent_peripheral_2(f"frozen-{state}", monkeypatch)
+    c.role_state = lambda role: "runnable" if role == "central" else state
+    exc = fault_just_past(c, clock, limit)
+    assert exc.process == "peripheral-2" and c.excuses == 0
+
+
 @pytest.mark.parametrize("state", ["sleeping", "stopped", "exited", "blocked"])
 def test_a_silent_process_that_is_not_runnable_is_a_fault_at_its_limit(monkeypatch, state):
+    """Nothing in transit at the central either (a sleeping process is excused while the
+    central's own Zenoh thread is runnable: the next test)."""
     c, clock, limit = silent_peripheral_2(f"not-{state}", monkeypatch)
-    c.role_state = lambda role: state
+    c.role_state = lambda role: "sleeping" if role == "central" else state
     exc = fault_just_past(c, clock, limit)
     assert exc.process == "peripheral-2" and c.excuses == 0
     assert str(exc).startswith(f"peripheral 2 has not answered for 3.0 ms (limit 3.0 ms); "
