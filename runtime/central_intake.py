@@ -37,14 +37,17 @@ class CentralIntake:
             msg = self.node.decode(data)
             if msg is None:
                 return
-            if msg.get("stage") == "hello":
+            stage = msg.get("stage")
+            if stage == "hello":
                 self.say("go")  # a role that missed go asks again
-            elif msg.get("stage") == "bye" and msg.get("role") in self.expected_roles():
+            elif stage == "bye":
                 report = msg.get("report")
-                if type(report) is not dict:
+                if msg.get("role") not in self.expected_roles() or type(report) is not dict:
                     self.node.reject("bad_value")
                     return
                 self.role_reports[msg["role"]] = role_report(report)
+            elif stage != "placed":  # a late acknowledgement of a place order is no fault
+                self.node.reject("bad_stage")
         else:
             self.node.reject("unexpected_key")
 

@@ -301,14 +301,22 @@ def freeze_heap(*, collect: bool = False) -> None:
     gc.freeze()
 
 
+CONTROL_STAGES = frozenset({"go", "place", "probe", "start", "stop"})
+"""The orders the central sends on the roles' control keys (``Central.say``)."""
+
+
 def control_order(node: Node, ev: Event) -> dict[str, Any] | None:
-    """The central's order in a control event (None if ``ev`` is none or does not
-    decode), noting that the central spoke, when it said ``start`` (see :func:`cpu_used`)
-    and the ``stop`` order (:attr:`Node.stop_msg`)."""
+    """The central's order in a control event (None if ``ev`` is none, does not decode or
+    is no order: :data:`CONTROL_STAGES`; counted as ``bad_stage`` then), noting that the
+    central spoke, when it said ``start`` (see :func:`cpu_used`) and the ``stop`` order
+    (:attr:`Node.stop_msg`)."""
     if ev.kind != "control":
         return None
     msg = node.decode(ev.data)
     if msg is None:
+        return None
+    if msg["stage"] not in CONTROL_STAGES:
+        node.reject("bad_stage")
         return None
     node.last_heard_ns = time.monotonic_ns()
     if msg["stage"] == "start" and node.cpu_start_s is None:
