@@ -267,29 +267,6 @@ def test_a_silent_peripheral_is_a_fault_just_after_its_limit(monkeypatch):
     c._check_deadlines(limit)
 
 
-def test_a_silence_the_plant_shared_is_not_counted_up_to_one_more_limit(monkeypatch):
-    """The machine stalled every process: the plant's last sample is as old as the
-    peripheral's last reply, so the silence counts only past twice the limit."""
-    u = realtime_unit("shared", late_policy="hold")
-    c = u.central
-    first_interval(u)
-    sample(u, 1)
-    settle(u, muted=frozenset({1}))
-    c.done = 100
-    limit = c._timeout_ns()
-    c.inflight[1].deadline_ns = 10**18
-    c.plant_gaps.clear()
-    c.last_sample_ns = c.last_reply_ns[1] - 2 * MS  # silent since before the reply
-    clock = Clock(c.last_reply_ns[1] + limit + 1)
-    monkeypatch.setattr(central_guard, "time", clock)
-    c._check_deadlines(limit)  # past the limit, but the plant was silent too
-    clock.now = c.last_reply_ns[1] + 2 * limit
-    exc = fault_just_past(c, clock, limit)
-    assert exc.process == "peripheral-2"
-    assert str(exc).startswith("peripheral 2 has not answered for 6.0 ms (limit 3.0 ms, "
-                               "plus 3.0 ms the plant was silent too)"), str(exc)
-
-
 def silent_peripheral_2(tag: str, monkeypatch) -> tuple[Any, Clock, int]:
     """A unit past start-up whose peripheral 2 alone went silent (the plant samples on),
     the guard's clock at its limit."""
@@ -307,6 +284,20 @@ def silent_peripheral_2(tag: str, monkeypatch) -> tuple[Any, Clock, int]:
     monkeypatch.setattr(central_guard, "time", clock)
     c.last_sample_ns = clock.now
     return c, clock, limit
+
+
+def test_a_silence_the_plant_shared_is_not_counted_up_to_one_more_limit(monkeypatch):
+    """The machine stalled every process: the plant's last sample is as old as the
+    peripheral's last reply, so the silence counts only past twice the limit."""
+    c, clock, limit = silent_peripheral_2("shared", monkeypatch)
+    c.last_sample_ns = c.last_reply_ns[1] - 2 * MS  # silent since before the reply
+    clock.now += 1
+    c._check_deadlines(limit)  # past the limit, but the plant was silent too
+    clock.now = c.last_reply_ns[1] + 2 * limit
+    exc = fault_just_past(c, clock, limit)
+    assert exc.process == "peripheral-2"
+    assert str(exc).startswith("peripheral 2 has not answered for 6.0 ms (limit 3.0 ms, "
+                               "plus 3.0 ms the plant was silent too)"), str(exc)
 
 
 def test_a_runnable_silent_process_has_one_more_limit_and_is_then_a_fault(monkeypatch):
