@@ -116,14 +116,14 @@ class CentralGuard:
         self.excuses += 1
         return True
 
-    def _state_note(self, role: str) -> str:
-        """For a silence fault's message: what the silent process was doing, where known."""
+    def _state_note(self, role: str, since: int) -> str:
+        """For a silence fault's message: what the silent process was doing, where known,
+        and whether this silence was excused once (:meth:`_excuse`)."""
         if self.role_state is None:
             return ""
-        state = self.role_state(role)
-        excused = " (after its limit was extended once while it was runnable)" \
-            if role in self.excused else ""
-        return f"; its process was {state}{excused}"
+        excused = " (after one extension of its limit)" \
+            if self.excused.get(role, (None,))[0] == since else ""
+        return f"; its process was {self.role_state(role)}{excused}"
 
     def _shared_note(self, since: int, now: int, timeout_ns: int) -> str:
         """For a fault's message: how much of a silence was not counted (:meth:`_fault_at`)."""
@@ -181,7 +181,7 @@ class CentralGuard:
                     raise Fault(f"peripheral {k + 1} has not answered for "
                                 f"{(now - t) / 1e6:.1f} ms (limit {timeout_ns / 1e6:.1f} ms"
                                 f"{self._shared_note(t, now, timeout_ns)})"
-                                f"{self._state_note(role)}{self._overload_hint()}",
+                                f"{self._state_note(role, t)}{self._overload_hint()}",
                                 process=role, code=EXIT_PERIPHERAL)
         for f in self.inflight.values():
             since = f.deadline_ns - timeout_ns
@@ -193,7 +193,7 @@ class CentralGuard:
                     f"peripheral {k + 1} did not answer round {f.round.index if f.round else '?'}"
                     f" of cycle {f.cycle}: silent for {(now - since) / 1e6:.1f} ms (limit "
                     f"{timeout_ns / 1e6:.1f} ms{self._shared_note(since, now, timeout_ns)})"
-                    f"{self._state_note(role)}{self._overload_hint()}",
+                    f"{self._state_note(role, since)}{self._overload_hint()}",
                     process=role, code=EXIT_PERIPHERAL)
         if (self.rc.schedule.clock != "freerun" and not self.samples
                 and self.next_cycle < self.cycles
@@ -202,7 +202,7 @@ class CentralGuard:
             if self._silent("plant", last, now, timeout_ns):
                 raise Fault(f"no sample from the plant for {(now - last) / 1e6:.1f} ms "
                             f"(cycle {self.next_cycle} awaited, newest seen "
-                            f"{self.newest_sample}){self._state_note('plant')}"
+                            f"{self.newest_sample}){self._state_note('plant', last)}"
                             f"{self._overload_hint()}", process="plant", code=EXIT_PLANT)
 
     def _check_children(self) -> None:

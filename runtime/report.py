@@ -242,7 +242,7 @@ def summary(r: dict[str, Any]) -> str:
         f"max {us(r['traversal_s']['max'])}",
         f"  jitter      std {us(r['jitter_s']['std'])}",
         f"  deadline misses {r['deadline_misses']}   skipped samples {r['skipped_samples']}"
-        + (f"   silences excused {r['silences_excused']} (the silent process was runnable)"
+        + (f"   silences excused {r['silences_excused']} (the machine, not the process, was slow)"
            if r.get("silences_excused") else ""),
         "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
         *_cpu_lines(r),

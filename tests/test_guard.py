@@ -319,7 +319,7 @@ def test_a_runnable_silent_process_has_one_more_limit_and_is_then_a_fault(monkey
     assert info.value.process == "peripheral-2" and c.excuses == 1
     assert str(info.value).startswith(
         "peripheral 2 has not answered for 6.0 ms (limit 3.0 ms); its process was runnable "
-        "(after its limit was extended once while it was runnable)"), str(info.value)
+        "(after one extension of its limit)"), str(info.value)
 
 
 def test_a_silence_is_excused_once_while_the_centrals_own_zenoh_thread_is_runnable(
