@@ -35,6 +35,7 @@ import os
 import subprocess
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -281,6 +282,9 @@ class BusyGuard:
         """Every change of policy: ``{cycle, busy_share, policy}``, ``policy`` the one
         taken (``default`` or ``fifo``)."""
         self.fifo = True
+        self.recent: deque[float] = deque(maxlen=6)
+        """The busiest CPU's share in the newest windows (the fall-back's event keeps them:
+        how the load came to the limit)."""
         self._calm = 0  # consecutive windows under the restore limit, under the default
         self._t = 0.0
         self._last: list[tuple[int, int]] | None = None  # the first call starts the window
@@ -301,6 +305,7 @@ class BusyGuard:
         self._t, self._last = now, cur
         if share is None:
             return
+        self.recent.append(round(share, 3))
         if self.fifo:
             if share > self.limit:
                 self._fall_back(share, cycle)
@@ -322,7 +327,8 @@ class BusyGuard:
         self.changes.append({"cycle": cycle, "busy_share": share, "policy": "default"})
         if self.event is None:
             self.event = {"cycle": cycle, "busy_share": share, "limit": self.limit,
-                          "window_s": self.window_s, "processes": len(demoted)}
+                          "window_s": self.window_s, "processes": len(demoted),
+                          "windows": list(self.recent)}
         if self.say is not None:
             self.say(f"ctrlunit: a CPU was {share:.0%} busy over {self.window_s:g} s "
                      f"under SCHED_FIFO (limit {self.limit:.0%}, near the kernel's real-time "

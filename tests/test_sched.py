@@ -118,7 +118,7 @@ def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limi
     guard(None, 3)  # 100 of 100 busy: over
     assert demoted == [[11, 12]]
     assert guard.event == {"cycle": 3, "busy_share": 1.0, "limit": pytest.approx(0.9025),
-                           "window_s": 0.5, "processes": 2}
+                           "window_s": 0.5, "processes": 2, "windows": [0.5, 1.0]}
     assert "interval 3" in said[0] and "default policy" in said[0]
     now[0] = 2.0
     guard(None, 4)  # once only
