@@ -80,7 +80,10 @@ class CentralGuard:
         """When the silence of ``role`` (silent since ``since``) becomes a fault: after
         ``timeout_ns`` for the plant, :meth:`_fault_at` for a peripheral, or later while
         it is excused (:meth:`_excuse`)."""
-        end = self._limit_end(role, since, now, timeout_ns)
+        return self._excused_end(role, since, self._limit_end(role, since, now, timeout_ns))
+
+    def _excused_end(self, role: str, since: int, end: int) -> int:
+        """``end`` (the limit's end of a silence since ``since``), or later while excused."""
         excused = self.excused.get(role)
         return max(end, excused[1]) if excused and excused[0] == since else end
 
@@ -89,9 +92,13 @@ class CentralGuard:
             return since + timeout_ns
         return self._fault_at(since, now, timeout_ns)
 
-    def _silent(self, role: str, since: int, now: int, timeout_ns: int) -> bool:
-        """Whether the silence of ``role`` since ``since`` is a fault now."""
-        return now > self._silence_ends(role, since, now, timeout_ns) \
+    def _silent(self, role: str, since: int, now: int, timeout_ns: int,
+                end: int | None = None) -> bool:
+        """Whether the silence of ``role`` since ``since`` is a fault now (``end``: its
+        limit's end, when the caller has it)."""
+        if end is None:
+            end = self._limit_end(role, since, now, timeout_ns)
+        return now > self._excused_end(role, since, end) \
             and not self._excuse(role, since, now, timeout_ns)
 
     def _excuse(self, role: str, since: int, now: int, timeout_ns: int) -> bool:
@@ -142,10 +149,10 @@ class CentralGuard:
             wake = min(wake, hold_until)
         for f in self.inflight.values():
             if f.waiting:
+                since = f.deadline_ns - timeout_ns
+                end = self._fault_at(since, now, timeout_ns)  # the same for each peripheral
                 for k in f.waiting:
-                    wake = min(wake, self._silence_ends(f"peripheral-{k + 1}",
-                                                        f.deadline_ns - timeout_ns, now,
-                                                        timeout_ns))
+                    wake = min(wake, self._excused_end(f"peripheral-{k + 1}", since, end))
                 if f.late_ns and f.round is not None \
                         and self.late_policy[f.round.index] != "wait":
                     wake = min(wake, f.late_ns)
@@ -185,9 +192,14 @@ class CentralGuard:
                                 process=role, code=EXIT_PERIPHERAL)
         for f in self.inflight.values():
             since = f.deadline_ns - timeout_ns
+            if not f.waiting:
+                continue
+            end = self._fault_at(since, now, timeout_ns)
+            if now <= end:
+                continue  # within the limit: no excuse can make it a fault sooner
             for k in sorted(f.waiting):
                 role = f"peripheral-{k + 1}"
-                if not self._silent(role, since, now, timeout_ns):
+                if not self._silent(role, since, now, timeout_ns, end):
                     continue
                 raise Fault(
                     f"peripheral {k + 1} did not answer round {f.round.index if f.round else '?'}"
