@@ -195,7 +195,8 @@ def _sched_lines(r: dict[str, Any]) -> list[str]:
         lines.append(f"              auto: {choice['why']}")
     if fell:
         lines.append(f"              back to the default policy at interval {fell['cycle']}: "
-                     f"a CPU {fell['busy_share']:.0%} busy over {fell['window_s']:g} s "
+                     f"a CPU {fell['busy_share']:.0%} busy over "
+                     f"{fell.get('over_s', fell['window_s']):g} s "
                      f"(limit {fell['limit']:.0%})")
         if fell.get("restored"):
             lines.append(f"              under SCHED_FIFO again {fell['restored']} time(s), "

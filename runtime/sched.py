@@ -16,8 +16,8 @@ for up to 50 ms a second: 33-35 ms periods were measured, where the default poli
 longest was 4 ms. Two guards keep the unit below that budget: the admission refuses a
 period whose trial kept a CPU busier than :data:`ADMIT_BUSY_SHARE` of it
 (runtime/admission.py), and during the run :class:`BusyGuard` puts every role back under
-the default policy when a CPU grows busier than :data:`DEMOTE_BUSY_SHARE` of it (the
-kernel throttles CPU by CPU).
+the default policy when a CPU stays busier than :data:`DEMOTE_BUSY_SHARE` of it for a
+second, or passes the budget itself in one window (the kernel throttles CPU by CPU).
 
 ``auto`` (the default, :func:`choose`) uses FIFO at :data:`AUTO_PRIORITY` only where both
 guards stand: the realtime clock with the admission on, a kernel that throttles, and a
@@ -51,15 +51,30 @@ ADMIT_BUSY_SHARE = 0.8
 real-time budget does not hold: the rest is margin for the run's longer tail."""
 
 DEMOTE_BUSY_SHARE = 0.95
-"""Under FIFO, a run that keeps a CPU busier than this share of the real-time
-budget over :data:`GUARD_WINDOW_S` goes back to the default policy (:class:`BusyGuard`)."""
+"""Under FIFO, a run that keeps a CPU busier than this share of the real-time budget over
+the last :data:`DEMOTE_WINDOWS` windows (a second, the kernel's own accounting period) goes
+back to the default policy (:class:`BusyGuard`); so does one window busier than the budget
+itself."""
 
 GUARD_WINDOW_S = 0.5
 """The window over which :class:`BusyGuard` measures the busiest CPU's busy share."""
 
+DEMOTE_WINDOWS = 2
+"""How many of the newest windows the sustained-load rule of :class:`BusyGuard` reads
+together. The kernel throttles only real-time time beyond its budget within one second;
+one busy half-second cannot reach that alone, and a single window over
+:data:`DEMOTE_BUSY_SHARE` of the budget was the usual cause of the guard's fall-backs at 1
+ms (a CPU at 0.79-0.80 for seconds, then one window at 0.925; docs/architecture.md)."""
+
+RESTORE_BUSY_SHARE = 0.85
+"""After a fall-back, :data:`RESTORE_WINDOWS` consecutive windows with every CPU at most
+this share of the budget busy put the unit back under SCHED_FIFO. Below the demotion's
+limit, so that the load that made it fall back does not bring FIFO straight back, and
+above the unit's own load at 1 ms on the reference machine (0.76-0.84 of a CPU), so that
+FIFO does come back once a busy spell has passed."""
+
 RESTORE_WINDOWS = 4
-"""After a fall-back, this many consecutive windows with every CPU at most
-:data:`ADMIT_BUSY_SHARE` of the budget busy put the unit back under SCHED_FIFO."""
+"""See :data:`RESTORE_BUSY_SHARE`."""
 
 MAX_RESTORES = 3
 """How many times a run goes back to SCHED_FIFO after falling back; after that it stays
@@ -245,34 +260,41 @@ class BusyGuard:
     real-time throttling can freeze it, and under FIFO again once the load has fallen.
 
     Called every interval (``on_cycle``): once per :data:`GUARD_WINDOW_S` it reads the
-    busiest CPU's busy share since the last reading (:func:`busy_share`, about 30 us);
-    over ``share`` of the real-time budget, every process of ``pids()`` goes to the
-    default policy, and :attr:`event` says when and why (the report's
-    ``scheduling_fallback``). Under the default policy a period that needed FIFO does not
-    hold (on 2026-11-24 a 60 s run at 1 ms fell back at interval 47 000 and lost the
-    robot's tracking within 0.2 s), so once ``restore_windows`` windows in a row kept
-    every CPU at most ``restore_share`` of the budget busy, the processes go back under
-    FIFO at ``priority``; at most ``max_restores`` times a run, every change listed in
-    :attr:`changes`.
+    busiest CPU's busy share since the last reading (:func:`busy_share`, about 30 us).
+    Every process of ``pids()`` goes to the default policy, and :attr:`event` says when
+    and why (the report's ``scheduling_fallback``), when a CPU was busier than ``share``
+    of the real-time budget over the newest ``sustain`` windows together (a sustained
+    load near the budget), or busier than the budget itself in the newest window alone (a
+    load that throttles within the second if it lasts). Under the default policy a period
+    that needed FIFO does not hold (on 2026-11-24 a 60 s run at 1 ms fell back at
+    interval 47 000 and lost the robot's tracking within 0.2 s), so once
+    ``restore_windows`` windows in a row kept every CPU at most ``restore_share`` of the
+    budget busy, the processes go back under FIFO at ``priority``; at most
+    ``max_restores`` times a run, every change listed in :attr:`changes`.
 
     Parameters
     ----------
     pids : the unit's processes on this machine (this one and its children).
     budget : :func:`rt_budget`.
     priority : the FIFO priority the unit runs at (0: never go back to FIFO).
-    share, window_s : the threshold and the window (module constants by default).
+    share, window_s, sustain : the sustained-load threshold, the window and how many
+        windows it reads together (module constants by default).
     restore_share, restore_windows, max_restores : the way back (module constants).
     read, clock : the busy counters and the clock (tests give their own).
     """
 
     def __init__(self, pids: Callable[[], Iterable[int]], budget: float, *,
                  priority: int = 0, share: float = DEMOTE_BUSY_SHARE,
-                 window_s: float = GUARD_WINDOW_S, restore_share: float = ADMIT_BUSY_SHARE,
+                 window_s: float = GUARD_WINDOW_S, sustain: int = DEMOTE_WINDOWS,
+                 restore_share: float = RESTORE_BUSY_SHARE,
                  restore_windows: int = RESTORE_WINDOWS, max_restores: int = MAX_RESTORES,
                  read: Callable[[], list[tuple[int, int]]] = cpu_times,
                  clock: Callable[[], float] = time.monotonic,
                  say: Callable[[str], None] | None = None) -> None:
+        if sustain < 1:
+            raise ValueError(f"sustain = {sustain}: allowed 1 or more windows")
         self.pids, self.limit, self.window_s = pids, share * budget, window_s
+        self.budget, self.sustain = budget, sustain
         self.priority = priority
         self.restore_limit = restore_share * budget
         self.restore_windows, self.max_restores = restore_windows, max_restores
@@ -288,6 +310,8 @@ class BusyGuard:
         self._calm = 0  # consecutive windows under the restore limit, under the default
         self._t = 0.0
         self._last: list[tuple[int, int]] | None = None  # the first call starts the window
+        # the readings that began the newest windows, with their times: the sustained share
+        self._starts: deque[tuple[float, list[tuple[int, int]]]] = deque(maxlen=sustain)
 
     @property
     def restores(self) -> int:
@@ -302,13 +326,21 @@ class BusyGuard:
             self._t, self._last = now, cur
             return
         share = busy_share(self._last, cur, elapsed_s=now - self._t)
-        self._t, self._last = now, cur
         if share is None:
+            self._starts.clear()  # a window that is no measurement breaks the sequence
+            self._t, self._last = now, cur
             return
+        self._starts.append((self._t, self._last))
+        self._t, self._last = now, cur
         self.recent.append(round(share, 3))
         if self.fifo:
-            if share > self.limit:
-                self._fall_back(share, cycle)
+            if share > self.budget:
+                self._fall_back(share, cycle, why="budget")
+            elif len(self._starts) == self.sustain:
+                t0, first = self._starts[0]
+                sustained = busy_share(first, cur, elapsed_s=now - t0)
+                if sustained is not None and sustained > self.limit:
+                    self._fall_back(sustained, cycle, why="sustained")
             return
         self._calm = self._calm + 1 if share <= self.restore_limit else 0
         if (self._calm >= self.restore_windows and self.priority
@@ -321,19 +353,24 @@ class BusyGuard:
                          f"{self.restore_windows * self.window_s:g} s: every role under "
                          f"SCHED_FIFO {self.priority} again at interval {cycle}")
 
-    def _fall_back(self, share: float, cycle: int | None) -> None:
+    def _fall_back(self, share: float, cycle: int | None, *, why: str) -> None:
+        """Every role under the default policy: ``why`` is ``budget`` (the newest window
+        alone over the budget) or ``sustained`` (``share`` is the newest ``sustain``
+        windows' together, over the limit)."""
         demoted = demote(self.pids())
+        self._starts.clear()
         self.fifo, self._calm = False, 0
         self.changes.append({"cycle": cycle, "busy_share": share, "policy": "default"})
+        over = self.window_s * (1 if why == "budget" else self.sustain)
+        limit = self.budget if why == "budget" else self.limit
         if self.event is None:
-            self.event = {"cycle": cycle, "busy_share": share, "limit": self.limit,
-                          "window_s": self.window_s, "processes": len(demoted),
-                          "windows": list(self.recent)}
+            self.event = {"cycle": cycle, "busy_share": share, "limit": limit, "rule": why,
+                          "window_s": self.window_s, "over_s": over,
+                          "processes": len(demoted), "windows": list(self.recent)}
         if self.say is not None:
-            self.say(f"ctrlunit: a CPU was {share:.0%} busy over {self.window_s:g} s "
-                     f"under SCHED_FIFO (limit {self.limit:.0%}, near the kernel's real-time "
-                     f"throttling): every role back under the default policy at interval "
-                     f"{cycle}")
+            self.say(f"ctrlunit: a CPU was {share:.0%} busy over {over:g} s under SCHED_FIFO "
+                     f"(limit {limit:.0%}, near the kernel's real-time throttling): every "
+                     f"role back under the default policy at interval {cycle}")
 
     def report(self) -> dict[str, Any] | None:
         """The report's ``scheduling_fallback``: the first fall-back (None if none), with

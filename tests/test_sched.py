@@ -115,10 +115,11 @@ def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limi
     guard(None, 2)  # the busiest CPU 50 of 100 busy: under 0.9025
     assert demoted == [] and guard.event is None
     now[0] = 1.2
-    guard(None, 3)  # 100 of 100 busy: over
+    guard(None, 3)  # 100 of 100 busy: over the budget itself
     assert demoted == [[11, 12]]
-    assert guard.event == {"cycle": 3, "busy_share": 1.0, "limit": pytest.approx(0.9025),
-                           "window_s": 0.5, "processes": 2, "windows": [0.5, 1.0]}
+    assert guard.event == {"cycle": 3, "busy_share": 1.0, "limit": pytest.approx(0.95),
+                           "rule": "budget", "window_s": 0.5, "over_s": 0.5,
+                           "processes": 2, "windows": [0.5, 1.0]}
     assert "interval 3" in said[0] and "default policy" in said[0]
     now[0] = 2.0
     guard(None, 4)  # once only
@@ -127,7 +128,7 @@ def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limi
 
 def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of_times(
         monkeypatch) -> None:
-    """After a fall-back, four windows in a row with every CPU at most 0.8 of the budget
+    """After a fall-back, four windows in a row with every CPU at most 0.85 of the budget
     busy put the roles under FIFO at their priority again; a busy window in between
     starts the count again; at most max_restores times."""
     calls: list[tuple[list[int], int]] = []
@@ -153,7 +154,7 @@ def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of
     assert calls == [([11], 0)] and not guard.fifo
     for c in (2, 3, 4):
         window(0.7, c)  # calm, but three windows only
-    window(0.8, 5)  # 0.8 > 0.76: busy, the count starts again
+    window(0.85, 5)  # 0.85 > 0.8075: busy, the count starts again
     for c in (6, 7, 8):
         window(0.5, c)
     assert len(calls) == 1
@@ -172,6 +173,80 @@ def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of
     assert rep["cycle"] == 1 and rep["restored"] == 2 and rep["fifo_at_end"] is False
     assert [(c["cycle"], c["policy"]) for c in rep["changes"]] == [
         (1, "default"), (9, "fifo"), (10, "default"), (14, "fifo"), (15, "default")]
+
+
+def _windows_guard(monkeypatch, **kw):
+    """A guard on one CPU whose windows the test sets: ``window(share, cycle)`` adds
+    ``share`` of 200 ticks in 0.5 s (the reference kernel's 250 Hz tick accounting gives
+    125; finer here so that shares are exact) and calls the guard."""
+    demoted: list[list[int]] = []
+    monkeypatch.setattr(sched, "demote", lambda pids, priority=0:
+                        demoted.append(list(pids)) or list(pids))
+    busy, now, stale = [0], [0.0], [False]
+    shown = [(0, 0)]
+
+    def read() -> list[tuple[int, int]]:
+        if not stale[0]:  # counters that did not move: the last reading again
+            shown[0] = (busy[0], int(now[0] * 400))
+        return [shown[0]]
+
+    guard = sched.BusyGuard(lambda: [11], 0.95, read=read, clock=lambda: now[0], **kw)
+
+    def window(share: float | None, cycle: int) -> None:
+        now[0] += 0.5
+        busy[0] += round(200 * (0.93 if share is None else share))
+        stale[0] = share is None
+        guard(None, cycle)
+
+    guard(None, 0)
+    return guard, window, demoted
+
+
+def test_one_busy_window_under_the_budget_does_not_make_the_guard_fall_back(
+        monkeypatch) -> None:
+    """The kernel throttles a CPU whose real-time tasks used more than the budget (0.95)
+    of a second. A window at 0.93 between windows at 0.80 leaves every second under 0.9025
+    of the budget: no fall-back. Two windows at 0.93 in a row (a second at 0.93) are a
+    sustained load over the limit: every role goes back to the default policy, once."""
+    guard, window, demoted = _windows_guard(monkeypatch)
+    for c, share in enumerate([0.80, 0.80, 0.93, 0.80, 0.93, 0.85], start=1):
+        window(share, c)
+    assert demoted == [] and guard.fifo
+    window(0.93, 7)  # with the window before: 0.89 over the second, under 0.9025
+    assert demoted == []
+    window(0.93, 8)  # 0.93 over the second
+    assert demoted == [[11]] and not guard.fifo
+    ev = guard.event
+    assert (ev["cycle"], ev["rule"], ev["over_s"]) == (8, "sustained", 1.0)
+    assert ev["busy_share"] == pytest.approx(0.93) and ev["limit"] == pytest.approx(0.9025)
+    assert ev["windows"] == [0.93, 0.8, 0.93, 0.85, 0.93, 0.93]  # the newest six
+
+
+def test_one_window_over_the_budget_makes_the_guard_fall_back_at_once(monkeypatch) -> None:
+    guard, window, demoted = _windows_guard(monkeypatch)
+    window(0.5, 1)
+    window(0.96, 2)  # one window over 0.95: within the second the kernel would throttle
+    assert demoted == [[11]]
+    assert (guard.event["rule"], guard.event["over_s"]) == ("budget", 0.5)
+    assert guard.event["busy_share"] == pytest.approx(0.96)
+
+
+def test_a_window_that_is_no_measurement_breaks_the_sustained_rule(monkeypatch) -> None:
+    """Counters that did not keep up give no share; the second that window belongs to is
+    not known, so the windows on either side of it are not read together."""
+    guard, window, demoted = _windows_guard(monkeypatch)
+    window(0.93, 1)
+    window(None, 2)  # busy at 0.93 too, but the counters did not move
+    assert demoted == [] and list(guard.recent) == [0.93]  # no share for window 2
+    window(0.93, 3)  # 0.93 over the last two windows, read as one (1 s ago to now)
+    assert demoted == []
+    window(0.93, 4)
+    assert demoted == [[11]] and guard.event["rule"] == "sustained"
+
+
+def test_the_sustained_rule_reads_at_least_one_window() -> None:
+    with pytest.raises(ValueError, match="sustain = 0: allowed 1 or more"):
+        sched.BusyGuard(lambda: [], 0.95, sustain=0)
 
 
 def test_a_busy_guard_without_a_priority_never_goes_back_to_fifo(monkeypatch) -> None:

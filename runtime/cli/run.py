@@ -170,8 +170,8 @@ def run_options(fn: Any) -> Any:
                      "the admission, where permitted and the kernel throttles real-time "
                      "tasks; the admission then refuses a period that keeps a CPU "
                      "over 80 % of the kernel's real-time budget, and the run goes back to "
-                     "the default policy if it passes 95 % of it (the report says which "
-                     "and why)."),
+                     "the default policy if it stays over 95 % of it for a second or "
+                     "passes it (the report says which and why)."),
         click.option("--plant-substeps", type=click.IntRange(1, 1000), default=None,
                      help="RK4 sub-steps of the plant per period; default: the fewest of "
                      f"at most {MAX_SUBSTEP_S * 1e3:g} ms ({MAX_SUBSTEP_BELT_S * 1e3:g} ms "
