@@ -15,6 +15,12 @@ real-time budget during the trial (runtime/sched.py: FIFO tasks win every CPU th
 a trial can hold at a load the kernel would throttle in a longer run). A period that
 holds is admitted only if the task can be tracked at it (:func:`predicted_tracking`).
 
+A trial whose late intervals all fall in one stall, and which holds without it
+(``one_stall``), is run once more at the same period (``retry`` in the second rung's
+figures), once per admission: a stall of the host costs about the same misses per 1000
+periods at every period, so a longer period would not avoid it (docs/measurements/
+2026-11-24-realtime.md, "The admission refuses too often").
+
 When it is not held the trial goes on up :data:`LADDER_S` and stops at the first period
 that holds: the refusal names the period asked, what the trial measured, and the shortest
 period measured to hold. ``--period auto`` starts at the bottom of the ladder and runs at
@@ -29,6 +35,7 @@ import copy
 import math
 import statistics
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -55,6 +62,9 @@ of the machine's stalls than a run of thousands)."""
 LATE_SHARE = 1 / 200
 """At most this share of the trial's intervals may be late (or skipped)."""
 
+EPISODE_GAP = 10
+"""Late (or skipped) intervals less than this many intervals apart belong to one episode."""
+
 
 TRACKING_SHARE = 0.5
 """A period that holds is admitted only if the one-process simulation of the task at it
@@ -79,12 +89,14 @@ def trial_intervals(period_s: float, *, seconds: float = 0.3, least: int = 50,
 
 def rung_verdict(traversal_s: np.ndarray, *, skipped: int, budget_s: float,
                  transit_s: float, busy_share: float | None = None,
-                 busy_limit: float | None = None) -> dict[str, Any]:
+                 busy_limit: float | None = None,
+                 skip_marks: Sequence[tuple[int, int]] = ()) -> dict[str, Any]:
     """The figures of one trial and whether they hold (module notes).
 
     Parameters
     ----------
-    traversal_s : (n,) sample-to-command time of every trial interval that ran.
+    traversal_s : (n,) sample-to-command time of every trial interval that ran, in the
+        order they ran.
     skipped : samples skipped because the central was behind.
     budget_s : the command delay's periods: from the sample to the tick it is due at.
     transit_s : one-way time of the command to the plant.
@@ -93,20 +105,43 @@ def rung_verdict(traversal_s: np.ndarray, *, skipped: int, budget_s: float,
         (runtime/sched.py: a run near the kernel's real-time budget would be throttled);
         None: no limit. A share that could not be measured (None) is judged on the
         traversal alone: the run's guard still watches.
+    skip_marks : where the ``skipped`` samples were skipped, as (index into
+        ``traversal_s`` of the next interval, samples skipped); skips without a mark
+        count as one more episode.
+
+    Returns
+    -------
+    The trial's figures; besides ``held``, ``late_episodes`` (late or skipped intervals
+    grouped into runs less than :data:`EPISODE_GAP` apart) and ``one_stall``: every late
+    interval in one episode, and the rest of the trial (at least half of it) would hold
+    without it. Such a trial is worth repeating once (:func:`admit`): a stall of the host
+    costs about the same misses per 1000 periods at any period.
     """
     t = np.asarray(traversal_s, dtype=float) + transit_s
     n = int(t.size) + skipped
-    late = int(np.count_nonzero(t > budget_s)) + skipped
+    late_at = np.flatnonzero(t > budget_s)
+    late = int(late_at.size) + skipped
     p99 = float(np.quantile(t, 0.99)) if t.size else math.inf
     held = n > 0 and late <= n * LATE_SHARE and p99 <= HEADROOM * budget_s
-    if busy_limit is not None and busy_share is not None and busy_share > busy_limit:
+    busy_over = busy_limit is not None and busy_share is not None and busy_share > busy_limit
+    if busy_over:
         held = False
+    points = sorted([int(i) for i in late_at] + [int(i) for i, _ in skip_marks])
+    episodes = sum(1 for a, b in zip([None, *points], points)
+                   if a is None or b - a >= EPISODE_GAP)
+    episodes += 1 if skipped > sum(c for _, c in skip_marks) else 0  # skips not located
+    one_stall = False
+    if episodes == 1 and points and not held and not busy_over:
+        rest = np.concatenate([t[:points[0]], t[points[-1] + 1:]])
+        one_stall = (rest.size >= n / 2
+                     and float(np.quantile(rest, 0.99)) <= HEADROOM * budget_s)
     return {"intervals": n, "late": late, "skipped": skipped, "budget_s": budget_s,
             "busy_share": busy_share, "busy_limit": busy_limit,
             "traversal_p50_s": float(np.median(t)) if t.size else math.inf,
             "traversal_p99_s": p99,
             "traversal_p999_s": float(np.quantile(t, 0.999)) if t.size else math.inf,
-            "traversal_max_s": float(t.max()) if t.size else math.inf, "held": held}
+            "traversal_max_s": float(t.max()) if t.size else math.inf, "held": held,
+            "late_episodes": episodes, "one_stall": one_stall}
 
 
 def ladder_from(period_s: float) -> list[float]:
@@ -125,14 +160,22 @@ def admit(central: Central) -> dict[str, Any]:
     rungs: list[dict[str, Any]] = []
     held_at: float | None = None
     untrackable: tuple[float, float] | None = None
-    for i, period in enumerate(ladder_from(asked)):
+    retried = False
+    for period in ladder_from(asked):
         err = predicted_tracking(central, period)
         if err > TRACKING_SHARE * rc.control.max_error:  # longer periods only track worse
             untrackable = (period, err)
             break
-        verdict = trial(central, period, base=TRIAL_BASE + (i << 20), transit_s=transit)
+        verdict = trial(central, period, base=TRIAL_BASE + (len(rungs) << 20),
+                        transit_s=transit)
         verdict["predicted_tracking_max_m"] = err
         rungs.append(verdict)
+        if verdict["one_stall"] and not retried:  # one stall of the host: once more
+            retried = True
+            verdict = trial(central, period, base=TRIAL_BASE + (len(rungs) << 20),
+                            transit_s=transit)
+            verdict |= {"predicted_tracking_max_m": err, "retry": True}
+            rungs.append(verdict)
         if verdict["held"]:
             held_at = period
             break
@@ -248,9 +291,10 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
     trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
     out = {"period_s": period}
     out |= rung_verdict(trav, skipped=probe.skipped, budget_s=budget, transit_s=transit_s,
-                        busy_share=busy, busy_limit=fifo_busy_limit())
+                        busy_share=busy, busy_limit=fifo_busy_limit(),
+                        skip_marks=probe.skip_marks)
     if fault is not None:
-        out["held"] = False
+        out["held"] = out["one_stall"] = False
         out["fault"] = fault
         out["intervals"] = n
         out["late"] = max(out["late"], n - int(trav.size))

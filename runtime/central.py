@@ -107,6 +107,9 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.cycles += controller.first_cycle  # the end of the cycle numbers
         self.done = 0
         self.skipped = 0
+        self.skip_marks: list[tuple[int, int]] = []
+        """In a trial: where samples were skipped, as (traversals logged before, samples
+        skipped), so that the admission can tell one stall from a steady lag."""
         self.late_replies = 0
         self.plant_misses = 0
         self.plant_busy_ns = 0
@@ -229,8 +232,11 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                 if self.rc.schedule.clock == "realtime" and self.samples and max(self.samples) > k:
                     # behind the plant's clock: start from the newest sample, never queue
                     newest = max(self.samples)
-                    self.skipped += sum(1 for c in self.samples if c < newest) + (
+                    skipped = sum(1 for c in self.samples if c < newest) + (
                         newest - k - len(self.samples) + 1)
+                    self.skipped += skipped
+                    if self.trial:
+                        self.skip_marks.append((len(self.log.traversal_ns), skipped))
                     self.samples = {newest: self.samples[newest]}
                     self.next_cycle = k = newest
                 if k not in self.samples:

@@ -266,7 +266,9 @@ def summary(r: dict[str, Any]) -> str:
         lines.append(f"  admission   {adm['period_s'] * 1e3:g} ms held in a trial of "
                      f"{adm['rungs'][-1]['intervals']} intervals before motion (asked: "
                      + ("auto" if adm["asked"] == "auto" else f"{adm['asked'] * 1e3:g} ms")
-                     + ")")
+                     + ")" + (f"; the first trial at it had one stall ({adm['rungs'][-2]['late']}"
+                              " intervals late), so it ran again"
+                              if adm["rungs"][-1].get("retry") else ""))
     if r["rejected_messages"]:
         lines.append("  rejected messages " + ", ".join(
             f"{k}: {v}" for k, v in sorted(r["rejected_messages"].items())))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from ctrlunit.runtime.admission import (
+    EPISODE_GAP,
     HEADROOM,
     LADDER_S,
     ladder_from,
@@ -52,6 +53,102 @@ def test_under_fifo_a_trial_that_kept_the_machine_too_busy_does_not_hold():
 
 def test_an_empty_trial_never_holds():
     assert not rung_verdict(np.array([]), skipped=0, budget_s=1e-3, transit_s=0.0)["held"]
+
+
+def _stalled(n: int = 300, *, budget: float = 2e-3, at: int = 100, length: int = 30,
+             base: float = 0.5) -> np.ndarray:
+    t = np.full(n, base * budget)
+    t[at:at + length] = np.linspace(3.0, 1.1, length) * budget  # the queue behind a stall
+    return t
+
+
+def test_a_trial_late_only_in_one_stall_is_worth_repeating():
+    budget = 2e-3
+    v = rung_verdict(_stalled(budget=budget), skipped=0, budget_s=budget, transit_s=0.0)
+    assert not v["held"] and v["late"] == 30
+    assert v["late_episodes"] == 1 and v["one_stall"]
+
+
+def test_skips_inside_the_stall_belong_to_it_and_unlocated_skips_do_not():
+    budget = 2e-3
+    t = _stalled(budget=budget)
+    v = rung_verdict(t, skipped=12, budget_s=budget, transit_s=0.0, skip_marks=[(110, 12)])
+    assert v["late"] == 42 and v["late_episodes"] == 1 and v["one_stall"]
+    v = rung_verdict(t, skipped=12, budget_s=budget, transit_s=0.0)
+    assert v["late_episodes"] == 2 and not v["one_stall"]
+    v = rung_verdict(t, skipped=12, budget_s=budget, transit_s=0.0,
+                     skip_marks=[(129 + EPISODE_GAP, 12)])  # a second episode
+    assert v["late_episodes"] == 2 and not v["one_stall"]
+
+
+def test_a_steady_lag_two_stalls_or_a_slow_rest_are_not_one_stall():
+    budget = 2e-3
+    spread = np.full(300, 0.5 * budget)
+    spread[::EPISODE_GAP] = 1.1 * budget  # late every EPISODE_GAP intervals: a lag
+    v = rung_verdict(spread, skipped=0, budget_s=budget, transit_s=0.0)
+    assert v["late_episodes"] == 30 and not v["one_stall"]
+    two = _stalled(budget=budget, at=50, length=5)
+    two[200:205] = 1.5 * budget
+    v = rung_verdict(two, skipped=0, budget_s=budget, transit_s=0.0)
+    assert v["late_episodes"] == 2 and not v["one_stall"]
+    slow = _stalled(budget=budget, base=HEADROOM * 1.01)  # the rest past the headroom
+    assert not rung_verdict(slow, skipped=0, budget_s=budget, transit_s=0.0)["one_stall"]
+    long = _stalled(budget=budget, at=10, length=160)  # more than half the trial
+    v = rung_verdict(long, skipped=0, budget_s=budget, transit_s=0.0)
+    assert v["late_episodes"] == 1 and not v["one_stall"]
+    v = rung_verdict(_stalled(budget=budget), skipped=0, budget_s=budget, transit_s=0.0,
+                     busy_share=0.9, busy_limit=0.76)  # too busy, besides the stall
+    assert not v["one_stall"]
+    v = rung_verdict(np.full(300, 0.5 * budget), skipped=0, budget_s=budget, transit_s=0.0)
+    assert v["held"] and v["late_episodes"] == 0 and not v["one_stall"]
+
+
+def _admit_with_trials(monkeypatch, verdicts: list[dict], *, period: float = 1e-3):
+    """``admit`` on a stand-in central whose trials return ``verdicts`` in turn."""
+    from types import SimpleNamespace
+
+    import ctrlunit.runtime.admission as admission
+
+    tried: list[float] = []
+
+    def fake_trial(central, p, *, base, transit_s):
+        tried.append(p)
+        return {"period_s": p} | verdicts[len(tried) - 1]
+
+    monkeypatch.setattr(admission, "trial", fake_trial)
+    monkeypatch.setattr(admission, "predicted_tracking", lambda central, p: 0.0)
+    rc = SimpleNamespace(schedule=SimpleNamespace(period=period, period_auto=False, pipeline=2),
+                         control=SimpleNamespace(max_error=0.02))
+    central = SimpleNamespace(rc=rc, warm_rtt_s=[])
+    return admission, central, tried
+
+
+def test_the_admission_repeats_a_trial_with_one_stall_once_and_admits_if_it_holds(
+        monkeypatch):
+    budget = 2e-3
+    stall = rung_verdict(_stalled(budget=budget), skipped=0, budget_s=budget, transit_s=0.0)
+    clean = rung_verdict(np.full(300, 0.5 * budget), skipped=0, budget_s=budget,
+                         transit_s=0.0)
+    admission, central, tried = _admit_with_trials(monkeypatch, [stall, clean])
+    info = admission.admit(central)
+    assert tried == [1e-3, 1e-3] and info["period_s"] == 1e-3
+    first, second = info["rungs"]
+    assert first["one_stall"] and not first["held"] and "retry" not in first
+    assert second["retry"] and second["held"]
+
+
+def test_the_admission_repeats_at_most_one_trial_then_climbs(monkeypatch):
+    budget = 2e-3
+    stall = rung_verdict(_stalled(budget=budget), skipped=0, budget_s=budget, transit_s=0.0)
+    clean = rung_verdict(np.full(300, 0.5 * budget), skipped=0, budget_s=budget,
+                         transit_s=0.0)
+    admission, central, tried = _admit_with_trials(monkeypatch, [stall, stall, stall, clean])
+    with pytest.raises(admission.Unsustainable) as exc:
+        admission.admit(central)
+    assert tried == [1e-3, 1e-3, LADDER_S[1], LADDER_S[2]]
+    assert exc.value.info["sustainable_period_s"] == LADDER_S[2]
+    assert [r.get("retry", False) for r in exc.value.info["rungs"]] == [False, True, False,
+                                                                        False]
 
 
 def test_the_ladder_climbs_from_the_period_asked_and_the_trial_is_bounded():
