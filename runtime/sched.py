@@ -46,10 +46,6 @@ AUTO_PRIORITY = 10
 """The FIFO priority ``--rt-priority auto`` chooses (every role at one priority: none
 preempts another on wake-up)."""
 
-ADMIT_BUSY_SHARE = 0.8
-"""Under FIFO, a trial that kept a CPU busier than this share of the kernel's
-real-time budget does not hold: the rest is margin for the run's longer tail."""
-
 DEMOTE_BUSY_SHARE = 0.95
 """Under FIFO, a run that keeps a CPU busier than this share of the real-time budget over
 the last :data:`DEMOTE_WINDOWS` windows (a second, the kernel's own accounting period) goes
@@ -75,6 +71,14 @@ FIFO does come back once a busy spell has passed."""
 
 RESTORE_WINDOWS = 4
 """See :data:`RESTORE_BUSY_SHARE`."""
+
+ADMIT_BUSY_SHARE = RESTORE_BUSY_SHARE
+"""Under FIFO, a trial that kept a CPU busier than this share of the kernel's
+real-time budget does not hold: the rest is margin for the run's longer tail. The share at
+which :class:`BusyGuard` puts a run back under FIFO: a load
+the guard would take FIFO back at is one the admission takes. At first 0.8, below the
+unit's own load at 1 ms (0.77-0.79 in a trial), which refused 1 ms in about half the runs
+of a calm machine on that alone (docs/measurements/2026-11-24-realtime.md)."""
 
 MAX_RESTORES = 3
 """How many times a run goes back to SCHED_FIFO after falling back; after that it stays

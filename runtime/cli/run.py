@@ -169,7 +169,7 @@ def run_options(fn: Any) -> Any:
                      "root, CAP_SYS_NICE or ulimit -r). auto: FIFO at 10 in realtime with "
                      "the admission, where permitted and the kernel throttles real-time "
                      "tasks; the admission then refuses a period that keeps a CPU "
-                     "over 80 % of the kernel's real-time budget, and the run goes back to "
+                     "over 85 % of the kernel's real-time budget, and the run goes back to "
                      "the default policy if it stays over 95 % of it for a second or "
                      "passes it (the report says which and why)."),
         click.option("--plant-substeps", type=click.IntRange(1, 1000), default=None,
