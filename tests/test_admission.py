@@ -222,6 +222,29 @@ def test_latency_reports_ordered_quantiles_and_a_histogram(tmp_path):
     assert 0 <= q["p50"] <= q["p99"] <= q["p999"] <= q["max"]
     assert rep["sustainable_period_s"] is None or rep["sustainable_period_s"] in LADDER_S
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    from ctrlunit.runtime import sched
+
+    # auto: the policy the unit's roles would get
+    fifo = sched.rt_budget() is not None and sched.fifo_permitted()
+    assert rep["scheduling"] == ("SCHED_FIFO 10" if fifo else "SCHED_OTHER")
+
+
+def test_latency_measures_under_the_policy_asked_and_leaves_the_caller_as_it_was(tmp_path):
+    import json
+    import os
+
+    from ctrlunit.runtime.latency import latency_report
+
+    res = ctrlunit("latency", "--period", "2ms", "--duration", "0.1s", "--rt-priority", "0",
+                   "--plot", str(tmp_path / "lat.png"), "--json", timeout=60)
+    assert res.returncode == 0, res.stderr
+    from ctrlunit.runtime import sched
+
+    # 0: the policy as it is, the one this test (and its child) runs under
+    assert json.loads(res.stdout)["scheduling"] == sched.policy_name()
+    before = os.sched_getscheduler(0)
+    rep, lat = latency_report(2e-3, 0.02)
+    assert os.sched_getscheduler(0) == before and lat.size == rep["ticks"] > 0
 
 
 def test_latency_refuses_a_period_out_of_range():

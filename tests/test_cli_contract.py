@@ -520,11 +520,13 @@ with_unit = st.one_of(numbers_as_text, st.tuples(numbers_as_text, st.sampled_fro
        duration=st.one_of(st.sampled_from(["1ms", "5ms", "20ms", "0", "-1ms", "1e308",
                                            "nan", "inf", "x", ""]),
                           numbers_as_text.filter(lambda s: not _short(s))),
-       as_json=st.booleans())
-def test_latency_keeps_the_contract(work, period, duration, as_json):
+       as_json=st.booleans(),
+       priority=st.sampled_from(["auto", "0", "100", "-1", "fifo", ""]))
+def test_latency_keeps_the_contract(work, period, duration, as_json, priority):
     """Valid durations are kept under 20 ms (the command measures for that long)."""
     args = ("latency", "--period", period, "--duration", duration, "--plot",
-            str(work / "latency.png"), *(["--json"] if as_json else []))
+            str(work / "latency.png"), "--rt-priority", priority,
+            *(["--json"] if as_json else []))
     check_contract(invoke(*args), args)
 
 

@@ -36,6 +36,20 @@ def _fail(msg: str, code: int = 1) -> None:
     sys.exit(code)
 
 
+def _rt_priority(_ctx: Any, _param: click.Parameter, value: str | int) -> str | int:
+    """``--rt-priority``: ``auto`` or a priority 0-99 (runtime/sched.py)."""
+    from ..sched import AUTO, check_priority
+
+    text = str(value).strip()
+    priority: str | int = AUTO if text == AUTO else (
+        int(text) if text.lstrip("-").isdigit() else text)
+    try:
+        check_priority(priority)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
+    return priority
+
+
 def _emit(data: dict[str, Any], as_json: bool, text: str) -> None:
     if as_json:
         click.echo(json.dumps(_json_safe(data)))

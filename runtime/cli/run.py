@@ -11,7 +11,7 @@ import click
 from ...plant.simulator import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S
 from ...topology.pipeline import HOLD_RULES
 from ..config import EXIT_CONFIG, FLAT, ConfigError, RunConfig, parse_duration
-from .base import _emit, _fail, _json_safe, cli
+from .base import _emit, _fail, _json_safe, _rt_priority, cli
 
 
 def _duration(_ctx: Any, param: click.Parameter, value: str | None) -> float | None:
@@ -27,19 +27,6 @@ def _period(ctx: Any, param: click.Parameter, value: str) -> float | str:
     if isinstance(value, str) and value.strip() == "auto":
         return "auto"
     return _duration(ctx, param, value) or 0.0
-
-
-def _rt_priority(_ctx: Any, _param: click.Parameter, value: str | int) -> str | int:
-    from ..sched import AUTO, check_priority
-
-    text = str(value).strip()
-    priority: str | int = AUTO if text == AUTO else (
-        int(text) if text.lstrip("-").isdigit() else text)
-    try:
-        check_priority(priority)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc)) from None
-    return priority
 
 
 def run_options(fn: Any) -> Any:

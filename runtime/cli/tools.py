@@ -11,7 +11,7 @@ from typing import Any
 import click
 
 from ..config import EXIT_CONFIG, parse_duration
-from .base import _fail, _json_safe, cli
+from .base import _fail, _json_safe, _rt_priority, cli
 
 
 @cli.command()
@@ -239,9 +239,14 @@ def load_report(path: str) -> dict[str, Any]:
 @click.option("--pipeline", type=click.IntRange(1, 2), default=2, show_default=True)
 @click.option("--plot", type=click.Path(dir_okay=False), default="latency.png",
               show_default=True, help="Histogram of the wake-up latencies (PNG).")
+@click.option("--rt-priority", default="auto", show_default=True, callback=_rt_priority,
+              metavar="auto|0-99",
+              help="Scheduling of the wake-up test, as for ctrlunit start: auto is the "
+              "policy the unit's roles get (SCHED_FIFO 10 where permitted and the kernel "
+              "throttles real-time tasks); 0: the policy as it is.")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
 def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipeline: int,
-            plot: str, as_json: bool) -> None:
+            plot: str, rt_priority: str | int, as_json: bool) -> None:
     """Measure how late this machine wakes a process at each tick of PERIOD (the realtime
     plant's own sleep), as LinuxCNC's latency-test does, for DURATION; print p50, p99,
     p99.9 and max and the shortest period of the admission ladder that leaves half of
@@ -249,12 +254,13 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
     period: the traversal the unit itself shows, and the period it holds."""
     from ..config import ConfigError, RunConfig
     from ..latency import histogram_png, latency_report
+    from ..sched import RtPermissionError
 
     try:
         period_s = parse_duration(period, field_name="--period")
         duration_s = parse_duration(duration, field_name="--duration")
-        rep, lat = latency_report(period_s, duration_s)
-    except (ConfigError, ValueError) as exc:
+        rep, lat = latency_report(period_s, duration_s, rt_priority=rt_priority)
+    except (ConfigError, ValueError, RtPermissionError) as exc:
         _fail(str(exc), EXIT_CONFIG)
         return
     histogram_png(lat, plot, period_s=period_s,
@@ -291,7 +297,8 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
     def ms(x: float | None) -> str:
         return "none of the ladder" if x is None else f"{x * 1e3:g} ms"
 
-    lines = [f"wake-up latency at {period_s * 1e3:g} ms over {rep['ticks']} ticks: p50 "
+    lines = [f"wake-up latency at {period_s * 1e3:g} ms over {rep['ticks']} ticks "
+             f"({rep['scheduling']}): p50 "
              f"{us(q['p50'])}  p99 {us(q['p99'])}  p99.9 {us(q['p999'])}  max "
              f"{us(q['max'])}; {rep['ticks_lost']} tick(s) woken more than a period late"]
     if "unit" in rep:
