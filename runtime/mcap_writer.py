@@ -101,11 +101,14 @@ class LeanWriter:
         in time what a file cut off mid-run loses, whatever the message rate.
     compression : one of :data:`COMPRESSIONS`.
     background : write (and compress) on a writer thread; :meth:`finish` waits for it.
+    before_job : called on the writer thread before each job (with ``background``): the
+        caller's hook to set that thread up, e.g. its scheduling policy.
     """
 
     def __init__(self, stream: IO[bytes], *, chunk_size: int = 1024 * 1024,
                  chunk_age: int | None = None, compression: str = "none",
-                 background: bool = False) -> None:
+                 background: bool = False,
+                 before_job: Callable[[], None] | None = None) -> None:
         if chunk_size < 1:
             raise ValueError(f"chunk_size must be >= 1 byte, got {chunk_size}")
         if chunk_age is not None and chunk_age < 0:
@@ -136,6 +139,7 @@ class LeanWriter:
         self._jobs: queue.Queue[Callable[[], None] | None] | None = None
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
+        self._before_job = before_job
         if background:
             # bounded: a disk slower than the run holds the caller back, never eats memory
             self._jobs = queue.Queue(maxsize=64)
@@ -168,6 +172,8 @@ class LeanWriter:
                 return
             if self._error is None:
                 try:
+                    if self._before_job is not None:
+                        self._before_job()
                     job()
                 except BaseException as exc:  # reported to the caller at its next call
                     self._error = exc

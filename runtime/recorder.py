@@ -40,6 +40,7 @@ from typing import Any
 import msgpack
 import orjson
 
+from . import sched
 from .mcap_writer import LeanWriter
 from .report import CPU_KEYS
 from .signals import SIGNALS_SCHEMA, capture, state_message
@@ -64,7 +65,8 @@ class Recorder:
         self.setup = setup
         self.fh = open(path, "wb")
         self.w = LeanWriter(self.fh, chunk_size=CHUNK_SIZE, chunk_age=CHUNK_AGE_NS,
-                            compression=setup.rc.run.record_compression, background=True)
+                            compression=setup.rc.run.record_compression, background=True,
+                            before_job=sched.leave_rt)
         self.w.start(profile="", library=f"ctrlunit {version('ctrlunit')}")
         self.channels: dict[str, int] = {}
         self.seq = 0

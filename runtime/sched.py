@@ -186,6 +186,18 @@ def busy_share(before: list[tuple[int, int]], after: list[tuple[int, int]], *,
     return max((a[0] - b[0]) / (a[1] - b[1]) for b, a in zip(before, after, strict=True))
 
 
+def leave_rt() -> None:
+    """This thread under the default policy if it runs under a real-time one. For a thread
+    whose work can wait, such as the recording's writer: at one FIFO priority a thread
+    runs until it blocks, so a chunk's compression (1-2 ms every 100 ms) held a CPU against
+    the roles and made a burst of deadline misses at 1 ms at every chunk
+    (docs/measurements/2026-11-24-realtime.md). Cheap when there is nothing to do (one
+    system call), so it can run before each job: :func:`_set_all` puts every thread of the
+    process back under FIFO when the throttling guard restores it."""
+    if os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
 def fifo_in_force(tid: int = 0) -> bool:
     """Whether thread ``tid`` (0: this one) runs under a real-time policy."""
     return os.sched_getscheduler(tid) in (os.SCHED_FIFO, os.SCHED_RR)

@@ -190,3 +190,21 @@ def test_a_failed_background_write_is_reported_not_lost() -> None:
         for i in range(10_000):
             w.add_message(cid, i, bytes(range(256)) * 4, i)
         w.finish()
+
+
+def test_the_writer_thread_runs_its_set_up_hook_before_every_job() -> None:
+    """The recorder sets the writer thread's policy this way (runtime/sched.py, leave_rt):
+    the hook runs on the writer thread, never on the caller's, once before each job."""
+    import threading
+
+    seen: list[int] = []
+    f = io.BytesIO()
+    w = LeanWriter(f, chunk_size=64, compression="none", background=True,
+                   before_job=lambda: seen.append(threading.get_ident()))
+    w.start(profile="", library="test")
+    cid = w.register_channel("/t", "msgpack", w.register_schema("", "", b""))
+    for k in range(10):
+        w.add_message(cid, k, b"x" * 40, k)  # 40 bytes over a 64-byte chunk: a chunk each
+    w.finish()
+    assert len(seen) >= 10 and threading.get_ident() not in seen and len(set(seen)) == 1
+    assert len(list(StreamReader(io.BytesIO(f.getvalue())).records)) > 10

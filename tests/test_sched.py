@@ -285,6 +285,26 @@ def test_demote_puts_every_thread_of_a_fifo_process_back_under_the_default_polic
         child.wait(timeout=10)
 
 
+def test_leave_rt_puts_only_the_calling_thread_under_the_default_policy() -> None:
+    """The recording's writer thread leaves FIFO (a chunk's compression would otherwise
+    hold a CPU against the roles); the unit's other threads keep theirs."""
+    if not sched.fifo_permitted():
+        pytest.skip("this process may not use SCHED_FIFO")
+    got = _child(
+        "import json, threading, os\n"
+        "from ctrlunit.runtime import sched\n"
+        "sched.apply_rt(7)\n"
+        "seen = {}\n"
+        "def writer():\n"
+        "    seen['before'] = sched.policy_name()\n"
+        "    sched.leave_rt(); sched.leave_rt()  # twice: the second does nothing\n"
+        "    seen['after'] = sched.policy_name()\n"
+        "t = threading.Thread(target=writer); t.start(); t.join()\n"
+        "seen['main'] = sched.policy_name()\n"
+        "print(json.dumps(seen))\n")
+    assert got == {"before": "SCHED_FIFO 7", "after": "SCHED_OTHER", "main": "SCHED_FIFO 7"}
+
+
 def test_policy_reaches_threads_started_later_and_is_restored() -> None:
     """Every thread (Zenoh's are started later, by the thread that opens the session)
     runs under the unit's policy; restore() puts every one back."""
