@@ -194,7 +194,7 @@ def leave_rt() -> None:
     (docs/measurements/2026-11-24-realtime.md). Cheap when there is nothing to do (one
     system call), so it can run before each job: :func:`_set_all` puts every thread of the
     process back under FIFO when the throttling guard restores it."""
-    if os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR):
+    if fifo_in_force():
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
