@@ -286,7 +286,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
         if central.child_check is not None and central.child_check() is not None:
             raise
         fault = str(exc)
-    busy = sched.busy_share(busy0, sched.cpu_times(), elapsed_s=time.monotonic() - t0)
+    busy = sched.busy_share(busy0, sched.cpu_times())
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
     trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
     out = {"period_s": period}

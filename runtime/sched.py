@@ -150,40 +150,48 @@ def rt_budget() -> float | None:
     return runtime / period if 0 <= runtime < period and period > 0 else None
 
 
-def cpu_times() -> list[tuple[int, int]]:
-    """``(busy, total)`` jiffies of each CPU since boot (``/proc/stat``; idle and iowait
-    are not busy); ``[]`` where it cannot be read. :func:`busy_share` of two readings is
-    the busiest CPU's busy share between them."""
-    out = []
+def cpu_times() -> list[tuple[float, float]]:
+    """``(busy, elapsed)`` of each CPU in clock ticks (``SC_CLK_TCK``): ``elapsed`` the
+    monotonic clock, ``busy`` that less the CPU's idle, iowait and steal time from
+    ``/proc/stat``; ``[]`` where it cannot be read. :func:`busy_share` of two readings is
+    the busiest CPU's busy share between them.
+
+    The kernel measures idle time exactly, at every entry to and exit from idle, but
+    samples user and system time at its tick (250 Hz on the reference machine): a unit
+    whose period divides the tick's is seen at one phase of its period at every tick, so
+    the sampled busy time read from 0 to 100 % of a CPU that the unit kept 72-80 % busy
+    (docs/measurements/2026-11-24-realtime.md). Busy time is therefore taken as the time
+    a CPU was not idle. Stolen time is not busy: the kernel's real-time throttling does
+    not count it either."""
+    out: list[tuple[float, float]] = []
     try:
         with open("/proc/stat") as fh:
+            now = time.monotonic() * os.sysconf("SC_CLK_TCK")
             for line in fh:
                 name, *values = line.split()
                 if not name.startswith("cpu"):
                     break
                 if name == "cpu":
                     continue
-                fields = [int(v) for v in values[:8]]
-                total = sum(fields)
-                out.append((total - fields[3] - fields[4], total))
+                fields = [int(v) for v in values[:8]] + [0] * (8 - len(values[:8]))
+                not_busy = fields[3] + fields[4] + fields[7]  # idle, iowait, steal
+                out.append((now - not_busy, now))
     except (OSError, ValueError):
         return []
     return out
 
 
-def busy_share(before: list[tuple[int, int]], after: list[tuple[int, int]], *,
-               elapsed_s: float | None = None) -> float | None:
+def busy_share(before: list[tuple[float, float]],
+               after: list[tuple[float, float]]) -> float | None:
     """The busiest CPU's share of busy time between two :func:`cpu_times` readings (the
-    kernel throttles real-time tasks CPU by CPU); None when the readings do not match or
-    do not cover the time between them: no time passed, or, given ``elapsed_s``, some
-    CPU's counters advanced by less than half of it (counters not kept up to date; seen
-    once on this VM as a 0 % reading during a loaded trial)."""
+    kernel throttles real-time tasks CPU by CPU), within 0 to 1 (the counters are whole
+    ticks); None when the readings do not match or no time passed between them."""
     if len(before) != len(after) or not before:
         return None
-    least = 0.5 * elapsed_s * os.sysconf("SC_CLK_TCK") if elapsed_s else 1
-    if any(a[1] - b[1] < least for b, a in zip(before, after, strict=True)):
+    if any(a[1] - b[1] <= 0 for b, a in zip(before, after, strict=True)):
         return None
-    return max((a[0] - b[0]) / (a[1] - b[1]) for b, a in zip(before, after, strict=True))
+    return max(min(1.0, max(0.0, (a[0] - b[0]) / (a[1] - b[1])))
+               for b, a in zip(before, after, strict=True))
 
 
 def leave_rt() -> None:
@@ -304,7 +312,7 @@ class BusyGuard:
                  window_s: float = GUARD_WINDOW_S, sustain: int = DEMOTE_WINDOWS,
                  restore_share: float = RESTORE_BUSY_SHARE,
                  restore_windows: int = RESTORE_WINDOWS, max_restores: int = MAX_RESTORES,
-                 read: Callable[[], list[tuple[int, int]]] = cpu_times,
+                 read: Callable[[], list[tuple[float, float]]] = cpu_times,
                  clock: Callable[[], float] = time.monotonic,
                  say: Callable[[str], None] | None = None) -> None:
         if sustain < 1:
@@ -325,9 +333,9 @@ class BusyGuard:
         how the load came to the limit)."""
         self._calm = 0  # consecutive windows under the restore limit, under the default
         self._t = 0.0
-        self._last: list[tuple[int, int]] | None = None  # the first call starts the window
-        # the readings that began the newest windows, with their times: the sustained share
-        self._starts: deque[tuple[float, list[tuple[int, int]]]] = deque(maxlen=sustain)
+        self._last: list[tuple[float, float]] | None = None  # the first call starts the window
+        # the readings that began the newest windows: the sustained share
+        self._starts: deque[list[tuple[float, float]]] = deque(maxlen=sustain)
 
     @property
     def restores(self) -> int:
@@ -341,20 +349,19 @@ class BusyGuard:
         if self._last is None:
             self._t, self._last = now, cur
             return
-        share = busy_share(self._last, cur, elapsed_s=now - self._t)
+        share = busy_share(self._last, cur)
         if share is None:
             self._starts.clear()  # a window that is no measurement breaks the sequence
             self._t, self._last = now, cur
             return
-        self._starts.append((self._t, self._last))
+        self._starts.append(self._last)
         self._t, self._last = now, cur
         self.recent.append(round(share, 3))
         if self.fifo:
             if share > self.budget:
                 self._fall_back(share, cycle, why="budget")
             elif len(self._starts) == self.sustain:
-                t0, first = self._starts[0]
-                sustained = busy_share(first, cur, elapsed_s=now - t0)
+                sustained = busy_share(self._starts[0], cur)
                 if sustained is not None and sustained > self.limit:
                     self._fall_back(sustained, cycle, why="sustained")
             return

@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 
 import pytest
 from ctrlunit.runtime import sched
@@ -86,14 +87,50 @@ def test_busy_share_is_the_busiest_cpus_busy_time_over_its_time() -> None:
     assert sched.busy_share(before, [(110, 1100), (590, 1100)]) == pytest.approx(0.9)
     assert sched.busy_share(before, before) is None  # no time passed
     assert sched.busy_share(before, before[:1]) is None  # readings that do not match
-    # counters that did not keep up with the time that passed: not a measurement
-    tick = os.sysconf("SC_CLK_TCK")
-    late = [(100, 1000), (500 + tick // 4, 1000 + tick // 4)]
-    assert sched.busy_share(before, late, elapsed_s=1.0) is None
-    assert sched.busy_share(before, [(100 + tick, 1000 + tick), (500, 1000 + tick)],
-                            elapsed_s=1.0) == pytest.approx(1.0)
+    # whole ticks of idle time against a clock read between them: kept within 0..1
+    assert sched.busy_share(before, [(103, 1002), (500, 1002)]) == 1.0
+    assert sched.busy_share(before, [(99, 1002), (499, 1002)]) == 0.0
     now = sched.cpu_times()
     assert len(now) == os.cpu_count() and all(0 <= b <= t for b, t in now)
+
+
+_DUTY = """
+import os, sys, time
+os.sched_setaffinity(0, {int(sys.argv[1])})
+busy_ns, period_ns, end = int(sys.argv[2]), 1_000_000, time.monotonic() + float(sys.argv[3])
+t = time.monotonic_ns() + period_ns
+print("ready", flush=True)
+while time.monotonic() < end:
+    now = time.monotonic_ns()
+    if t > now:
+        time.sleep((t - now) / 1e9)
+    t += period_ns
+    b0 = time.monotonic_ns()
+    while time.monotonic_ns() - b0 < busy_ns:
+        pass
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs CPU affinity")
+def test_busy_share_sees_a_load_that_wakes_every_millisecond() -> None:
+    """A child busy 0.6 ms of every 1 ms on one CPU: the kernel's tick (250 Hz here)
+    sampled user time at one phase of that period, and read it as 0 or 100 %; the busy
+    share from idle time reads the load itself."""
+    cpu = sorted(os.sched_getaffinity(0))[0]
+    child = subprocess.Popen([sys.executable, "-c", _DUTY, str(cpu), "600000", "2.0"],
+                             stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "ready"
+        time.sleep(0.3)
+        before = sched.cpu_times()
+        time.sleep(1.0)
+        after = sched.cpu_times()
+    finally:
+        child.kill()
+        child.wait(timeout=10)
+    share = sched.busy_share(before[cpu:cpu + 1], after[cpu:cpu + 1])
+    # at least the child's 0.6; more only by what else ran on that CPU meanwhile
+    assert share is not None and 0.55 <= share <= 0.95, share
 
 
 def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limit(
