@@ -69,6 +69,8 @@ class PlantServer:
         self.busy_ns = 0
         self.sample_no = 0
         self.rss_warm = -1
+        self.next_trial: tuple[float, int, int] | None = None
+        """A trial order that came during a trial: it ends that trial and runs next."""
 
     def take_command(self, data: bytes) -> None:
         msg = self.node.decode(data)
@@ -152,8 +154,12 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
         if node.cpu_start_s is not None:  # is_stop noted the start order
             break
         order = trial_order(node, ev)
-        if order is not None and not trial_ticks(node, server, *order, causal=causal):
-            return _result(server, "stop", time.monotonic_ns())
+        while order is not None:  # a trial, or the one that superseded it
+            if not trial_ticks(node, server, *order, causal=causal):
+                return _result(server, "stop", time.monotonic_ns())
+            order, server.next_trial = server.next_trial, None
+        if node.cpu_start_s is not None:  # the start came during a trial
+            break
     t_start = time.monotonic_ns()
     server.publish_sample((t_start, t_start))
     span = server.simulate() if causal else (t_start, t_start)  # the state at T, ahead
@@ -215,7 +221,8 @@ def sleep_to_tick(node: Node, server: PlantServer, tick_ns: int, *,
     """Sleep to the monotonic time ``tick_ns``, reading the inbox every
     :data:`SLEEP_SLICE_S` and once at the tick (commands are taken then, all at once, when
     ``take_commands``: a wake-up per command and a ticker hop per tick cost more CPU than
-    the simulation). Returns False on a stop order."""
+    the simulation; otherwise, during a trial, a new trial order is kept in
+    :attr:`PlantServer.next_trial`). Returns False on a stop order."""
     while True:
         ahead = tick_ns - time.monotonic_ns()
         if ahead > 0:
@@ -227,8 +234,11 @@ def sleep_to_tick(node: Node, server: PlantServer, tick_ns: int, *,
                 break
             if is_stop(node, ev):
                 return False
-            if take_commands and ev.kind == "command":
-                server.take_command(ev.data)
+            if take_commands:
+                if ev.kind == "command":
+                    server.take_command(ev.data)
+            elif (order := trial_order(node, ev)) is not None:
+                server.next_trial = order
         if time.monotonic_ns() >= tick_ns:
             return True
 
@@ -264,7 +274,10 @@ def trial_ticks(node: Node, server: PlantServer, period: float, ticks: int, base
     """An admission trial (runtime/admission.py): tick ``ticks`` times at ``period`` on the
     wall clock, integrating a throw-away robot at rest (the run's load) and publishing its
     samples, numbered from ``base`` and flagged ``probe``, in the run's order (``causal``:
-    at the tick, then integrate). Commands are not taken. Returns False on a stop order."""
+    at the tick, then integrate). Commands are not taken. The trial ends early when a new
+    trial order comes (the central gave this one up, e.g. on a fault: the new one runs at
+    once, where it used to be dropped and its trial found the plant silent) or the start
+    order. Returns False on a stop order."""
     if server.trial_plant is None:
         return True
     sim = server.trial_plant(period)
@@ -275,6 +288,8 @@ def trial_ticks(node: Node, server: PlantServer, period: float, ticks: int, base
     for j in range(ticks):
         if not sleep_to_tick(node, server, next_tick, take_commands=False):
             return False
+        if server.next_trial is not None or node.cpu_start_s is not None:
+            break
         next_tick = tick_after(next_tick, tick_ns)
         if causal:
             server.publish_sample(span, trial=(sim, base + j))
