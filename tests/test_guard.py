@@ -423,6 +423,23 @@ def test_a_silent_plant_is_a_fault_after_the_limit_unless_messages_wait(monkeypa
     c._check_deadlines(3 * MS)
 
 
+def test_a_silence_is_not_even_looked_at_while_a_message_waits(monkeypatch):
+    """Past the limit with a reply unread: no process state read (0.25-0.3 ms each from
+    /proc), no excuse spent; once the inbox is empty the silence is judged as before."""
+    c, clock, limit = silent_peripheral_2("unread", monkeypatch)
+    asked: list[str] = []
+    c.role_state = lambda role: asked.append(role) or "sleeping"
+    clock.now += 1
+    c.node.events.deliver(c.node.keys.sample, b"unread")
+    for _ in range(3):  # every turn of the central's loop while it waits
+        c._check_deadlines(limit)
+    assert asked == [] and c.excuses == 0
+    c.node.events.get_nowait()
+    with pytest.raises(Fault, match="its process was sleeping"):
+        c._check_deadlines(limit)
+    assert asked and c.excuses == 0
+
+
 def test_the_plants_silence_counts_from_the_start_before_any_sample(monkeypatch):
     u = LoopbackUnit(RunConfig.of(unit=unit_id("plant0"), clock="lockstep", timeout=0.5))
     c = u.central
