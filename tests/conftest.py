@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
+import tempfile
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -10,6 +13,23 @@ from ctrlunit.kernels.forward import fk_closed_form
 from ctrlunit.kernels.params import DELTA_IA, DeltaParams
 from ctrlunit.kernels.workspace import check_point
 from hypothesis import strategies as st
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _temporary_files_under_pytest(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Everything the tests and the units they start put in the temporary folder (the
+    run directory a faulted run keeps for diagnosis, above all) goes under this session's
+    pytest folder, which pytest prunes, not into /tmp for good (78 of them there after a
+    few sessions)."""
+    base = str(tmp_path_factory.mktemp("tmp"))
+    before_env, before = os.environ.get("TMPDIR"), tempfile.tempdir
+    os.environ["TMPDIR"], tempfile.tempdir = base, base
+    yield
+    tempfile.tempdir = before
+    if before_env is None:
+        os.environ.pop("TMPDIR", None)
+    else:
+        os.environ["TMPDIR"] = before_env
 
 
 @pytest.fixture
