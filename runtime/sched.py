@@ -58,16 +58,15 @@ GUARD_WINDOW_S = 0.5
 DEMOTE_WINDOWS = 2
 """How many of the newest windows the sustained-load rule of :class:`BusyGuard` reads
 together. The kernel throttles only real-time time beyond its budget within one second;
-one busy half-second cannot reach that alone, and a single window over
-:data:`DEMOTE_BUSY_SHARE` of the budget was the usual cause of the guard's fall-backs at 1
-ms (a CPU at 0.79-0.80 for seconds, then one window at 0.925; docs/architecture.md)."""
+one busy half-second cannot reach that alone."""
 
 RESTORE_BUSY_SHARE = 0.85
 """After a fall-back, :data:`RESTORE_WINDOWS` consecutive windows with every CPU at most
 this share of the budget busy put the unit back under SCHED_FIFO. Below the demotion's
 limit, so that the load that made it fall back does not bring FIFO straight back, and
-above the unit's own load at 1 ms on the reference machine (0.76-0.84 of a CPU), so that
-FIFO does come back once a busy spell has passed."""
+above the unit's own load at 1 ms on the reference machine (0.72-0.80 of a CPU by
+:func:`busy_share`, 0.86 in a busy window), so that FIFO does come back once a busy spell
+has passed."""
 
 RESTORE_WINDOWS = 4
 """See :data:`RESTORE_BUSY_SHARE`."""
@@ -76,9 +75,10 @@ ADMIT_BUSY_SHARE = RESTORE_BUSY_SHARE
 """Under FIFO, a trial that kept a CPU busier than this share of the kernel's
 real-time budget does not hold: the rest is margin for the run's longer tail. The share at
 which :class:`BusyGuard` puts a run back under FIFO: a load
-the guard would take FIFO back at is one the admission takes. At first 0.8, below the
-unit's own load at 1 ms (0.77-0.79 in a trial), which refused 1 ms in about half the runs
-of a calm machine on that alone (docs/measurements/2026-11-24-realtime.md)."""
+the guard would take FIFO back at is one the admission takes. At first 0.8, which
+refused 1 ms in about half the runs of a calm machine on that alone, while the share was
+still sampled at the kernel's tick (:func:`cpu_times`); by idle time, trials at 1 ms
+that held read 0.73-0.74 (docs/measurements/2026-11-24-realtime.md)."""
 
 MAX_RESTORES = 3
 """How many times a run goes back to SCHED_FIFO after falling back; after that it stays
