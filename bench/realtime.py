@@ -94,6 +94,9 @@ def run_row(res: dict[str, Any]) -> dict[str, Any]:
         "scheduling": (r.get("scheduling") or {}).get("central"),
         "rt_priority": (r.get("scheduling_choice") or {}).get("priority", 0),
         "fell_back": bool(r.get("scheduling_fallback")),
+        "late_work_stretch": ((r.get("late_intervals") or {}).get("work_stretch")
+                              or {}).get("median"),
+        "machine_slower": (r.get("late_intervals") or {}).get("machine_slower"),
     }
 
 
@@ -117,6 +120,11 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "scheduling": dict(Counter(str(r.get("scheduling")) for r in rows
                                        if r["exit_code"] != 7)),
             "fell_back": sum(bool(r.get("fell_back")) for r in rows),
+            "late_runs": {"machine_slower": sum(r.get("machine_slower") is True for r in rows),
+                          "waiting": sum(r.get("machine_slower") is False for r in rows),
+                          "no_verdict": sum(r.get("late_work_stretch") is not None
+                                            and r.get("machine_slower") is None
+                                            for r in rows)},
             "traversal_p999_s": med("traversal_p999_s"),
             "cpu_per_interval_s": med("cpu_per_interval_s"),
             "tracking_max_m": med("tracking_max_m"),
@@ -213,6 +221,12 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
     if sched:
         lines += ["", f"The main job's runs ran under {sched}; back to the default policy "
                   f"during the run (the throttling guard) in {st['main_job']['fell_back']}."]
+    lr = st["main_job"].get("late_runs") or {}
+    if any(lr.values()):
+        lines += ["", "Runs with late commands (the report's `late_intervals`): the "
+                  f"peripherals' work stretched (the machine ran slower) in "
+                  f"{lr['machine_slower']}, as usual (time lost waiting) in {lr['waiting']}, "
+                  f"in between in {lr['no_verdict']}."]
     for title, r in ((f"Long run ({st['long_s']:g} s)", st["long"]),
                      (f"Its baseline ({st['long_s']:g} s, n = 0)", st.get("long_baseline"))):
         if not r:

@@ -39,7 +39,7 @@ from .blocks import ObserverDiverged
 from .central_guard import CentralGuard, Fault
 from .central_intake import CentralIntake
 from .central_lifecycle import CentralLifecycle
-from .central_state import CycleLog, InFlight
+from .central_state import LATE_KEPT, CycleLog, InFlight
 from .central_warmup import CentralWarmUp
 from .codec import (
     encode,
@@ -151,6 +151,10 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.admit_ns = 0  # starting intervals (sample, context), not their steps
         self.finish_ns = 0  # finishing them (checks, command, logs, progress)
         self.period_ns = int(rc.schedule.period * 1e9)
+        self.realtime_deadline_ns = self.depth * self.period_ns \
+            if rc.schedule.clock == "realtime" and self.n else 0
+        """Realtime with peripherals: an interval whose command leaves later than this after
+        its sample is late (its work goes to :attr:`CycleLog.late_work_ns`); 0 otherwise."""
         self.reply_each = False
         self.replies_info: dict[str, Any] = {"mode": "fused"}
         self.block_costs: dict[str, float] | None = None  # measured once (warm-up)
@@ -377,6 +381,11 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         del self.inflight[f.cycle]
         log = self.log
         log.times.append(now, now - f.sample_ns)
+        log.work_ns.append(f.work_ns)
+        if self.realtime_deadline_ns and now - f.sample_ns > self.realtime_deadline_ns:
+            log.late += 1
+            if len(log.late_work_ns) < LATE_KEPT:
+                log.late_work_ns.append(f.work_ns)
         log.digest.update(struct.pack("<3d", *cmd))
         log.torque_max = max(log.torque_max, abs(cmd[0]), abs(cmd[1]), abs(cmd[2]))
         self.done += 1

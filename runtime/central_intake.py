@@ -138,6 +138,7 @@ class CentralIntake:
             Engine.merge(f.ctx, vals, axes)
             Engine.merge(self.last_vals, vals, axes)  # replies hold per-axis values only
             self.periph_busy_ns[k] += span[1] - span[0]
+            f.work_ns = max(f.work_ns, min(span[1] - span[0], 2**31 - 1))
             self._span(f"peripheral_{k + 1}", f.cycle, span[0], span[1])
             f.waiting.discard(k)
             if not f.waiting:

@@ -30,6 +30,11 @@ class InFlight:
     late_ns: int = 0  # realtime: when this round's data is late (its share of the deadline)
     finishing: bool = False  # every exchange done; its last central steps are pending
     dropped: set[int] = field(default_factory=set)  # peripherals whose replies were held
+    work_ns: int = 0  # the longest work one peripheral reported for one of its rounds
+
+
+LATE_KEPT = 4096
+"""How many late intervals' work :class:`CycleLog` keeps (bounded memory)."""
 
 
 @dataclass
@@ -44,6 +49,14 @@ class CycleLog:
     digest: Any = field(default_factory=hashlib.sha256)
     torque_max: float = 0.0
     true_p: dict[int, tuple[float, float, float]] = field(default_factory=dict)  # recent only
+    work_ns: BoundedSeries = field(default_factory=lambda: BoundedSeries("i"))
+    """Each interval's longest work of one peripheral in one round (ns; 0 without
+    peripherals): the newest intervals, the reference of :attr:`late_work_ns`."""
+    late: int = 0
+    """Intervals whose command left after its deadline (realtime; ``depth`` periods after
+    the sample)."""
+    late_work_ns: list[int] = field(default_factory=list)
+    """Their work as in :attr:`work_ns`, the first :data:`LATE_KEPT` of them."""
 
     @property
     def cmd_ns(self) -> BoundedSeries:
@@ -61,4 +74,4 @@ class CycleLog:
         return self.times.sample_ns
 
 
-__all__ = ["CycleLog", "InFlight"]
+__all__ = ["LATE_KEPT", "CycleLog", "InFlight"]

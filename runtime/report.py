@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -39,6 +40,59 @@ def error_stats(errs: list[float] | np.ndarray) -> dict[str, float]:
     if a.size == 0:
         return {"max": math.nan, "rms": math.nan}
     return {"max": float(a.max()), "rms": float(np.sqrt((a * a).mean()))}
+
+
+STRETCH_SLOWER = 2.0
+"""Late intervals whose peripherals' work took at least this many times its median (the
+median over them): the machine itself ran slower. Under one SCHED_FIFO priority a role's
+work is not preempted by the unit's other roles, so waiting (for a CPU the unit's other
+roles or the host hold, or for a message) makes intervals late without stretching the
+work. On 2026-11-24 the late intervals at 1 ms stretched it 1.0-1.8 times at the median
+(docs/measurements/2026-11-24-realtime.md)."""
+
+STRETCH_SAME = 1.2
+"""At most this stretch (the median over the late intervals): their time went to waiting,
+not to the work. Between the two limits the report gives the figures and no verdict."""
+
+
+def late_work_figures(work_ns: Sequence[int], late_work_ns: Sequence[int], late: int
+                      ) -> dict[str, Any] | None:
+    """Where the late intervals' time went: the longest work one peripheral reported in
+    each (ns), against its median over ``work_ns`` (the newest intervals).
+
+    Returns ``{intervals, work_median_s, work_stretch: {median, max} | None,
+    machine_slower}`` (``work_stretch`` over the first late intervals kept;
+    ``machine_slower`` True at :data:`STRETCH_SLOWER` and over, False at
+    :data:`STRETCH_SAME` and under, None between or without late intervals); None without
+    any work reported (no peripherals)."""
+    ref = np.asarray(work_ns, dtype=float)
+    ref = ref[ref > 0]
+    if ref.size == 0:
+        return None
+    median = float(np.median(ref))
+    stretch = np.asarray([w for w in late_work_ns if w > 0], dtype=float) / median
+    figures = {"median": float(np.median(stretch)), "max": float(stretch.max())} \
+        if stretch.size else None
+    slower = None
+    if figures is not None and figures["median"] >= STRETCH_SLOWER:
+        slower = True
+    elif figures is not None and figures["median"] <= STRETCH_SAME:
+        slower = False
+    return {"intervals": int(late), "work_median_s": median / 1e9, "work_stretch": figures,
+            "machine_slower": slower}
+
+
+def _late_lines(r: dict[str, Any]) -> list[str]:
+    """The late intervals and where their time went (:func:`late_work_figures`)."""
+    late = r.get("late_intervals")
+    if not late or not late["intervals"] or not late["work_stretch"]:
+        return []
+    st = late["work_stretch"]
+    why = {True: ": the machine itself ran slower",
+           False: ": the time went to waiting, not to the work"}.get(late["machine_slower"], "")
+    return [f"  late        {late['intervals']} command(s) left after their deadline; there "
+            f"the peripherals' work took {st['median']:.1f}x its median of "
+            f"{late['work_median_s'] * 1e6:.0f} us (max {st['max']:.1f}x){why}"]
 
 
 def gantt_window(spans: list[tuple[str, int, int, int]], *, intervals: int = 4
@@ -245,6 +299,7 @@ def summary(r: dict[str, Any]) -> str:
         f"  deadline misses {r['deadline_misses']}   skipped samples {r['skipped_samples']}"
         + (f"   silences excused {r['silences_excused']} (the machine, not the process, was slow)"
            if r.get("silences_excused") else ""),
+        *_late_lines(r),
         "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
         *_cpu_lines(r),
         *_sched_lines(r),
@@ -370,7 +425,7 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
     for role, rep in central.role_reports.items():
         for k, v in (rep.get("rejected") or {}).items():
             rejected[f"{role}:{k}"] = v
-    return build_report(
+    report = build_report(
         rc=rc, plan=setup.plan, task=setup.task, timing=central.log.times.figures(),
         digest=central.log.digest.hexdigest(),
         torque_max=central.log.torque_max, tracking=central.log.errors.stats(),
@@ -383,3 +438,8 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         central_costs=central.costs(), gantt=gantt_window(central.spans),
         silences_excused=central.excuses,
     )
+    if central.realtime_deadline_ns:
+        log = central.log
+        report["late_intervals"] = late_work_figures(log.work_ns.recent, log.late_work_ns,
+                                                     log.late)
+    return report

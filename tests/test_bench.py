@@ -158,8 +158,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     from ctrlunit.bench.realtime import markdown_lines, run_row, summary
 
     def res(code, cycles, misses, p999, cpu, period=1e-3, fault=None, track=4e-4,
-            policy="SCHED_FIFO 10", fell=None):
-        rep = {} if cycles == 0 else {
+            policy="SCHED_FIFO 10", fell=None, late=None):
+        rep = {} if cycles == 0 else {"late_intervals": late,
             "nominal_period_s": period, "cycles": cycles, "deadline_misses": misses,
             "traversal_s": {"p999": p999}, "cpu_per_interval_s": {"total": cpu},
             "tracking_error_m": {"max": track}, "fault": fault and {"message": fault},
@@ -167,11 +167,13 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
             "scheduling_choice": {"priority": 10 if "FIFO" in policy else 0}}
         return {"exit_code": code, "report": rep, "wall_s": 5.0, "output_tail": ""}
 
-    rows = [run_row(res(0, 400, 1, 1.5e-3, 1.2e-3)),
+    rows = [run_row(res(0, 400, 1, 1.5e-3, 1.2e-3, late={
+                "intervals": 1, "work_stretch": {"median": 3.1}, "machine_slower": True})),
             run_row(res(0, 600, 0, 1.7e-3, 1.0e-3, period=1.25e-3, policy="SCHED_OTHER",
                         fell={"cycle": 300})),
             run_row(res(4, 200, 5, 9e-3, 2e-3, fault="no sample from the plant for 5 ms",
-                        track=2e-3)),
+                        track=2e-3, late={"intervals": 5, "work_stretch": {"median": 1.5},
+                                          "machine_slower": None})),
             run_row(res(7, 0, 0, None, None))]
     assert [r["rt_priority"] for r in rows] == [10, 0, 10, 0]  # the baseline's policy
     s = summary(rows)
@@ -184,6 +186,7 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     assert s["tracking_max_m"] == pytest.approx(4e-4) and s["tracking_worst_m"] == 2e-3
     assert s["scheduling"] == {"SCHED_FIFO 10": 2, "SCHED_OTHER": 1}  # the refusal ran none
     assert s["fell_back"] == 1
+    assert s["late_runs"] == {"machine_slower": 1, "waiting": 0, "no_verdict": 1}
     st = {"command": "ctrlunit start --peripherals 3 --pipeline 2", "baseline_command": "b",
           "levers": {"period": "auto"}, "main_job": s, "baseline": summary(rows[:2]),
           "long": None, "long_s": 0, "rows": {"main_job": rows, "baseline": rows[:2]}}
@@ -193,6 +196,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     assert "run 3 exit 4: no sample from the plant for 5 ms" in md and "run 4 exit 7" in md
     assert "ran under SCHED_FIFO 10 in 2, SCHED_OTHER in 1; back to the default policy " \
         "during the run (the throttling guard) in 1." in md
+    assert "stretched (the machine ran slower) in 1, as usual (time lost waiting) in 0, " \
+        "in between in 1." in md
 
 
 def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monkeypatch):
