@@ -381,11 +381,12 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         del self.inflight[f.cycle]
         log = self.log
         log.times.append(now, now - f.sample_ns)
-        log.work_ns.append(f.work_ns)
-        if self.realtime_deadline_ns and now - f.sample_ns > self.realtime_deadline_ns:
-            log.late += 1
-            if len(log.late_work_ns) < LATE_KEPT:
-                log.late_work_ns.append(f.work_ns)
+        if self.realtime_deadline_ns:  # only realtime reports where late intervals went
+            log.work_ns.append(f.work_ns)
+            if now - f.sample_ns > self.realtime_deadline_ns:
+                log.late += 1
+                if len(log.late_work_ns) < LATE_KEPT:
+                    log.late_work_ns.append(f.work_ns)
         log.digest.update(struct.pack("<3d", *cmd))
         log.torque_max = max(log.torque_max, abs(cmd[0]), abs(cmd[1]), abs(cmd[2]))
         self.done += 1

@@ -50,8 +50,8 @@ class CycleLog:
     torque_max: float = 0.0
     true_p: dict[int, tuple[float, float, float]] = field(default_factory=dict)  # recent only
     work_ns: BoundedSeries = field(default_factory=lambda: BoundedSeries("i"))
-    """Each interval's longest work of one peripheral in one round (ns; 0 without
-    peripherals): the newest intervals, the reference of :attr:`late_work_ns`."""
+    """Each interval's longest work of one peripheral in one round (ns), in realtime with
+    peripherals only: the newest intervals, the reference of :attr:`late_work_ns`."""
     late: int = 0
     """Intervals whose command left after its deadline (realtime; ``depth`` periods after
     the sample)."""
