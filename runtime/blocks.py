@@ -45,7 +45,9 @@ class BlockConfig:
     period in which the command will act, ``(delay + 1/2) T`` after the sample, where
     ``delay`` is the number of periods from the sample to that period's start; the blocks
     ``inflight`` (to the period's start) and ``ahead`` (half a period on) predict the state
-    at that instant."""
+    at that instant. An interval whose command acts for ``hold`` periods (the source
+    ``hold``, 2 once a realtime run halved its control rate) takes the middle of those,
+    ``(delay + hold/2) T`` (:func:`lead_of`)."""
     delay: int = 0
     """Periods from a sample to the start of the period in which its command acts."""
 
@@ -137,11 +139,20 @@ def k_joint_pd_static(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> No
 # --- central kernels: f(ctx, cfg, names) -------------------------------------------------
 
 
+def lead_of(cfg: BlockConfig, hold: int) -> float:
+    """The feed-forward lead (s) of an interval whose command acts for ``hold`` periods:
+    the middle of that span, ``cfg.lead + (hold - 1) T / 2`` (:attr:`BlockConfig.lead`;
+    exactly ``cfg.lead`` at ``hold = 1``)."""
+    return cfg.lead if hold == 1 else cfg.lead + 0.5 * (hold - 1) * cfg.period
+
+
 def k_reference(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    """The reference position and velocity at the sample's instant, and its acceleration
+    at the middle of the span in which the command acts (Eq. II.33, :func:`lead_of`)."""
     assert cfg.task is not None
     t = c[n["t"]]
     p, v, _ = cfg.task.sample(t)
-    a = cfg.task.sample(t + cfg.lead)[2]
+    a = cfg.task.sample(t + lead_of(cfg, c[n["hold"]]))[2]
     c[n["pc"]] = (float(p[0]), float(p[1]), float(p[2]))
     c[n["vc"]] = (float(v[0]), float(v[1]), float(v[2]))
     c[n["ac"]] = (float(a[0]), float(a[1]), float(a[2]))
@@ -274,12 +285,13 @@ def k_law(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
 
 
 def k_ahead(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
-    """The state in the middle of the period in which the command acts: the state at its
-    start (:func:`k_inflight`) carried forward half a period at the commanded ``pddot``,
-    ``pa = p0 + pdot0 L + pddot L^2/2``, ``pda = pdot0 + pddot L``, ``L = T/2``
-    (docs/architecture.md, where the model is evaluated)."""
+    """The state in the middle of the span in which the command acts: the state at its
+    start (:func:`k_inflight`) carried forward half the span at the commanded ``pddot``,
+    ``pa = p0 + pdot0 L + pddot L^2/2``, ``pda = pdot0 + pddot L``, ``L = hold T/2``
+    (``hold``: the periods the command acts for; docs/architecture.md, where the model is
+    evaluated)."""
     p, pd, a = c[n["p"]], c[n["pd"]], c[n["pdd"]]
-    L = 0.5 * cfg.period
+    L = 0.5 * cfg.period * c[n["hold"]]
     h = 0.5 * L * L
     c[n["pa"]] = (p[0] + pd[0] * L + a[0] * h, p[1] + pd[1] * L + a[1] * h,
                   p[2] + pd[2] * L + a[2] * h)

@@ -73,6 +73,11 @@ class Controller:
     """The cycle at t = 0 (the admission's trial intervals count from a base of their own)."""
     q_prev: list[float] | None = field(default=None, init=False)
     k_prev: int = field(default=0, init=False)
+    stride: int = field(default=1, init=False)
+    """1; 2 once the control rate is halved (:meth:`halve`): from cycle
+    :attr:`stride_from` on every second sample runs an interval, whose command acts for
+    two periods."""
+    stride_from: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
         # plain floats: a numpy scalar here would make every value computed from the
@@ -88,7 +93,27 @@ class Controller:
     def context(self, cycle: int) -> dict:
         """Context of interval ``cycle`` before its sample: time and the estimate handed
         off by the previous interval (enough for the plan's sample-free leading steps)."""
-        return self.engine.new_ctx(self.time_of(cycle), self.est, (0.0,) * 3, (0.0,) * 3)
+        return self.engine.new_ctx(self.time_of(cycle), self.est, (0.0,) * 3, (0.0,) * 3,
+                                   hold=self.hold_of(cycle))
+
+    def halve(self, start: int) -> None:
+        """Halve the control rate from cycle ``start`` on (a realtime run on overload):
+        only the samples ``start, start + 2, ...`` run intervals, and each of their
+        commands acts for two periods (the source ``hold``). Once; ``start`` must lie
+        past every interval already begun."""
+        if start < 0:
+            raise ValueError(f"start must be a cycle >= 0, got {start}")
+        if self.stride == 1:
+            self.stride, self.stride_from = 2, start
+
+    def on_grid(self, cycle: int) -> bool:
+        """Whether sample ``cycle`` runs an interval (every one until :meth:`halve`)."""
+        return self.stride == 1 or cycle < self.stride_from \
+            or (cycle - self.stride_from) % self.stride == 0
+
+    def hold_of(self, cycle: int) -> int:
+        """The periods the command of interval ``cycle`` acts for."""
+        return self.stride if self.stride > 1 and cycle >= self.stride_from else 1
 
     def time_of(self, cycle: int) -> float:
         """The time of sample ``cycle`` on the task's clock (s): the unit's one timebase."""
@@ -123,7 +148,8 @@ class Controller:
 
 @dataclass
 class SimResult:
-    """Outcome of :func:`simulate` (lists per cycle)."""
+    """Outcome of :func:`simulate` (lists per interval: one per cycle until the control
+    rate is halved, one per second cycle after)."""
 
     commands: list[list[float]]
     positions: list[list[float]]
@@ -171,28 +197,34 @@ def simulate(
     observer: str = "predict",
     plant_config: PlantConfig | None = None,
     model_state: str = "acting",
+    halve_at: int | None = None,
 ) -> SimResult:
-    """Closed loop in one process: sample k -> interval k -> command applied during period
-    ``k + delay`` (the distributed unit's ``RunConfig.delay_periods``: the depth, or one
-    less with ``--command-delay short``)."""
+    """Closed loop in one process: sample k -> interval k -> command applied from the
+    start of period ``k + delay`` (the distributed unit's ``RunConfig.delay_periods``: the
+    depth, or one less with ``--command-delay short``) until the next command is due.
+    ``halve_at``: from that cycle on only every second sample runs an interval
+    (:meth:`Controller.halve`, a realtime run's answer to overload)."""
     task.align(period / 2.0)  # as the distributed unit does
     engine = build_engine(params, task, law=law, model=model, gains=gains, period=period,
                           observer=observer, delay=delay, model_state=model_state)
     pc = plant_config or PlantConfig(period=period)
     plant = Plant(params, pc, q0=initial_angles(params, task), p_guess=tuple(task.start()))
     ctl = Controller(engine, period, params.increment, tuple(task.start()))
-    pending: list[list[float]] = []
+    if halve_at is not None:
+        ctl.halve(halve_at)
+    due: dict[int, list[float]] = {}  # cycle -> the command due at its period's start
     plant.set_command(initial_command(params, task))
     res = SimResult([], [], [])
     for k in range(cycles):
-        counts = plant.encoder_counts()
-        ctx = engine.run_local(ctl.sources(k, counts))
-        ctl.handoff(ctx)  # sequential: the hand-off point is the end of the interval
-        res.commands.append(list(ctx["cmd"]))
-        res.references.append(list(ctx.get("pc", task.sample(k * period)[0])))
-        res.positions.append(list(plant.state.p))
-        pending.append(ctx["cmd"])
-        if len(pending) > delay:
-            plant.set_command(pending.pop(0))
+        if ctl.on_grid(k):
+            counts = plant.encoder_counts()
+            ctx = engine.run_local(ctl.sources(k, counts))
+            ctl.handoff(ctx)  # sequential: the hand-off point is the end of the interval
+            res.commands.append(list(ctx["cmd"]))
+            res.references.append(list(ctx.get("pc", task.sample(k * period)[0])))
+            res.positions.append(list(plant.state.p))
+            due[k + delay] = ctx["cmd"]
+        if k in due:
+            plant.set_command(due.pop(k))
         plant.step()
     return res

@@ -113,10 +113,13 @@ class Engine:
 
     # -- contexts ---------------------------------------------------------------------
 
-    def new_ctx(self, t: float, est: Any, qmeas: Iterable[float], qdmeas: Iterable[float]) -> Ctx:
-        """A fresh interval context from its sources."""
+    def new_ctx(self, t: float, est: Any, qmeas: Iterable[float], qdmeas: Iterable[float],
+                *, hold: int = 1) -> Ctx:
+        """A fresh interval context from its sources (topology/graph.py, ``SOURCES``);
+        ``hold``: the periods the interval's command acts for."""
         c: Ctx = {n: [None, None, None] for n in self.axis_names}
         c["t"] = t
+        c["hold"] = hold
         c["est"] = est
         c["qmeas_i"] = list(qmeas)
         c["qdmeas_i"] = list(qdmeas)

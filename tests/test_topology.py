@@ -76,7 +76,7 @@ def test_the_model_state_moves_the_second_round_to_the_predicted_state():
     assert acting.block("reference").kernel == "reference_acting"
     assert acting.block("reference").outputs == ("pc", "vc", "ac", "pcd", "vcd")
     assert acting.block("law").inputs == ("pcd", "vcd", "ac", "p0", "v0")
-    assert acting.block("ahead").inputs == ("p0", "v0", "pdd")
+    assert acting.block("ahead").inputs == ("p0", "v0", "pdd", "hold")
     assert acting.block("ik").inputs == ("pa",) and "pda" in acting.block("jdot").inputs
     assert "ahead" not in [b.name for b in sample.blocks]
     assert "inflight" not in [b.name for b in sample.blocks]

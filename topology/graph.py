@@ -32,8 +32,12 @@ from the observed positions (kernel ``velocity_diff``); ``sample``, at the sampl
 estimate with ``pdot = J qdot`` of the backward-difference rates, as the thesis. The other
 laws evaluate at the sample (or at the reference) either way."""
 MEASURED = ("qmeas_i", "qdmeas_i")
-"""The sources that come from the plant's sample (the others, ``t`` and ``est``, are known
-before the sample arrives)."""
+"""The sources that come from the plant's sample (the others, ``t``, ``hold`` and ``est``,
+are known before the sample arrives)."""
+SOURCES = ("t", "hold", "est", "qmeas_i", "qdmeas_i")
+"""An interval's sources: the sample's time ``t`` (s), ``hold`` (the periods its command
+acts for: 1, or 2 once a realtime run halved its control rate on overload), the estimate
+handed off by the previous interval, and the measured angles and rates."""
 
 
 @dataclass(frozen=True)
@@ -231,9 +235,9 @@ def stage_graph(
     if not 1 <= iterations <= 5:
         raise ValueError(f"observer iterations must be in [1, 5], got {iterations}")
     acting = law == "resolved-acceleration" and model_state == "acting"
-    ref = [_b("reference", CENTRAL, "reference_acting", "t", "pc vc ac pcd vcd",
+    ref = [_b("reference", CENTRAL, "reference_acting", "t hold", "pc vc ac pcd vcd",
               "II.33, also at the acting period's start")] if acting else [
-        _b("reference", CENTRAL, "reference", "t", "pc vc ac", "II.33")]
+        _b("reference", CENTRAL, "reference", "t hold", "pc vc ac", "II.33")]
     out = [_b("output", CENTRAL, "output", "tau", "cmd", "saturation, command out")]
     blocks: list[Block]
     if law == "resolved-acceleration":
@@ -245,7 +249,7 @@ def stage_graph(
             _b("law", CENTRAL, "law", "pcd vcd ac p0 v0", "pdd",
                "IV.14 at the acting period's start",
                (("pc", "pcd"), ("vc", "vcd"), ("p", "p0"), ("pd", "v0"))),
-            _b("ahead", CENTRAL, "ahead", "p0 v0 pdd", "pa pda",
+            _b("ahead", CENTRAL, "ahead", "p0 v0 pdd hold", "pa pda",
                "the middle of the acting period: p0 + pdot0 T/2 + pddot T^2/8, "
                "pdot0 + pddot T/2", (("p", "p0"), ("pd", "v0"))),
         ] if acting else [_b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14")]
@@ -303,8 +307,7 @@ def stage_graph(
                "joint PD, no model terms"),
             _b("collect", CENTRAL, "collect", "taufb_i", "tau", "tau = feedback"),
         ] + out
-    sources = ("t", "est", "qmeas_i", "qdmeas_i")
-    graph = StageGraph(law, model, observer, iterations, tuple(blocks), sources,
+    graph = StageGraph(law, model, observer, iterations, tuple(blocks), SOURCES,
                        "acting" if acting else "sample")
     validate_graph(graph)
     return graph
