@@ -85,6 +85,9 @@ def run_row(res: dict[str, Any]) -> dict[str, Any]:
         "completed": res["exit_code"] == 0,
         "period_s": r.get("nominal_period_s"),
         "cycles": r.get("cycles", 0) or 0,
+        "periods": r.get("periods", r.get("cycles", 0)) or 0,
+        "halved_at_interval": ((r.get("overload") or {}).get("halved") or {}).get(
+            "at_interval"),
         "deadline_misses": r.get("deadline_misses", 0) or 0,
         "traversal_p999_s": (r.get("traversal_s") or {}).get("p999"),
         "cpu_per_interval_s": (r.get("cpu_per_interval_s") or {}).get("total"),
@@ -102,7 +105,7 @@ def run_row(res: dict[str, Any]) -> dict[str, Any]:
 
 def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Completed fraction, misses per 1000 periods over every run, medians."""
-    cycles = sum(r["cycles"] for r in rows)
+    cycles = sum(r["periods"] for r in rows)
     misses = sum(r["deadline_misses"] for r in rows)
 
     def med(key: str) -> float:
@@ -120,6 +123,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "scheduling": dict(Counter(str(r.get("scheduling")) for r in rows
                                        if r["exit_code"] != 7)),
             "fell_back": sum(bool(r.get("fell_back")) for r in rows),
+            "halved": sum(r.get("halved_at_interval") is not None for r in rows),
             "late_runs": {"machine_slower": sum(r.get("machine_slower") is True for r in rows),
                           "waiting": sum(r.get("machine_slower") is False for r in rows),
                           "no_verdict": sum(r.get("late_work_stretch") is not None
@@ -185,7 +189,7 @@ def realtime_stage(*, runs: int, long_s: float,
 
 def per_1000(row: dict[str, Any]) -> float:
     """A run's deadline misses per 1000 periods."""
-    return 1000 * row["deadline_misses"] / row["cycles"] if row["cycles"] else math.nan
+    return 1000 * row["deadline_misses"] / row["periods"] if row["periods"] else math.nan
 
 
 def _fmt(x: Any, scale: float = 1.0, digits: int = 0) -> str:
@@ -220,7 +224,8 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
     sched = ", ".join(f"{k} in {v}" for k, v in st["main_job"].get("scheduling", {}).items())
     if sched:
         lines += ["", f"The main job's runs ran under {sched}; back to the default policy "
-                  f"during the run (the throttling guard) in {st['main_job']['fell_back']}."]
+                  f"during the run (the throttling guard) in {st['main_job']['fell_back']}; "
+                  f"control rate halved on overload in {st['main_job'].get('halved', 0)}."]
     lr = st["main_job"].get("late_runs") or {}
     if any(lr.values()):
         lines += ["", "Runs with late commands (the report's `late_intervals`): the "
@@ -237,6 +242,8 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
                   f"traversal p99.9 {_fmt(r['traversal_p999_s'], 1e6)} us, CPU / interval "
                   f"{_fmt(r['cpu_per_interval_s'], 1e6)} us, tracking max "
                   f"{_fmt(r['tracking_max_m'], 1e3, 2)} mm"
+                  + (f"; control rate halved at interval {r['halved_at_interval']}"
+                     if r.get("halved_at_interval") is not None else "")
                   + (f"; fault: {r['fault']}" if r["fault"] else "") + "."]
     faults = [(i + 1, r["exit_code"], r["fault"]) for i, r in
               enumerate(st["rows"]["main_job"]) if not r["completed"]]

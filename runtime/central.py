@@ -49,6 +49,22 @@ from .controller import Controller
 from .engine import Engine
 from .node import WARM_RSS_AT, Node, rss_kb
 
+OVERLOAD_WINDOW = 100
+"""The intervals over which :meth:`Central._check_overload` counts late ones."""
+
+OVERLOAD_LATE = 10
+"""Late intervals (command after its deadline, or started behind, skipping samples) within
+:data:`OVERLOAD_WINDOW` that make a realtime run with ``--overload halve`` halve its
+control rate."""
+
+OVERLOAD_SETTLE = 20
+"""Real intervals before late ones count towards a halving: the first ones after the
+warm-up meet the start of the motion and the peripherals' first real rounds."""
+
+OVERLOAD_LEAD = 3
+"""Periods between the newest sample and the first one of the halved rate: the plant
+hears the order before that tick."""
+
 
 class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
     """The central process of a unit.
@@ -155,6 +171,9 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             if rc.schedule.clock == "realtime" and self.n else 0
         """Realtime with peripherals: an interval whose command leaves later than this after
         its sample is late (its work goes to :attr:`CycleLog.late_work_ns`); 0 otherwise."""
+        self.overload: dict[str, Any] | None = None  # the halving: when and why
+        self.halve_on_overload = not trial and rc.halves_on_overload
+        self._late_marks: deque[int] = deque()  # self.done at each late or skipped interval
         self.reply_each = False
         self.replies_info: dict[str, Any] = {"mode": "fused"}
         self.block_costs: dict[str, float] | None = None  # measured once (warm-up)
@@ -236,9 +255,13 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                 if self.rc.schedule.clock == "realtime" and self.samples and max(self.samples) > k:
                     # behind the plant's clock: start from the newest sample, never queue
                     newest = max(self.samples)
-                    skipped = sum(1 for c in self.samples if c < newest) + (
-                        newest - k - len(self.samples) + 1)
+                    if self.ctl.stride > 1:  # the rate is halved: the grid's samples only
+                        skipped = sum(1 for c in range(k, newest) if self.ctl.on_grid(c))
+                    else:
+                        skipped = sum(1 for c in self.samples if c < newest) + (
+                            newest - k - len(self.samples) + 1)
                     self.skipped += skipped
+                    self._mark_late()  # one late interval, however long the stall
                     if self.trial:
                         self.skip_marks.append((len(self.log.traversal_ns), skipped))
                     self.samples = {newest: self.samples[newest]}
@@ -248,7 +271,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                 counts, t_ns = self.samples.pop(k)
                 if self.trial:  # the robot rests; the trial follows the reference
                     counts = self._synthetic_sample(k)
-            self.next_cycle = k + 1
+            self.next_cycle = k + self.ctl.hold_of(k)
             t0 = time.monotonic_ns()
             primed, self.primed = self.primed, None
             if primed is not None and primed[0] == k:  # its sample-free steps are done
@@ -387,6 +410,9 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                 log.late += 1
                 if len(log.late_work_ns) < LATE_KEPT:
                     log.late_work_ns.append(f.work_ns)
+                self._mark_late()
+        if self._late_marks:
+            self._check_overload()
         log.digest.update(struct.pack("<3d", *cmd))
         log.torque_max = max(log.torque_max, abs(cmd[0]), abs(cmd[1]), abs(cmd[2]))
         self.done += 1
@@ -400,6 +426,43 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             for c in [c for c in self.cycle_spans if c < f.cycle - 8]:
                 del self.cycle_spans[c]
         self.finish_ns += time.perf_counter_ns() - t_in
+
+    def _mark_late(self) -> None:
+        """Note a late interval now (for :meth:`_check_overload`): its command left after
+        its deadline, or it started behind, skipping samples (one mark for the skip, so
+        that one stall of the host does not halve the rate by itself)."""
+        if self.halve_on_overload and self.ctl.stride == 1 \
+                and self.done >= OVERLOAD_SETTLE:
+            self._late_marks.append(self.done)
+
+    def _check_overload(self) -> None:
+        """``--overload halve``: once :data:`OVERLOAD_LATE` of the last
+        :data:`OVERLOAD_WINDOW` intervals were late, take only every second sample from a
+        cycle :data:`OVERLOAD_LEAD` periods past the newest one, and tell the plant, which
+        then publishes those samples only and holds each command two periods (a deadline
+        still ``depth`` periods after its sample). The control rate halves; the plant and
+        the deadlines keep the period. Once a run."""
+        marks = self._late_marks
+        if not marks:
+            return
+        while marks and marks[0] <= self.done - OVERLOAD_WINDOW:
+            marks.popleft()
+        if len(marks) < OVERLOAD_LATE or self.ctl.stride > 1:
+            return
+        k = max(self.next_cycle, self.newest_sample + 1) + OVERLOAD_LEAD
+        self.ctl.halve(k)
+        self.overload = {"action": "halve", "from_cycle": k - self.ctl.first_cycle,
+                         "at_interval": self.done, "late": len(marks),
+                         "window": OVERLOAD_WINDOW}
+        marks.clear()
+        payload = self.say("stride", plant_only=True, stride=2, start=k)
+        if self.on_message is not None:  # the recording: replay halves where the run did
+            self.on_message("out", self.node.keys.control("plant"), k, "stride", payload,
+                            time.monotonic_ns())
+
+    def on_grid(self, cycle: int) -> bool:
+        """Whether sample ``cycle`` is taken (every one until the rate is halved)."""
+        return self.ctl.on_grid(cycle)
 
     def _span(self, proc: str, cycle: int, t0: int, t1: int) -> None:
         if len(self.spans) < self.max_spans:

@@ -46,8 +46,8 @@ class CentralGuard:
         (default 3; during the first 20 intervals at least 20 ms). A reply later than its
         deadline but within that is lateness (a miss at the plant, or the late-data
         policy); silence for that long is a failed process or link."""
-        if self.rc.schedule.clock == "realtime":
-            limit = self.rc.schedule.fault_periods * self.rc.schedule.period
+        if self.rc.schedule.clock == "realtime":  # samples every stride periods
+            limit = self.rc.schedule.fault_periods * self.rc.schedule.period * self.ctl.stride
             if self.done < self.STARTUP_INTERVALS:  # first real intervals: start-up
                 limit = max(limit, self.STARTUP_LIMIT_S)
             return int(limit * 1e9)
@@ -71,9 +71,10 @@ class CentralGuard:
         if end >= now or self.rc.schedule.clock != "realtime":
             return end
         shared = 0
+        every = self.period_ns * self.ctl.stride  # how often the plant samples
         for a, b in (*self.plant_gaps, (self.last_sample_ns, now)):
-            if a and b - a > 2 * self.period_ns:
-                shared += max(0, min(b, now) - max(a, since) - self.period_ns)
+            if a and b - a > 2 * every:
+                shared += max(0, min(b, now) - max(a, since) - every)
         return end + min(shared, timeout_ns)
 
     def _silence_ends(self, role: str, since: int, now: int, timeout_ns: int) -> int:

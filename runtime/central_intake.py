@@ -76,10 +76,12 @@ class CentralIntake:
             self.node.reject(exc.reason)
             return
         cycle = msg["cycle"]
+        if not self.on_grid(cycle):
+            return  # the rate is halved and the plant has yet to hear it: not taken
         if cycle < self.next_cycle or cycle >= self.cycles + self.depth + 1:
             self.node.reject("stale_cycle" if cycle < self.next_cycle else "future_cycle")
             return
-        if self.last_sample_ns and rx - self.last_sample_ns > 2 * self.period_ns:
+        if self.last_sample_ns and rx - self.last_sample_ns > 2 * self.period_ns * self.ctl.stride:
             self.plant_gaps.append((self.last_sample_ns, rx))  # the plant silent too
         self.last_sample_ns = rx
         self.newest_sample = max(self.newest_sample, cycle)

@@ -53,12 +53,16 @@ class CentralLifecycle:
                 pass  # the plant's first sample may only follow go
         self.say("go")
 
-    def say(self, stage: str, *, peripherals_only: bool = False, **extra: Any) -> None:
-        """Publish a control order (go, place, start, stop) to every other role (or only
-        to the peripherals)."""
+    def say(self, stage: str, *, peripherals_only: bool = False, plant_only: bool = False,
+            **extra: Any) -> bytes:
+        """Publish a control order (go, place, start, stop, ...) to every other role (or
+        only to the peripherals, or only to the plant); returns its payload."""
         payload = encode(self.node.unit, 0, stage, **extra)
-        for pub in self.pub_ctl[:1] if peripherals_only else self.pub_ctl:
+        pubs = self.pub_ctl[:1] if peripherals_only else self.pub_ctl[1:] if plant_only \
+            else self.pub_ctl
+        for pub in pubs:
             pub.put(payload)
+        return payload
 
     def place(self, rc: RunConfig, engine: Engine, controller: Controller) -> None:
         """Switch the unit to ``engine``'s placement before the run (``--placement auto``'s

@@ -24,6 +24,13 @@ from .sections import (
 CLOCKS = ("lockstep", "realtime", "freerun")
 REPLY_MODES = ("auto", "fused", "each")
 LATE_POLICIES = ("wait", "hold", "fault")
+OVERLOAD_ACTIONS = ("auto", "halve", "continue")
+"""``--overload``: what a realtime run does when its commands keep missing their deadline
+(runtime/central.py, ``Central._check_overload``): ``halve`` the control rate (every
+second sample, each command held two periods, the plant still ticking at the period),
+``continue`` as it is; ``auto``: halve when the admission is on (the main job) and the gains
+keep their margin at twice the period (``RunConfig.halves_on_overload``), continue otherwise
+(a run that measures the unit as it is)."""
 COMMAND_DELAYS = ("full", "short")
 """When the plant applies the command of sample k (docs/architecture.md, Clocks): ``full``
 (causal): at depth d, to the period that begins at tick k + d, d periods after the sample;
@@ -225,6 +232,14 @@ class RunConfig:
             parse_host_port(self.run.foxglove, field_name="--foxglove")
         if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
             raise bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
+        if self.schedule.overload not in OVERLOAD_ACTIONS:
+            raise bad("overload", ", ".join(OVERLOAD_ACTIONS))
+        if self.schedule.overload == "halve" and not self.gains_hold_halved:
+            limit = self.bandwidth_limit(2.0 * self.schedule.period)
+            raise ConfigError(
+                f"--overload halve: the gains' bandwidth {self.bandwidth:g} Hz would lose "
+                f"its phase margin at twice the period ({2e3 * self.schedule.period:g} ms); "
+                f"allowed with --bandwidth at most {limit:.3g} Hz, or --overload continue")
         if self.schedule.hold_rounds not in HOLD_RULES:
             raise bad("hold_rounds", ", ".join(HOLD_RULES))
         if self.schedule.command_delay not in COMMAND_DELAYS:
@@ -268,9 +283,32 @@ class RunConfig:
         slows (docs/architecture.md, the commands in flight)."""
         if self.control.bandwidth_hz is not None:
             return self.control.bandwidth_hz
+        return min(20.0, self.bandwidth_limit(self.schedule.period))
+
+    def bandwidth_limit(self, period: float) -> float:
+        """The highest bandwidth (Hz) whose loop keeps its phase margin at a control period
+        ``period`` (s): ``1 / (12.5 T)`` for resolved acceleration at the ``acting`` model
+        state, ``1 / (50 T)`` for the other laws (:attr:`bandwidth`)."""
         predicted = (self.control.law == "resolved-acceleration"
                      and self.control.model_state == "acting")
-        return min(20.0, 1.0 / ((12.5 if predicted else 50.0) * self.schedule.period))
+        return 1.0 / ((12.5 if predicted else 50.0) * period)
+
+    @property
+    def gains_hold_halved(self) -> bool:
+        """Whether the gains keep their phase margin at twice the period, where a realtime
+        run that halves its control rate on overload continues (``--overload``): at 1 ms
+        the default 20 Hz does (the limit is 40 Hz); at 5 ms the default 16 Hz does not
+        (the one-process loop diverges; docs/architecture.md, overload)."""
+        return self.bandwidth <= self.bandwidth_limit(2.0 * self.schedule.period)
+
+    @property
+    def halves_on_overload(self) -> bool:
+        """``--overload`` resolved: ``halve`` in realtime; ``auto`` in realtime with the
+        admission on (the main job) where :attr:`gains_hold_halved`; never otherwise."""
+        s = self.schedule
+        if s.clock != "realtime" or s.overload == "continue":
+            return False
+        return s.overload == "halve" or (s.admission and self.gains_hold_halved)
 
     @property
     def delay_periods(self) -> int:

@@ -301,7 +301,7 @@ def freeze_heap(*, collect: bool = False) -> None:
     gc.freeze()
 
 
-CONTROL_STAGES = frozenset({"go", "place", "probe", "start", "stop"})
+CONTROL_STAGES = frozenset({"go", "place", "probe", "start", "stop", "stride"})
 """The orders the central sends on the roles' control keys (``Central.say``)."""
 
 

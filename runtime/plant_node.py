@@ -38,7 +38,7 @@ from . import sched
 from .codec import BadMessage, check_vector, encode
 from .config import EXIT_LINK, EXIT_OK
 from .controller import initial_angles, initial_command
-from .node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb, say_bye
+from .node import WARM_RSS_AT, Node, control_order, cpu_used, is_stop, rss_kb, say_bye
 from .setup import Setup
 
 TRIAL_MAX_S = 60.0
@@ -69,6 +69,11 @@ class PlantServer:
         self.busy_ns = 0
         self.sample_no = 0
         self.rss_warm = -1
+        self.stride = 1
+        """1; 2 once the central halved its control rate (``stride`` order): from sample
+        :attr:`stride_from` on only every second sample is published and every second
+        command is due; each is held two periods."""
+        self.stride_from = 0
         self.next_trial: tuple[float, int, int] | None = None
         """A trial order that came during a trial: it ends that trial and runs next."""
 
@@ -96,6 +101,21 @@ class PlantServer:
         self.commands[cycle] = tau
         self.commands_taken += 1
         self.node.last_heard_ns = time.monotonic_ns()
+
+    def take_stride(self, msg: dict[str, Any]) -> None:
+        """The central's ``stride`` order (it halved its control rate), checked field by
+        field; once a run."""
+        stride, start = msg.get("stride"), msg.get("start")
+        if type(stride) is not int or stride != 2 or type(start) is not int or start < 0:
+            self.node.reject("bad_value")
+            return
+        if self.stride == 1:
+            self.stride, self.stride_from = stride, start
+
+    def on_grid(self, cycle: int) -> bool:
+        """Whether sample ``cycle`` is published and its command due."""
+        return self.stride == 1 or cycle < self.stride_from \
+            or (cycle - self.stride_from) % self.stride == 0
 
     def apply(self, cycle: int) -> bool:
         """Apply the command of ``cycle``; if it is not here (a deadline miss), apply the
@@ -192,13 +212,14 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
             next_tick = tick_after(next_tick, tick_ns)
             server.sample_no += 1
             due = server.sample_no - server.depth
-            if causal:  # the sample leaves at the tick; the next period is integrated after
+            grid = server.on_grid(server.sample_no)
+            if causal and grid:  # the sample leaves at the tick; the period is integrated after
                 server.publish_sample(span)
-            if due >= 0 and not server.apply(due):
-                server.misses += 1
+            if due >= 0 and not server.apply(due) and server.on_grid(due):
+                server.misses += 1  # off the grid no command is due: the last one holds
             if server.sample_no < cycles or not causal:
                 span = server.simulate()
-            if not causal:
+            if not causal and grid:
                 server.publish_sample(span)
             if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
                 return _result(server, "watchdog", t_start)
@@ -232,11 +253,17 @@ def sleep_to_tick(node: Node, server: PlantServer, tick_ns: int, *,
                 ev = node.events.get_nowait()
             except queue.Empty:
                 break
-            if is_stop(node, ev):
-                return False
             if take_commands:
                 if ev.kind == "command":
                     server.take_command(ev.data)
+                    continue
+                order = control_order(node, ev)
+                if order is not None and order["stage"] == "stop":
+                    return False
+                if order is not None and order["stage"] == "stride":
+                    server.take_stride(order)
+            elif is_stop(node, ev):
+                return False
             elif (order := trial_order(node, ev)) is not None:
                 server.next_trial = order
         if time.monotonic_ns() >= tick_ns:

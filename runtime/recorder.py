@@ -4,7 +4,8 @@ Channels
 --------
 ``msgpack`` (raw bytes exactly as on the wire; log time = send or receive time, ns), named
   by their Zenoh key without ``ctrlunit/<unit>`` (keys are addressed by destination):
-  ``/central/sample``, ``/plant/command``, ``/peripheral/request``, ``/central/reply/K``.
+  ``/central/sample``, ``/plant/command``, ``/peripheral/request``, ``/central/reply/K``,
+  and ``/plant/control`` for the order that halves the control rate (``--overload``).
 ``msgpack``: ``/timing/spans`` (per interval: ``[[process, t0, t1], ...]``),
   ``/faults/rejected`` (rejection counters, every 500 intervals and at the end),
   ``/faults/deadline`` (deadline misses and skipped samples as they change),

@@ -87,11 +87,29 @@ def cycles_in_order(rec: Recording) -> list[tuple[int, list[int]]]:
     return out
 
 
+def halved_from(rec: Recording) -> int | None:
+    """The cycle from which the recorded run halved its control rate (its ``stride`` order
+    to the plant, on ``/plant/control``), or None."""
+    for _, m in rec.decoded("/plant/control"):
+        if m.get("stage") == "stride" and type(m.get("start")) is int:
+            return m["start"]
+    return None
+
+
+def _controller(rec: Recording, setup: Any, engine: Any) -> Any:
+    """The run's controller, halving its rate where the recorded run did."""
+    ctl = setup.controller(engine)
+    start = halved_from(rec)
+    if start is not None:
+        ctl.halve(start)
+    return ctl
+
+
 def recorded_inputs(rec: Recording, setup: Any) -> list[tuple]:
     """``(t, est, qmeas, qdmeas)`` of the recorded intervals (for ``t_1``)."""
 
     engine = setup.engine(peripherals_plan=False)
-    ctl = setup.controller(engine)
+    ctl = _controller(rec, setup, engine)
     out = []
     for k, counts in cycles_in_order(rec):
         ctx = ctl.sources(k, counts)
@@ -127,7 +145,7 @@ def verify(
     engine = setup.engine()
     plan = engine.plan
     producer = {o: b.name for b in plan.graph.blocks for o in b.outputs}
-    ctl = setup.controller(engine)
+    ctl = _controller(rec, setup, engine)
     requests, replies = _index(rec, "request"), _index(rec, "reply")
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
     held = {(m["peripheral"], m["cycle"], m["stage"]): m["vals"]

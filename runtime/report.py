@@ -82,6 +82,17 @@ def late_work_figures(work_ns: Sequence[int], late_work_ns: Sequence[int], late:
             "machine_slower": slower}
 
 
+def _overload_lines(r: dict[str, Any]) -> list[str]:
+    """The halving of the control rate (``--overload``), when it happened."""
+    o = (r.get("overload") or {}).get("halved")
+    if not o:
+        return []
+    return [f"  overload    {o['late']} of the last {o['window']} intervals late at interval "
+            f"{o['at_interval']}: from sample {o['from_cycle']} on every second sample taken, "
+            "each command held two periods (the control rate halved; the plant still ticks "
+            "at the period)"]
+
+
 def _late_lines(r: dict[str, Any]) -> list[str]:
     """The late intervals and where their time went (:func:`late_work_figures`)."""
     late = r.get("late_intervals")
@@ -300,6 +311,7 @@ def summary(r: dict[str, Any]) -> str:
         + (f"   silences excused {r['silences_excused']} (the machine, not the process, was slow)"
            if r.get("silences_excused") else ""),
         *_late_lines(r),
+        *_overload_lines(r),
         "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
         *_cpu_lines(r),
         *_sched_lines(r),
@@ -438,6 +450,10 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         central_costs=central.costs(), gantt=gantt_window(central.spans),
         silences_excused=central.excuses,
     )
+    report["periods"] = max(0, central.next_cycle - central.ctl.first_cycle) \
+        if central.done else 0
+    report["overload"] = {"policy": "halve" if central.halve_on_overload else "continue",
+                          "halved": central.overload}
     if central.realtime_deadline_ns:
         log = central.log
         report["late_intervals"] = late_work_figures(log.work_ns.recent, log.late_work_ns,

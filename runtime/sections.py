@@ -64,6 +64,8 @@ class ScheduleConfig:
     late_policy: str = "wait"
     late: dict[str, str] = field(default_factory=dict)
     fault_periods: float = 3.0
+    overload: str = "auto"
+    """``--overload`` (config.OVERLOAD_ACTIONS)."""
     admission: bool = True
     """Realtime: run the admission trial before the first command (runtime/admission.py)."""
     trial_only: bool = False

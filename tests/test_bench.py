@@ -152,14 +152,18 @@ def test_balance_refuses_a_rerun_with_another_placement(tmp_path):
 
 
 def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
-    """Misses per 1000 are over the periods of every run (not a mean of ratios); a refusal
-    counts as a run that did not complete; medians skip runs that never moved; the worst
-    tracking is the worst run's."""
+    """Misses per 1000 are over the periods of every run (not a mean of ratios; a run that
+    halved its control rate covers more periods than it ran intervals); a refusal counts as
+    a run that did not complete; medians skip runs that never moved; the worst tracking is
+    the worst run's."""
     from ctrlunit.bench.realtime import markdown_lines, run_row, summary
 
     def res(code, cycles, misses, p999, cpu, period=1e-3, fault=None, track=4e-4,
-            policy="SCHED_FIFO 10", fell=None, late=None):
+            policy="SCHED_FIFO 10", fell=None, late=None, halved_at=None):
         rep = {} if cycles == 0 else {"late_intervals": late,
+            "periods": cycles + (cycles - halved_at if halved_at else 0),
+            "overload": {"policy": "halve", "halved": halved_at and {
+                "at_interval": halved_at, "from_cycle": halved_at + 4}},
             "nominal_period_s": period, "cycles": cycles, "deadline_misses": misses,
             "traversal_s": {"p999": p999}, "cpu_per_interval_s": {"total": cpu},
             "tracking_error_m": {"max": track}, "fault": fault and {"message": fault},
@@ -169,8 +173,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
 
     rows = [run_row(res(0, 400, 1, 1.5e-3, 1.2e-3, late={
                 "intervals": 1, "work_stretch": {"median": 3.1}, "machine_slower": True})),
-            run_row(res(0, 600, 0, 1.7e-3, 1.0e-3, period=1.25e-3, policy="SCHED_OTHER",
-                        fell={"cycle": 300})),
+            run_row(res(0, 500, 0, 1.7e-3, 1.0e-3, period=1.25e-3, policy="SCHED_OTHER",
+                        fell={"cycle": 300}, halved_at=400)),
             run_row(res(4, 200, 5, 9e-3, 2e-3, fault="no sample from the plant for 5 ms",
                         track=2e-3, late={"intervals": 5, "work_stretch": {"median": 1.5},
                                           "machine_slower": None})),
@@ -185,7 +189,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     assert s["cpu_per_interval_s"] == pytest.approx(1.2e-3)
     assert s["tracking_max_m"] == pytest.approx(4e-4) and s["tracking_worst_m"] == 2e-3
     assert s["scheduling"] == {"SCHED_FIFO 10": 2, "SCHED_OTHER": 1}  # the refusal ran none
-    assert s["fell_back"] == 1
+    assert s["fell_back"] == 1 and s["halved"] == 1
+    assert rows[1]["periods"] == 600 and rows[1]["halved_at_interval"] == 400
     assert s["late_runs"] == {"machine_slower": 1, "waiting": 0, "no_verdict": 1}
     st = {"command": "ctrlunit start --peripherals 3 --pipeline 2", "baseline_command": "b",
           "levers": {"period": "auto"}, "main_job": s, "baseline": summary(rows[:2]),
@@ -195,7 +200,7 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
             in md)
     assert "run 3 exit 4: no sample from the plant for 5 ms" in md and "run 4 exit 7" in md
     assert "ran under SCHED_FIFO 10 in 2, SCHED_OTHER in 1; back to the default policy " \
-        "during the run (the throttling guard) in 1." in md
+        "during the run (the throttling guard) in 1; control rate halved on overload in 1." in md
     assert "stretched (the machine ran slower) in 1, as usual (time lost waiting) in 0, " \
         "in between in 1." in md
 

@@ -1,18 +1,32 @@
-"""Halving the control rate: every second sample runs an interval, each command acts for
-two periods. The feed-forward lead and the state the model is evaluated at follow the
-two-period hold (the source ``hold``); without that the halved loop tracks several times
-worse than the full rate.
+"""Halving the control rate on overload (``--overload``).
+
+A realtime run whose commands keep missing their deadline takes every second sample from
+a cycle a few periods ahead and tells the plant, which publishes only those samples and
+holds each command two periods. The feed-forward lead and the state the model is evaluated
+at follow the two-period hold (the source ``hold``); without that the halved loop tracks
+several times worse than the full rate.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import ClassVar
 
 import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
 from ctrlunit.runtime import controller as ctl_mod
+from ctrlunit.runtime.config import ConfigError, RunConfig
+from runner import kill_unit, pids_of, slow_task, unit_id, wait_status
 
 
 def _tracking(halve_at: int | None) -> tuple[float, float]:
@@ -62,3 +76,152 @@ def test_controller_halves_once_on_a_grid_from_its_start():
     assert ctl.on_grid(7) and not ctl.on_grid(6)
     with pytest.raises(ValueError, match="start must be a cycle >= 0"):
         ctl_mod.Controller(eng, 1e-3, P.increment, tuple(task.start())).halve(-1)
+
+
+def test_halving_needs_gains_that_hold_at_twice_the_period():
+    base = RunConfig.of()
+    assert base.schedule.period == pytest.approx(1e-3)
+    assert base.gains_hold_halved and base.halves_on_overload  # 20 Hz, limit 40 Hz at 2 ms
+    slow = base.replace(period=5e-3)  # 16 Hz by default; 8 Hz is the limit at 10 ms
+    assert not slow.gains_hold_halved and not slow.halves_on_overload
+    with pytest.raises(ConfigError, match=r"--overload halve.*--bandwidth at most 8 Hz"):
+        slow.replace(overload="halve").validate()
+    ok = slow.replace(overload="halve", bandwidth_hz=8.0).validate()
+    assert ok.halves_on_overload
+    assert not base.replace(overload="continue").halves_on_overload
+    assert not base.replace(admission=False).halves_on_overload  # auto: the main job only
+    assert base.replace(admission=False, overload="halve").halves_on_overload
+    assert not base.replace(clock="lockstep", overload="halve").halves_on_overload
+
+
+def _freeze_now_and_then(pid: int, *, times: int, hold_s: float, every_s: float) -> None:
+    """SIGSTOP ``pid`` for ``hold_s`` ``times`` times, ``every_s`` apart (bounded)."""
+    for _ in range(times):
+        os.kill(pid, signal.SIGSTOP)
+        time.sleep(hold_s)
+        os.kill(pid, signal.SIGCONT)
+        time.sleep(every_s - hold_s)
+
+
+@pytest.mark.zenoh
+def test_a_run_whose_commands_keep_coming_late_halves_its_rate_and_replays(tmp_path: Path):
+    """A peripheral frozen for three periods again and again: its intervals come late,
+    the central halves the rate, the run completes, the plant took the commands of every
+    second cycle from the cycle named, and the recording replays bit for bit."""
+    from ctrlunit.runtime.recording import read
+    from ctrlunit.runtime.replay import halved_from, verify
+
+    unit = unit_id("ovl")
+    rec, status, report = (tmp_path / f"{unit}.{x}" for x in ("mcap", "status", "json"))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
+         "--peripherals", "3", "--pipeline", "2", "--period", "5ms", "--bandwidth", "8",
+         "--task", slow_task(tmp_path), "--duration", "3s", "--no-admission",
+         "--overload", "halve", "--fault-periods", "20", "--max-error", "0.005",
+         "--record", str(rec), "--status-file", str(status), "--report", str(report)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        wait_status(status, 40)
+        assert proc.poll() is None, proc.communicate()[0][-600:]
+        pid = next(p for p in pids_of(unit)
+                   if "peripheral" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")
+                   and "--index\x002" in Path(f"/proc/{p}/cmdline").read_text(errors="replace"))
+        _freeze_now_and_then(pid, times=20, hold_s=0.016, every_s=0.04)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+        with contextlib.suppress(Exception):
+            proc.communicate(timeout=5)
+    r = json.loads(report.read_text())
+    print(out[-1500:])
+    assert proc.returncode == 0, out
+    halved = r["overload"]["halved"]
+    assert r["overload"]["policy"] == "halve" and halved is not None, out
+    assert "overload" in out and "control rate halved" in out
+    recording = read(rec)
+    start = halved_from(recording)
+    assert start is not None and start - halved["from_cycle"] >= 0
+    cycles = [m["cycle"] for _, m in recording.decoded("/plant/command")]
+    after = [k for k in cycles if k >= start]
+    assert len(after) > 100  # 3 s at 10 ms, from less than a second in
+    assert all((k - start) % 2 == 0 for k in after), after[:20]
+    # the periods the run covered, not its intervals, are the misses' denominator
+    assert r["periods"] >= r["cycles"] + len(after) - 1
+    n, div = verify(recording)
+    assert div is None, str(div)
+    assert n == len(cycles)
+
+
+class _StrideNode:
+    """A plant's node whose inbox hands out scripted control orders (see
+    tests/test_plant_trials.py)."""
+
+    ORDERS: ClassVar[dict[bytes, dict]] = {b"start": {"stage": "start"}, b"stop": {"stage": "stop"},
+                                           b"stride": {"stage": "stride", "stride": 2,
+                                                       "start": 15},
+                                           b"stride3": {"stage": "stride", "stride": 3,
+                                                        "start": 12},
+                                           b"stride-late": {"stage": "stride", "stride": 2,
+                                                            "start": 30}}
+
+    def __init__(self) -> None:
+        from collections import Counter
+
+        self.rejected: Counter[str] = Counter()
+        self.last_heard_ns = time.monotonic_ns()
+        self.stop_msg = None
+        self.cpu_start_s = None
+        self.events = None
+
+    def decode(self, data: bytes) -> dict:
+        return dict(self.ORDERS[data])
+
+    def reject(self, reason: str) -> None:
+        self.rejected[reason] += 1
+
+
+def test_the_plant_publishes_and_counts_misses_on_the_halved_grid_only(monkeypatch):
+    """From the order's start the plant publishes every second sample and counts a miss
+    only where a command was due (each one holds two periods); a malformed order is
+    rejected by name, a second one changes nothing."""
+    from ctrlunit.runtime.plant_node import PlantServer, serve
+    from test_plant_trials import ScriptedInbox
+
+    monkeypatch.setattr("ctrlunit.runtime.node.freeze_heap", lambda: None)
+
+    class Server:
+        on_grid = PlantServer.on_grid
+        take_stride = PlantServer.take_stride
+
+        def __init__(self, node: _StrideNode) -> None:
+            self.node, self.depth, self.stride, self.stride_from = node, 2, 1, 0
+            self.sample_no = self.misses = self.busy_ns = self.commands_taken = 0
+            self.rss_warm, self.next_trial = -1, None
+            self.samples: list[int] = []
+            self.applied: list[int] = []
+
+        def publish_sample(self, span, *, trial=None) -> None:
+            self.samples.append(self.sample_no)
+
+        def simulate(self) -> tuple[int, int]:
+            return 0, 0
+
+        def apply(self, cycle: int) -> bool:  # every command on the grid came, but 21's
+            self.applied.append(cycle)
+            return self.on_grid(cycle) and cycle != 21
+
+    node = _StrideNode()
+    server = Server(node)
+    node.events = ScriptedInbox([(0, b"start"), (3, b"stride3"), (10, b"stride"),
+                                 (14, b"stride-late"), (28, b"stop")],
+                                lambda: len(server.samples))
+    result = serve(node, server, clock="realtime", period=1e-3, cycles=40, watchdog=5.0,
+                   delay=2)
+    assert result["exit"] in ("done", "stop")
+    assert server.samples == list(range(16)) + list(range(17, 40, 2))
+    assert server.misses == 1  # 21; not 16, 18, ... where no command was due
+    assert server.applied[:3] == [0, 1, 2] and 16 in server.applied  # the last one holds
+    assert node.rejected == {"bad_value": 1}  # stride 3
+    assert (server.stride, server.stride_from) == (2, 15)

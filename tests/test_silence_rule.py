@@ -6,6 +6,7 @@ one more limit; lockstep and freerun keep their plain timeout."""
 from __future__ import annotations
 
 from collections import deque
+from types import SimpleNamespace
 
 import pytest
 from ctrlunit.runtime.central_guard import CentralGuard
@@ -24,6 +25,7 @@ class Guard(CentralGuard):
         self.period_ns = PERIOD
         self.plant_gaps: deque[tuple[int, int]] = deque(maxlen=8)
         self.last_sample_ns = 0
+        self.ctl = SimpleNamespace(stride=1)  # the controller: 2 once the rate is halved
 
 
 def test_before_the_limit_and_without_a_plant_silence_the_limit_stands():
@@ -71,3 +73,17 @@ def test_a_fault_message_says_what_was_not_counted():
     assert g._shared_note(90 * MS, 103 * MS, LIMIT) == ", plus 9.0 ms the plant was silent too"
     g.last_sample_ns = 102 * MS
     assert g._shared_note(90 * MS, 103 * MS, LIMIT) == ""
+
+
+def test_at_the_halved_rate_the_plant_samples_every_two_periods_and_that_is_no_stall():
+    """Once the control rate is halved the plant publishes every second sample: a gap of
+    two periods is its rhythm, not a stall the central shares; the limit doubles too."""
+    g = Guard()
+    g.ctl.stride = 2
+    g.done = 1000
+    assert g._timeout_ns() == 2 * LIMIT
+    # the plant's last sample 3 periods before now, the silence long past its limit
+    g.last_sample_ns, since, now = 91 * MS, 60 * MS, 91 * MS + 3 * PERIOD
+    assert g._fault_at(since, now, 2 * LIMIT) == since + 2 * LIMIT  # nothing shared
+    g.ctl.stride = 1  # at the full rate the same gap was a stall the plant shared
+    assert g._fault_at(since, now, 2 * LIMIT) == since + 2 * LIMIT + 3 * PERIOD - PERIOD

@@ -128,6 +128,15 @@ def run_options(fn: Any) -> Any:
                      "its last values (hold), or a fault."),
         click.option("--late", "late_items", multiple=True, metavar="BLOCK=POLICY",
                      help="Late-data policy for one block (overrides --late-policy)."),
+        click.option("--overload", type=click.Choice(["auto", "halve", "continue"]),
+                     default="auto", show_default=True,
+                     help="Realtime: when 10 of the last 100 intervals were late (their "
+                     "command left after its deadline, or their sample was skipped), halve "
+                     "the control rate: the unit takes every second sample and the plant "
+                     "holds each command two periods, still ticking at --period (the "
+                     "report's overload says from where); continue: go on as it is; auto: "
+                     "halve with the admission on where the gains keep their margin at "
+                     "twice the period, else continue."),
         click.option("--max-error", default=0.02, type=click.FloatRange(1e-5, 1.0),
                      show_default=True, help="Tracking error (m) beyond which the unit "
                      "stops the robot (a fault)."),
