@@ -88,6 +88,8 @@ def run_row(res: dict[str, Any]) -> dict[str, Any]:
         "periods": r.get("periods", r.get("cycles", 0)) or 0,
         "halved_at_interval": ((r.get("overload") or {}).get("halved") or {}).get(
             "at_interval"),
+        "halved_periods": (r.get("overload") or {}).get("halved_periods", 0) or 0,
+        "rate_changes": len((r.get("overload") or {}).get("changes") or []),
         "deadline_misses": r.get("deadline_misses", 0) or 0,
         "traversal_p999_s": (r.get("traversal_s") or {}).get("p999"),
         "cpu_per_interval_s": (r.get("cpu_per_interval_s") or {}).get("total"),
@@ -124,6 +126,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
                                        if r["exit_code"] != 7)),
             "fell_back": sum(bool(r.get("fell_back")) for r in rows),
             "halved": sum(r.get("halved_at_interval") is not None for r in rows),
+            "halved_periods": sum(r.get("halved_periods", 0) for r in rows),
             "late_runs": {"machine_slower": sum(r.get("machine_slower") is True for r in rows),
                           "waiting": sum(r.get("machine_slower") is False for r in rows),
                           "no_verdict": sum(r.get("late_work_stretch") is not None
@@ -237,13 +240,15 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
         if not r:
             continue
         lines += ["", f"{title}: exit {r['exit_code']}, period "
-                  f"{_fmt(r['period_s'], 1e3, 2)} ms, {r['cycles']} periods, "
+                  f"{_fmt(r['period_s'], 1e3, 2)} ms, {r['periods']} periods "
+                  f"({r['cycles']} intervals), "
                   f"{r['deadline_misses']} misses ({_fmt(per_1000(r), 1, 2)} per 1000), "
                   f"traversal p99.9 {_fmt(r['traversal_p999_s'], 1e6)} us, CPU / interval "
                   f"{_fmt(r['cpu_per_interval_s'], 1e6)} us, tracking max "
                   f"{_fmt(r['tracking_max_m'], 1e3, 2)} mm"
-                  + (f"; control rate halved at interval {r['halved_at_interval']}"
-                     if r.get("halved_at_interval") is not None else "")
+                  + (f"; control rate halved at interval {r['halved_at_interval']} "
+                     f"({r['rate_changes']} change(s) of rate; {r['halved_periods']} periods "
+                     "at the halved rate)" if r.get("halved_at_interval") is not None else "")
                   + (f"; fault: {r['fault']}" if r["fault"] else "") + "."]
     faults = [(i + 1, r["exit_code"], r["fault"]) for i, r in
               enumerate(st["rows"]["main_job"]) if not r["completed"]]

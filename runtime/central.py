@@ -20,6 +20,7 @@ slot is free from a synthetic sample (the reference's inverse kinematics, quanti
 
 from __future__ import annotations
 
+import math
 import queue
 import struct
 import time
@@ -62,8 +63,15 @@ OVERLOAD_SETTLE = 20
 warm-up meet the start of the motion and the peripherals' first real rounds."""
 
 OVERLOAD_LEAD = 3
-"""Periods between the newest sample and the first one of the halved rate: the plant
-hears the order before that tick."""
+"""Periods between the newest sample and the first one of a new rate: the plant hears
+the order before that tick."""
+
+OVERLOAD_CALM_S = 2.0
+"""Time at the halved rate without a late interval after which the run goes back to the
+full rate (1000 intervals at 1 ms); doubled after each return."""
+
+OVERLOAD_RETURNS = 3
+"""Returns to the full rate per run; after the last one a halving stays."""
 
 
 class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
@@ -171,9 +179,12 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             if rc.schedule.clock == "realtime" and self.n else 0
         """Realtime with peripherals: an interval whose command leaves later than this after
         its sample is late (its work goes to :attr:`CycleLog.late_work_ns`); 0 otherwise."""
-        self.overload: dict[str, Any] | None = None  # the halving: when and why
+        self.rate_changes: list[dict[str, Any]] = []
+        """Each change of the control rate (``--overload``): stride, first cycle, when
+        and why."""
         self.halve_on_overload = not trial and rc.halves_on_overload
-        self._late_marks: deque[int] = deque()  # self.done at each late or skipped interval
+        self._late_marks: deque[int] = deque()  # self.done at each late interval (full rate)
+        self._calm_since = 0  # halved: self.done at the halving or the latest late interval
         self.reply_each = False
         self.replies_info: dict[str, Any] = {"mode": "fused"}
         self.block_costs: dict[str, float] | None = None  # measured once (warm-up)
@@ -279,6 +290,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                 self.ctl.measure(ctx, k, counts)
                 gen = self.engine.cycle(ctx, skip_prefix=True)
             else:
+                if primed is not None and self.on_message is not None:
+                    self._note_discarded(primed[0])
                 ctx = self.ctl.sources(k, counts)
                 gen = self.engine.cycle(ctx)
             if len(self.t1_inputs) < self.rc.run.t1_cycles:
@@ -311,6 +324,15 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.primed = (k, ctx)
         self._span("central", k, t0, time.monotonic_ns())
         return True
+
+    def _note_discarded(self, cycle: int) -> None:
+        """Tell the recording that the primed steps of ``cycle`` ran but its interval did
+        not (its sample was skipped): the reference they computed stays in the task's
+        cache, which a later loop of the task reads, so replay runs them too
+        (runtime/replay.py, ``discarded_primes``)."""
+        assert self.on_message is not None
+        self.on_message("in", self.node.keys.inbox("central") + "/primed", cycle, "primed",
+                        encode(self.node.unit, cycle, "primed"), time.monotonic_ns())
 
     def _synthetic_sample(self, k: int) -> list[int]:
         p = self.engine.cfg.task.sample(self.ctl.time_of(k))[0]  # type: ignore[union-attr]
@@ -411,7 +433,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                 if len(log.late_work_ns) < LATE_KEPT:
                     log.late_work_ns.append(f.work_ns)
                 self._mark_late()
-        if self._late_marks:
+        if self.halve_on_overload:
             self._check_overload()
         log.digest.update(struct.pack("<3d", *cmd))
         log.torque_max = max(log.torque_max, abs(cmd[0]), abs(cmd[1]), abs(cmd[2]))
@@ -431,32 +453,48 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         """Note a late interval now (for :meth:`_check_overload`): its command left after
         its deadline, or it started behind, skipping samples (one mark for the skip, so
         that one stall of the host does not halve the rate by itself)."""
-        if self.halve_on_overload and self.ctl.stride == 1 \
-                and self.done >= OVERLOAD_SETTLE:
+        if not self.halve_on_overload or self.done < OVERLOAD_SETTLE:
+            return
+        if self.ctl.stride == 1:
             self._late_marks.append(self.done)
+        else:
+            self._calm_since = self.done
 
     def _check_overload(self) -> None:
-        """``--overload halve``: once :data:`OVERLOAD_LATE` of the last
-        :data:`OVERLOAD_WINDOW` intervals were late, take only every second sample from a
-        cycle :data:`OVERLOAD_LEAD` periods past the newest one, and tell the plant, which
-        then publishes those samples only and holds each command two periods (a deadline
-        still ``depth`` periods after its sample). The control rate halves; the plant and
-        the deadlines keep the period. Once a run."""
-        marks = self._late_marks
-        if not marks:
+        """``--overload halve``, after each interval. At the full rate, once
+        :data:`OVERLOAD_LATE` of the last :data:`OVERLOAD_WINDOW` intervals were late,
+        halve it: take only every second sample, and tell the plant, which then publishes
+        those samples only and holds each command two periods (a deadline still ``depth``
+        periods after its sample); the plant and the deadlines keep the period. At the
+        halved rate, after :data:`OVERLOAD_CALM_S` without a late interval (twice as long
+        after each return), go back to every sample, at most
+        :data:`OVERLOAD_RETURNS` times a run."""
+        if self.ctl.stride == 1:
+            marks = self._late_marks
+            if not marks:
+                return
+            while marks and marks[0] <= self.done - OVERLOAD_WINDOW:
+                marks.popleft()
+            if len(marks) >= OVERLOAD_LATE:
+                self._change_rate(2, late=len(marks), window=OVERLOAD_WINDOW)
+                marks.clear()
+                self._calm_since = self.done
             return
-        while marks and marks[0] <= self.done - OVERLOAD_WINDOW:
-            marks.popleft()
-        if len(marks) < OVERLOAD_LATE or self.ctl.stride > 1:
-            return
-        k = max(self.next_cycle, self.newest_sample + 1) + OVERLOAD_LEAD
-        self.ctl.halve(k)
-        self.overload = {"action": "halve", "from_cycle": k - self.ctl.first_cycle,
-                         "at_interval": self.done, "late": len(marks),
-                         "window": OVERLOAD_WINDOW}
-        marks.clear()
-        payload = self.say("stride", plant_only=True, stride=2, start=k)
-        if self.on_message is not None:  # the recording: replay halves where the run did
+        returns = sum(1 for c in self.rate_changes if c["stride"] == 1)
+        calm = math.ceil(OVERLOAD_CALM_S / (2 * self.rc.schedule.period)) << returns
+        if returns < OVERLOAD_RETURNS and self.done - self._calm_since >= calm:
+            self._change_rate(1, calm=calm)
+
+    def _change_rate(self, stride: int, **why: int) -> None:
+        """Change the control rate from the first sample of the current grid at least
+        :data:`OVERLOAD_LEAD` periods past the newest one, and order the plant to."""
+        grid = self.ctl.grid
+        k = grid.next_on_grid(max(self.next_cycle, self.newest_sample + 1) + OVERLOAD_LEAD)
+        grid.change(stride, k)
+        self.rate_changes.append({"stride": stride, "from_cycle": k - self.ctl.first_cycle,
+                                  "at_interval": self.done, **why})
+        payload = self.say("stride", plant_only=True, stride=stride, start=k)
+        if self.on_message is not None:  # the recording: replay changes where the run did
             self.on_message("out", self.node.keys.control("plant"), k, "stride", payload,
                             time.monotonic_ns())
 

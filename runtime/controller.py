@@ -29,6 +29,7 @@ from ..topology.placement import default_placement
 from ..topology.plan import exchange_plan
 from .blocks import BlockConfig
 from .engine import CostModel, Engine
+from .stride import StrideSchedule
 
 
 def initial_command(params: DeltaParams, task: Task) -> list[float]:
@@ -73,11 +74,9 @@ class Controller:
     """The cycle at t = 0 (the admission's trial intervals count from a base of their own)."""
     q_prev: list[float] | None = field(default=None, init=False)
     k_prev: int = field(default=0, init=False)
-    stride: int = field(default=1, init=False)
-    """1; 2 once the control rate is halved (:meth:`halve`): from cycle
-    :attr:`stride_from` on every second sample runs an interval, whose command acts for
-    two periods."""
-    stride_from: int = field(default=0, init=False)
+    grid: StrideSchedule = field(default_factory=StrideSchedule, init=False)
+    """Which samples run an interval (every one until the rate is halved: :meth:`halve`,
+    runtime/stride.py)."""
 
     def __post_init__(self) -> None:
         # plain floats: a numpy scalar here would make every value computed from the
@@ -99,21 +98,26 @@ class Controller:
     def halve(self, start: int) -> None:
         """Halve the control rate from cycle ``start`` on (a realtime run on overload):
         only the samples ``start, start + 2, ...`` run intervals, and each of their
-        commands acts for two periods (the source ``hold``). Once; ``start`` must lie
-        past every interval already begun."""
-        if start < 0:
-            raise ValueError(f"start must be a cycle >= 0, got {start}")
-        if self.stride == 1:
-            self.stride, self.stride_from = 2, start
+        commands acts for two periods (the source ``hold``). ``start`` must lie past every
+        interval already begun; ValueError if the rate is halved already."""
+        self.grid.change(2, start)
+
+    def restore(self, start: int) -> None:
+        """Back to every sample from cycle ``start`` (a sample of the halved grid) on."""
+        self.grid.change(1, start)
+
+    @property
+    def stride(self) -> int:
+        """1 at the full control rate, 2 once halved (the latest change)."""
+        return self.grid.stride
 
     def on_grid(self, cycle: int) -> bool:
         """Whether sample ``cycle`` runs an interval (every one until :meth:`halve`)."""
-        return self.stride == 1 or cycle < self.stride_from \
-            or (cycle - self.stride_from) % self.stride == 0
+        return self.grid.on_grid(cycle)
 
     def hold_of(self, cycle: int) -> int:
         """The periods the command of interval ``cycle`` acts for."""
-        return self.stride if self.stride > 1 and cycle >= self.stride_from else 1
+        return self.grid.hold_of(cycle)
 
     def time_of(self, cycle: int) -> float:
         """The time of sample ``cycle`` on the task's clock (s): the unit's one timebase."""

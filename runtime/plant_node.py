@@ -40,6 +40,7 @@ from .config import EXIT_LINK, EXIT_OK
 from .controller import initial_angles, initial_command
 from .node import WARM_RSS_AT, Node, control_order, cpu_used, is_stop, rss_kb, say_bye
 from .setup import Setup
+from .stride import StrideSchedule
 
 TRIAL_MAX_S = 60.0
 """Longest admission trial the plant runs on one order (a forged order cannot hold it)."""
@@ -69,11 +70,10 @@ class PlantServer:
         self.busy_ns = 0
         self.sample_no = 0
         self.rss_warm = -1
-        self.stride = 1
-        """1; 2 once the central halved its control rate (``stride`` order): from sample
-        :attr:`stride_from` on only every second sample is published and every second
-        command is due; each is held two periods."""
-        self.stride_from = 0
+        self.grid = StrideSchedule()
+        """The samples published and the commands due: every one until the central halves
+        its control rate (``stride`` orders; then every second one, each command held two
+        periods), runtime/stride.py."""
         self.next_trial: tuple[float, int, int] | None = None
         """A trial order that came during a trial: it ends that trial and runs next."""
 
@@ -103,19 +103,18 @@ class PlantServer:
         self.node.last_heard_ns = time.monotonic_ns()
 
     def take_stride(self, msg: dict[str, Any]) -> None:
-        """The central's ``stride`` order (it halved its control rate), checked field by
-        field; once a run."""
+        """The central's ``stride`` order (it halved its control rate, or went back to the
+        full one), checked field by field: one that cannot be the next change is
+        rejected (``bad_value``) and changes nothing."""
         stride, start = msg.get("stride"), msg.get("start")
-        if type(stride) is not int or stride != 2 or type(start) is not int or start < 0:
+        if self.grid.check(stride, start) is not None:
             self.node.reject("bad_value")
             return
-        if self.stride == 1:
-            self.stride, self.stride_from = stride, start
+        self.grid.change(stride, start)  # type: ignore[arg-type]
 
     def on_grid(self, cycle: int) -> bool:
         """Whether sample ``cycle`` is published and its command due."""
-        return self.stride == 1 or cycle < self.stride_from \
-            or (cycle - self.stride_from) % self.stride == 0
+        return self.grid.on_grid(cycle)
 
     def apply(self, cycle: int) -> bool:
         """Apply the command of ``cycle``; if it is not here (a deadline miss), apply the

@@ -5,7 +5,9 @@ Channels
 ``msgpack`` (raw bytes exactly as on the wire; log time = send or receive time, ns), named
   by their Zenoh key without ``ctrlunit/<unit>`` (keys are addressed by destination):
   ``/central/sample``, ``/plant/command``, ``/peripheral/request``, ``/central/reply/K``,
-  and ``/plant/control`` for the order that halves the control rate (``--overload``).
+  ``/plant/control`` for the orders that change the control rate (``--overload``), and
+  ``/central/primed`` for an interval whose sample-free steps ran before its sample was
+  skipped (replay runs them too: they fill the task's cache).
 ``msgpack``: ``/timing/spans`` (per interval: ``[[process, t0, t1], ...]``),
   ``/faults/rejected`` (rejection counters, every 500 intervals and at the end),
   ``/faults/deadline`` (deadline misses and skipped samples as they change),

@@ -87,21 +87,28 @@ def cycles_in_order(rec: Recording) -> list[tuple[int, list[int]]]:
     return out
 
 
-def halved_from(rec: Recording) -> int | None:
-    """The cycle from which the recorded run halved its control rate (its ``stride`` order
-    to the plant, on ``/plant/control``), or None."""
-    for _, m in rec.decoded("/plant/control"):
-        if m.get("stage") == "stride" and type(m.get("start")) is int:
-            return m["start"]
-    return None
+def stride_changes(rec: Recording) -> list[tuple[int, int]]:
+    """``(start, stride)`` of each change of the recorded run's control rate (its
+    ``stride`` orders to the plant, on ``/plant/control``), in order."""
+    return [(m["start"], m["stride"]) for _, m in rec.decoded("/plant/control")
+            if m.get("stage") == "stride" and type(m.get("start")) is int
+            and type(m.get("stride")) is int]
+
+
+def discarded_primes(rec: Recording) -> list[int]:
+    """Cycles whose sample-free leading steps the central ran (primed) before it skipped
+    their sample (``/central/primed``), in order: their reference calls filled the task's
+    cache, which later loops of the task read, so replay runs them at the same point."""
+    return sorted(m["cycle"] for _, m in rec.decoded("/central/primed")
+                  if type(m.get("cycle")) is int)
 
 
 def _controller(rec: Recording, setup: Any, engine: Any) -> Any:
-    """The run's controller, halving its rate where the recorded run did."""
+    """The run's controller, halving its rate (and going back) where the recorded run
+    did."""
     ctl = setup.controller(engine)
-    start = halved_from(rec)
-    if start is not None:
-        ctl.halve(start)
+    for start, stride in stride_changes(rec):
+        ctl.grid.change(stride, start)
     return ctl
 
 
@@ -111,7 +118,10 @@ def recorded_inputs(rec: Recording, setup: Any) -> list[tuple]:
     engine = setup.engine(peripherals_plan=False)
     ctl = _controller(rec, setup, engine)
     out = []
+    primes = discarded_primes(rec)
     for k, counts in cycles_in_order(rec):
+        while primes and primes[0] < k:  # as in :func:`verify`
+            engine.prefix(ctl.context(primes.pop(0)))
         ctx = ctl.sources(k, counts)
         out.append((ctx["t"], ctx["est"], list(ctx["qmeas_i"]), list(ctx["qdmeas_i"])))
         engine.run_local(ctx)
@@ -173,7 +183,10 @@ def verify(
         engine._bound[name] = (altered, names, cost, per_axis)
     done = 0
     seq = cycles_in_order(rec)
+    primes = discarded_primes(rec)
     for idx, (k, counts) in enumerate(seq):
+        while primes and primes[0] < k:  # primed, then its sample skipped: as the run did
+            engine.prefix(ctl.context(primes.pop(0)))
         current["cycle"] = k
         compare = cycles is None or cycles[0] <= k < cycles[1]
         ctx = ctl.sources(k, counts)

@@ -82,15 +82,40 @@ def late_work_figures(work_ns: Sequence[int], late_work_ns: Sequence[int], late:
             "machine_slower": slower}
 
 
+def overload_figures(changes: list[dict[str, Any]], halves: bool, *, periods: int
+                     ) -> dict[str, Any]:
+    """The report's ``overload``: ``policy`` (halve or continue), ``changes`` (each change
+    of the control rate: ``stride``, ``from_cycle``, ``at_interval`` and why: ``late`` of
+    ``window`` intervals, or ``calm`` intervals without a late one), ``halved`` (the first
+    halving, or None) and ``halved_periods`` (periods run at the halved rate, of
+    ``periods``)."""
+    halved_periods = 0
+    for i, c in enumerate(changes):
+        if c["stride"] == 2:
+            end = changes[i + 1]["from_cycle"] if i + 1 < len(changes) else periods
+            halved_periods += max(0, end - c["from_cycle"])
+    return {"policy": "halve" if halves else "continue", "changes": list(changes),
+            "halved": next((c for c in changes if c["stride"] == 2), None),
+            "halved_periods": halved_periods}
+
+
 def _overload_lines(r: dict[str, Any]) -> list[str]:
-    """The halving of the control rate (``--overload``), when it happened."""
-    o = (r.get("overload") or {}).get("halved")
-    if not o:
-        return []
-    return [f"  overload    {o['late']} of the last {o['window']} intervals late at interval "
-            f"{o['at_interval']}: from sample {o['from_cycle']} on every second sample taken, "
-            "each command held two periods (the control rate halved; the plant still ticks "
-            "at the period)"]
+    """Each change of the control rate (``--overload``)."""
+    o = r.get("overload") or {}
+    lines = []
+    for c in o.get("changes") or []:
+        if c["stride"] == 2:
+            lines.append(f"  overload    {c['late']} of the last {c['window']} intervals late at "
+                         f"interval {c['at_interval']}: from sample {c['from_cycle']} on every "
+                         "second sample taken, each command held two periods (the control rate "
+                         "halved; the plant still ticks at the period)")
+        else:
+            lines.append(f"  overload    {c['calm']} intervals without a late one at interval "
+                         f"{c['at_interval']}: from sample {c['from_cycle']} on every sample "
+                         "taken again (the full control rate)")
+    if lines and o.get("halved_periods") is not None:
+        lines.append(f"              {o['halved_periods']} period(s) at the halved rate")
+    return lines
 
 
 def _late_lines(r: dict[str, Any]) -> list[str]:
@@ -452,8 +477,8 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
     )
     report["periods"] = max(0, central.next_cycle - central.ctl.first_cycle) \
         if central.done else 0
-    report["overload"] = {"policy": "halve" if central.halve_on_overload else "continue",
-                          "halved": central.overload}
+    report["overload"] = overload_figures(central.rate_changes, central.halve_on_overload,
+                                          periods=report["periods"])
     if central.realtime_deadline_ns:
         log = central.log
         report["late_intervals"] = late_work_figures(log.work_ns.recent, log.late_work_ns,

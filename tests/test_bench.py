@@ -214,10 +214,14 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
 
     def fake_start(args: tuple[str, ...], *, timeout_s: float) -> dict:
         started.append(args)
-        cycles = 1250 if "--duration" in args else 400
+        periods = 1250 if "--duration" in args else 400
+        halved = "--duration" in args and args[1] == "3"  # the long main job halved once
         rep = {"nominal_period_s": 1.6e-3 if args[1] == "3" else
                float(args[args.index("--period") + 1]),
-               "cycles": cycles, "deadline_misses": 5 if args[1] == "3" else 1,
+               "cycles": 900 if halved else periods, "periods": periods,
+               "overload": {"halved": {"at_interval": 500}, "halved_periods": 700,
+                            "changes": [{"stride": 2}, {"stride": 1}]} if halved else None,
+               "deadline_misses": 5 if args[1] == "3" else 1,
                "traversal_s": {"p999": 1e-3}, "cpu_per_interval_s": {"total": 1e-3},
                "tracking_error_m": {"max": 1e-4}, "fault": None,
                "scheduling": {"central": "SCHED_FIFO 10"}, "scheduling_fallback": None,
@@ -232,9 +236,12 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
                           "--no-admission", "--rt-priority", "10", "--duration", "2s")
     assert st["long_baseline"]["deadline_misses"] == 1
     md = "\n".join(realtime.markdown_lines(st))
-    assert "Long run (2 s): exit 0, period 1.60 ms, 1250 periods, 5 misses (4.00 per 1000)" in md
-    assert "Its baseline (2 s, n = 0): exit 0, period 1.60 ms, 1250 periods, 1 misses " \
-        "(0.80 per 1000)" in md
+    assert "Long run (2 s): exit 0, period 1.60 ms, 1250 periods (900 intervals), 5 misses " \
+        "(4.00 per 1000)" in md
+    assert "control rate halved at interval 500 (2 change(s) of rate; 700 periods at the " \
+        "halved rate)" in md
+    assert "Its baseline (2 s, n = 0): exit 0, period 1.60 ms, 1250 periods (1250 " \
+        "intervals), 1 misses (0.80 per 1000)" in md
 
 
 def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):

@@ -72,10 +72,31 @@ def test_controller_halves_once_on_a_grid_from_its_start():
     assert [k for k in range(12) if ctl.on_grid(k)] == [0, 1, 2, 3, 4, 5, 7, 9, 11]
     assert [ctl.hold_of(k) for k in (4, 5, 7)] == [1, 2, 2]
     assert ctl.context(7)["hold"] == 2 and ctl.context(4)["hold"] == 1
-    ctl.halve(6)  # once a run
-    assert ctl.on_grid(7) and not ctl.on_grid(6)
+    with pytest.raises(ValueError, match="the stride is 2 already"):
+        ctl.halve(9)
+    ctl.restore(11)  # back to every sample from a sample of the halved grid
+    assert [k for k in range(5, 15) if ctl.on_grid(k)] == [5, 7, 9, 11, 12, 13, 14]
+    assert [ctl.hold_of(k) for k in (9, 11, 12)] == [2, 1, 1]
     with pytest.raises(ValueError, match="start must be a cycle >= 0"):
         ctl_mod.Controller(eng, 1e-3, P.increment, tuple(task.start())).halve(-1)
+
+
+def test_a_stride_change_must_start_on_the_grid_after_the_last_one():
+    from ctrlunit.runtime.stride import StrideSchedule
+
+    g = StrideSchedule()
+    assert g.check(3, 10) == "stride must be one of 1, 2, got 3"
+    assert g.check(2, 10.0) == "start must be a cycle >= 0, got 10.0"
+    assert g.check(1, 10) == "the stride is 1 already"
+    g.change(2, 10)
+    assert g.check(1, 10) == "start must come after the last change at 10, got 10"
+    assert g.check(1, 13) == "start must be a sample of the current grid, got 13"
+    assert g.next_on_grid(13) == 14 and g.next_on_grid(14) == 14
+    g.change(1, 14)
+    g.change(2, 15)
+    assert [k for k in range(8, 22) if g.on_grid(k)] == [8, 9, 10, 12, 14, 15, 17, 19, 21]
+    assert [g.hold_of(k) for k in (9, 12, 14, 15)] == [1, 2, 1, 2]
+    assert g.stride == 2 and g.changes == [(10, 2), (14, 1), (15, 2)]
 
 
 def test_halving_needs_gains_that_hold_at_twice_the_period():
@@ -104,19 +125,21 @@ def _freeze_now_and_then(pid: int, *, times: int, hold_s: float, every_s: float)
 
 
 @pytest.mark.zenoh
-def test_a_run_whose_commands_keep_coming_late_halves_its_rate_and_replays(tmp_path: Path):
+def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tmp_path: Path):
     """A peripheral frozen for three periods again and again: its intervals come late,
-    the central halves the rate, the run completes, the plant took the commands of every
-    second cycle from the cycle named, and the recording replays bit for bit."""
+    the central halves the rate; 2 s without a late interval after the freezing stops, it
+    goes back to every sample. The run completes, the plant took the commands of every
+    second cycle in between and of every cycle after, and the recording replays bit for
+    bit."""
     from ctrlunit.runtime.recording import read
-    from ctrlunit.runtime.replay import halved_from, verify
+    from ctrlunit.runtime.replay import stride_changes, verify
 
     unit = unit_id("ovl")
     rec, status, report = (tmp_path / f"{unit}.{x}" for x in ("mcap", "status", "json"))
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
          "--peripherals", "3", "--pipeline", "2", "--period", "5ms", "--bandwidth", "8",
-         "--task", slow_task(tmp_path), "--duration", "3s", "--no-admission",
+         "--task", slow_task(tmp_path), "--duration", "6s", "--no-admission",
          "--overload", "halve", "--fault-periods", "20", "--max-error", "0.005",
          "--record", str(rec), "--status-file", str(status), "--report", str(report)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
@@ -137,18 +160,24 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_and_replays(tmp_p
     r = json.loads(report.read_text())
     print(out[-1500:])
     assert proc.returncode == 0, out
-    halved = r["overload"]["halved"]
-    assert r["overload"]["policy"] == "halve" and halved is not None, out
-    assert "overload" in out and "control rate halved" in out
+    o = r["overload"]
+    assert o["policy"] == "halve" and o["halved"] is not None, out
+    assert [c["stride"] for c in o["changes"]] == [2, 1], o
+    assert "control rate halved" in out and "every sample taken again" in out
     recording = read(rec)
-    start = halved_from(recording)
-    assert start is not None and start - halved["from_cycle"] >= 0
+    (s1, two), (s2, one) = stride_changes(recording)
+    assert (two, one) == (2, 1)
+    first = s1 - o["changes"][0]["from_cycle"]  # the cycle at t = 0
+    assert s2 - first == o["changes"][1]["from_cycle"]
+    assert o["halved_periods"] == s2 - s1
+    assert o["changes"][1]["calm"] == 200  # 2 s at 10 ms
     cycles = [m["cycle"] for _, m in recording.decoded("/plant/command")]
-    after = [k for k in cycles if k >= start]
-    assert len(after) > 100  # 3 s at 10 ms, from less than a second in
-    assert all((k - start) % 2 == 0 for k in after), after[:20]
+    halved = [k for k in cycles if s1 <= k < s2]
+    assert len(halved) >= 200 and all((k - s1) % 2 == 0 for k in halved), halved[:20]
+    after = [k for k in cycles if k >= s2]
+    assert len(after) > 50 and after == list(range(s2, s2 + len(after)))
     # the periods the run covered, not its intervals, are the misses' denominator
-    assert r["periods"] >= r["cycles"] + len(after) - 1
+    assert r["periods"] >= r["cycles"] + len(halved) - 1
     n, div = verify(recording)
     assert div is None, str(div)
     assert n == len(cycles)
@@ -164,7 +193,9 @@ class _StrideNode:
                                            b"stride3": {"stage": "stride", "stride": 3,
                                                         "start": 12},
                                            b"stride-late": {"stage": "stride", "stride": 2,
-                                                            "start": 30}}
+                                                            "start": 30},
+                                           b"full": {"stage": "stride", "stride": 1,
+                                                     "start": 31}}
 
     def __init__(self) -> None:
         from collections import Counter
@@ -184,9 +215,11 @@ class _StrideNode:
 
 def test_the_plant_publishes_and_counts_misses_on_the_halved_grid_only(monkeypatch):
     """From the order's start the plant publishes every second sample and counts a miss
-    only where a command was due (each one holds two periods); a malformed order is
-    rejected by name, a second one changes nothing."""
+    only where a command was due (each one holds two periods), until the order back to
+    every sample; an order that cannot be the next change is rejected and changes
+    nothing."""
     from ctrlunit.runtime.plant_node import PlantServer, serve
+    from ctrlunit.runtime.stride import StrideSchedule
     from test_plant_trials import ScriptedInbox
 
     monkeypatch.setattr("ctrlunit.runtime.node.freeze_heap", lambda: None)
@@ -196,7 +229,7 @@ def test_the_plant_publishes_and_counts_misses_on_the_halved_grid_only(monkeypat
         take_stride = PlantServer.take_stride
 
         def __init__(self, node: _StrideNode) -> None:
-            self.node, self.depth, self.stride, self.stride_from = node, 2, 1, 0
+            self.node, self.depth, self.grid = node, 2, StrideSchedule()
             self.sample_no = self.misses = self.busy_ns = self.commands_taken = 0
             self.rss_warm, self.next_trial = -1, None
             self.samples: list[int] = []
@@ -215,13 +248,13 @@ def test_the_plant_publishes_and_counts_misses_on_the_halved_grid_only(monkeypat
     node = _StrideNode()
     server = Server(node)
     node.events = ScriptedInbox([(0, b"start"), (3, b"stride3"), (10, b"stride"),
-                                 (14, b"stride-late"), (28, b"stop")],
+                                 (14, b"stride-late"), (20, b"full"), (32, b"stop")],
                                 lambda: len(server.samples))
     result = serve(node, server, clock="realtime", period=1e-3, cycles=40, watchdog=5.0,
                    delay=2)
     assert result["exit"] in ("done", "stop")
-    assert server.samples == list(range(16)) + list(range(17, 40, 2))
+    assert server.samples == list(range(16)) + list(range(17, 31, 2)) + list(range(31, 40))
     assert server.misses == 1  # 21; not 16, 18, ... where no command was due
     assert server.applied[:3] == [0, 1, 2] and 16 in server.applied  # the last one holds
-    assert node.rejected == {"bad_value": 1}  # stride 3
-    assert (server.stride, server.stride_from) == (2, 15)
+    assert node.rejected == {"bad_value": 2}  # stride 3; halved again
+    assert server.grid.changes == [(15, 2), (31, 1)]
