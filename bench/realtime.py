@@ -35,7 +35,7 @@ MAIN_JOB = ("--peripherals", "3", "--pipeline", "2")
 
 
 LEVERS = ("period", "admission", "command_delay", "hold_rounds", "replies", "rt_priority",
-          "cpus", "pin", "placement", "late_policy", "fault_periods", "model_state")
+          "cpus", "pin", "placement", "late_policy", "fault_periods", "model_state", "overload")
 
 
 def levers() -> dict[str, Any]:

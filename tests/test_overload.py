@@ -258,3 +258,15 @@ def test_the_plant_publishes_and_counts_misses_on_the_halved_grid_only(monkeypat
     assert server.applied[:3] == [0, 1, 2] and 16 in server.applied  # the last one holds
     assert node.rejected == {"bad_value": 2}  # stride 3; halved again
     assert server.grid.changes == [(15, 2), (31, 1)]
+
+
+def test_start_check_names_the_overload_policy_and_refuses_gains_that_cannot_halve():
+    from runner import ctrlunit
+
+    ok = ctrlunit("start", "--peripherals", "3", "--pipeline", "2", "--check")
+    assert ok.returncode == 0 and "on overload: halve the control rate" in ok.stdout
+    off = ctrlunit("start", "--period", "5ms", "--check", "--json")
+    assert off.returncode == 0 and json.loads(off.stdout)["overload"] == "continue"
+    bad = ctrlunit("start", "--period", "5ms", "--overload", "halve", "--check")
+    assert bad.returncode == 1
+    assert "--overload halve" in bad.stderr and "--bandwidth at most 8 Hz" in bad.stderr

@@ -296,14 +296,18 @@ def _check(rc: RunConfig, as_json: bool) -> None:
             "cycles": setup.cycles, "law": rc.control.law, "model": rc.control.model,
             "placement": setup.placement.to_dict(), "round_trips": plan.round_trips,
             "placement_auto": rc.schedule.placement_auto,
-            "command_delay_periods": rc.delay_periods}
+            "command_delay_periods": rc.delay_periods,
+            "overload": "halve" if rc.halves_on_overload else "continue"}
     period = "auto" if rc.schedule.period_auto else f"{rc.schedule.period * 1e3:g} ms"
+    overload = (f"  on overload: halve the control rate (--overload {rc.schedule.overload})\n"
+                if rc.halves_on_overload else "")
     _emit(data, as_json,
           f"ctrlunit start: the options are valid; nothing was started.\n"
           f"  {setup.placement.peripherals} peripheral(s), pipeline depth {rc.schedule.pipeline}, "
           f"clock {rc.schedule.clock}, period {period}\n"
           f"  task {setup.task.name} (a loop of {setup.task.period:.3f} s), {setup.cycles} "
           f"intervals, {rc.control.law} + {rc.control.model} model\n"
+          + overload +
           f"  {plan.round_trips} round trip(s) per interval"
           + (" (placement auto: the warm-up may move a round to the central)"
              if rc.schedule.placement_auto and setup.placement.peripherals else "")
