@@ -491,9 +491,11 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         grid = self.ctl.grid
         k = grid.next_on_grid(max(self.next_cycle, self.newest_sample + 1) + OVERLOAD_LEAD)
         grid.change(stride, k)
-        self.rate_changes.append({"stride": stride, "from_cycle": k - self.ctl.first_cycle,
-                                  "at_interval": self.done, **why})
-        payload = self.say("stride", plant_only=True, stride=stride, start=k)
+        change = {"stride": stride, "from_cycle": k - self.ctl.first_cycle,
+                  "at_interval": self.done, **why}
+        self.rate_changes.append(change)
+        # the plant reads stride and start; the rest is for the recording's report
+        payload = self.say("stride", plant_only=True, start=k, **change)
         if self.on_message is not None:  # the recording: replay changes where the run did
             self.on_message("out", self.node.keys.control("plant"), k, "stride", payload,
                             time.monotonic_ns())

@@ -104,15 +104,17 @@ def _overload_lines(r: dict[str, Any]) -> list[str]:
     o = r.get("overload") or {}
     lines = []
     for c in o.get("changes") or []:
+        at = f" at interval {c['at_interval']}" if "at_interval" in c else ""
         if c["stride"] == 2:
-            lines.append(f"  overload    {c['late']} of the last {c['window']} intervals late at "
-                         f"interval {c['at_interval']}: from sample {c['from_cycle']} on every "
+            why = f"{c['late']} of the last {c['window']} intervals late" if "late" in c \
+                else "late intervals"
+            lines.append(f"  overload    {why}{at}: from sample {c['from_cycle']} on every "
                          "second sample taken, each command held two periods (the control rate "
                          "halved; the plant still ticks at the period)")
         else:
-            lines.append(f"  overload    {c['calm']} intervals without a late one at interval "
-                         f"{c['at_interval']}: from sample {c['from_cycle']} on every sample "
-                         "taken again (the full control rate)")
+            why = f"{c['calm']} intervals without a late one" if "calm" in c else "calm"
+            lines.append(f"  overload    {why}{at}: from sample {c['from_cycle']} on every "
+                         "sample taken again (the full control rate)")
     if lines and o.get("halved_periods") is not None:
         lines.append(f"              {o['halved_periods']} period(s) at the halved rate")
     return lines

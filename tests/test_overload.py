@@ -181,6 +181,11 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tm
     n, div = verify(recording)
     assert div is None, str(div)
     assert n == len(cycles)
+    # ``ctrlunit report`` tells the same from the recording alone
+    from ctrlunit.runtime.recorded_report import report_from_recording
+
+    again = report_from_recording(recording)
+    assert again["overload"] == o and again["periods"] == r["periods"]
 
 
 class _StrideNode:
