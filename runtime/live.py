@@ -122,8 +122,8 @@ class LiveStats:
 
 class LiveLine:
     """The central's ``on_cycle`` callback that feeds :class:`LiveStats` and calls
-    ``show(text, done, total)`` at most every :data:`REFRESH_S` (and at the last
-    interval)."""
+    ``show(text, reached, total)`` (periods covered of those planned) at most every
+    :data:`REFRESH_S` (and at the last interval)."""
 
     def __init__(self, show: Any) -> None:
         self.show = show
@@ -137,9 +137,12 @@ class LiveLine:
                        misses=central.plant_misses, skipped=central.skipped,
                        p=ctx.get("p"), pc=ctx.get("pc"))
         now = time.monotonic()
-        if now >= self._next or central.done == central.cycles:
+        # the bar counts periods covered: intervals fall behind them where samples were
+        # skipped or the control rate was halved (``--overload``)
+        reached = cycle - central.ctl.first_cycle + central.ctl.hold_of(cycle)
+        if now >= self._next or reached >= central.cycles:
             self._next = now + REFRESH_S
-            self.show(self.stats.line(), central.done, central.cycles)
+            self.show(self.stats.line(), reached, central.cycles)
 
 
 class TerminalLine:

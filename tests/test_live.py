@@ -138,3 +138,25 @@ def test_a_message_during_the_run_is_written_on_a_cleared_line():
     line.close()
     text = out.getvalue()
     assert "interval 1/2  0 s left\r\x1b[2Kctrlunit: a message\n" in text
+
+
+def test_the_bar_counts_periods_covered_when_the_control_rate_is_halved():
+    """Halved from cycle 10 of 20: 15 intervals cover the 20 periods, and the bar ends
+    full, not at 15 of 20."""
+    from types import SimpleNamespace
+
+    from ctrlunit.runtime.live import LiveLine
+
+    shown: list[tuple[int, int]] = []
+    line = LiveLine(lambda text, done, total: shown.append((done, total)))
+    central = SimpleNamespace(cycles=20, done=0, plant_misses=0, skipped=0,
+                              log=SimpleNamespace(cmd_ns=[0]),
+                              ctl=SimpleNamespace(first_cycle=0,
+                                                  hold_of=lambda k: 2 if k >= 10 else 1))
+    cycles = list(range(10)) + list(range(10, 20, 2))
+    for k in cycles:
+        central.done += 1
+        central.log.cmd_ns.append(central.log.cmd_ns[-1] + 1_000_000)
+        line(central, k, {})
+    assert central.done == 15
+    assert shown[-1] == (20, 20)
