@@ -16,7 +16,7 @@ From a recording alone (whole, compressed or salvaged after a crash), six PNGs a
     at tick k + d, d the command delay in periods) marked.
 ``events.png``
     The period over the run, with each deadline miss, skipped sample and the fault (if
-    any) where it fell.
+    any) where it fell, and the spans at the halved control rate (``--overload``).
 ``gantt.png``
     The processes' compute spans over a few intervals of the middle of the run.
 
@@ -295,10 +295,31 @@ def _timing(path: Path, s: dict[str, np.ndarray], rc: RunConfig) -> None:
     plt.close(fig)
 
 
+def halved_spans(rec: Recording, period: float, end_cycle: int) -> np.ndarray:
+    """``[[t0, t1], ...]`` (s): the spans the recorded run spent at the halved control
+    rate (its ``stride`` orders), the last one open to ``end_cycle``."""
+    from .replay import stride_changes
+
+    spans, start = [], None
+    for k, stride in stride_changes(rec):
+        if stride == 2 and start is None:
+            start = k
+        elif stride == 1 and start is not None:
+            spans.append((start * period, k * period))
+            start = None
+    if start is not None:
+        spans.append((start * period, max(start, end_cycle) * period))
+    return np.array(spans, dtype=float).reshape(-1, 2)
+
+
 def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int, int]],
                    fault: dict[str, Any] | None, rc: RunConfig) -> None:
     fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
     t = s["cycle"] * rc.schedule.period
+    for a, b in s.get("halved_spans_s", np.empty((0, 2))):
+        ax.axvspan(a, b, color="#1f77b4", alpha=0.12, lw=0)
+    if len(s.get("halved_spans_s", ())):
+        ax.fill_between([], [], color="#1f77b4", alpha=0.12, label="control rate halved")
     ax.plot(t, s["period_s"] * 1e6, lw=0.6, color="#7f7f7f", label="period")
     if rc.schedule.clock == "realtime":
         ax.axhline(rc.schedule.period * 1e6, color="#2ca02c", ls="--", lw=0.8, label="nominal")
@@ -381,6 +402,8 @@ def plot_recording(rec: Recording, out: str | Path, *,
     path = rc.control.params
     params = load_params(path) if path and Path(path).exists() else DELTA_IA
     s = signals(rec, cycles=cycles)
+    s["halved_spans_s"] = halved_spans(rec, rc.schedule.period,
+                                       int(s["cycle"][-1]) + 1 if s["cycle"].size else 0)
     ev, fault = _events(rec, cycles)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

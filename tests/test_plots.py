@@ -141,3 +141,19 @@ def test_index_html_shows_every_image_in_headless_chromium(lockstep, tmp_path):
                     page.as_uri()], capture_output=True, timeout=120)
     ink, colours = _ink(shot)
     assert ink > 0.05 and colours > 50, (ink, colours)
+
+
+def test_the_spans_at_the_halved_rate_come_from_the_recorded_orders():
+    """Halved at 100, back at 300, halved again at 501 and still at the end (600): two
+    spans in seconds, the last one open to the end; none without orders."""
+    import msgpack
+    from ctrlunit.runtime.plots import halved_spans
+    from ctrlunit.runtime.recording import Recording
+
+    orders = [(100, 2), (300, 1), (501, 2)]
+    rec = Recording("x.mcap", topics={"/plant/control": [
+        (i, msgpack.packb({"stage": "stride", "stride": s, "start": k}))
+        for i, (k, s) in enumerate(orders)] + [(9, msgpack.packb({"stage": "stop"}))]})
+    spans = halved_spans(rec, 1e-3, 600)
+    assert np.allclose(spans, [[0.1, 0.3], [0.501, 0.6]])
+    assert halved_spans(Recording("y.mcap"), 1e-3, 600).shape == (0, 2)
