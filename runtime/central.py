@@ -185,6 +185,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.halve_on_overload = not trial and rc.halves_on_overload
         self._late_marks: deque[int] = deque()  # self.done at each late interval (full rate)
         self._calm_since = 0  # halved: self.done at the halving or the latest late interval
+        self._calm_needed = 0  # halved: intervals without a late one before going back
         self.reply_each = False
         self.replies_info: dict[str, Any] = {"mode": "fused"}
         self.block_costs: dict[str, float] | None = None  # measured once (warm-up)
@@ -479,11 +480,12 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                 self._change_rate(2, late=len(marks), window=OVERLOAD_WINDOW)
                 marks.clear()
                 self._calm_since = self.done
+                returns = len(self.rate_changes) // 2  # changes alternate: 2, 1, 2, ...
+                self._calm_needed = 0 if returns >= OVERLOAD_RETURNS else math.ceil(
+                    OVERLOAD_CALM_S / (2 * self.rc.schedule.period)) << returns
             return
-        returns = sum(1 for c in self.rate_changes if c["stride"] == 1)
-        calm = math.ceil(OVERLOAD_CALM_S / (2 * self.rc.schedule.period)) << returns
-        if returns < OVERLOAD_RETURNS and self.done - self._calm_since >= calm:
-            self._change_rate(1, calm=calm)
+        if self._calm_needed and self.done - self._calm_since >= self._calm_needed:
+            self._change_rate(1, calm=self._calm_needed)
 
     def _change_rate(self, stride: int, **why: int) -> None:
         """Change the control rate from the first sample of the current grid at least
@@ -499,10 +501,6 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         if self.on_message is not None:  # the recording: replay changes where the run did
             self.on_message("out", self.node.keys.control("plant"), k, "stride", payload,
                             time.monotonic_ns())
-
-    def on_grid(self, cycle: int) -> bool:
-        """Whether sample ``cycle`` is taken (every one until the rate is halved)."""
-        return self.ctl.on_grid(cycle)
 
     def _span(self, proc: str, cycle: int, t0: int, t1: int) -> None:
         if len(self.spans) < self.max_spans:

@@ -76,7 +76,7 @@ class CentralIntake:
             self.node.reject(exc.reason)
             return
         cycle = msg["cycle"]
-        if not self.on_grid(cycle):
+        if not self.ctl.on_grid(cycle):
             return  # the rate is halved and the plant has yet to hear it: not taken
         if cycle < self.next_cycle or cycle >= self.cycles + self.depth + 1:
             self.node.reject("stale_cycle" if cycle < self.next_cycle else "future_cycle")

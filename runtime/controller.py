@@ -102,10 +102,6 @@ class Controller:
         interval already begun; ValueError if the rate is halved already."""
         self.grid.change(2, start)
 
-    def restore(self, start: int) -> None:
-        """Back to every sample from cycle ``start`` (a sample of the halved grid) on."""
-        self.grid.change(1, start)
-
     @property
     def stride(self) -> int:
         """1 at the full control rate, 2 once halved (the latest change)."""

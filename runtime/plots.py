@@ -298,18 +298,10 @@ def _timing(path: Path, s: dict[str, np.ndarray], rc: RunConfig) -> None:
 def halved_spans(rec: Recording, period: float, end_cycle: int) -> np.ndarray:
     """``[[t0, t1], ...]`` (s): the spans the recorded run spent at the halved control
     rate (its ``stride`` orders), the last one open to ``end_cycle``."""
-    from .replay import stride_changes
+    from .replay import stride_grid
 
-    spans, start = [], None
-    for k, stride in stride_changes(rec):
-        if stride == 2 and start is None:
-            start = k
-        elif stride == 1 and start is not None:
-            spans.append((start * period, k * period))
-            start = None
-    if start is not None:
-        spans.append((start * period, max(start, end_cycle) * period))
-    return np.array(spans, dtype=float).reshape(-1, 2)
+    spans = stride_grid(rec).halved_spans(end_cycle)
+    return np.array(spans, dtype=float).reshape(-1, 2) * period
 
 
 def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int, int]],

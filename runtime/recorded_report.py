@@ -10,7 +10,7 @@ from typing import Any
 from .config import RunConfig
 from .engine import measure_t1
 from .recording import Recording
-from .replay import recorded_inputs, stride_changes
+from .replay import recorded_inputs, stride_grid
 from .report import (
     CPU_KEYS,
     build_report,
@@ -20,7 +20,6 @@ from .report import (
     tracking_errors,
 )
 from .setup import make_setup
-from .stride import StrideSchedule
 from .timing import timing_figures
 
 
@@ -91,14 +90,13 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     )
     cpu = json.loads(result.get("cpu", "{}") or "{}")  # per process: only the run knew
     rep.update({k: cpu.get(k) for k in CPU_KEYS if k in cpu})
-    grid = StrideSchedule()
-    for start, stride in stride_changes(rec):
-        grid.change(stride, start)
+    grid = stride_grid(rec)
     last = max((m["cycle"] for _, m in rec.decoded("/plant/command")), default=-1)
     rep["periods"] = last + grid.hold_of(last) if last >= 0 else 0
     changes = [{"from_cycle": m.get("start"), **{k: v for k, v in m.items() if k not in (
         "v", "unit", "cycle", "stage", "start")}}
         for _, m in rec.decoded("/plant/control") if m.get("stage") == "stride"
         and type(m.get("start")) is int and m.get("stride") in (1, 2)]
-    rep["overload"] = overload_figures(changes, rc.halves_on_overload, periods=rep["periods"])
+    rep["overload"] = overload_figures(changes, rc.halves_on_overload, grid,
+                                       end=rep["periods"])
     return rep

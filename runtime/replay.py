@@ -27,6 +27,7 @@ from typing import Any
 import msgpack
 
 from .recording import Recording
+from .stride import StrideSchedule
 
 Vals = dict[str, Any]
 
@@ -103,12 +104,19 @@ def discarded_primes(rec: Recording) -> list[int]:
                   if type(m.get("cycle")) is int)
 
 
+def stride_grid(rec: Recording) -> StrideSchedule:
+    """The recorded run's control rate, cycle by cycle (:func:`stride_changes`)."""
+    grid = StrideSchedule()
+    for start, stride in stride_changes(rec):
+        grid.change(stride, start)
+    return grid
+
+
 def _controller(rec: Recording, setup: Any, engine: Any) -> Any:
     """The run's controller, halving its rate (and going back) where the recorded run
     did."""
     ctl = setup.controller(engine)
-    for start, stride in stride_changes(rec):
-        ctl.grid.change(stride, start)
+    ctl.grid = stride_grid(rec)
     return ctl
 
 

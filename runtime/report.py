@@ -13,6 +13,7 @@ from ..kernels.trajectory import Task
 from ..topology.pipeline import hold_rule
 from .config import RunConfig
 from .engine import Engine, measure_t1
+from .stride import StrideSchedule
 
 if TYPE_CHECKING:
     from .central import Central
@@ -82,21 +83,16 @@ def late_work_figures(work_ns: Sequence[int], late_work_ns: Sequence[int], late:
             "machine_slower": slower}
 
 
-def overload_figures(changes: list[dict[str, Any]], halves: bool, *, periods: int
-                     ) -> dict[str, Any]:
+def overload_figures(changes: list[dict[str, Any]], halves: bool, grid: StrideSchedule, *,
+                     end: int) -> dict[str, Any]:
     """The report's ``overload``: ``policy`` (halve or continue), ``changes`` (each change
     of the control rate: ``stride``, ``from_cycle``, ``at_interval`` and why: ``late`` of
     ``window`` intervals, or ``calm`` intervals without a late one), ``halved`` (the first
-    halving, or None) and ``halved_periods`` (periods run at the halved rate, of
-    ``periods``)."""
-    halved_periods = 0
-    for i, c in enumerate(changes):
-        if c["stride"] == 2:
-            end = changes[i + 1]["from_cycle"] if i + 1 < len(changes) else periods
-            halved_periods += max(0, end - c["from_cycle"])
+    halving, or None) and ``halved_periods`` (periods run at the halved rate up to cycle
+    ``end``, from ``grid``)."""
     return {"policy": "halve" if halves else "continue", "changes": list(changes),
             "halved": next((c for c in changes if c["stride"] == 2), None),
-            "halved_periods": halved_periods}
+            "halved_periods": sum(b - a for a, b in grid.halved_spans(end))}
 
 
 def _overload_lines(r: dict[str, Any]) -> list[str]:
@@ -480,7 +476,7 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
     report["periods"] = max(0, central.next_cycle - central.ctl.first_cycle) \
         if central.done else 0
     report["overload"] = overload_figures(central.rate_changes, central.halve_on_overload,
-                                          periods=report["periods"])
+                                          central.ctl.grid, end=central.next_cycle)
     if central.realtime_deadline_ns:
         log = central.log
         report["late_intervals"] = late_work_figures(log.work_ns.recent, log.late_work_ns,

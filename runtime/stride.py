@@ -77,6 +77,16 @@ class StrideSchedule:
         """The periods the command of the interval at sample ``cycle`` acts for."""
         return self._segment(cycle)[1] if self.changes else 1
 
+    def halved_spans(self, end: int) -> list[tuple[int, int]]:
+        """``[(start, stop), ...]``: the cycles run at the halved rate, the last span open
+        to ``end``."""
+        spans = []
+        for i, (start, stride) in enumerate(self.changes):
+            if stride == 2:
+                stop = self.changes[i + 1][0] if i + 1 < len(self.changes) else end
+                spans.append((start, max(start, stop)))
+        return spans
+
     def next_on_grid(self, cycle: int) -> int:
         """The first sample at or after ``cycle`` on the current grid."""
         while not self.on_grid(cycle):

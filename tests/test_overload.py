@@ -74,7 +74,7 @@ def test_controller_halves_once_on_a_grid_from_its_start():
     assert ctl.context(7)["hold"] == 2 and ctl.context(4)["hold"] == 1
     with pytest.raises(ValueError, match="the stride is 2 already"):
         ctl.halve(9)
-    ctl.restore(11)  # back to every sample from a sample of the halved grid
+    ctl.grid.change(1, 11)  # back to every sample from a sample of the halved grid
     assert [k for k in range(5, 15) if ctl.on_grid(k)] == [5, 7, 9, 11, 12, 13, 14]
     assert [ctl.hold_of(k) for k in (9, 11, 12)] == [2, 1, 1]
     with pytest.raises(ValueError, match="start must be a cycle >= 0"):
