@@ -16,6 +16,7 @@ chose, and which levers were on.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -47,6 +48,10 @@ def levers() -> dict[str, Any]:
     return {k: defaults[k] for k in LEVERS}
 
 
+STOP_WAIT_S = 10.0
+"""How long a stopped bench waits for its current run to stop the robot and exit."""
+
+
 def run_start(args: tuple[str, ...], *, timeout_s: float) -> dict[str, Any]:
     """One ``ctrlunit start`` with ``args`` in a process group of its own; its report
     (``{}`` if it wrote none), exit code and wall time. Killed with its children if it
@@ -66,6 +71,12 @@ def run_start(args: tuple[str, ...], *, timeout_s: float) -> dict[str, Any]:
             os.killpg(proc.pid, signal.SIGKILL)
             out, _ = proc.communicate()
             code = None
+        except KeyboardInterrupt:  # the bench stopped: the run stops as on Ctrl-C
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGINT)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.communicate(timeout=STOP_WAIT_S)
+            raise
         finally:
             try:  # the roles of a run that died early, if any are left
                 os.killpg(proc.pid, signal.SIGKILL)

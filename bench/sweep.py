@@ -28,6 +28,7 @@ from ..runtime.config import RunConfig
 from ..runtime.launcher import start
 from ..runtime.report import gantt_window
 from ..runtime.sched import fifo_permitted
+from ..runtime.stopping import raise_if_stopped
 from ..runtime.timing import warm_intervals
 from .floor import floor
 from .realtime import realtime_stage, stage_steps
@@ -126,6 +127,7 @@ def run_one(cfg: Config, cycles: int, tmp: Path | None = None) -> tuple[dict[str
     inspect: dict[str, Any] = {}
     try:
         code, rep = start(rc, echo=lambda m: None, inspect=inspect)
+        raise_if_stopped(code, rep)  # Ctrl-C or a stop signal ends the bench, not one run
     finally:
         if viewer is not None:
             viewer.stop()

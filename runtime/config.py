@@ -51,6 +51,8 @@ EXIT_UNSUSTAINABLE = 7
 """Realtime: the admission trial showed that the period asked cannot be held; refused
 before any command reached the plant."""
 EXIT_INTERRUPTED = 130
+"""Ctrl-C (SIGINT). SIGTERM and SIGHUP stop a run the same way, with exit 128 + the
+signal's number (143, 129), as a shell reports a process the signal ended."""
 
 _UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0}
 

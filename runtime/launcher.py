@@ -4,7 +4,9 @@ The launcher runs the central in its own process and starts the plant and the pe
 as children (:mod:`.supervise`; each role's entry point is in its own module). Every
 child dies with the launcher (``PR_SET_PDEATHSIG``), exits on the central's ``stop``, and
 has a watchdog on the central's silence; on completion, Ctrl-C or any failure the
-launcher says stop, waits briefly, then terminates and kills what is left.
+launcher says stop, waits briefly, then terminates and kills what is left. SIGTERM (``kill``,
+``timeout``, a service manager) and SIGHUP (the terminal closed) end a run as Ctrl-C does:
+the robot stopped safely, the report written, the recording closed.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import shutil
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -25,7 +28,6 @@ from .admission import LADDER_S, Unsustainable, admit
 from .central import Central, Fault
 from .config import (
     EXIT_CONFIG,
-    EXIT_INTERRUPTED,
     EXIT_OK,
     EXIT_UNSUSTAINABLE,
     ConfigError,
@@ -35,6 +37,7 @@ from .config import (
 from .node import Node, freeze_heap, rss_kb
 from .report import cpu_budget, finish_report, text_or_none
 from .setup import Setup, make_setup
+from .stopping import STOP_SIGNALS, stop_of, stop_signals, stopped_by_user
 from .supervise import (
     ZENOH_THREADS,
     end_children,
@@ -55,7 +58,15 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
           inspect: dict | None = None) -> tuple[int, dict]:
     """Run a whole unit on this host; returns ``(exit code, report)``. ``inspect``, if
     given, receives the central (spans, logs) for benchmarks. This process's scheduling
-    policy is what it was before when it returns (see :mod:`.sched`)."""
+    policy is what it was before when it returns (see :mod:`.sched`). SIGTERM and SIGHUP
+    end the run as Ctrl-C does (:func:`stop_of`)."""
+    with stop_signals():
+        return _climb(rc, echo=echo, progress=progress, spawn=spawn, inspect=inspect)
+
+
+def _climb(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
+           inspect: dict | None) -> tuple[int, dict]:
+    """:func:`start`'s starts: under ``--period auto`` each start climbs the ladder."""
     saved = sched.current()
     tried: list[dict] = []
     view: list[Any] = []  # the live view, kept across starts (its viewers stay connected)
@@ -78,9 +89,9 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         if adm:
             report["admission"]["rungs"] = tried
         return code, report
-    except KeyboardInterrupt:  # between two starts: no role is running
-        return EXIT_INTERRUPTED, {"fault": {"process": "user", "message": "interrupted",
-                                            "code": EXIT_INTERRUPTED}}
+    except KeyboardInterrupt as exc:  # between two starts: no role is running
+        code, fault = stop_of(exc)
+        return code, {"fault": fault}
     finally:
         for v in view:
             v.close()
@@ -143,8 +154,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     code, fault = EXIT_OK, None
     admission: dict | None = None
     placement_choice: dict | None = None
-    ctrl_c: list[bool] = []
-    old_int = signal.getsignal(signal.SIGINT)
+    ctrl_c: list[int] = []  # signals during the clean-up: they end the run, no start again
+    old_handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, *STOP_SIGNALS)}
     try:
         if not spawn:
             pass
@@ -201,19 +212,21 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     except Unsustainable as exc:
         code, admission = exc.code, exc.info
         fault = {"process": "admission", "message": str(exc), "code": exc.code}
-    except KeyboardInterrupt:
-        code = EXIT_INTERRUPTED
-        fault = {"process": "user", "message": "interrupted", "code": code}
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (Terminated)
+        code, fault = stop_of(exc)
     finally:
-        # finish cleaning up; a Ctrl-C meanwhile is kept (it ends the run, no start again)
-        signal.signal(signal.SIGINT, lambda *_: ctrl_c.append(True))
+        # finish cleaning up; a Ctrl-C or stop signal meanwhile is kept (it ends the run,
+        # no start again)
+        if threading.current_thread() is threading.main_thread():
+            for s in old_handlers:
+                signal.signal(s, lambda signum, _f: ctrl_c.append(signum))
         gc.unfreeze()  # what the run kept alive may be collected again
         central.t_end_ns = central.t_end_ns or time.monotonic_ns()
         try:
             zenoh_ids = central.zenoh_identity()
         except Exception:
             zenoh_ids = {}
-        interrupted = code == EXIT_INTERRUPTED
+        interrupted = stopped_by_user({"fault": fault})
         try:
             central.stop(reason="done" if fault is None else fault["message"],
                          wait=5.0 if fault is None else (0.1 if interrupted else 0.5))
@@ -224,10 +237,11 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
                 recorder.close(central)
             if viewer is not None:
                 viewer.flush()
-            signal.signal(signal.SIGINT, old_int)
-    if ctrl_c and code != EXIT_INTERRUPTED:
-        code = EXIT_INTERRUPTED
-        fault = {"process": "user", "message": "interrupted", "code": code}
+            if threading.current_thread() is threading.main_thread():
+                for s, h in old_handlers.items():
+                    signal.signal(s, h)
+    if ctrl_c and not stopped_by_user({"fault": fault}):
+        code, fault = stop_of(ctrl_c[0])
     for p, name in zip(children, _child_names(rc, setup), strict=False):
         if p.returncode not in (0, None) and fault is None and p.returncode != -15:
             log = (run_dir / f"{name}.log").read_text(errors="replace")[-2000:]

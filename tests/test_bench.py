@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
 import time
 
 import pytest
-from runner import ctrlunit, start_json
+from runner import ctrlunit, kill_unit, pids_of, start_json
 
 pytestmark = pytest.mark.zenoh
 
@@ -267,3 +271,37 @@ def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
 def test_bench_rejects_a_negative_long_run():
     res = ctrlunit("bench", "--only", "realtime", "--realtime-long", "-5s", "--check")
     assert res.returncode != 0 and "--realtime-long" in res.stdout + res.stderr
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_stopped_bench_stops_its_run_and_runs_nothing_more(signum, tmp_path):
+    """Ctrl-C or SIGTERM during the realtime stage ends the bench with the signal's exit
+    code (130, 143), after its current run stopped; before, the run absorbed the stop
+    and the bench went on to the next run."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import signal, runpy, sys; "
+         "signal.signal(signal.SIGINT, signal.default_int_handler); "
+         "sys.argv = ['ctrlunit'] + sys.argv[1:]; "
+         "runpy.run_module('ctrlunit.runtime.cli', run_name='__main__')",
+         "bench", "--only", "realtime", "--realtime-runs", "5", "--realtime-long", "0",
+         "--out", str(tmp_path / "bench")],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    unit = f"rt-{proc.pid}-"  # the runs' unit ids start so (bench/realtime.py)
+    try:
+        deadline = time.monotonic() + 60
+        while not pids_of(unit) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert pids_of(unit), "no run started"
+        time.sleep(2.0)
+        os.kill(proc.pid, signum)  # the bench alone (a terminal's Ctrl-C reaches it too)
+        out, _ = proc.communicate(timeout=60)
+        assert proc.returncode == 128 + signum, out
+        name = "interrupted" if signum == signal.SIGINT else "terminated (SIGTERM)"
+        assert f"ctrlunit: {name}" in out
+        assert "Traceback" not in out
+        assert not pids_of(unit)
+        assert not (tmp_path / "bench" / "report.json").exists()  # no stage finished
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import os
 import queue
@@ -146,6 +147,47 @@ def test_ctrl_c_leaves_no_process_behind():
         kill_unit(unit)
         if proc.poll() is None:
             proc.kill()
+
+
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGHUP, 129)])
+def test_sigterm_or_sighup_to_the_launcher_stops_the_robot_and_keeps_report_and_recording(
+        signum, code, tmp_path):
+    """``kill``, ``timeout`` or a service manager send SIGTERM to the launcher alone (not
+    its process group), a closed terminal SIGHUP: the run ends as after Ctrl-C (the plant
+    held and braked, the report written, the recording closed with its footer), with exit
+    128 + the signal's number, and no role is left."""
+    unit = unit_id(f"sig{signum}")
+    report, rec = tmp_path / "report.json", tmp_path / "run.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
+         "lockstep", "--duration", "600s", "--no-progress", "--report", str(report),
+         "--record", str(rec)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 20
+        while len(pids_of(unit)) < 5 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert len(pids_of(unit)) >= 5  # launcher + plant + 3 peripherals
+        time.sleep(1.5)
+        os.kill(proc.pid, signum)
+        assert proc.wait(timeout=20) == code
+        t0 = time.monotonic()
+        while pids_of(unit) and time.monotonic() - t0 < 10.0:
+            time.sleep(0.05)
+        assert not pids_of(unit)
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+    rep = json.loads(report.read_text())
+    name = signal.Signals(signum).name
+    assert rep["fault"] == {"process": "user", "code": code, "message": f"terminated ({name})"}
+    assert rep["cycles"] > 0
+    assert rep["safe_stop"] is not None and rep["safe_stop"]["hold_s"] > 0
+    out = subprocess.run([sys.executable, "-m", "ctrlunit.runtime.cli", "report", str(rec)],
+                         capture_output=True, text=True, timeout=120)
+    assert "cut off" not in out.stdout + out.stderr  # the footer was written
+    assert f"terminated ({name})" in out.stdout
 
 
 def test_ctrl_c_just_after_the_unit_is_re_placed_ends_it_with_exit_130():

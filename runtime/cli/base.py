@@ -80,15 +80,21 @@ params_option = click.option(
 
 class _Group(click.Group):
     """The group: a configuration error no command caught itself is still one line on
-    stderr and exit 1, never a traceback."""
+    stderr and exit 1, never a traceback; Ctrl-C (or SIGTERM / SIGHUP where the command
+    listens for them) one line and exit 130 (143, 129)."""
 
     def invoke(self, ctx: click.Context) -> Any:
         from ..config import EXIT_CONFIG, ConfigError
+        from ..stopping import stop_of
 
         try:
             return super().invoke(ctx)
         except ConfigError as exc:
             _fail(str(exc), EXIT_CONFIG)
+        except KeyboardInterrupt as exc:
+            code, fault = stop_of(exc)
+            click.echo(f"ctrlunit: {fault['message']}", err=True)
+            sys.exit(code)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -11,6 +11,7 @@ from typing import Any
 import click
 
 from ..config import EXIT_CONFIG, parse_duration
+from ..stopping import raise_if_stopped, stop_signals
 from .base import _fail, _json_safe, _rt_priority, cli
 
 
@@ -59,7 +60,8 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
             click.echo(f"realtime stage: {runs_rt} main-job runs, each with its baseline"
                        + (f", then {long_rt:g} s of the main job" if long_rt else ""))
             return
-        _realtime_only(out_dir, runs_rt, long_rt)
+        with stop_signals():  # SIGTERM / SIGHUP end the stage as Ctrl-C does
+            _realtime_only(out_dir, runs_rt, long_rt)
         return
     if check:
         configs = plan_configs(quick=quick, realtime_periods=periods, scale=thesis_scale)
@@ -71,7 +73,7 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
                    f"main-job runs" + (f", {long_rt:g} s long run" if long_rt else "")
                    + f"); reports into {out_dir}/")
         return
-    with _ticker("bench") as tick:
+    with stop_signals(), _ticker("bench") as tick:
         rep = run_bench(out_dir, quick=quick, repeats=repeats, realtime_periods=periods,
                         scale=thesis_scale, realtime_runs=runs_rt, realtime_long_s=long_rt,
                         progress=tick)
@@ -272,6 +274,7 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
         rc = RunConfig.of(peripherals=peripherals, pipeline=pipeline, clock="realtime",
                        period=period_s, trial_only=True)
         code, urep = start(rc, echo=lambda m: click.echo(m, err=True))
+        raise_if_stopped(code, urep)
         adm = urep.get("admission")
         if not adm:
             fault = (urep.get("fault") or {}).get("message", "no admission figures")
