@@ -73,6 +73,17 @@ full rate (1000 intervals at 1 ms); doubled after each return."""
 OVERLOAD_RETURNS = 3
 """Returns to the full rate per run; after the last one a halving stays."""
 
+OVERLOAD_PROBE_S = 0.5
+"""After a return to the full rate, the time during which it is on trial: there
+:data:`OVERLOAD_PROBE_LATE` late intervals within :data:`OVERLOAD_WINDOW` halve the rate
+again. A return into a host still slow then costs about that many late intervals instead
+of the :data:`OVERLOAD_LATE` of a first halving (nothing tells beforehand whether the full
+rate will hold again: the return is its own trial)."""
+
+OVERLOAD_PROBE_LATE = 3
+"""Late intervals within :data:`OVERLOAD_WINDOW` that end a return on trial
+(:data:`OVERLOAD_PROBE_S`)."""
+
 
 class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
     """The central process of a unit.
@@ -186,6 +197,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self._late_marks: deque[int] = deque()  # self.done at each late interval (full rate)
         self._calm_since = 0  # halved: self.done at the halving or the latest late interval
         self._calm_needed = 0  # halved: intervals without a late one before going back
+        self._trial_until = 0  # full rate after a return: self.done up to which it is on trial
         self.reply_each = False
         self.replies_info: dict[str, Any] = {"mode": "fused"}
         self.block_costs: dict[str, float] | None = None  # measured once (warm-up)
@@ -469,15 +481,20 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         periods after its sample); the plant and the deadlines keep the period. At the
         halved rate, after :data:`OVERLOAD_CALM_S` without a late interval (twice as long
         after each return), go back to every sample, at most
-        :data:`OVERLOAD_RETURNS` times a run."""
+        :data:`OVERLOAD_RETURNS` times a run; for :data:`OVERLOAD_PROBE_S` after a return,
+        :data:`OVERLOAD_PROBE_LATE` late intervals halve the rate again."""
         if self.ctl.stride == 1:
             marks = self._late_marks
             if not marks:
                 return
             while marks and marks[0] <= self.done - OVERLOAD_WINDOW:
                 marks.popleft()
-            if len(marks) >= OVERLOAD_LATE:
-                self._change_rate(2, late=len(marks), window=OVERLOAD_WINDOW)
+            on_trial = self.done <= self._trial_until
+            if len(marks) >= (OVERLOAD_PROBE_LATE if on_trial else OVERLOAD_LATE):
+                why = {"late": len(marks), "window": OVERLOAD_WINDOW}
+                if on_trial:  # intervals since the return was decided
+                    why["after_return"] = self.done - self.rate_changes[-1]["at_interval"]
+                self._change_rate(2, **why)
                 marks.clear()
                 self._calm_since = self.done
                 returns = len(self.rate_changes) // 2  # changes alternate: 2, 1, 2, ...
@@ -486,6 +503,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             return
         if self._calm_needed and self.done - self._calm_since >= self._calm_needed:
             self._change_rate(1, calm=self._calm_needed)
+            self._trial_until = self.done + OVERLOAD_LEAD + math.ceil(
+                OVERLOAD_PROBE_S / self.rc.schedule.period)
 
     def _change_rate(self, stride: int, **why: int) -> None:
         """Change the control rate from the first sample of the current grid at least

@@ -87,7 +87,8 @@ def overload_figures(changes: list[dict[str, Any]], halves: bool, grid: StrideSc
                      end: int) -> dict[str, Any]:
     """The report's ``overload``: ``policy`` (halve or continue), ``changes`` (each change
     of the control rate: ``stride``, ``from_cycle``, ``at_interval`` and why: ``late`` of
-    ``window`` intervals, or ``calm`` intervals without a late one), ``halved`` (the first
+    ``window`` intervals, with ``after_return`` where a return on trial ended, or ``calm``
+    intervals without a late one), ``halved`` (the first
     halving, or None) and ``halved_periods`` (periods run at the halved rate up to cycle
     ``end``, from ``grid``)."""
     return {"policy": "halve" if halves else "continue", "changes": list(changes),
@@ -104,6 +105,8 @@ def _overload_lines(r: dict[str, Any]) -> list[str]:
         if c["stride"] == 2:
             why = f"{c['late']} of the last {c['window']} intervals late" if "late" in c \
                 else "late intervals"
+            if "after_return" in c:
+                why += f", {c['after_return']} intervals after going back (on trial)"
             lines.append(f"  overload    {why}{at}: from sample {c['from_cycle']} on every "
                          "second sample taken, each command held two periods (the control rate "
                          "halved; the plant still ticks at the period)")

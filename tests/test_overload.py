@@ -188,6 +188,67 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tm
     assert again["overload"] == o and again["periods"] == r["periods"]
 
 
+def _overload_central(period: float):
+    """A central reduced to its overload rule (:meth:`Central._mark_late`,
+    :meth:`Central._check_overload`): a change of rate takes effect at once."""
+    from collections import deque
+    from types import SimpleNamespace
+
+    from ctrlunit.runtime.central import Central
+
+    c = Central.__new__(Central)
+    c.ctl = SimpleNamespace(stride=1)
+    c.rc = SimpleNamespace(schedule=SimpleNamespace(period=period))
+    c.halve_on_overload, c.done, c.rate_changes = True, 0, []
+    c._late_marks, c._calm_since, c._calm_needed, c._trial_until = deque(), 0, 0, 0
+
+    def change(stride: int, **why: int) -> None:
+        c.ctl.stride = stride
+        c.rate_changes.append({"stride": stride, "at_interval": c.done, **why})
+
+    c._change_rate = change
+    return c
+
+
+def _intervals(c, n: int, *, late: bool) -> None:
+    for _ in range(n):
+        c.done += 1
+        if late:
+            c._mark_late()
+        c._check_overload()
+
+
+def test_a_return_on_trial_halves_again_after_three_late_intervals_not_ten():
+    """After going back to the full rate, the return is on trial for 0.5 s: 3 late
+    intervals halve the rate again; past the trial it takes 10, as the first time. The
+    wait before a return doubles each time."""
+    from ctrlunit.runtime import central as cm
+
+    c = _overload_central(1e-3)
+    _intervals(c, 100, late=False)
+    _intervals(c, 10, late=True)
+    first = c.rate_changes[-1]
+    assert (first["stride"], first["late"]) == (2, cm.OVERLOAD_LATE)
+    assert "after_return" not in first
+    _intervals(c, 999, late=False)
+    assert c.ctl.stride == 2  # 2 s at the halved rate: 1000 intervals
+    _intervals(c, 1, late=False)
+    assert c.ctl.stride == 1 and c.rate_changes[-1]["calm"] == 1000
+    _intervals(c, 200, late=False)
+    _intervals(c, cm.OVERLOAD_PROBE_LATE, late=True)  # still on trial: halved again
+    again = c.rate_changes[-1]
+    assert again["stride"] == 2 and again["late"] == cm.OVERLOAD_PROBE_LATE
+    assert again["after_return"] == 200 + cm.OVERLOAD_PROBE_LATE
+    _intervals(c, 2000, late=False)  # the wait doubled
+    assert c.ctl.stride == 1 and c.rate_changes[-1]["calm"] == 2000
+    _intervals(c, 600, late=False)  # past the trial (0.5 s and the lead)
+    _intervals(c, cm.OVERLOAD_PROBE_LATE, late=True)
+    assert c.ctl.stride == 1
+    _intervals(c, cm.OVERLOAD_LATE - cm.OVERLOAD_PROBE_LATE, late=True)
+    assert c.ctl.stride == 2 and "after_return" not in c.rate_changes[-1]
+    assert [x["stride"] for x in c.rate_changes] == [2, 1, 2, 1, 2]
+
+
 class _StrideNode:
     """A plant's node whose inbox hands out scripted control orders (see
     tests/test_plant_trials.py)."""
