@@ -3,13 +3,22 @@
 A central process sends one 64-byte message to each of ``n`` peripheral processes and
 waits for all replies, ``rounds`` times after a warm-up. Over pipes this is the cheapest
 exchange these processes can have; over Zenoh it is what the unit pays per round.
+
+:func:`paced_link` asks what a message costs at the unit's own cadence: one request and
+one reply per period between two processes, the caller sleeping to each tick as the
+realtime plant does, so that both sides wake cold every period; it reports the CPU time
+each process spent per round (every thread, Zenoh's included), over pipes and over Zenoh.
+That is the price of the plant's sample and command (one such round per interval) and of
+each peripheral's request and reply.
 """
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import queue
+import resource
 import shutil
 import statistics
 import tempfile
@@ -19,12 +28,37 @@ from typing import Any
 PAYLOAD = b"x" * 64
 
 
+RESET, QUIT = b"w", b"q"
+"""The echo's orders: start counting CPU now (after the warm-up); reply with the CPU
+time counted and exit."""
+
+
+def _cpu_s() -> float:
+    """This process's CPU time (user and system, every thread)."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _echo(data: bytes, c0: float) -> tuple[bytes | None, float]:
+    """What an echoing child answers to ``data`` (``None``: exit after the answer), and
+    its CPU counter's new start."""
+    if data == RESET:
+        return RESET, _cpu_s()
+    if data == QUIT:
+        return repr(_cpu_s() - c0).encode(), c0
+    return data, c0
+
+
 def _pipe_child(rfd: int, wfd: int) -> None:
+    c0 = _cpu_s()
     while True:
         data = os.read(rfd, 4096)
-        if not data or data == b"q":
+        if not data:
             return
-        os.write(wfd, data)
+        out, c0 = _echo(data, c0)
+        os.write(wfd, out)
+        if data == QUIT:
+            return
 
 
 def pipe_round_trip(n: int, *, rounds: int = 2000, warmup: int = 200) -> list[float]:
@@ -51,7 +85,7 @@ def pipe_round_trip(n: int, *, rounds: int = 2000, warmup: int = 200) -> list[fl
                 out.append(time.perf_counter() - t0)
     finally:
         for w, _ in links:
-            os.write(w, b"q")
+            os.write(w, QUIT)
         for p in procs:
             p.join(timeout=2)
             if p.is_alive():
@@ -69,15 +103,17 @@ def _zenoh_child(endpoint: str, index: int, unit: str) -> None:
         pub = node.publisher(node.keys.reply(index + 1))
         hello = node.publisher(node.keys.hello)
         deadline = time.monotonic() + 60
+        c0 = _cpu_s()
         while time.monotonic() < deadline:
             try:
                 ev = node.events.get(timeout=0.05)
             except queue.Empty:
                 hello.put(str(index).encode())
                 continue
-            if ev.data == b"q":
+            out, c0 = _echo(ev.data, c0)
+            pub.put(out)
+            if ev.data == QUIT:
                 break
-            pub.put(ev.data)
 
 
 def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[float]:
@@ -127,7 +163,7 @@ def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[f
             if k >= warmup:
                 out.append(time.perf_counter() - t0)
     finally:
-        pub.put(b"q")
+        pub.put(QUIT)
         for p in procs:
             p.join(timeout=3)
             if p.is_alive():
@@ -137,9 +173,114 @@ def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[f
     return out
 
 
-def floor(ns: tuple[int, ...] = (1, 3), *, rounds: int = 2000) -> dict[str, Any]:
-    """p50/p99 of both, and the Zenoh round as a ratio to the pipe round, per ``n``."""
+class _Link:
+    """One echoing child over pipes or over Zenoh (the unit's settings, keys and inboxes):
+    ``send`` a payload, ``recv`` the answer; ``close`` ends the child."""
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        if kind == "pipe":
+            a_r, a_w = os.pipe()  # caller -> child
+            b_r, b_w = os.pipe()  # child -> caller
+            self.proc = mp.get_context("fork").Process(target=_pipe_child, args=(a_r, b_w),
+                                                        daemon=True)
+            self.proc.start()
+            self._w, self._r = a_w, b_r
+            return
+        from ctrlunit.runtime.node import Node
+        from ctrlunit.runtime.zsession import make_config
+
+        self.run_dir = tempfile.mkdtemp(prefix="ctrlunit-floor-")
+        endpoint = f"unixsock-stream/{self.run_dir}/c.sock"
+        unit = f"floor{os.getpid()}"
+        self.node = Node(make_config(listen=[endpoint]), unit, "central")
+        self.node.route(self.node.keys.reply(1), "rep")
+        self.node.route(self.node.keys.hello, "hello")
+        self.pub = self.node.publisher(self.node.keys.request)
+        self.proc = mp.get_context("spawn").Process(target=_zenoh_child,
+                                                    args=(endpoint, 0, unit), daemon=True)
+        self.proc.start()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:  # the child is there once it says hello
+            with contextlib.suppress(queue.Empty):
+                if self.node.events.get(timeout=0.1).kind == "hello":
+                    break
+        time.sleep(0.1)
+        with contextlib.suppress(queue.Empty):
+            while True:  # drain the hellos
+                self.node.events.get_nowait()
+
+    def send(self, data: bytes) -> None:
+        if self.kind == "pipe":
+            os.write(self._w, data)
+        else:
+            self.pub.put(data)
+
+    def recv(self) -> bytes:
+        if self.kind == "pipe":
+            return os.read(self._r, 4096)
+        while True:
+            ev = self.node.events.get(timeout=2.0)
+            if ev.kind == "rep":
+                return ev.data
+
+    def close(self) -> None:
+        self.proc.join(timeout=3)
+        if self.proc.is_alive():
+            self.proc.kill()
+        if self.kind != "pipe":
+            self.node.close()
+            shutil.rmtree(self.run_dir, ignore_errors=True)
+
+
+def paced_link(kind: str, *, period_s: float = 1e-3, rounds: int = 2000,
+               warmup: int = 200) -> dict[str, Any]:
+    """One request and one reply of 250 bytes per period between two processes, over
+    ``kind`` (``pipe`` or ``zenoh``), the caller sleeping to each tick.
+
+    Returns ``{"cpu_caller_s", "cpu_echo_s"}`` (CPU time per round of each process, after
+    ``warmup`` rounds) and ``round_trip_s`` {p50, p99}."""
+    if kind not in ("pipe", "zenoh"):
+        raise ValueError(f"kind = {kind!r}: allowed 'pipe' or 'zenoh'")
+    payload = b"x" * 250  # a request or reply of the unit
+    link = _Link(kind)
+    times: list[float] = []
+    try:
+        for _ in range(warmup):
+            link.send(payload)
+            link.recv()
+        link.send(RESET)
+        link.recv()
+        c0, tick = _cpu_s(), time.monotonic()
+        for _ in range(rounds):
+            tick += period_s
+            ahead = tick - time.monotonic()
+            if ahead > 0:
+                time.sleep(ahead)
+            t0 = time.perf_counter()
+            link.send(payload)
+            link.recv()
+            times.append(time.perf_counter() - t0)
+        caller = _cpu_s() - c0
+        link.send(QUIT)
+        echo = float(link.recv())
+    finally:
+        link.close()
+    times.sort()
+    return {"cpu_caller_s": caller / rounds, "cpu_echo_s": echo / rounds,
+            "round_trip_s": {"p50": statistics.median(times),
+                             "p99": times[min(len(times) - 1, int(0.99 * len(times)))]}}
+
+
+def floor(ns: tuple[int, ...] = (1, 3), *, rounds: int = 2000,
+          paced_rounds: int | None = None) -> dict[str, Any]:
+    """p50/p99 of both, and the Zenoh round as a ratio to the pipe round, per ``n``; and
+    ``paced``: :func:`paced_link` over both at 1 ms, ``paced_rounds`` rounds each
+    (``rounds`` unless given)."""
     res: dict[str, Any] = {"payload_bytes": len(PAYLOAD), "rounds": rounds, "by_n": {}}
+    n_paced = rounds if paced_rounds is None else paced_rounds
+    res["paced"] = {"period_s": 1e-3, "rounds": n_paced,
+                    **{kind: paced_link(kind, rounds=n_paced) for kind in ("pipe", "zenoh")}}
     for n in ns:
         pipe = sorted(pipe_round_trip(n, rounds=rounds))
         zen = sorted(zenoh_round_trip(n, rounds=rounds))
@@ -153,3 +294,31 @@ def floor(ns: tuple[int, ...] = (1, 3), *, rounds: int = 2000) -> dict[str, Any]
             "ratio_p50": statistics.median(zen) / statistics.median(pipe),
         }
     return res
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m ctrlunit.bench.floor [--rounds N]``: the floor on this machine, printed."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m ctrlunit.bench.floor",
+                                 description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=2000,
+                    help="rounds of each measurement after the warm-up (100 to 100000)")
+    args = ap.parse_args(argv)
+    if not 100 <= args.rounds <= 100_000:
+        ap.error(f"--rounds = {args.rounds}: allowed 100 to 100000")
+    res = floor((1, 3), rounds=args.rounds)
+    for n, f in res["by_n"].items():
+        print(f"scatter/gather to {n}: pipes p50 {f['pipe_s']['p50'] * 1e6:.0f} us, Zenoh p50 "
+              f"{f['zenoh_s']['p50'] * 1e6:.0f} us (p99 {f['zenoh_s']['p99'] * 1e6:.0f}), "
+              f"{f['ratio_p50']:.1f}x")
+    paced = res["paced"]
+    for kind in ("pipe", "zenoh"):
+        x = paced[kind]
+        print(f"one round every {paced['period_s'] * 1e3:g} ms over {kind}: CPU "
+              f"{x['cpu_caller_s'] * 1e6:.0f} us caller + {x['cpu_echo_s'] * 1e6:.0f} us echo "
+              f"per round, round trip p50 {x['round_trip_s']['p50'] * 1e6:.0f} us")
+
+
+if __name__ == "__main__":
+    main()

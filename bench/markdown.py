@@ -38,6 +38,23 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
     for n, f in r["floor"]["by_n"].items():
         lines.append(f"| {n} | {_us(f['pipe_s']['p50'])} | {_us(f['zenoh_s']['p50'])} | "
                      f"{_us(f['zenoh_s']['p99'])} | {f['ratio_p50']:.1f} |")
+    paced = r["floor"].get("paced")
+    if paced:
+        lines += [
+            "",
+            f"At the unit's cadence: one request and one reply of 250 bytes every "
+            f"{paced['period_s'] * 1e3:g} ms between two processes, the caller sleeping to "
+            f"each tick as the realtime plant does ({paced['rounds']} rounds). CPU time per "
+            "round of each process, every thread counted: what the plant's sample and "
+            "command, or a peripheral's request and reply, cost per interval.",
+            "",
+            "| link | CPU caller (us) | CPU echo (us) | round trip p50 / p99 (us) |",
+            "|---|---|---|---|",
+        ]
+        for kind in ("pipe", "zenoh"):
+            x = paced[kind]
+            lines.append(f"| {kind} | {_us(x['cpu_caller_s'])} | {_us(x['cpu_echo_s'])} | "
+                         f"{_us(x['round_trip_s']['p50'])} / {_us(x['round_trip_s']['p99'])} |")
     lines += [
         "",
         "## Sweep (freerun unless stated; medians over repeats)",

@@ -350,7 +350,7 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     rng = random.Random(1994)
     if progress:
         progress("floor (pipes and Zenoh)", done, total)
-    fl = floor((1, 2, 3), rounds=500 if quick else 3000)
+    fl = floor((1, 2, 3), rounds=500 if quick else 3000, paced_rounds=300 if quick else 3000)
     done += 1
     for rep_i in range(repeats):
         order = list(configs)

@@ -41,6 +41,8 @@ def test_quick_bench_writes_reports_and_figures(tmp_path):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
     md = (out / "report.md").read_text()
     assert "57 %" in md and "Transport floor" in md
+    assert set(rep["floor"]["paced"]) >= {"pipe", "zenoh", "period_s", "rounds"}
+    assert "At the unit's cadence" in md
     cost = rep["recording_cost"]  # a benchmark figure, reported (not a timed assertion)
     assert cost["period_p50_with_s"] > 0 and cost["period_p50_without_s"] > 0
     print(f"recording cost on the freerun period: {(cost['ratio'] - 1) * 100:+.1f} %")
@@ -305,3 +307,25 @@ def test_a_stopped_bench_stops_its_run_and_runs_nothing_more(signum, tmp_path):
         kill_unit(unit)
         if proc.poll() is None:
             proc.kill()
+
+
+@pytest.mark.parametrize("kind", ["pipe", "zenoh"])
+def test_paced_link_counts_each_sides_cpu_per_round_after_the_warm_up(kind):
+    """The floor's link at the unit's cadence: both sides' CPU per round is counted from
+    the end of the warm-up (a child's start-up, its imports and Zenoh's session, would
+    otherwise put milliseconds on each of 100 rounds), and every round is timed."""
+    from ctrlunit.bench.floor import paced_link
+
+    r = paced_link(kind, rounds=100, warmup=20)
+    assert 0 < r["cpu_caller_s"] < 1e-3 and 0 < r["cpu_echo_s"] < 1e-3, r
+    assert 0 < r["round_trip_s"]["p50"] <= r["round_trip_s"]["p99"]
+    print(f"{kind}: CPU per round {r['cpu_caller_s'] * 1e6:.0f} + "
+          f"{r['cpu_echo_s'] * 1e6:.0f} us, round trip p50 "
+          f"{r['round_trip_s']['p50'] * 1e6:.0f} us")
+
+
+def test_paced_link_names_the_links_it_knows():
+    from ctrlunit.bench.floor import paced_link
+
+    with pytest.raises(ValueError, match="kind = 'tcp': allowed 'pipe' or 'zenoh'"):
+        paced_link("tcp")
