@@ -40,6 +40,14 @@ def kill_unit(unit: str) -> None:
             pass
 
 
+def wait_gone(unit: str, *, timeout: float = 10.0) -> list[int]:
+    """Wait up to ``timeout`` seconds for every process of ``unit`` to exit; the ones left."""
+    deadline = time.monotonic() + timeout
+    while (left := pids_of(unit)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return left
+
+
 def ctrlunit(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "ctrlunit.runtime.cli", *args],
                           capture_output=True, text=True, timeout=timeout)

@@ -15,7 +15,7 @@ from ctrlunit.runtime.recorder import CHUNK_SIZE
 from ctrlunit.runtime.recording import read
 from ctrlunit.runtime.replay import verify
 from mcap.reader import make_reader
-from runner import ctrlunit, kill_unit, pids_of, start_json, unit_id, wait_status
+from runner import ctrlunit, kill_unit, start_json, unit_id, wait_gone, wait_status
 
 pytestmark = pytest.mark.zenoh
 CYCLES = int(os.environ.get("CTRLUNIT_RECORD_CYCLES", "3000"))
@@ -121,10 +121,7 @@ def test_kill_9_of_the_central_leaves_a_salvageable_recording(tmp_path):
         kill_unit(unit)
         if proc.poll() is None:
             proc.kill()
-    t0 = time.monotonic()
-    while pids_of(unit) and time.monotonic() - t0 < 3:
-        time.sleep(0.05)
-    assert not pids_of(unit), "children outlived the killed central"
+    assert not wait_gone(unit, timeout=3), "children outlived the killed central"
     with pytest.raises(Exception):  # noqa: B017 - the seeking reader needs the footer
         with open(path, "rb") as fh:
             list(make_reader(fh).iter_messages())

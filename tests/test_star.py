@@ -21,7 +21,7 @@ from ctrlunit.kernels.trajectory import pick_place_task
 from ctrlunit.runtime.controller import simulate
 from ctrlunit.runtime.report import command_digest
 from ctrlunit.topology.graph import LAWS
-from runner import kill_unit, pids_of, slow_task, start_json, unit_id, wait_status
+from runner import kill_unit, pids_of, slow_task, start_json, unit_id, wait_gone, wait_status
 
 pytestmark = pytest.mark.zenoh
 CYCLES = 150
@@ -171,10 +171,7 @@ def test_sigterm_or_sighup_to_the_launcher_stops_the_robot_and_keeps_report_and_
         time.sleep(1.5)
         os.kill(proc.pid, signum)
         assert proc.wait(timeout=20) == code
-        t0 = time.monotonic()
-        while pids_of(unit) and time.monotonic() - t0 < 10.0:
-            time.sleep(0.05)
-        assert not pids_of(unit)
+        assert not wait_gone(unit)
     finally:
         kill_unit(unit)
         if proc.poll() is None:
@@ -211,10 +208,7 @@ def test_ctrl_c_just_after_the_unit_is_re_placed_ends_it_with_exit_130():
         assert "starting again" not in seen, seen
         os.killpg(proc.pid, signal.SIGINT)
         assert proc.wait(timeout=20) == 130, seen
-        t0 = time.monotonic()
-        while pids_of(unit) and time.monotonic() - t0 < 10.0:
-            time.sleep(0.05)
-        assert not pids_of(unit)
+        assert not wait_gone(unit)
     finally:
         kill_unit(unit)
         if proc.poll() is None:
