@@ -71,9 +71,11 @@ def run_start(args: tuple[str, ...], *, timeout_s: float) -> dict[str, Any]:
             os.killpg(proc.pid, signal.SIGKILL)
             out, _ = proc.communicate()
             code = None
-        except KeyboardInterrupt:  # the bench stopped: the run stops as on Ctrl-C
+        except KeyboardInterrupt as exc:  # the bench stopped: so does its run, safely
+            # with the signal the bench got: the run inherited the bench's ignored
+            # signals (a script's background job ignores SIGINT), not its handlers
             with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGINT)
+                os.killpg(proc.pid, getattr(exc, "signum", signal.SIGINT))
             with contextlib.suppress(subprocess.TimeoutExpired):
                 proc.communicate(timeout=STOP_WAIT_S)
             raise

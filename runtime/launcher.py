@@ -37,7 +37,7 @@ from .config import (
 from .node import Node, freeze_heap, rss_kb
 from .report import cpu_budget, finish_report, text_or_none
 from .setup import Setup, make_setup
-from .stopping import STOP_SIGNALS, stop_of, stop_signals, stopped_by_user
+from .stopping import STOP_SIGNALS, not_ignored, stop_of, stop_signals, stopped_by_user
 from .supervise import (
     ZENOH_THREADS,
     end_children,
@@ -155,7 +155,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     admission: dict | None = None
     placement_choice: dict | None = None
     ctrl_c: list[int] = []  # signals during the clean-up: they end the run, no start again
-    old_handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, *STOP_SIGNALS)}
+    old_handlers = {s: signal.getsignal(s) for s in not_ignored((signal.SIGINT, *STOP_SIGNALS))}
     try:
         if not spawn:
             pass
@@ -243,7 +243,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     if ctrl_c and not stopped_by_user({"fault": fault}):
         code, fault = stop_of(ctrl_c[0])
     for p, name in zip(children, _child_names(rc, setup), strict=False):
-        if p.returncode not in (0, None) and fault is None and p.returncode != -15:
+        if p.returncode not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM) and fault is None:
             log = (run_dir / f"{name}.log").read_text(errors="replace")[-2000:]
             echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
     # the run directory (spec, socket, role logs) is for diagnosing a fault; a refusal's

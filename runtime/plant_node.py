@@ -40,6 +40,7 @@ from .config import EXIT_LINK, EXIT_OK
 from .controller import initial_angles, initial_command
 from .node import WARM_RSS_AT, Node, control_order, cpu_used, is_stop, rss_kb, say_bye
 from .setup import Setup
+from .stopping import stop_of, stop_signals
 from .stride import StrideSchedule
 
 TRIAL_MAX_S = 60.0
@@ -361,9 +362,16 @@ def run_plant(setup: Setup, conf: Any) -> int:
         except TimeoutError as exc:
             print(f"ctrlunit plant: {exc}", file=sys.stderr)
             return EXIT_LINK
-        res = serve(node, server, clock=rc.schedule.clock, period=rc.schedule.period,
-                    cycles=setup.cycles, watchdog=max(5.0, 3 * rc.transport.timeout),
-                    delay=rc.delay_periods)
+        t_serve = time.monotonic_ns()
+        code = EXIT_OK
+        try:
+            with stop_signals():
+                res = serve(node, server, clock=rc.schedule.clock, period=rc.schedule.period,
+                            cycles=setup.cycles, watchdog=max(5.0, 3 * rc.transport.timeout),
+                            delay=rc.delay_periods)
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP to the plant itself
+            code, _ = stop_of(exc)  # the robot brakes all the same, on its last command
+            res = _result(server, "interrupted", t_serve)
         hold = (node.stop_msg or {}).get("hold")
         if isinstance(hold, list) and len(hold) == 3 and all(
                 isinstance(x, float) and math.isfinite(x) for x in hold):
@@ -371,6 +379,8 @@ def run_plant(setup: Setup, conf: Any) -> int:
         res["safe_stop"] = safe_stop(plant)
         res["sched"] = sched.policy_name()
         say_bye(node, res)
+        if code != EXIT_OK:
+            return code
         return EXIT_OK if res["exit"] in ("stop", "done") else EXIT_LINK
 
 

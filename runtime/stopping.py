@@ -7,6 +7,10 @@ central says stop, the plant holds and brakes, the report and the recording are 
 The exit code is 130 for Ctrl-C and 128 + the signal's number for the others (143, 129),
 as a shell reports a process the signal ended.
 
+A signal this process was started with ignored stays ignored (the convention every Unix
+program keeps): ``nohup`` ignores SIGHUP, so closing the terminal does not stop a run
+started under it; a background job of a non-interactive shell ignores SIGINT.
+
 A command that runs the unit several times (``bench``, ``latency --unit``) calls
 :func:`raise_if_stopped` after each run, so that a stop ends the command too, not only
 the run it arrived in.
@@ -24,6 +28,11 @@ from .config import EXIT_INTERRUPTED
 
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 """Signals that end a run as Ctrl-C does."""
+
+
+def not_ignored(signals: tuple[int, ...]) -> tuple[int, ...]:
+    """The signals of ``signals`` whose disposition here is not ``SIG_IGN`` (module notes)."""
+    return tuple(s for s in signals if signal.getsignal(s) is not signal.SIG_IGN)
 
 
 class Terminated(KeyboardInterrupt):
@@ -66,7 +75,8 @@ def raise_if_stopped(code: int, report: dict[str, Any]) -> None:
 @contextmanager
 def stop_signals() -> Iterator[None]:
     """While inside, SIGTERM and SIGHUP raise :class:`Terminated` in the main thread
-    (elsewhere, or where Python cannot set handlers, nothing changes)."""
+    (elsewhere, or where Python cannot set handlers, nothing changes; a signal ignored
+    when it is entered stays ignored)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -74,7 +84,7 @@ def stop_signals() -> Iterator[None]:
     def raise_terminated(signum: int, _frame: Any) -> None:
         raise Terminated(signum)
 
-    old = {s: signal.signal(s, raise_terminated) for s in STOP_SIGNALS}
+    old = {s: signal.signal(s, raise_terminated) for s in not_ignored(STOP_SIGNALS)}
     try:
         yield
     finally:

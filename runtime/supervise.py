@@ -25,12 +25,21 @@ def _die_with_parent() -> None:  # runs in the child between fork and exec
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
+LEFT_TO_THE_LAUNCHER = (signal.SIGINT, signal.SIGHUP)
+"""Signals a role the launcher started ignores. A terminal's Ctrl-C and hang-up reach
+every process of the foreground group; a role that ended on them at once left the robot
+without its safe stop (the plant gone before the central's stop order came). The launcher
+gets them too and stops every role in order (runtime/stopping.py)."""
+
+
 def _child_setup(cpus: set[int] | None) -> Callable[[], None]:
-    """What a role's process does between fork and exec: die with its parent, and take
-    its CPUs before its first instruction (threads it starts later, numpy's and Zenoh's,
-    inherit them)."""
+    """What a role's process does between fork and exec: die with its parent, leave
+    :data:`LEFT_TO_THE_LAUNCHER` to it, and take its CPUs before its first instruction
+    (threads it starts later, numpy's and Zenoh's, inherit them)."""
     def setup() -> None:
         _die_with_parent()
+        for s in LEFT_TO_THE_LAUNCHER:
+            signal.signal(s, signal.SIG_IGN)
         if cpus:
             os.sched_setaffinity(0, cpus)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import tempfile
 from collections.abc import Iterator
 
@@ -13,6 +14,13 @@ from ctrlunit.kernels.forward import fk_closed_form
 from ctrlunit.kernels.params import DELTA_IA, DeltaParams
 from ctrlunit.kernels.workspace import check_point
 from hypothesis import strategies as st
+
+# The tests that send Ctrl-C (SIGINT) to a unit test what a terminal does. Run as a
+# background job of a non-interactive shell, pytest starts with SIGINT ignored and every
+# process it starts would inherit that (runtime/stopping.py); a handler here is reset to
+# the default in each child, as in a terminal.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(autouse=True, scope="session")

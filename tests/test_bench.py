@@ -275,17 +275,25 @@ def test_bench_rejects_a_negative_long_run():
     assert res.returncode != 0 and "--realtime-long" in res.stdout + res.stderr
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_a_stopped_bench_stops_its_run_and_runs_nothing_more(signum, tmp_path):
+@pytest.mark.parametrize(("signum", "sigint"), [
+    (signal.SIGTERM, "default"), (signal.SIGINT, "default"),
+    (signal.SIGTERM, "ignored"),  # a background job of a script: SIGINT ignored
+])
+def test_a_stopped_bench_stops_its_run_and_runs_nothing_more(signum, sigint, tmp_path):
     """Ctrl-C or SIGTERM during the realtime stage ends the bench with the signal's exit
     code (130, 143), after its current run stopped; before, the run absorbed the stop
-    and the bench went on to the next run."""
+    and the bench went on to the next run. The bench passes on the signal it got: a run
+    inherits an ignored SIGINT, and a forwarded Ctrl-C then went unheard until the bench
+    killed the run unstopped, :data:`~ctrlunit.bench.realtime.STOP_WAIT_S` later."""
+    from ctrlunit.bench.realtime import STOP_WAIT_S
+
+    handler = "signal.default_int_handler" if sigint == "default" else "signal.SIG_IGN"
     proc = subprocess.Popen(
         [sys.executable, "-c", "import signal, runpy, sys; "
-         "signal.signal(signal.SIGINT, signal.default_int_handler); "
+         f"signal.signal(signal.SIGINT, {handler}); "
          "sys.argv = ['ctrlunit'] + sys.argv[1:]; "
          "runpy.run_module('ctrlunit.runtime.cli', run_name='__main__')",
-         "bench", "--only", "realtime", "--realtime-runs", "5", "--realtime-long", "0",
+         "bench", "--only", "realtime", "--realtime-runs", "0", "--realtime-long", "40s",
          "--out", str(tmp_path / "bench")],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     unit = f"rt-{proc.pid}-"  # the runs' unit ids start so (bench/realtime.py)
@@ -296,13 +304,16 @@ def test_a_stopped_bench_stops_its_run_and_runs_nothing_more(signum, tmp_path):
         assert pids_of(unit), "no run started"
         time.sleep(2.0)
         os.kill(proc.pid, signum)  # the bench alone (a terminal's Ctrl-C reaches it too)
+        t0 = time.monotonic()
         out, _ = proc.communicate(timeout=60)
+        took = time.monotonic() - t0
         assert proc.returncode == 128 + signum, out
         name = "interrupted" if signum == signal.SIGINT else "terminated (SIGTERM)"
         assert f"ctrlunit: {name}" in out
         assert "Traceback" not in out
         assert not pids_of(unit)
         assert not (tmp_path / "bench" / "report.json").exists()  # no stage finished
+        assert took < STOP_WAIT_S, f"the run was killed, not stopped ({took:.1f} s)"
     finally:
         kill_unit(unit)
         if proc.poll() is None:
