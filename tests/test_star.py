@@ -139,14 +139,12 @@ def test_a_stop_signal_stops_the_robot_safely_and_keeps_report_and_recording(
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
          "lockstep", "--duration", "600s", "--no-progress", "--report", str(report),
-         "--record", str(rec)],
+         "--record", str(rec), "--status-file", str(tmp_path / "status")],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        deadline = time.monotonic() + 20
-        while len(pids_of(unit)) < 5 and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert len(pids_of(unit)) >= 5  # launcher + plant + 3 peripherals
-        time.sleep(1.5)
+        # moving: every role up, the warm-up and placement done (a count of processes
+        # saw a role between fork and exec once)
+        assert wait_status(tmp_path / "status", 200, timeout=30) >= 200
         if whom == "group":
             os.killpg(proc.pid, signum)
         else:
@@ -175,27 +173,25 @@ def _ignoring(signum: int) -> None:
     signal.signal(signum, signal.SIG_IGN)
 
 
-def test_a_run_started_under_nohup_keeps_running_when_the_terminal_closes():
+def test_a_run_started_under_nohup_keeps_running_when_the_terminal_closes(tmp_path):
     """``nohup`` starts a program with SIGHUP ignored: a closed terminal must not stop the
     robot then (it did: the stop handlers replaced the ignored disposition); SIGTERM still
     stops it safely."""
     unit = unit_id("nohup")
+    status = tmp_path / "status"
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
-         "lockstep", "--duration", "600s", "--no-progress"],
+         "lockstep", "--duration", "600s", "--no-progress", "--status-file", str(status)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
         preexec_fn=lambda: _ignoring(signal.SIGHUP))
     try:
-        deadline = time.monotonic() + 20
-        while len(pids_of(unit)) < 5 and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert len(pids_of(unit)) >= 5
-        time.sleep(1.0)
+        assert wait_status(status, 200, timeout=30) >= 200
         os.killpg(proc.pid, signal.SIGHUP)  # the terminal closed: every process gets it
         with contextlib.suppress(subprocess.TimeoutExpired):
             proc.wait(timeout=2.0)
         assert proc.poll() is None, "the run stopped on SIGHUP under nohup"
-        assert len(pids_of(unit)) >= 5
+        done = wait_status(status, 0)
+        assert wait_status(status, done + 100, timeout=10) >= done + 100  # still moving
         os.kill(proc.pid, signal.SIGTERM)
         assert proc.wait(timeout=20) == 143
         assert not wait_gone(unit)
