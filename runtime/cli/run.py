@@ -429,7 +429,8 @@ def central(as_json: bool, **kw: Any) -> None:
 
 
 def _quiet(fn: Any) -> int:
-    """Run a role; Ctrl-C (sent to the whole process group) ends it quietly."""
+    """Run a role; Ctrl-C ends it quietly (a role run by hand: those ``ctrlunit start``
+    starts ignore it and wait for the launcher's stop order, runtime/supervise.py)."""
     try:
         return fn()
     except KeyboardInterrupt:
