@@ -48,6 +48,10 @@ from .supervise import (
 )
 from .zsession import default_endpoint, make_config
 
+STOP_REPORTS_WAIT_S = 0.5
+"""How long the central waits for the roles' last reports (the plant's safe stop among
+them) after a fault or a stop by the user; it goes on as soon as every role reported."""
+
 
 def central_only(rc: RunConfig) -> tuple[int, dict]:
     """Run the central alone (the other roles are started by hand)."""
@@ -228,8 +232,12 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             zenoh_ids = {}
         interrupted = stopped_by_user({"fault": fault})
         try:
+            # after a fault or a stop the roles' reports come within a few tens of ms; a
+            # role that a signal of its own reached as the order came lost that order, and
+            # takes the next (every 0.1 s), so a stop waits for the reports as long as a
+            # fault does
             central.stop(reason="done" if fault is None else fault["message"],
-                         wait=5.0 if fault is None else (0.1 if interrupted else 0.5))
+                         wait=5.0 if fault is None else STOP_REPORTS_WAIT_S)
         finally:
             end_children(children, grace=0.3 if interrupted else 1.0)
             node.close()

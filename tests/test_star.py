@@ -121,24 +121,31 @@ def test_freerun_depth_two_completes_and_reports_round_trips(tmp_path):
           f"{rep['cpu_bound_period_s'] * 1e6:.0f} us")
 
 
-@pytest.mark.parametrize(("signum", "code", "whom"), [
-    (signal.SIGINT, 130, "group"),  # a terminal's Ctrl-C: every process of the job
-    (signal.SIGHUP, 129, "group"),  # the terminal closed
-    (signal.SIGTERM, 143, "group"),  # a service manager ending the job's control group
-    (signal.SIGTERM, 143, "launcher"),  # kill, timeout
+LOCKSTEP = ("--clock", "lockstep")
+MOVING_IN_REALTIME = ("--period", "4ms", "--no-admission")  # light on a 2-core machine
+
+
+@pytest.mark.parametrize(("signum", "code", "whom", "clock"), [
+    (signal.SIGINT, 130, "group", LOCKSTEP),  # a terminal's Ctrl-C: every process of the job
+    (signal.SIGHUP, 129, "group", LOCKSTEP),  # the terminal closed
+    (signal.SIGTERM, 143, "group", LOCKSTEP),  # a service manager ending the control group
+    (signal.SIGTERM, 143, "group", MOVING_IN_REALTIME),
+    (signal.SIGTERM, 143, "launcher", LOCKSTEP),  # kill, timeout
 ])
 def test_a_stop_signal_stops_the_robot_safely_and_keeps_report_and_recording(
-        signum, code, whom, tmp_path):
+        signum, code, whom, clock, tmp_path):
     """The run ends as after the central's stop order: the plant held and braked (its
-    safe stop confirmed in the report), the report written, the recording closed with its
-    footer, exit 128 + the signal's number, and no process left. Sent to the whole process
-    group, the roles used to end on the signal themselves: the plant was gone before the
-    stop order and the report said "safe stop NOT confirmed"."""
+    safe stop confirmed in the report, the platform left nearly still), the report
+    written, the recording closed with its footer, exit 128 + the signal's number, and no
+    process left. Sent to the whole process group, the roles used to end on the signal
+    themselves: the plant was gone before the stop order and the report said "safe stop
+    NOT confirmed"; then a plant that got SIGTERM braked on its last command, path
+    torques included, and left the platform at up to 0.47 m/s."""
     unit = unit_id(f"sig{signum}-{whom}")
     report, rec = tmp_path / "report.json", tmp_path / "run.mcap"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
-         "lockstep", "--duration", "600s", "--no-progress", "--report", str(report),
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, *clock,
+         "--duration", "600s", "--no-progress", "--report", str(report),
          "--record", str(rec), "--status-file", str(tmp_path / "status")],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
@@ -163,6 +170,8 @@ def test_a_stop_signal_stops_the_robot_safely_and_keeps_report_and_recording(
     assert rep["fault"] == {"process": "user", "code": code, "message": name}
     assert rep["cycles"] > 0
     assert rep["safe_stop"] is not None and rep["safe_stop"]["hold_s"] > 0
+    # docs/faults-and-errors.md: under 2 mm/s from the fastest point of the path
+    assert rep["safe_stop"]["speed_m_s"] < 0.02, rep["safe_stop"]
     out = subprocess.run([sys.executable, "-m", "ctrlunit.runtime.cli", "report", str(rec)],
                          capture_output=True, text=True, timeout=120)
     assert "cut off" not in out.stdout + out.stderr  # the footer was written
