@@ -302,6 +302,10 @@ path out of reach is refused by the workspace check with its point and bound, an
 typing slip (1e308) never reaches the arithmetic."""
 
 
+MAX_NAME_CHARS = 200
+"""Longest task name a task file may give; reports quote it whole."""
+
+
 def _is_number(x: object) -> bool:
     """A finite int or float from JSON (``true`` is not a number)."""
     return type(x) in (int, float) and math.isfinite(x)
@@ -363,7 +367,11 @@ def task_from_json(path: str | FsPath) -> Task:
     dwell = data.get("dwell", 0.05)
     if not _is_number(dwell) or not 0.0 <= dwell <= 60.0:
         raise ValueError(f"{path}: dwell must be in [0, 60] s, got {dwell!r}")
-    return Task(str(data.get("name", FsPath(path).stem)), segs, float(dwell))
+    name = data.get("name", FsPath(path).stem)
+    if not isinstance(name, str) or not 0 < len(name) <= MAX_NAME_CHARS:
+        raise ValueError(f"{path}: name must be a string of 1 to {MAX_NAME_CHARS} characters, "
+                         f"got {name!r}"[:300])
+    return Task(name, segs, float(dwell))
 
 
 def get_task(name: str) -> Task:

@@ -24,6 +24,15 @@ CPU_KEYS = ("cpu_per_interval_s", "cpu_cores", "cpu_bound_period_s")
 them; a recording keeps them for ``ctrlunit report``."""
 
 
+def quoted(name: str) -> str:
+    """A user-given name (a task file's ``name``) as it appears in a human summary: in
+    double quotes, with quotes, backslashes and unprintable characters escaped, so that
+    a name such as ``INF`` or one with a line break cannot pass for a figure or a line."""
+    body = "".join(c if c.isprintable() and c not in '"\\' else
+                   ("\\" + c if c in '"\\' else repr(c)[1:-1]) for c in name)
+    return f'"{body}"'
+
+
 def command_digest(commands: list[float] | np.ndarray) -> str:
     """SHA-256 of the commands as float64 bytes (bit-identity checks)."""
     return hashlib.sha256(np.asarray(commands, dtype="<f8").tobytes()).hexdigest()
@@ -318,7 +327,7 @@ def summary(r: dict[str, Any]) -> str:
     lines = [
         f"ctrlunit: {r['cycles']} intervals, {r['peripherals']} peripheral(s), pipeline depth "
         f"{r['pipeline']}, clock {r['clock']}, {r['law']} + {r['model']} model, task "
-        f"{r['task']}, cost model {r['cost_model']}",
+        f"{quoted(r['task'])}, cost model {r['cost_model']}",
         *_delay_lines(r),
         f"  round trips per interval  {r['round_trips']}" + (
             f"   exchanges per interval {r['exchanges_per_interval']:.2f}" + (

@@ -85,6 +85,21 @@ def test_a_task_file_reaching_1e308_m_gives_the_same_one_line_error_to_every_com
     assert res.returncode == 1 and "segments[0].accel must be in (0, 1000]" in one_line_error(res)
 
 
+def test_a_task_name_is_a_string_shown_in_quotes(tmp_path):
+    task = tmp_path / "named.json"
+    segment = {"type": "line", "start": [0, 0, -0.35], "end": [0.1, 0, -0.35], "accel": 10}
+    for name in ("INF", "nan", 'a "quoted"\nname'):
+        task.write_text(json.dumps({"name": name, "segments": [segment]}))
+        res = ctrlunit("trajectory", str(task))
+        assert res.returncode == 0, res.stderr
+        assert res.stdout.splitlines()[0] == "task " + json.dumps(name)  # not a figure
+    for name in (float("nan"), 1, "", "x" * 201, None):
+        task.write_text(json.dumps({"name": name, "segments": [segment]}))
+        res = ctrlunit("trajectory", str(task))
+        assert res.returncode == 1
+        assert "name must be a string of 1 to 200 characters" in one_line_error(res)
+
+
 def test_report_of_a_recording_cut_before_its_first_interval_is_an_error(tmp_path):
     from ctrlunit.runtime.mcap_writer import LeanWriter
 

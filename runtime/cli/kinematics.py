@@ -127,13 +127,15 @@ def trajectory_summary(params: DeltaParams, name: str, *, samples: int = 2001) -
 def trajectory(name: str, as_json: bool, params_file: str | None) -> None:
     """Figures of a task (circle, pick-place or a JSON file): length, duration, peaks,
     smallest eigenvalue of l_a^2 J^-T J^-1 (Eq. V.33), joint range."""
+    from ..report import quoted
+
     try:
         data = trajectory_summary(_params(params_file), name)
     except (ValueError, ParameterError) as exc:
         _fail(str(exc))
         return
     lines = [
-        f"task {data['task']}",
+        f"task {quoted(data['task'])}",
         f"  length            {data['length_m']:.4f} m"
         + (f"   (thesis: {data['thesis_length_m']} m)" if data["thesis_length_m"] else ""),
         f"  duration          {data['duration_s']:.4f} s"

@@ -280,6 +280,7 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
 
 def _check(rc: RunConfig, as_json: bool) -> None:
     """``start --check``: everything ``start`` derives before it starts a process."""
+    from ..report import quoted
     from ..setup import make_setup
 
     try:
@@ -305,7 +306,7 @@ def _check(rc: RunConfig, as_json: bool) -> None:
           f"ctrlunit start: the options are valid; nothing was started.\n"
           f"  {setup.placement.peripherals} peripheral(s), pipeline depth {rc.schedule.pipeline}, "
           f"clock {rc.schedule.clock}, period {period}\n"
-          f"  task {setup.task.name} (a loop of {setup.task.period:.3f} s), {setup.cycles} "
+          f"  task {quoted(setup.task.name)} (a loop of {setup.task.period:.3f} s), {setup.cycles} "
           f"intervals, {rc.control.law} + {rc.control.model} model\n"
           + overload +
           f"  {plan.round_trips} round trip(s) per interval"
