@@ -214,6 +214,17 @@ def _fmt(x: Any, scale: float = 1.0, digits: int = 0) -> str:
     return f"{x * scale:.{digits}f}"
 
 
+def _late_words(r: dict[str, Any]) -> str:
+    """What a run's late intervals' work took against its median, and the verdict
+    (runtime/report.py's ``late_work_figures``), or nothing without late intervals."""
+    stretch = r.get("late_work_stretch")
+    if stretch is None:
+        return ""
+    verdict = {True: "the machine ran slower", False: "time lost waiting"}.get(
+        r.get("machine_slower"), "in between")
+    return f"; the late intervals' work took {stretch:.1f}x its median ({verdict})"
+
+
 def markdown_lines(st: dict[str, Any]) -> list[str]:
     """The stage as a section of ``report.md``."""
     lines = [
@@ -262,6 +273,7 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
                   + (f"; control rate halved at interval {r['halved_at_interval']} "
                      f"({r['rate_changes']} change(s) of rate; {r['halved_periods']} periods "
                      "at the halved rate)" if r.get("halved_at_interval") is not None else "")
+                  + _late_words(r)
                   + (f"; fault: {r['fault']}" if r["fault"] else "") + "."]
     faults = [(i + 1, r["exit_code"], r["fault"]) for i, r in
               enumerate(st["rows"]["main_job"]) if not r["completed"]]

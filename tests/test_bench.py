@@ -222,7 +222,9 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
         started.append(args)
         periods = 1250 if "--duration" in args else 400
         halved = "--duration" in args and args[1] == "3"  # the long main job halved once
-        rep = {"nominal_period_s": 1.6e-3 if args[1] == "3" else
+        rep = {"late_intervals": {"intervals": 5, "work_stretch": {"median": 1.94},
+                                  "machine_slower": None} if halved else None,
+               "nominal_period_s": 1.6e-3 if args[1] == "3" else
                float(args[args.index("--period") + 1]),
                "cycles": 900 if halved else periods, "periods": periods,
                "overload": {"halved": {"at_interval": 500}, "halved_periods": 700,
@@ -245,7 +247,7 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
     assert "Long run (2 s): exit 0, period 1.60 ms, 1250 periods (900 intervals), 5 misses " \
         "(4.00 per 1000)" in md
     assert "control rate halved at interval 500 (2 change(s) of rate; 700 periods at the " \
-        "halved rate)" in md
+        "halved rate); the late intervals' work took 1.9x its median (in between)." in md
     assert "Its baseline (2 s, n = 0): exit 0, period 1.60 ms, 1250 periods (1250 " \
         "intervals), 1 misses (0.80 per 1000)" in md
 
