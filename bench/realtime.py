@@ -36,7 +36,8 @@ MAIN_JOB = ("--peripherals", "3", "--pipeline", "2")
 
 
 LEVERS = ("period", "admission", "command_delay", "hold_rounds", "replies", "rt_priority",
-          "cpus", "pin", "placement", "late_policy", "fault_periods", "model_state", "overload")
+          "idle", "cpus", "pin", "placement", "late_policy", "fault_periods", "model_state",
+          "overload")
 
 
 def levers() -> dict[str, Any]:
@@ -112,6 +113,7 @@ def run_row(res: dict[str, Any]) -> dict[str, Any]:
         "scheduling": (r.get("scheduling") or {}).get("central"),
         "rt_priority": (r.get("scheduling_choice") or {}).get("priority", 0),
         "fell_back": bool(r.get("scheduling_fallback")),
+        "idle": (r.get("idle") or {}).get("in_force"),
         "late_work_stretch": ((r.get("late_intervals") or {}).get("work_stretch")
                               or {}).get("median"),
         "machine_slower": (r.get("late_intervals") or {}).get("machine_slower"),
@@ -138,6 +140,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "scheduling": dict(Counter(str(r.get("scheduling")) for r in rows
                                        if r["exit_code"] != 7)),
             "fell_back": sum(bool(r.get("fell_back")) for r in rows),
+            "idle_poll": sum(r.get("idle") == "poll" for r in rows if r["exit_code"] != 7),
             "halved": sum(r.get("halved_at_interval") is not None for r in rows),
             "halved_periods": sum(r.get("halved_periods", 0) for r in rows),
             "late_runs": {"machine_slower": sum(r.get("machine_slower") is True for r in rows),
@@ -163,7 +166,8 @@ def baseline_args(row: dict[str, Any], *extra: str) -> tuple[str, ...]:
     and under the policy it ran under (without the admission, ``--rt-priority auto``
     would leave it at the default policy)."""
     return ("--peripherals", "0", "--pipeline", "2", "--period", f"{row['period_s'] or 1e-3:g}",
-            "--no-admission", "--rt-priority", str(row["rt_priority"] or 0), *extra)
+            "--no-admission", "--rt-priority", str(row["rt_priority"] or 0),
+            "--idle", row.get("idle") or "default", *extra)
 
 
 def realtime_stage(*, runs: int, long_s: float,
@@ -252,7 +256,8 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
     if sched:
         lines += ["", f"The main job's runs ran under {sched}; back to the default policy "
                   f"during the run (the throttling guard) in {st['main_job']['fell_back']}; "
-                  f"control rate halved on overload in {st['main_job'].get('halved', 0)}."]
+                  f"control rate halved on overload in {st['main_job'].get('halved', 0)}; "
+                  f"idle CPUs polling (`--idle`) in {st['main_job'].get('idle_poll', 0)}."]
     lr = st["main_job"].get("late_runs") or {}
     if any(lr.values()):
         lines += ["", "Runs with late commands (the report's `late_intervals`): the "

@@ -252,10 +252,12 @@ class RunConfig:
             raise bad("max_error", "10 um to 1 m")
         if self.plant.substeps is not None and not 1 <= self.plant.substeps <= 1000:
             raise bad("plant_substeps", "1 to 1000")
+        from .idle import check_idle
         from .sched import check_priority
 
         try:
             check_priority(self.schedule.rt_priority)
+            check_idle(self.schedule.idle)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         from .zsession import check_endpoint, check_unit_id, check_zenoh_config

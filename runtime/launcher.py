@@ -11,6 +11,7 @@ the robot stopped safely, the report written, the recording closed.
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import json
 import os
@@ -34,6 +35,7 @@ from .config import (
     RunConfig,
     parse_host_port,
 )
+from .idle import IdlePermissionError, idle_request
 from .node import Node, freeze_heap, rss_kb
 from .report import cpu_budget, finish_report, text_or_none
 from .setup import Setup, make_setup
@@ -75,12 +77,19 @@ def _climb(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     tried: list[dict] = []
     view: list[Any] = []  # the live view, kept across starts (its viewers stay connected)
     affinity = os.sched_getaffinity(0)  # a start pins this process (--cpus, --pin)
+    idle_hold = contextlib.ExitStack()  # --idle: held over every start, the trials among them
     try:
+        try:
+            idle_choice = idle_hold.enter_context(idle_request(rc.schedule.idle,
+                                                          clock=rc.schedule.clock))
+        except (ValueError, IdlePermissionError) as exc:
+            return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
+                                           "code": EXIT_CONFIG}}
         # --period auto: each start climbs the ladder
         for attempt in range(len(LADDER_S)):
             os.sched_setaffinity(0, affinity)  # each start chooses the roles' CPUs afresh
             code, report = _start(rc, echo=echo, progress=progress, spawn=spawn,
-                                  inspect=inspect, view=view)
+                                  inspect=inspect, view=view, idle=idle_choice)
             adm = report.get("admission") or {}
             tried += [r | {"start": attempt} for r in adm.get("rungs") or []]
             held = adm.get("sustainable_period_s")
@@ -99,14 +108,16 @@ def _climb(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     finally:
         for v in view:
             v.close()
+        idle_hold.close()
         os.sched_setaffinity(0, affinity)
         sched.restore(saved)
 
 
 def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
-           inspect: dict | None, view: list[Any]) -> tuple[int, dict]:
+           inspect: dict | None, view: list[Any], idle: dict[str, Any]) -> tuple[int, dict]:
     """One start of the unit; ``view`` holds the live view across starts (made at the
-    first, closed by the caller)."""
+    first, closed by the caller); ``idle`` the caller's CPU idle request (runtime/idle.py),
+    for the report."""
     viewer = None
     try:
         setup = make_setup(rc)
@@ -124,7 +135,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             admission=rc.schedule.admission or rc.schedule.trial_only)[1]
     except (ConfigError, ValueError, OSError, sched.RtPermissionError) as exc:
         return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
-                                       "code": EXIT_CONFIG}}
+                                       "code": EXIT_CONFIG}, "idle": idle}
     rc = rc.replace(trace=bool(rc.run.record))
     run_dir = Path(tempfile.mkdtemp(prefix="ctrlunit-"))
     spec = run_dir / "spec.json"
@@ -266,6 +277,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     if placement_choice is not None:
         report["placement_choice"] = placement_choice
     report["scheduling_choice"] = sched_choice
+    report["idle"] = idle
     report["scheduling_fallback"] = guard.report() if guard is not None else None
     report["zenoh"] = zenoh_ids
     report["late"] = {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),

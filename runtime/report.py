@@ -301,6 +301,12 @@ def _sched_lines(r: dict[str, Any]) -> list[str]:
         if fell.get("restored"):
             lines.append(f"              under SCHED_FIFO again {fell['restored']} time(s), "
                          f"{'under it' if fell.get('fifo_at_end') else 'not'} at the end")
+    idle = r.get("idle") or {}
+    if idle.get("in_force") == "poll":
+        lines.append("  idle CPUs   poll (CPU latency request 0 us)"
+                     + (f": {idle['why']}" if idle.get("asked") == "auto" else ""))
+    elif idle.get("asked") in ("auto", "poll") and r.get("clock") == "realtime":
+        lines.append(f"  idle CPUs   as they are: {idle.get('why')}")
     return lines
 
 

@@ -73,6 +73,8 @@ class ScheduleConfig:
     --unit``)."""
     rt_priority: int | str = "auto"
     """``--rt-priority``: ``auto`` (runtime/sched.py, ``choose``), 0 or a FIFO priority."""
+    idle: str = "auto"
+    """``--idle``: whether idle CPUs poll during the run (runtime/idle.py, ``choose``)."""
     pin: str | None = None
     cpus: str | None = None
 

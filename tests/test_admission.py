@@ -207,6 +207,11 @@ def test_period_auto_runs_at_the_period_the_trial_held_and_says_so(tmp_path):
     assert (limit == pytest.approx(sched.ADMIT_BUSY_SHARE * sched.rt_budget())) if fifo \
         else limit is None
     assert not fifo or final[-1]["busy_share"] <= limit
+    # --idle auto: idle CPUs poll for the run where the kernel's request changes something
+    from ctrlunit.runtime import idle
+
+    assert rep["idle"]["in_force"] == ("poll" if idle.choose("auto", clock="realtime")[0]
+                                       else "default")
 
 
 def test_latency_reports_ordered_quantiles_and_a_histogram(tmp_path):
@@ -227,6 +232,11 @@ def test_latency_reports_ordered_quantiles_and_a_histogram(tmp_path):
     # auto: the policy the unit's roles would get
     fifo = sched.rt_budget() is not None and sched.fifo_permitted()
     assert rep["scheduling"] == ("SCHED_FIFO 10" if fifo else "SCHED_OTHER")
+    # and the idle CPUs the unit would get (runtime/idle.py)
+    from ctrlunit.runtime import idle
+
+    assert rep["idle"]["in_force"] == ("poll" if idle.choose("auto", clock="realtime")[0]
+                                       else "default")
 
 
 def test_latency_measures_under_the_policy_asked_and_leaves_the_caller_as_it_was(tmp_path):

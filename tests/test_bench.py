@@ -165,7 +165,7 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     from ctrlunit.bench.realtime import markdown_lines, run_row, summary
 
     def res(code, cycles, misses, p999, cpu, period=1e-3, fault=None, track=4e-4,
-            policy="SCHED_FIFO 10", fell=None, late=None, halved_at=None):
+            policy="SCHED_FIFO 10", fell=None, late=None, halved_at=None, idle="poll"):
         rep = {} if cycles == 0 else {"late_intervals": late,
             "periods": cycles + (cycles - halved_at if halved_at else 0),
             "overload": {"policy": "halve", "halved": halved_at and {
@@ -174,13 +174,14 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
             "traversal_s": {"p999": p999}, "cpu_per_interval_s": {"total": cpu},
             "tracking_error_m": {"max": track}, "fault": fault and {"message": fault},
             "scheduling": {"central": policy}, "scheduling_fallback": fell,
-            "scheduling_choice": {"priority": 10 if "FIFO" in policy else 0}}
+            "scheduling_choice": {"priority": 10 if "FIFO" in policy else 0},
+            "idle": {"asked": "auto", "in_force": idle}}
         return {"exit_code": code, "report": rep, "wall_s": 5.0, "output_tail": ""}
 
     rows = [run_row(res(0, 400, 1, 1.5e-3, 1.2e-3, late={
                 "intervals": 1, "work_stretch": {"median": 3.1}, "machine_slower": True})),
             run_row(res(0, 500, 0, 1.7e-3, 1.0e-3, period=1.25e-3, policy="SCHED_OTHER",
-                        fell={"cycle": 300}, halved_at=400)),
+                        fell={"cycle": 300}, halved_at=400, idle="default")),
             run_row(res(4, 200, 5, 9e-3, 2e-3, fault="no sample from the plant for 5 ms",
                         track=2e-3, late={"intervals": 5, "work_stretch": {"median": 1.5},
                                           "machine_slower": None})),
@@ -195,7 +196,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     assert s["cpu_per_interval_s"] == pytest.approx(1.2e-3)
     assert s["tracking_max_m"] == pytest.approx(4e-4) and s["tracking_worst_m"] == 2e-3
     assert s["scheduling"] == {"SCHED_FIFO 10": 2, "SCHED_OTHER": 1}  # the refusal ran none
-    assert s["fell_back"] == 1 and s["halved"] == 1
+    assert s["fell_back"] == 1 and s["halved"] == 1 and s["idle_poll"] == 2
+    assert [r["idle"] for r in rows] == ["poll", "default", "poll", None]
     assert rows[1]["periods"] == 600 and rows[1]["halved_at_interval"] == 400
     assert s["late_runs"] == {"machine_slower": 1, "waiting": 0, "no_verdict": 1}
     st = {"command": "ctrlunit start --peripherals 3 --pipeline 2", "baseline_command": "b",
@@ -206,7 +208,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
             in md)
     assert "run 3 exit 4: no sample from the plant for 5 ms" in md and "run 4 exit 7" in md
     assert "ran under SCHED_FIFO 10 in 2, SCHED_OTHER in 1; back to the default policy " \
-        "during the run (the throttling guard) in 1; control rate halved on overload in 1." in md
+        "during the run (the throttling guard) in 1; control rate halved on overload in 1; " \
+        "idle CPUs polling (`--idle`) in 2." in md
     assert "stretched (the machine ran slower) in 1, as usual (time lost waiting) in 0, " \
         "in between in 1." in md
 
@@ -233,7 +236,7 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
                "traversal_s": {"p999": 1e-3}, "cpu_per_interval_s": {"total": 1e-3},
                "tracking_error_m": {"max": 1e-4}, "fault": None,
                "scheduling": {"central": "SCHED_FIFO 10"}, "scheduling_fallback": None,
-               "scheduling_choice": {"priority": 10}}
+               "scheduling_choice": {"priority": 10}, "idle": {"in_force": "poll"}}
         return {"exit_code": 0, "report": rep, "wall_s": 1.0, "output_tail": ""}
 
     monkeypatch.setattr(realtime, "run_start", fake_start)
@@ -241,7 +244,8 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
     st = realtime.realtime_stage(runs=1, long_s=2.0)
     assert started[2] == (*realtime.MAIN_JOB, "--duration", "2s")
     assert started[3] == ("--peripherals", "0", "--pipeline", "2", "--period", "0.0016",
-                          "--no-admission", "--rt-priority", "10", "--duration", "2s")
+                          "--no-admission", "--rt-priority", "10", "--idle", "poll",
+                          "--duration", "2s")
     assert st["long_baseline"]["deadline_misses"] == 1
     md = "\n".join(realtime.markdown_lines(st))
     assert "Long run (2 s): exit 0, period 1.60 ms, 1250 periods (900 intervals), 5 misses " \

@@ -398,6 +398,8 @@ def test_every_role_of_a_unit_reports_the_launchers_policy(tmp_path) -> None:
     assert rep["scheduling"] == {"central": "SCHED_OTHER", "peripheral_1": "SCHED_OTHER"}
     assert rep["scheduling_choice"]["priority"] == 0
     assert "freerun clock has no deadlines" in rep["scheduling_choice"]["why"]
+    assert rep["idle"] == {"asked": "auto", "in_force": "default",
+                           "why": "the freerun clock has no wall-clock deadline"}
     assert rep["scheduling_fallback"] is None
 
 

@@ -168,6 +168,14 @@ def run_options(fn: Any) -> Any:
                      "over 85 % of the kernel's real-time budget, and the run goes back to "
                      "the default policy if it stays over 95 % of it for a second or "
                      "passes it (the report says which and why)."),
+        click.option("--idle", type=click.Choice(["auto", "poll", "default"]),
+                     default="auto", show_default=True,
+                     help="start, central: poll holds the kernel's CPU latency request at 0 "
+                     "us for the run (/dev/cpu_dma_latency), so that idle CPUs spin "
+                     "instead of halting and every wake-up is quicker, at the cost of "
+                     "the CPUs spinning while idle (needs root); auto: poll in realtime "
+                     "where permitted and a deeper idle state exists; default: leave "
+                     "them alone."),
         click.option("--plant-substeps", type=click.IntRange(1, 1000), default=None,
                      help="RK4 sub-steps of the plant per period; default: the fewest of "
                      f"at most {MAX_SUBSTEP_S * 1e3:g} ms ({MAX_SUBSTEP_BELT_S * 1e3:g} ms "

@@ -246,23 +246,29 @@ def load_report(path: str) -> dict[str, Any]:
               help="Scheduling of the wake-up test, as for ctrlunit start: auto is the "
               "policy the unit's roles get (SCHED_FIFO 10 where permitted and the kernel "
               "throttles real-time tasks); 0: the policy as it is.")
+@click.option("--idle", type=click.Choice(["auto", "poll", "default"]), default="auto",
+              show_default=True,
+              help="Idle CPUs during the test, as for ctrlunit start: poll holds the CPU "
+              "latency request at 0 us (needs root); auto: poll where permitted and a "
+              "deeper idle state exists; default: leave them alone.")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
 def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipeline: int,
-            plot: str, rt_priority: str | int, as_json: bool) -> None:
+            plot: str, rt_priority: str | int, idle: str, as_json: bool) -> None:
     """Measure how late this machine wakes a process at each tick of PERIOD (the realtime
     plant's own sleep), as LinuxCNC's latency-test does, for DURATION; print p50, p99,
     p99.9 and max and the shortest period of the admission ladder that leaves half of
     each period for the work. With --unit, then run the unit's admission trial at the
     period: the traversal the unit itself shows, and the period it holds."""
     from ..config import ConfigError, RunConfig
+    from ..idle import IdlePermissionError
     from ..latency import histogram_png, latency_report
     from ..sched import RtPermissionError
 
     try:
         period_s = parse_duration(period, field_name="--period")
         duration_s = parse_duration(duration, field_name="--duration")
-        rep, lat = latency_report(period_s, duration_s, rt_priority=rt_priority)
-    except (ConfigError, ValueError, RtPermissionError) as exc:
+        rep, lat = latency_report(period_s, duration_s, rt_priority=rt_priority, idle=idle)
+    except (ConfigError, ValueError, RtPermissionError, IdlePermissionError) as exc:
         _fail(str(exc), EXIT_CONFIG)
         return
     histogram_png(lat, plot, period_s=period_s,
@@ -272,7 +278,7 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
         from ..launcher import start
 
         rc = RunConfig.of(peripherals=peripherals, pipeline=pipeline, clock="realtime",
-                       period=period_s, trial_only=True)
+                       period=period_s, trial_only=True, idle=idle)
         code, urep = start(rc, echo=lambda m: click.echo(m, err=True))
         raise_if_stopped(code, urep)
         adm = urep.get("admission")
@@ -300,8 +306,9 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
     def ms(x: float | None) -> str:
         return "none of the ladder" if x is None else f"{x * 1e3:g} ms"
 
+    polling = ", idle CPUs poll" if rep["idle"]["in_force"] == "poll" else ""
     lines = [f"wake-up latency at {period_s * 1e3:g} ms over {rep['ticks']} ticks "
-             f"({rep['scheduling']}): p50 "
+             f"({rep['scheduling']}{polling}): p50 "
              f"{us(q['p50'])}  p99 {us(q['p99'])}  p99.9 {us(q['p999'])}  max "
              f"{us(q['max'])}; {rep['ticks_lost']} tick(s) woken more than a period late"]
     if "unit" in rep:

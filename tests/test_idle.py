@@ -1,0 +1,127 @@
+"""``--idle``: the CPU latency request that keeps idle CPUs polling (runtime/idle.py)."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import pytest
+from ctrlunit.runtime import idle
+from ctrlunit.runtime.config import ConfigError, RunConfig
+
+
+def _cpuidle(tmp_path: Path, states: list[tuple[str, int, int]]) -> Path:
+    """A fake ``cpuidle`` directory: (name, exit latency in us, disabled) per state."""
+    root = tmp_path / "cpuidle"
+    for k, (name, latency, disabled) in enumerate(states):
+        d = root / f"state{k}"
+        d.mkdir(parents=True)
+        (d / "name").write_text(name + "\n")
+        (d / "latency").write_text(f"{latency}\n")
+        (d / "disable").write_text(f"{disabled}\n")
+    root.mkdir(parents=True, exist_ok=True)
+    return root
+
+
+def _open_fds() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
+def test_auto_polls_only_in_realtime_where_a_deeper_state_exists_and_the_file_is_writable(
+        tmp_path):
+    dev = tmp_path / "cpu_dma_latency"
+    dev.write_bytes(b"")
+    halt = _cpuidle(tmp_path, [("POLL", 0, 0), ("haltpoll idle", 1, 0)])
+    hold, why = idle.choose("auto", clock="realtime", dev=dev, cpuidle=halt)
+    assert hold and "haltpoll idle" in why
+    for clock in ("lockstep", "freerun"):
+        hold, why = idle.choose("auto", clock=clock, dev=dev, cpuidle=halt)
+        assert not hold and f"the {clock} clock" in why
+    # only the polling state, or the deeper one disabled: a request changes nothing
+    for states in ([("POLL", 0, 0)], [("POLL", 0, 0), ("C1", 2, 1)], []):
+        poll_only = _cpuidle(tmp_path / str(len(states)) / str(sum(s[2] for s in states)),
+                             states)
+        hold, why = idle.choose("auto", clock="realtime", dev=dev, cpuidle=poll_only)
+        assert not hold and "no idle state deeper than polling" in why
+    missing = tmp_path / "no" / "cpu_dma_latency"
+    hold, why = idle.choose("auto", clock="realtime", dev=missing, cpuidle=halt)
+    assert not hold and str(missing) in why
+    # the others as asked, whatever the clock
+    assert idle.choose("poll", clock="lockstep", dev=missing, cpuidle=halt)[0]
+    assert not idle.choose("default", clock="realtime", dev=dev, cpuidle=halt)[0]
+
+
+def test_the_request_writes_zero_microseconds_and_ends_with_the_block(tmp_path):
+    dev = tmp_path / "cpu_dma_latency"
+    dev.write_bytes(b"")
+    halt = _cpuidle(tmp_path, [("POLL", 0, 0), ("C1", 5, 0)])
+    before = _open_fds()
+    with idle.idle_request("auto", clock="realtime", dev=dev, cpuidle=halt) as choice:
+        assert choice == {"asked": "auto", "in_force": "poll",
+                          "why": "the realtime clock: idle CPUs poll instead of entering C1"}
+        assert _open_fds() == before + 1  # held open: the kernel keeps the request as long
+        assert dev.read_bytes() == (0).to_bytes(4, "little", signed=True)
+    assert _open_fds() == before
+    # an error inside the block still ends the request
+    with pytest.raises(RuntimeError), idle.idle_request("poll", clock="lockstep", dev=dev,
+                                                        cpuidle=halt):
+        assert _open_fds() == before + 1
+        raise RuntimeError("boom")
+    assert _open_fds() == before
+    with idle.idle_request("default", clock="realtime", dev=dev, cpuidle=halt) as choice:
+        assert choice["in_force"] == "default" and _open_fds() == before
+
+
+def test_poll_asked_where_the_request_cannot_be_made_is_an_error_naming_the_file(tmp_path):
+    missing = tmp_path / "no" / "cpu_dma_latency"
+    halt = _cpuidle(tmp_path, [("POLL", 0, 0), ("C1", 5, 0)])
+    before = _open_fds()
+    with pytest.raises(idle.IdlePermissionError, match=r"--idle poll: .*no/cpu_dma_latency "
+                       r"cannot be written .*--idle default"), \
+            idle.idle_request("poll", clock="realtime", dev=missing, cpuidle=halt):
+        pass
+    # auto where the file turns out not writable: the CPUs as they are, and why
+    directory = tmp_path / "a-directory"
+    directory.mkdir()
+    with idle.idle_request("auto", clock="realtime", dev=directory, cpuidle=halt) as choice:
+        assert choice["in_force"] == "default" and "could not be written" in choice["why"]
+    assert _open_fds() == before
+
+
+def test_a_value_other_than_auto_poll_or_default_is_refused_naming_the_option():
+    with pytest.raises(ValueError, match=r"--idle = 'spin': allowed auto .*, poll or default"):
+        idle.check_idle("spin")
+    with pytest.raises(ConfigError, match="--idle = 'spin'"):
+        RunConfig.of(idle="spin").validate()
+    assert RunConfig.of().schedule.idle == "auto"
+
+
+def _usage(name_filter: str) -> int:
+    """Entries into the idle states of every CPU whose exit latency is (not) zero."""
+    total = 0
+    for state in Path("/sys/devices/system/cpu").glob("cpu[0-9]*/cpuidle/state[0-9]*"):
+        zero = int((state / "latency").read_text()) == 0
+        if zero == (name_filter == "poll"):
+            total += int((state / "usage").read_text())
+    return total
+
+
+@pytest.mark.skipif(not idle.choose("auto", clock="realtime")[0],
+                    reason="no idle state deeper than polling here, or not root")
+def test_under_the_request_the_machines_cpus_enter_no_deeper_idle_state():
+    """The real kernel: while the request is held no CPU enters a state with an exit
+    latency, and the polling state is used instead; afterwards the deeper ones again."""
+    with idle.idle_request("auto", clock="realtime") as choice:
+        assert choice["in_force"] == "poll"
+        time.sleep(0.05)  # a CPU already in a deeper state leaves it at its next wake-up
+        deep, poll = _usage("deep"), _usage("poll")
+        for _ in range(30):  # idle CPUs, woken by this sleep and the kernel's own work
+            time.sleep(0.01)
+        deep_held, poll_held = _usage("deep") - deep, _usage("poll") - poll
+    deep = _usage("deep")
+    for _ in range(30):
+        time.sleep(0.01)
+    deep_after = _usage("deep") - deep
+    assert deep_held <= 1 and poll_held > 0
+    assert deep_after > deep_held
