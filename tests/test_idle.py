@@ -125,3 +125,53 @@ def test_under_the_request_the_machines_cpus_enter_no_deeper_idle_state():
     deep_after = _usage("deep") - deep
     assert deep_held <= 1 and poll_held > 0
     assert deep_after > deep_held
+
+
+def _holds_request(pid: int) -> bool:
+    """Whether process ``pid`` has the kernel's CPU latency request open."""
+    try:
+        fds = os.listdir(f"/proc/{pid}/fd")
+    except OSError:
+        return False
+    for fd in fds:
+        try:
+            if os.readlink(f"/proc/{pid}/fd/{fd}") == str(idle.CPU_LATENCY_DEV):
+                return True
+        except OSError:
+            continue
+    return False
+
+
+@pytest.mark.skipif(not idle.choose("auto", clock="realtime")[0],
+                    reason="no idle state deeper than polling here, or not root")
+def test_a_role_started_on_its_own_holds_the_request_for_its_host_while_it_runs():
+    """``ctrlunit plant`` started apart (on another host, say) holds the request there
+    under ``--idle auto`` in realtime, and not under ``--idle default``."""
+    import subprocess
+    import sys
+
+    from runner import kill_unit, unit_id
+
+    seen: dict[str, bool] = {}
+    waited = 0.0
+    for asked in ("auto", "default"):
+        unit = unit_id(f"idle-{asked}")
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ctrlunit.runtime.cli", "plant", "--unit", unit,
+             "--clock", "realtime", "--connect", "tcp/127.0.0.1:9", "--idle", asked],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            t0 = time.monotonic()
+            # auto: until the plant holds it (bounded); default: at least as long as that took
+            limit = 30.0 if asked == "auto" else waited + 1.0
+            while time.monotonic() - t0 < limit and proc.poll() is None:
+                if _holds_request(proc.pid):
+                    break
+                time.sleep(0.05)
+            seen[asked] = _holds_request(proc.pid)
+            waited = time.monotonic() - t0
+        finally:
+            proc.kill()
+            proc.wait(timeout=10)
+            kill_unit(unit)
+    assert seen == {"auto": True, "default": False}

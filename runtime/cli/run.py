@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 from typing import Any
@@ -170,8 +171,8 @@ def run_options(fn: Any) -> Any:
                      "passes it (the report says which and why)."),
         click.option("--idle", type=click.Choice(["auto", "poll", "default"]),
                      default="auto", show_default=True,
-                     help="start, central: poll holds the kernel's CPU latency request at 0 "
-                     "us for the run (/dev/cpu_dma_latency), so that idle CPUs spin "
+                     help="poll holds the kernel's CPU latency request at 0 us while this "
+                     "process runs (/dev/cpu_dma_latency), so that idle CPUs spin "
                      "instead of halting and every wake-up is quicker, at the cost of "
                      "the CPUs spinning while idle (needs root); auto: poll in realtime "
                      "where permitted and a deeper idle state exists; default: leave "
@@ -358,13 +359,19 @@ def peripheral(index: int, **kw: Any) -> None:
     """Run peripheral K of a unit (connects to the central's endpoint)."""
     from ..peripheral import run_peripheral
 
-    setup, conf = _role_setup(kw, role="peripheral", index=index)
-    sys.exit(_quiet(lambda: run_peripheral(setup, index, conf)))
+    setup, conf, held = _role_setup(kw, role="peripheral", index=index)
+    with held:
+        code = _quiet(lambda: run_peripheral(setup, index, conf))
+    sys.exit(code)
 
 
-def _role_setup(kw: dict[str, Any], *, role: str, index: int | None = None) -> tuple[Any, Any]:
-    """Setup and Zenoh configuration of a single role (exits on a configuration error;
-    with ``--check``, exits 0 once everything is checked, before anything starts)."""
+def _role_setup(kw: dict[str, Any], *, role: str,
+                index: int | None = None) -> tuple[Any, Any, contextlib.ExitStack]:
+    """Setup and Zenoh configuration of a single role, and its CPU idle request
+    (runtime/idle.py: a role started on another host holds it for that host; close it
+    when the role ends). Exits on a configuration error; with ``--check``, exits 0 once
+    everything is checked, before anything starts."""
+    from ..idle import IdlePermissionError, idle_request
     from ..sched import RtPermissionError, apply_choice
     from ..setup import make_setup
     from ..zsession import make_config, pin_cpus
@@ -388,8 +395,13 @@ def _role_setup(kw: dict[str, Any], *, role: str, index: int | None = None) -> t
                      admission=rc.schedule.admission, guarded=False)
     except RtPermissionError as exc:
         _fail(str(exc), EXIT_CONFIG)
+    held = contextlib.ExitStack()
+    try:
+        held.enter_context(idle_request(rc.schedule.idle, clock=rc.schedule.clock))
+    except IdlePermissionError as exc:
+        _fail(str(exc), EXIT_CONFIG)
     return setup, make_config(listen=rc.transport.listen, connect=rc.transport.connect,
-                              config_file=rc.transport.zenoh_config)
+                              config_file=rc.transport.zenoh_config), held
 
 
 @cli.command()
@@ -398,8 +410,10 @@ def plant(**kw: Any) -> None:
     """Run the simulated Delta as a Zenoh node (connects to the central's endpoint)."""
     from ..plant_node import run_plant
 
-    setup, conf = _role_setup(kw, role="plant")
-    sys.exit(_quiet(lambda: run_plant(setup, conf)))
+    setup, conf, held = _role_setup(kw, role="plant")
+    with held:
+        code = _quiet(lambda: run_plant(setup, conf))
+    sys.exit(code)
 
 
 @cli.command()
