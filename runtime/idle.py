@@ -54,12 +54,12 @@ def check_idle(asked: str) -> None:
                          "permitted), poll or default")
 
 
-def deeper_states(cpuidle: Path = CPUIDLE_DIR) -> list[str]:
+def deeper_states(cpuidle: Path | None = None) -> list[str]:
     """The names of the enabled idle states with an exit latency above 0 us (those a
     latency request of 0 keeps the CPUs out of); ``[]`` where there is no cpuidle driver
     (the CPU then halts in the architecture's default idle, which no request changes)."""
     names = []
-    for state in sorted(cpuidle.glob("state[0-9]*")):
+    for state in sorted((cpuidle or CPUIDLE_DIR).glob("state[0-9]*")):
         try:
             latency = int((state / "latency").read_text())
             disabled = (state / "disable").read_text().strip() not in ("", "0")
@@ -71,11 +71,13 @@ def deeper_states(cpuidle: Path = CPUIDLE_DIR) -> list[str]:
     return names
 
 
-def choose(asked: str, *, clock: str, dev: Path = CPU_LATENCY_DEV,
-           cpuidle: Path = CPUIDLE_DIR) -> tuple[bool, str]:
+def choose(asked: str, *, clock: str, dev: Path | None = None,
+           cpuidle: Path | None = None) -> tuple[bool, str]:
     """Whether to hold the request for ``--idle asked`` in ``clock``, and why (for
-    ``auto``; a plain phrase for the others)."""
+    ``auto``; a plain phrase for the others). ``dev`` and ``cpuidle`` default to
+    :data:`CPU_LATENCY_DEV` and :data:`CPUIDLE_DIR`."""
     check_idle(asked)
+    dev = dev or CPU_LATENCY_DEV
     if asked == "default":
         return False, "asked: the CPUs' idle states left as they are"
     if asked == "poll":
@@ -93,8 +95,8 @@ def choose(asked: str, *, clock: str, dev: Path = CPU_LATENCY_DEV,
 
 
 @contextlib.contextmanager
-def idle_request(asked: str, *, clock: str, dev: Path = CPU_LATENCY_DEV,
-                 cpuidle: Path = CPUIDLE_DIR) -> Iterator[dict[str, Any]]:
+def idle_request(asked: str, *, clock: str, dev: Path | None = None,
+                 cpuidle: Path | None = None) -> Iterator[dict[str, Any]]:
     """Hold the CPU latency request at 0 us for the ``with`` block where :func:`choose`
     says so; yields the report's ``idle``: ``{asked, in_force ("poll" or "default"),
     why}``. The request ends when the block does, however it ends (the kernel also drops
@@ -106,6 +108,7 @@ def idle_request(asked: str, *, clock: str, dev: Path = CPU_LATENCY_DEV,
         ``asked`` is ``poll`` and ``dev`` cannot be opened for writing.
     """
     hold, why = choose(asked, clock=clock, dev=dev, cpuidle=cpuidle)
+    dev = dev or CPU_LATENCY_DEV
     fd = None
     if hold:
         try:

@@ -175,3 +175,20 @@ def test_a_role_started_on_its_own_holds_the_request_for_its_host_while_it_runs(
             proc.wait(timeout=10)
             kill_unit(unit)
     assert seen == {"auto": True, "default": False}
+
+
+def test_start_with_poll_where_the_request_cannot_be_made_refuses_before_any_role(
+        tmp_path, monkeypatch):
+    """The launcher's error is a configuration error naming the file; no role started."""
+    from ctrlunit.runtime import launcher
+    from ctrlunit.runtime.config import EXIT_CONFIG
+
+    monkeypatch.setattr(idle, "CPU_LATENCY_DEV", tmp_path / "no" / "cpu_dma_latency")
+    spawned: list[str] = []
+    monkeypatch.setattr(launcher, "spawn_role", lambda *a, **k: spawned.append(a[1]))
+    code, rep = launcher.start(RunConfig.of(peripherals=1, clock="lockstep", cycles=10,
+                                            idle="poll").validate(), echo=lambda m: None)
+    assert code == EXIT_CONFIG and spawned == []
+    assert rep["fault"]["process"] == "configuration"
+    assert "--idle poll: " in rep["fault"]["message"]
+    assert "no/cpu_dma_latency cannot be written" in rep["fault"]["message"]
