@@ -192,3 +192,11 @@ def test_start_with_poll_where_the_request_cannot_be_made_refuses_before_any_rol
     assert rep["fault"]["process"] == "configuration"
     assert "--idle poll: " in rep["fault"]["message"]
     assert "no/cpu_dma_latency cannot be written" in rep["fault"]["message"]
+
+
+def test_the_command_line_refuses_an_unknown_idle_choice_naming_the_allowed_ones():
+    from runner import ctrlunit
+
+    res = ctrlunit("start", "--idle", "spin", "--check", timeout=60)
+    assert res.returncode == 2
+    assert "'spin' is not one of 'auto', 'poll', 'default'" in res.stderr
