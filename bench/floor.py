@@ -9,7 +9,10 @@ one reply per period between two processes, the caller sleeping to each tick as 
 realtime plant does, so that both sides wake cold every period; it reports the CPU time
 each process spent per round (every thread, Zenoh's included), over pipes and over Zenoh.
 That is the price of the plant's sample and command (one such round per interval) and of
-each peripheral's request and reply.
+each peripheral's request and reply. It runs with the idle CPUs a realtime unit gets
+(``--idle``, runtime/idle.py: by default polling where the machine allows): on the
+reference VM polling took a third off the CPU of a round over Zenoh and 40 % off its round
+trip (docs/measurements/2026-11-25-realtime.md).
 """
 
 from __future__ import annotations
@@ -273,14 +276,19 @@ def paced_link(kind: str, *, period_s: float = 1e-3, rounds: int = 2000,
 
 
 def floor(ns: tuple[int, ...] = (1, 3), *, rounds: int = 2000,
-          paced_rounds: int | None = None) -> dict[str, Any]:
+          paced_rounds: int | None = None, idle: str = "auto") -> dict[str, Any]:
     """p50/p99 of both, and the Zenoh round as a ratio to the pipe round, per ``n``; and
     ``paced``: :func:`paced_link` over both at 1 ms, ``paced_rounds`` rounds each
-    (``rounds`` unless given)."""
+    (``rounds`` unless given), with the idle CPUs ``--idle idle`` gives a realtime unit
+    (``paced["idle"]`` says which)."""
+    from ..runtime.idle import idle_request
+
     res: dict[str, Any] = {"payload_bytes": len(PAYLOAD), "rounds": rounds, "by_n": {}}
     n_paced = rounds if paced_rounds is None else paced_rounds
-    res["paced"] = {"period_s": 1e-3, "rounds": n_paced,
-                    **{kind: paced_link(kind, rounds=n_paced) for kind in ("pipe", "zenoh")}}
+    with idle_request(idle, clock="realtime") as choice:
+        res["paced"] = {"period_s": 1e-3, "rounds": n_paced, "idle": choice,
+                        **{kind: paced_link(kind, rounds=n_paced)
+                           for kind in ("pipe", "zenoh")}}
     for n in ns:
         pipe = sorted(pipe_round_trip(n, rounds=rounds))
         zen = sorted(zenoh_round_trip(n, rounds=rounds))
@@ -304,18 +312,27 @@ def main(argv: list[str] | None = None) -> None:
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--rounds", type=int, default=2000,
                     help="rounds of each measurement after the warm-up (100 to 100000)")
+    ap.add_argument("--idle", choices=("auto", "poll", "default"), default="auto",
+                    help="idle CPUs for the rounds at the unit's cadence, as for ctrlunit "
+                    "start in realtime (default: auto)")
     args = ap.parse_args(argv)
     if not 100 <= args.rounds <= 100_000:
         ap.error(f"--rounds = {args.rounds}: allowed 100 to 100000")
-    res = floor((1, 3), rounds=args.rounds)
+    from ..runtime.idle import IdlePermissionError
+
+    try:
+        res = floor((1, 3), rounds=args.rounds, idle=args.idle)
+    except IdlePermissionError as exc:
+        ap.exit(1, f"{ap.prog}: error: {exc}\n")
     for n, f in res["by_n"].items():
         print(f"scatter/gather to {n}: pipes p50 {f['pipe_s']['p50'] * 1e6:.0f} us, Zenoh p50 "
               f"{f['zenoh_s']['p50'] * 1e6:.0f} us (p99 {f['zenoh_s']['p99'] * 1e6:.0f}), "
               f"{f['ratio_p50']:.1f}x")
     paced = res["paced"]
+    polling = " (idle CPUs poll)" if paced["idle"]["in_force"] == "poll" else ""
     for kind in ("pipe", "zenoh"):
         x = paced[kind]
-        print(f"one round every {paced['period_s'] * 1e3:g} ms over {kind}: CPU "
+        print(f"one round every {paced['period_s'] * 1e3:g} ms over {kind}{polling}: CPU "
               f"{x['cpu_caller_s'] * 1e6:.0f} us caller + {x['cpu_echo_s'] * 1e6:.0f} us echo "
               f"per round, round trip p50 {x['round_trip_s']['p50'] * 1e6:.0f} us")
 

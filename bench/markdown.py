@@ -19,6 +19,13 @@ def _pct(x: Any, *, sign: bool = False) -> str:
         f"{x * 100:+.1f} %" if sign else f"{x * 100:.1f} %")
 
 
+def _idle_phrase(idle: dict[str, Any] | None) -> str:
+    """How the idle CPUs were during the paced rounds (runtime/idle.py)."""
+    if (idle or {}).get("in_force") == "poll":
+        return "Idle CPUs polling, as a realtime unit's (`--idle`)."
+    return f"Idle CPUs as they are (`--idle`: {(idle or {}).get('why', 'not recorded')})."
+
+
 def write_markdown(path: Path, r: dict[str, Any]) -> None:
     m = r["machine"]
     lines = [
@@ -46,7 +53,8 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
             f"{paced['period_s'] * 1e3:g} ms between two processes, the caller sleeping to "
             f"each tick as the realtime plant does ({paced['rounds']} rounds). CPU time per "
             "round of each process, every thread counted: what the plant's sample and "
-            "command, or a peripheral's request and reply, cost per interval.",
+            "command, or a peripheral's request and reply, cost per interval. "
+            + _idle_phrase(paced.get("idle")),
             "",
             "| link | CPU caller (us) | CPU echo (us) | round trip p50 / p99 (us) |",
             "|---|---|---|---|",

@@ -13,9 +13,9 @@ exactly as long as the file is held open, that is the run.
 Measured on the reference VM (docs/measurements/2026-11-25-realtime.md, side by side):
 timer wake-up p50 78 -> 30-45 us, p99 0.6-1.0 ms -> 0.08-0.10 ms; the main job at 2 ms
 under the default policy 9-13 % less CPU per interval (medians of 5 and 6 pairs) and a
-quarter to a third of the late commands. The cost: while a run holds the request, idle CPUs spin (the host sees
-them busy). The kernel counts polling as idle time, so the throttling guard
-(runtime/sched.py, ``cpu_times``) reads the unit's own load as before.
+quarter to a third of the late commands. The cost: while a run holds the request, idle
+CPUs spin (the host sees them busy). The kernel counts polling as idle time, so the
+throttling guard (runtime/sched.py, ``cpu_times``) reads the unit's own load as before.
 
 ``auto`` (the default) holds the request in the realtime clock where it changes
 something (an idle state deeper than polling exists) and this process may write the file

@@ -341,6 +341,40 @@ def test_paced_link_counts_each_sides_cpu_per_round_after_the_warm_up(kind):
           f"{r['round_trip_s']['p50'] * 1e6:.0f} us")
 
 
+def test_the_floor_times_the_units_cadence_with_the_idle_cpus_a_realtime_unit_gets(
+        tmp_path, monkeypatch):
+    """The paced rounds run while the idle request is held (``--idle``, as a realtime
+    unit's); the report says which."""
+    from ctrlunit.bench import floor as floor_mod
+    from ctrlunit.runtime import idle
+
+    dev = tmp_path / "cpu_dma_latency"
+    dev.write_bytes(b"")
+    states = tmp_path / "cpuidle"
+    for k, (name, latency) in enumerate([("POLL", 0), ("C1", 3)]):
+        (states / f"state{k}").mkdir(parents=True)
+        for f, v in (("name", name), ("latency", latency), ("disable", 0)):
+            (states / f"state{k}" / f).write_text(f"{v}\n")
+    monkeypatch.setattr(idle, "CPU_LATENCY_DEV", dev)
+    monkeypatch.setattr(idle, "CPUIDLE_DIR", states)
+
+    def held() -> bool:
+        return any(os.readlink(f"/proc/self/fd/{fd}") == str(dev)
+                   for fd in os.listdir("/proc/self/fd")
+                   if os.path.islink(f"/proc/self/fd/{fd}"))
+
+    seen: list[tuple[str, bool]] = []
+    monkeypatch.setattr(floor_mod, "paced_link",
+                        lambda kind, **_: seen.append((kind, held())) or {"kind": kind})
+    res = floor_mod.floor((), rounds=100, idle="auto")
+    assert seen == [("pipe", True), ("zenoh", True)] and not held()
+    assert res["paced"]["idle"]["in_force"] == "poll"
+    seen.clear()
+    res = floor_mod.floor((), rounds=100, idle="default")
+    assert seen == [("pipe", False), ("zenoh", False)]
+    assert res["paced"]["idle"]["in_force"] == "default"
+
+
 def test_paced_link_names_the_links_it_knows():
     from ctrlunit.bench.floor import paced_link
 
