@@ -85,6 +85,13 @@ OVERLOAD_PROBE_LATE = 3
 (:data:`OVERLOAD_PROBE_S`)."""
 
 
+def extrapolated_command(tau: list[float], prev: list[float]) -> list[float]:
+    """The command expected one period after ``tau``, from the one before it (``prev``):
+    ``2 tau - prev``, the torques carried on at their last change. Sent with ``tau`` as
+    ``next`` for the plant to apply if the next command is late (``--missed-command``)."""
+    return [2.0 * a - b for a, b in zip(tau, prev, strict=True)]
+
+
 class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
     """The central process of a unit.
 
@@ -147,6 +154,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         skipped), so that the admission can tell one stall from a steady lag."""
         self.late_replies = 0
         self.plant_misses = 0
+        self._last_cmd: tuple[int, list[float]] | None = None  # (cycle, tau) last sent
         self.plant_busy_ns = 0
         self.periph_busy_ns = [0] * self.n
         self.wait_ns = 0
@@ -425,11 +433,28 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             return f.sample_ns + self.period_ns + self.period_ns // 4
         return time.monotonic_ns() + self._timeout_ns()
 
+    def _next_command(self, cycle: int, tau: list[float]) -> list[float] | None:
+        """Realtime at the full rate: the command this one's sample's successor is expected
+        to bring, extrapolated from the last two (``2 tau_k - tau_(k-1)``), sent with this
+        one so that the plant applies it if that command is late (runtime/plant_node.py,
+        :meth:`PlantServer.apply`). None at the first command, across a gap or a change
+        of rate, in the other clocks (no deadline) and with ``--missed-command hold``."""
+        last, self._last_cmd = self._last_cmd, (cycle, tau)
+        if (self.rc.schedule.clock != "realtime" or self.trial or last is None
+                or self.rc.schedule.missed_command != "extrapolate"
+                or last[0] != cycle - 1 or self.ctl.hold_of(cycle) != 1
+                or not self.ctl.on_grid(cycle + 1)):
+            return None
+        return extrapolated_command(tau, last[1])
+
     def _finish(self, f: InFlight) -> None:
         t_in = time.perf_counter_ns()
         self._check_state(f)  # here, after the next request is out: off the critical path
         cmd = f.ctx["cmd"]
-        payload = encode(self.node.unit, f.cycle, "command", tau=[float(x) for x in cmd])
+        tau = [float(x) for x in cmd]
+        nxt = self._next_command(f.cycle, tau)
+        payload = (encode(self.node.unit, f.cycle, "command", tau=tau) if nxt is None else
+                   encode(self.node.unit, f.cycle, "command", tau=tau, next=nxt))
         if not self.trial:
             self.pub_cmd.put(payload)
         now = time.monotonic_ns()

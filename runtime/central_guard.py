@@ -332,7 +332,7 @@ class CentralGuard:
 ROLE_REPORT_FIELDS: dict[str, tuple[type, ...]] = {
     "exit": (str,), "sched": (str,), "served": (int,), "samples": (int,), "misses": (int,),
     "busy_ns": (int,), "wall_ns": (int,), "cpu_s": (int, float), "rejected": (dict,),
-    "rss_kb": (dict,), "safe_stop": (dict,), "commands": (int,),
+    "rss_kb": (dict,), "safe_stop": (dict,), "commands": (int,), "spares": (int,),
 }
 """What a role's ``bye`` report may hold, by field; anything else is left out."""
 

@@ -24,6 +24,10 @@ from .sections import (
 CLOCKS = ("lockstep", "realtime", "freerun")
 REPLY_MODES = ("auto", "fused", "each")
 LATE_POLICIES = ("wait", "hold", "fault")
+MISSED_COMMANDS = ("extrapolate", "hold")
+"""``--missed-command``: what the plant applies in a period whose command is late: the
+command the central extrapolated for it and sent with the one before (runtime/central.py,
+``Central._next_command``), or the last one that came (runtime/plant_node.py)."""
 OVERLOAD_ACTIONS = ("auto", "halve", "continue")
 """``--overload``: what a realtime run does when its commands keep missing their deadline
 (runtime/central.py, ``Central._check_overload``): ``halve`` the control rate (every
@@ -218,6 +222,8 @@ class RunConfig:
                       "on 1)")
         if self.schedule.late_policy not in LATE_POLICIES:
             raise bad("late_policy", ", ".join(LATE_POLICIES))
+        if self.schedule.missed_command not in MISSED_COMMANDS:
+            raise bad("missed_command", ", ".join(MISSED_COMMANDS))
         for block, pol in self.schedule.late.items():
             if pol not in LATE_POLICIES:
                 raise ConfigError(f"--late {block}={pol}: the policy must be one of "

@@ -297,6 +297,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         stop = plant.get("safe_stop")
         report["safe_stop"] = stop if isinstance(stop, dict) else None
         report["plant_commands"] = plant.get("commands")  # commands it took
+        # late commands it replaced with the one extrapolated the period before
+        report["plant_spares"] = plant.get("spares")
     if inspect is not None:
         inspect["central"] = central
         inspect["setup"] = setup

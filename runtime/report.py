@@ -348,7 +348,10 @@ def summary(r: dict[str, Any]) -> str:
         f"  traversal   p50 {us(r['traversal_s']['p50'])}  p99 {us(r['traversal_s']['p99'])}  "
         f"max {us(r['traversal_s']['max'])}",
         f"  jitter      std {us(r['jitter_s']['std'])}",
-        f"  deadline misses {r['deadline_misses']}   skipped samples {r['skipped_samples']}"
+        f"  deadline misses {r['deadline_misses']}"
+        + (f" ({r['plant_spares']} covered by the command extrapolated the period before)"
+           if r.get("plant_spares") else "")
+        + f"   skipped samples {r['skipped_samples']}"
         + (f"   silences excused {r['silences_excused']} (the machine, not the process, was slow)"
            if r.get("silences_excused") else ""),
         *_late_lines(r),

@@ -62,6 +62,8 @@ class ScheduleConfig:
     hold_rounds: str = "auto"
     """``--hold-rounds`` (topology/pipeline.py, ``HOLD_RULES``)."""
     late_policy: str = "wait"
+    missed_command: str = "extrapolate"
+    """``--missed-command`` (config.MISSED_COMMANDS)."""
     late: dict[str, str] = field(default_factory=dict)
     fault_periods: float = 3.0
     overload: str = "auto"

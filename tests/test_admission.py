@@ -195,6 +195,8 @@ def test_period_auto_runs_at_the_period_the_trial_held_and_says_so(tmp_path):
     assert final[-1]["held"] and final[-1]["period_s"] == adm["period_s"]
     assert not any(r["held"] for r in final[:-1])
     assert rep["cycles"] == 200 and rep["plant_commands"] > 0
+    # late commands the plant replaced with the one extrapolated the period before
+    assert 0 <= rep["plant_spares"] <= rep["deadline_misses"]
     # --rt-priority auto: FIFO where permitted and the kernel throttles, and then the
     # admission held the machine's busy share to its limit
     from ctrlunit.runtime import sched

@@ -129,6 +129,11 @@ def run_options(fn: Any) -> Any:
                      "its last values (hold), or a fault."),
         click.option("--late", "late_items", multiple=True, metavar="BLOCK=POLICY",
                      help="Late-data policy for one block (overrides --late-policy)."),
+        click.option("--missed-command", type=click.Choice(["extrapolate", "hold"]),
+                     default="extrapolate", show_default=True,
+                     help="Realtime: in a period whose command is late the plant applies "
+                     "the command the central extrapolated for it and sent with the one "
+                     "before (at the full control rate), or holds the last one that came."),
         click.option("--overload", type=click.Choice(["auto", "halve", "continue"]),
                      default="auto", show_default=True,
                      help="Realtime: when 10 of the last 100 intervals were late (their "

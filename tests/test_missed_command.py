@@ -1,0 +1,149 @@
+"""``--missed-command``: what the plant applies in a period whose command is late.
+
+The central sends, with each realtime command at the full rate, the command it expects
+for the next sample (``next``, extrapolated from the last two); the plant applies it in a
+period whose own command did not come in time (runtime/plant_node.py,
+``PlantServer.apply``), and holds the last command otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from types import SimpleNamespace
+
+import pytest
+from ctrlunit.runtime.codec import decode, encode
+from ctrlunit.runtime.config import ConfigError, RunConfig
+from ctrlunit.runtime.plant_node import PlantServer
+
+UNIT = "t-missed"
+
+
+class FakePlant:
+    def __init__(self) -> None:
+        self.command = [0.0, 0.0, 0.0]
+
+    def set_command(self, tau: list[float]) -> None:
+        self.command = list(tau)
+
+
+class FakeNode:
+    def __init__(self) -> None:
+        self.rejected: Counter[str] = Counter()
+        self.last_heard_ns = time.monotonic_ns()
+        self.keys = SimpleNamespace(sample="s", command="c")
+
+    def publisher(self, _key: str) -> object:
+        return object()
+
+    def route(self, *_: object) -> None:
+        pass
+
+    def decode(self, data: bytes) -> dict | None:
+        return decode(data, UNIT)
+
+    def reject(self, reason: str) -> None:
+        self.rejected[reason] += 1
+
+
+def _server() -> PlantServer:
+    server = PlantServer(FakeNode(), FakePlant(), depth=2, initial=[9.0, 9.0, 9.0])
+    server.sample_no = 100  # every command below is for a sample already published
+    return server
+
+
+def _command(cycle: int, tau: list[float], nxt: object = None) -> bytes:
+    extra = {} if nxt is None else {"next": nxt}
+    return encode(UNIT, cycle, "command", tau=tau, **extra)
+
+
+def test_a_late_command_is_replaced_by_the_one_extrapolated_with_the_command_before():
+    server = _server()
+    server.take_command(_command(5, [1.0, 2.0, 3.0], [1.5, 2.5, 3.5]))
+    assert server.apply(5) and server.plant.command == [1.0, 2.0, 3.0]
+    # 6 is late: the plant applies what 5 carried for it, and counts it as missed
+    assert not server.apply(6)
+    assert server.plant.command == [1.5, 2.5, 3.5] and server.spares_applied == 1
+    # 6 comes late with its own extrapolation for 7; 7 is late too: 6's is applied, not
+    # 6 itself (a period older than what is due)
+    server.take_command(_command(6, [2.0, 3.0, 4.0], [2.5, 3.5, 4.5]))
+    assert not server.apply(7)
+    assert server.plant.command == [2.5, 3.5, 4.5] and server.spares_applied == 2
+    assert server.applied_cycle == 6 and server.commands == {}
+    # the one for 8 arrives in time: it is applied as it is
+    server.take_command(_command(8, [3.0, 4.0, 5.0]))
+    assert server.apply(8) and server.plant.command == [3.0, 4.0, 5.0]
+    assert server.spares == {}
+
+
+def test_without_an_extrapolated_command_a_late_one_holds_the_last_that_came():
+    server = _server()
+    server.take_command(_command(5, [1.0, 2.0, 3.0]))
+    assert server.apply(5)
+    assert not server.apply(6) and server.plant.command == [1.0, 2.0, 3.0]
+    server.take_command(_command(6, [2.0, 3.0, 4.0]))  # late: applied at the next tick
+    assert not server.apply(7) and server.plant.command == [2.0, 3.0, 4.0]
+    assert server.spares_applied == 0
+    # an extrapolation for a cycle whose own command came is not used
+    server.take_command(_command(7, [5.0, 5.0, 5.0], [6.0, 6.0, 6.0]))
+    server.take_command(_command(8, [7.0, 7.0, 7.0]))
+    assert server.apply(8) and server.plant.command == [7.0, 7.0, 7.0]
+    assert server.spares_applied == 0
+
+
+@pytest.mark.parametrize("nxt", [[1.0, 2.0], [1.0, math.nan, 2.0], "x", [1, 2, True]])
+def test_a_command_with_a_malformed_extrapolation_is_rejected_whole(nxt):
+    server = _server()
+    server.take_command(_command(5, [1.0, 2.0, 3.0], nxt))
+    assert server.commands == {} and server.spares == {}
+    assert server.node.rejected == Counter({"bad_value": 1})
+
+
+def _central(clock: str = "realtime", *, missed: str = "extrapolate", halved_at: int = 0):
+    """What ``Central._next_command`` reads of a central."""
+    from ctrlunit.runtime.stride import StrideSchedule
+
+    grid = StrideSchedule()
+    if halved_at:
+        grid.change(2, halved_at)
+    ctl = SimpleNamespace(hold_of=grid.hold_of, on_grid=grid.on_grid)
+    rc = RunConfig.of(clock=clock, missed_command=missed)
+    return SimpleNamespace(rc=rc, trial=False, ctl=ctl, _last_cmd=None)
+
+
+def test_the_central_extrapolates_only_between_consecutive_commands_at_the_full_rate():
+    from ctrlunit.runtime.central import Central
+
+    def sent(central, cycles):
+        out = []
+        for c in cycles:
+            out.append(Central._next_command(central, c, [float(c), 2.0 * c, 1.0]))
+        return out
+
+    assert sent(_central(), [3, 4, 5, 7]) == [None, [5.0, 10.0, 1.0], [6.0, 12.0, 1.0], None]
+    # halved from 6 on: 4's successor is 5, 5's would be 6 (on the new grid), then none
+    assert sent(_central(halved_at=6), [4, 5, 6, 8]) == [None, [6.0, 12.0, 1.0], None, None]
+    for central in (_central("lockstep"), _central(missed="hold")):
+        assert sent(central, [3, 4, 5]) == [None, None, None]
+
+
+def test_missed_command_accepts_extrapolate_or_hold_only():
+    assert RunConfig.of().schedule.missed_command == "extrapolate"
+    with pytest.raises(ConfigError, match="missed.command"):
+        RunConfig.of(missed_command="guess").validate()
+
+
+def test_a_burst_of_late_commands_costs_less_tracking_extrapolated_than_held():
+    """The offline bench (bench/missed.py) with the plant's own rule: no late command,
+    both the same (the extrapolations are never applied); four consecutive commands a
+    period late in the task's fastest stretch, extrapolated tracks closer than held."""
+    from ctrlunit.bench.missed import tracking_with_late
+
+    period = 1.6e-3
+    base = {m: tracking_with_late(period, {}, missed=m) for m in ("hold", "extrapolate")}
+    assert base["hold"] == base["extrapolate"] < 1e-4
+    worst = {m: max(tracking_with_late(period, {c: 1 for c in range(s, s + 4)}, missed=m)
+                    for s in (60, 100, 140)) for m in ("hold", "extrapolate")}
+    assert base["hold"] < worst["extrapolate"] < 0.75 * worst["hold"], worst
