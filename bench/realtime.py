@@ -36,8 +36,8 @@ MAIN_JOB = ("--peripherals", "3", "--pipeline", "2")
 
 
 LEVERS = ("period", "admission", "command_delay", "hold_rounds", "replies", "rt_priority",
-          "idle", "cpus", "pin", "placement", "late_policy", "fault_periods", "model_state",
-          "overload")
+          "idle", "cpus", "pin", "placement", "late_policy", "missed_command", "fault_periods",
+          "model_state", "overload")
 
 
 def levers() -> dict[str, Any]:

@@ -265,6 +265,7 @@ def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
     assert res.returncode == 0, res.stdout + res.stderr
     st = json.loads((out / "report.json").read_text())["realtime"]
     assert st["levers"]["period"] == "auto" and st["levers"]["command_delay"] == "full"
+    assert st["levers"]["idle"] == "auto" and st["levers"]["missed_command"] == "extrapolate"
     (star,), (base,) = st["rows"]["main_job"], st["rows"]["baseline"]
     assert star["exit_code"] in (0, 3, 4, 7), star  # held, faulted or refused: all reported
     if star["exit_code"] != 7:
