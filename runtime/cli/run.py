@@ -11,7 +11,15 @@ import click
 
 from ...plant.simulator import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S
 from ...topology.pipeline import HOLD_RULES
-from ..config import EXIT_CONFIG, FLAT, ConfigError, RunConfig, parse_duration
+from ..config import (
+    EXIT_CONFIG,
+    FLAT,
+    MISSED_COMMANDS,
+    ConfigError,
+    RunConfig,
+    parse_duration,
+)
+from ..idle import IDLE_CHOICES
 from .base import _emit, _fail, _json_safe, _rt_priority, cli
 
 
@@ -129,7 +137,7 @@ def run_options(fn: Any) -> Any:
                      "its last values (hold), or a fault."),
         click.option("--late", "late_items", multiple=True, metavar="BLOCK=POLICY",
                      help="Late-data policy for one block (overrides --late-policy)."),
-        click.option("--missed-command", type=click.Choice(["extrapolate", "hold"]),
+        click.option("--missed-command", type=click.Choice(list(MISSED_COMMANDS)),
                      default="extrapolate", show_default=True,
                      help="Realtime: in a period whose command is late the plant applies "
                      "the command the central extrapolated for it and sent with the one "
@@ -174,7 +182,7 @@ def run_options(fn: Any) -> Any:
                      "over 85 % of the kernel's real-time budget, and the run goes back to "
                      "the default policy if it stays over 95 % of it for a second or "
                      "passes it (the report says which and why)."),
-        click.option("--idle", type=click.Choice(["auto", "poll", "default"]),
+        click.option("--idle", type=click.Choice(list(IDLE_CHOICES)),
                      default="auto", show_default=True,
                      help="poll holds the kernel's CPU latency request at 0 us while this "
                      "process runs (/dev/cpu_dma_latency), so that idle CPUs spin "

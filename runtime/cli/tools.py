@@ -11,6 +11,7 @@ from typing import Any
 import click
 
 from ..config import EXIT_CONFIG, parse_duration
+from ..idle import IDLE_CHOICES
 from ..stopping import raise_if_stopped, stop_signals
 from .base import _fail, _json_safe, _rt_priority, cli
 
@@ -246,7 +247,7 @@ def load_report(path: str) -> dict[str, Any]:
               help="Scheduling of the wake-up test, as for ctrlunit start: auto is the "
               "policy the unit's roles get (SCHED_FIFO 10 where permitted and the kernel "
               "throttles real-time tasks); 0: the policy as it is.")
-@click.option("--idle", type=click.Choice(["auto", "poll", "default"]), default="auto",
+@click.option("--idle", type=click.Choice(list(IDLE_CHOICES)), default="auto",
               show_default=True,
               help="Idle CPUs during the test, as for ctrlunit start: poll holds the CPU "
               "latency request at 0 us (needs root); auto: poll where permitted and a "
