@@ -142,8 +142,8 @@ class PlantServer:
 
         A late command left the last one acting a period longer; a burst of them, each
         the next period's, held a command ever older: at 1.6 ms four in a row cost up to
-        0.38 mm of tracking, and 0.12 mm with the extrapolated ones
-        (docs/measurements/2026-11-25-realtime.md)."""
+        0.47 mm of tracking, and 0.12 mm with the extrapolated ones (bench/missed.py;
+        docs/measurements/2026-11-25-realtime.md)."""
         ready = [c for c in self.commands if c <= cycle]
         spare = self.spares.pop(cycle, None)
         for c in [c for c in self.spares if c < cycle]:
