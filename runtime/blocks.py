@@ -298,6 +298,37 @@ def k_ahead(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     c[n["pda"]] = (pd[0] + a[0] * L, pd[1] + a[1] * L, pd[2] + a[2] * L)
 
 
+def k_foresee(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    """The state in the middle of the span in which this interval's command acts, foreseen
+    before its sample from the estimate the previous interval handed off: that estimate's
+    ``p, pdot`` carried forward period by period from its own sample to the start of the
+    span at the accelerations of the commands already sent (:func:`acting_acceleration`,
+    as :func:`k_inflight`), then half the span, ``L = hold T/2``, at the reference
+    acceleration ``ac`` (the command of this interval is not known yet). With no earlier
+    estimate (the first interval) the estimate's state is taken at the sample's instant.
+    The model's kinematics evaluated there need no sample, so at depth 2 they run while
+    the previous interval is finishing (docs/architecture.md, where the model is
+    evaluated)."""
+    est = c[n["est"]]
+    t, T = c[n["t"]], cfg.period
+    (px, py, pz), (vx, vy, vz), t_est = est[0], est[1], est[3]
+    start = t if t_est is None else t_est
+    h = 0.5 * T * T
+    for k in range(max(0, round((t - start) / T)) + cfg.delay):
+        a = acting_acceleration(est, start + k * T, cfg)
+        px += vx * T + a[0] * h
+        py += vy * T + a[1] * h
+        pz += vz * T + a[2] * h
+        vx += a[0] * T
+        vy += a[1] * T
+        vz += a[2] * T
+    a = c[n["ac"]]
+    L = 0.5 * T * c[n["hold"]]
+    h = 0.5 * L * L
+    c[n["pa"]] = (px + vx * L + a[0] * h, py + vy * L + a[1] * h, pz + vz * L + a[2] * h)
+    c[n["pda"]] = (vx + a[0] * L, vy + a[1] * L, vz + a[2] * L)
+
+
 def k_task_accel(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     rows = c[n["row_i"]]
     j = kin.inv3((tuple(rows[0]), tuple(rows[1]), tuple(rows[2])))
@@ -346,7 +377,7 @@ AXIS_KERNELS: dict[str, Callable[[Ctx, int, BlockConfig, dict[str, str]], None]]
 CENTRAL_KERNELS: dict[str, Callable[[Ctx, BlockConfig, dict[str, str]], None]] = {
     "reference": k_reference, "reference_acting": k_reference_acting, "predict": k_predict,
     "observer": k_observer, "velocity": k_velocity, "velocity_diff": k_velocity_diff,
-    "inflight": k_inflight, "law": k_law, "ahead": k_ahead,
+    "inflight": k_inflight, "law": k_law, "ahead": k_ahead, "foresee": k_foresee,
     "task_accel": k_task_accel,
     "dyn_central": k_dyn_central, "gravity_central": k_gravity_central,
     "collect": k_collect, "output": k_output,

@@ -47,7 +47,7 @@ from .codec import (
 )
 from .config import EXIT_OBSERVER, RunConfig
 from .controller import Controller
-from .engine import Engine
+from .engine import AWAIT_SAMPLE, Engine
 from .node import WARM_RSS_AT, Node, rss_kb
 
 OVERLOAD_WINDOW = 100
@@ -264,12 +264,16 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
     # -- intervals --------------------------------------------------------------------
 
     def _newest_handed_off(self) -> bool | None:
-        if not self.inflight:
-            return None
-        return next(reversed(self.inflight.values())).handed_off
+        """Whether the newest interval started from its sample has handed off (None: none
+        in flight); an interval run ahead of its sample does not count yet."""
+        for f in reversed(self.inflight.values()):
+            if not f.awaiting_sample:
+                return f.handed_off
+        return None
 
     def _may_start(self) -> bool:
-        live = sum(1 for f in self.inflight.values() if not f.finishing)
+        live = sum(1 for f in self.inflight.values()
+                   if not f.finishing and not f.awaiting_sample)
         return may_start(depth=self.depth, live=live, next_cycle=self.next_cycle,
                          cycles=self.cycles, newest_handed_off=self._newest_handed_off())
 
@@ -306,6 +310,22 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             self.next_cycle = k + self.ctl.hold_of(k)
             t0 = time.monotonic_ns()
             primed, self.primed = self.primed, None
+            ahead = self.inflight.get(k) if primed is not None and primed[0] == k else None
+            if ahead is not None and ahead.awaiting_sample:  # its rounds ran ahead
+                self.ctl.measure(ahead.ctx, k, counts)
+                if len(self.t1_inputs) < self.rc.run.t1_cycles:
+                    ctx = ahead.ctx
+                    self.t1_inputs.append((ctx["t"], ctx["est"], list(ctx["qmeas_i"]),
+                                           list(ctx["qdmeas_i"])))
+                ahead.sample_ns, ahead.start_ns = t_ns, t0
+                ahead.awaiting_sample = False
+                self.admit_ns += time.perf_counter_ns() - t_in
+                if ahead.gated:  # its rounds are back: on from the sample's steps
+                    ahead.gated = False
+                    self._advance(ahead)
+                continue
+            if primed is not None:
+                self._drop_ahead(primed[0])
             if primed is not None and primed[0] == k:  # its sample-free steps are done
                 ctx = primed[1]
                 self.ctl.measure(ctx, k, counts)
@@ -323,6 +343,19 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             self.admit_ns += time.perf_counter_ns() - t_in
             self._advance(f)
 
+    def _drop_ahead(self, cycle: int) -> None:
+        """Forget an interval started ahead of a sample that was skipped: its replies, if
+        any come, are late ones (counted, never merged)."""
+        f = self.inflight.get(cycle)
+        if f is None or not f.awaiting_sample:
+            return
+        del self.inflight[cycle]
+        if f in self.outbox:
+            self.outbox.remove(f)
+        elif f.round is not None:
+            for k in f.waiting:
+                self.held.add((cycle, f.round.index, k))
+
     def _prime(self) -> bool:
         """Depth 2: run the next interval's sample-free leading steps (the plan's
         ``presample_steps``: for resolved acceleration the reference and the observer's
@@ -338,6 +371,13 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         k = self.next_cycle
         t0 = time.monotonic_ns()
         ctx = self.ctl.context(k)
+        if self.plan.ahead_rounds and self.n:  # its rounds run ahead of the sample too
+            f = InFlight(k, self.engine.cycle(ctx, gate=True), ctx, 0, t0,
+                         awaiting_sample=True)
+            self.inflight[k] = f
+            self.primed = (k, ctx)
+            self._advance(f)
+            return True
         try:
             self.engine.prefix(ctx)
         except ObserverDiverged as exc:
@@ -372,6 +412,18 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             raise Fault(f"cycle {f.cycle}: {exc}", process="central",
                         code=EXIT_OBSERVER) from None
         f.started = True
+        while rnd is AWAIT_SAMPLE:  # run ahead: its sample-free steps and rounds are done
+            if f.awaiting_sample:
+                f.gated, f.round = True, None
+                self._span("central", f.cycle, f.start_ns, time.monotonic_ns())
+                return
+            try:  # the sample came while its rounds were out
+                rnd = f.gen.send(None)
+            except StopIteration:
+                rnd = None
+            except ObserverDiverged as exc:
+                raise Fault(f"cycle {f.cycle}: {exc}", process="central",
+                            code=EXIT_OBSERVER) from None
         if not f.handed_off and (rnd is None or self.round_step[rnd.index] > self.hand):
             self.ctl.handoff(f.ctx)
             f.handed_off = True
@@ -399,7 +451,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             assert rnd is not None
             f.waiting = set(range(self.n))
             f.deadline_ns = now + timeout_ns
-            if self.rc.schedule.clock == "realtime" and self.plan.round_trips:
+            if self.rc.schedule.clock == "realtime" and self.plan.round_trips \
+                    and not f.awaiting_sample:
                 share = (rnd.index + 1) / self.plan.round_trips
                 f.late_ns = f.sample_ns + int(self.depth * self.period_ns * share)
             parts.append({"cycle": f.cycle, "stage": rnd.index,

@@ -31,6 +31,11 @@ class InFlight:
     finishing: bool = False  # every exchange done; its last central steps are pending
     dropped: set[int] = field(default_factory=set)  # peripherals whose replies were held
     work_ns: int = 0  # the longest work one peripheral reported for one of its rounds
+    awaiting_sample: bool = False
+    """Started ahead of its sample (depth 2, a plan whose rounds run ahead): its sample-free
+    steps and rounds run now, the rest once its sample comes (``sample_ns`` is 0 until
+    then)."""
+    gated: bool = False  # its steps are done up to the sample: resume once it is here
 
 
 LATE_KEPT = 4096

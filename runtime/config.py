@@ -300,7 +300,7 @@ class RunConfig:
         ``period`` (s): ``1 / (12.5 T)`` for resolved acceleration at the ``acting`` model
         state, ``1 / (50 T)`` for the other laws (:attr:`bandwidth`)."""
         predicted = (self.control.law == "resolved-acceleration"
-                     and self.control.model_state == "acting")
+                     and self.control.model_state in ("acting", "foreseen"))
         return 1.0 / ((12.5 if predicted else 50.0) * period)
 
     @property

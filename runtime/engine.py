@@ -75,6 +75,10 @@ class CostModel:
 
 SpanSink = Callable[[str, int, int], None]
 
+AWAIT_SAMPLE = Round(index=-1)
+"""Yielded by :meth:`Engine.cycle` with ``gate``: the interval's steps that need no sample
+are done, and it waits for its sample."""
+
 
 class Engine:
     """Runs the blocks of an exchange plan.
@@ -153,17 +157,28 @@ class Engine:
 
     def prefix(self, c: Ctx) -> None:
         """Run the interval's leading steps that need no sample
-        (:attr:`~ctrlunit.topology.plan.ExchangePlan.presample_steps`); then
-        ``cycle(c, skip_prefix=True)`` runs the rest."""
+        (:attr:`~ctrlunit.topology.plan.ExchangePlan.presample_steps`), their rounds
+        included, in this process; then ``cycle(c, skip_prefix=True)`` runs the rest."""
         for step in self.plan.steps[:self.presample]:
-            assert step.block is not None
-            self._run_block(step.block.name, c, (0, 1, 2))
+            if step.round is not None:
+                self.run_round(step.round, c, (0, 1, 2))
+            else:
+                assert step.block is not None
+                self._run_block(step.block.name, c, (0, 1, 2))
         self.cost.settle()
 
-    def cycle(self, c: Ctx, *, skip_prefix: bool = False) -> Generator[Round, None, Ctx]:
+    def cycle(self, c: Ctx, *, skip_prefix: bool = False, gate: bool = False
+              ) -> Generator[Round, None, Ctx]:
         """Run the interval on the central, yielding at each round (without the leading
-        sample-free steps when ``skip_prefix``: :meth:`prefix` ran them)."""
-        for step in self.plan.steps[self.presample if skip_prefix else 0:]:
+        sample-free steps when ``skip_prefix``: :meth:`prefix` ran them). With ``gate``
+        the generator also yields :data:`AWAIT_SAMPLE` once, after those steps and before
+        the first that needs the sample: an interval started before its sample (rounds
+        that run ahead, depth 2) resumes from there once the sample is in ``c``."""
+        start = self.presample if skip_prefix else 0
+        for k, step in enumerate(self.plan.steps[start:], start):
+            if gate and k == self.presample:
+                self.cost.settle()
+                yield AWAIT_SAMPLE
             if step.round is not None:
                 self.cost.settle()
                 yield step.round

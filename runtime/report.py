@@ -222,6 +222,7 @@ def build_report(
         "cost_scale": rc.control.cost_scale,
         "unit": rc.transport.unit,
         "round_trips": plan.round_trips,
+        "rounds_ahead": plan.ahead_rounds if n and rc.schedule.pipeline > 1 else 0,
         "exchanges_per_interval": (exchanges / cycles) if exchanges is not None
         and cycles else None,
         "replies": replies,
@@ -336,6 +337,8 @@ def summary(r: dict[str, Any]) -> str:
         f"{quoted(r['task'])}, cost model {r['cost_model']}",
         *_delay_lines(r),
         f"  round trips per interval  {r['round_trips']}" + (
+            f" ({r['rounds_ahead']} before the sample, off its path to the command)"
+            if r.get("rounds_ahead") else "") + (
             f"   exchanges per interval {r['exchanges_per_interval']:.2f}" + (
                 " (rounds of consecutive intervals fused)"
                 if r["exchanges_per_interval"] < r["round_trips"] - 0.01 else "")
@@ -406,6 +409,7 @@ def _delay_lines(r: dict[str, Any]) -> list[str]:
     if not d:
         return []
     where = {"acting": "; model at the state where it acts",
+             "foreseen": "; model at the state where it acts, foreseen a period ahead",
              "sample": "; model at the sample"}.get(r.get("model_state"), "")
     return [f"  command delay {d['periods']} period(s) from sample to the period it acts in "
             f"({d['convention']}){where}"]

@@ -136,7 +136,8 @@ def read_report(doc: Any, *, source: str = "report") -> dict[str, Any]:
                        "previous" if "ik_obs1" in blocks_raw else "predict")
     # reports written before the model state was recorded evaluated it at the sample
     model_state = _choice(source, "model_state", doc.get("model_state"), MODEL_STATES,
-                          "acting" if "ahead" in blocks_raw else "sample")
+                          "acting" if "ahead" in blocks_raw else
+                          "foreseen" if "foresee" in blocks_raw else "sample")
     graph = stage_graph(law, model, observer=observer, model_state=model_state)
     names = [b.name for b in graph.blocks]
     if not blocks_raw:
@@ -450,9 +451,12 @@ def auto_central_blocks(plan: ExchangePlan, block_s: dict[str, float], round_tri
     Every round but the last moves to the central when its blocks, run there for all
     three axes, cost less than the round trip that carries them; the last round stays
     (moving it too would leave the peripherals nothing: the one-processor unit, n = 0,
-    which is what ``--peripherals 0`` asks for). Balance's candidates include the same
-    move, judged by the calibrated model of a whole run; this rule needs only what the
-    warm-up measured.
+    which is what ``--peripherals 0`` asks for). Where the plan has rounds that need no
+    sample (:attr:`~ctrlunit.topology.plan.ExchangePlan.ahead_rounds`, model state
+    ``foreseen``), those stay, since at depth 2 they run before the sample, off the path
+    from sample to command, and every round that needs the sample is judged as above.
+    Balance's candidates include the same move, judged by the calibrated model of a whole
+    run; this rule needs only what the warm-up measured.
 
     Parameters
     ----------
@@ -470,7 +474,8 @@ def auto_central_blocks(plan: ExchangePlan, block_s: dict[str, float], round_tri
     rounds = []
     if plan.placement.peripherals == 0:
         return frozenset(moved), rounds
-    for rnd in plan.rounds[:-1]:
+    ahead = plan.ahead_rounds
+    for rnd in plan.rounds[ahead:] if ahead else plan.rounds[:-1]:
         names = [b.name for b in rnd.blocks]
         cost = sum(block_s.get(b, math.inf) for b in names)
         move = cost < round_trip_s

@@ -24,13 +24,17 @@ KINEMATICS = "kinematics"
 (observer, J^-1, d/dt(J^-1) pdot, acceleration mapper), for the thesis's 'all kinematics'
 efficiency (1320 us on one T-800, 582 us on four)."""
 OBSERVERS = ("predict", "previous")
-MODEL_STATES = ("acting", "sample")
+MODEL_STATES = ("acting", "sample", "foreseen")
 """Where resolved acceleration evaluates its model (the second round's kinematics and the
 dynamics of Eq. V.50): ``acting``, at the state predicted for the middle of the period in
 which the command acts (block ``ahead``), from a velocity at the sample's instant taken
 from the observed positions (kernel ``velocity_diff``); ``sample``, at the sample's
-estimate with ``pdot = J qdot`` of the backward-difference rates, as the thesis. The other
-laws evaluate at the sample (or at the reference) either way."""
+estimate with ``pdot = J qdot`` of the backward-difference rates, as the thesis;
+``foreseen``, the model's kinematics (IK, J^-1 rows, d/dt(J^-1) pdot) at the same instant
+but foreseen from the previous interval's estimate (block ``foresee``), so that they need
+no sample and run ahead of it at depth 2 (the feedback still uses the sample: ``inflight``
+and the law are as with ``acting``). The other laws evaluate at the sample (or at the
+reference) either way."""
 MEASURED = ("qmeas_i", "qdmeas_i")
 """The sources that come from the plant's sample (the others, ``t``, ``hold`` and ``est``,
 are known before the sample arrives)."""
@@ -87,6 +91,13 @@ class StageGraph:
     """Where the model is evaluated (:data:`MODEL_STATES`): ``acting`` only when the graph
     has the block ``ahead``."""
 
+    @property
+    def runs_ahead(self) -> bool:
+        """Whether per-axis blocks that need no sample form rounds of their own, which at
+        depth 2 run before the sample (``foreseen``: the model's kinematics); in the other
+        graphs a round holds whatever per-axis blocks are ready together."""
+        return self.model_state == "foreseen"
+
     def block(self, name: str) -> Block:
         for b in self.blocks:
             if b.name == name:
@@ -116,6 +127,7 @@ T800 = {
     "jdot": 268.0 / 3.0,
     "accel": 12.0,  # 18 FLOP (§ V.3.4)
     "ahead": 12.0,  # 18 FLOP, as accel
+    "foresee": 36.0,  # 18 FLOP per period carried (three at depth 2), as inflight
     "inflight": 24.0,  # 18 FLOP per period of delay, two periods (depth 2)
     "reference_acting": 90.0,  # the profile generator once more, at the acting period
     "law": 30.0,
@@ -218,8 +230,10 @@ def stage_graph(
         ``acting`` adds the central block ``ahead`` between the law and the second round,
         whose kinematics and dynamics then run at its predicted state ``pa, pda``, and
         takes the velocity at the sample from the observed positions (``velocity_diff``)
-        rather than ``J qdot``. The graph's ``model_state`` is ``sample`` for the other
-        laws.
+        rather than ``J qdot``; ``foreseen`` does the same but computes ``pa, pda``
+        before the sample (block ``foresee``, from the previous interval's estimate), so
+        that the second round's kinematics need no sample and come first. The graph's
+        ``model_state`` is ``sample`` for the other laws.
     """
     if law not in (*LAWS, KINEMATICS):
         raise ValueError(f"law must be one of {', '.join(LAWS)}, got {law!r}")
@@ -234,7 +248,8 @@ def stage_graph(
         iterations = 1 if observer == "predict" else 2
     if not 1 <= iterations <= 5:
         raise ValueError(f"observer iterations must be in [1, 5], got {iterations}")
-    acting = law == "resolved-acceleration" and model_state == "acting"
+    acting = law == "resolved-acceleration" and model_state in ("acting", "foreseen")
+    foreseen = acting and model_state == "foreseen"
     ref = [_b("reference", CENTRAL, "reference_acting", "t hold", "pc vc ac pcd vcd",
               "II.33, also at the acting period's start")] if acting else [
         _b("reference", CENTRAL, "reference", "t hold", "pc vc ac", "II.33")]
@@ -253,9 +268,15 @@ def stage_graph(
                "the middle of the acting period: p0 + pdot0 T/2 + pddot T^2/8, "
                "pdot0 + pddot T/2", (("p", "p0"), ("pd", "v0"))),
         ] if acting else [_b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14")]
+        if foreseen:  # the model's state from the previous estimate: no sample needed
+            law_blocks.pop()  # no ``ahead``: ``foresee`` gives pa, pda
+            ref.append(_b("foresee", CENTRAL, "foresee", "t hold est ac", "pa pda",
+                          "the middle of the acting period foreseen from the previous "
+                          "estimate: p, pdot carried at the commands in flight"))
+            ref += _state_blocks("pa", "pda")
         blocks = ref + _observer_blocks(iterations, observer, velocity=velocity) + [
             *law_blocks,
-            *(_state_blocks("pa", "pda") if acting else _state_blocks()),
+            *(() if foreseen else _state_blocks("pa", "pda") if acting else _state_blocks()),
             _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
             _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qdd_i pdd", "tauq_i f_i",
                "V.50 joint part (qA qddot + qg + coupling)"),
@@ -308,7 +329,7 @@ def stage_graph(
             _b("collect", CENTRAL, "collect", "taufb_i", "tau", "tau = feedback"),
         ] + out
     graph = StageGraph(law, model, observer, iterations, tuple(blocks), SOURCES,
-                       "acting" if acting else "sample")
+                       model_state if acting else "sample")
     validate_graph(graph)
     return graph
 

@@ -59,20 +59,29 @@ class ExchangePlan:
 
     @property
     def presample_steps(self) -> int:
-        """How many leading steps run on the central without the sample: they need neither
-        the measured sources (:data:`~ctrlunit.topology.graph.MEASURED`) nor anything made
-        from them, and come before the first round. At depth 2 an interval runs them as soon
-        as the previous interval has handed off, before its sample is here (the reference
-        and the observer's prediction, for resolved acceleration)."""
-        tainted = set(MEASURED)
+        """How many leading steps run without the sample: they need neither the measured
+        sources (:data:`~ctrlunit.topology.graph.MEASURED`) nor anything made from them.
+        At depth 2 an interval runs them as soon as the previous interval has handed off,
+        before its sample is here: central steps (the reference and the observer's
+        prediction, for resolved acceleration) and, where the graph runs ahead
+        (:attr:`~ctrlunit.topology.graph.StageGraph.runs_ahead`), the rounds among them
+        (:attr:`ahead_rounds`)."""
+        tainted = needs_sample(self.graph)
         count = 0
         for s in self.steps:
-            if s.round is not None or s.block is None:
+            blocks = s.round.blocks if s.round is not None else [s.block]
+            if any(b is None or b.name in tainted for b in blocks):
                 break
-            if any(v in tainted for v in s.block.inputs):
+            if s.round is not None and not self.graph.runs_ahead:
                 break
             count += 1
         return count
+
+    @property
+    def ahead_rounds(self) -> int:
+        """How many rounds lie among the :attr:`presample_steps`: rounds that need no
+        sample, sent at depth 2 before it arrives (off the path from sample to command)."""
+        return sum(1 for s in self.steps[:self.presample_steps] if s.round is not None)
 
     def middle_blocks(self, *, ahead: bool) -> list[str]:
         """The central's blocks from the end of one round to the send of the next interval's
@@ -104,6 +113,19 @@ class ExchangePlan:
         return "\n".join(lines)
 
 
+def needs_sample(graph: StageGraph) -> set[str]:
+    """Names of the blocks that need the sample: those with a measured source
+    (:data:`~ctrlunit.topology.graph.MEASURED`) or a value made from one among their
+    inputs."""
+    tainted_vals = set(MEASURED)
+    out: set[str] = set()
+    for b in graph.blocks:  # a topological order
+        if any(v in tainted_vals for v in b.inputs):
+            out.add(b.name)
+            tainted_vals.update(b.outputs)
+    return out
+
+
 def _remote(block: Block, placement: Placement) -> bool:
     return block.kind == AXIS and placement.peripherals > 0 and (
         block.name not in placement.central_blocks
@@ -114,6 +136,10 @@ def exchange_plan(graph: StageGraph, placement: Placement) -> ExchangePlan:
     """Cut ``graph`` into central steps and rounds for ``placement``."""
     # 1. Reorder: hoist central/local blocks over remote blocks they do not depend on, so
     #    that remote blocks group into as few runs as possible (a stable list scheduling).
+    #    Where the graph runs ahead, blocks that need no sample go first, so that they
+    #    form rounds of their own before the sample's.
+    ahead = graph.runs_ahead
+    tainted = needs_sample(graph) if ahead else set()
     pending = list(graph.blocks)
     produced_by = {o: b for b in graph.blocks for o in b.outputs}
     done: set[str] = set()
@@ -121,6 +147,8 @@ def exchange_plan(graph: StageGraph, placement: Placement) -> ExchangePlan:
     while pending:
         ready = [b for b in pending if all(
             v in graph.sources or produced_by[v].name in done for v in b.inputs)]
+        if ahead:
+            ready.sort(key=lambda b: b.name in tainted)  # stable: graph order otherwise
         # prefer continuing the current kind (remote run or central run), else the first
         cur_remote = bool(order) and _remote(order[-1], placement)
         pick = next((b for b in ready if _remote(b, placement) == cur_remote), ready[0])
@@ -137,7 +165,9 @@ def exchange_plan(graph: StageGraph, placement: Placement) -> ExchangePlan:
     steps: list[Step] = []
     for b in order:
         if _remote(b, placement):
-            if not steps or steps[-1].kind != "round":
+            if not steps or steps[-1].kind != "round" or (
+                    b.name in tainted and not any(x.name in tainted
+                                                  for x in steps[-1].round.blocks)):
                 steps.append(Step("round", round=Round(index=0)))
             steps[-1].round.blocks.append(b)  # type: ignore[union-attr]
         else:

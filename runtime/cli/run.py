@@ -10,6 +10,7 @@ from typing import Any
 import click
 
 from ...plant.simulator import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S
+from ...topology.graph import MODEL_STATES
 from ...topology.pipeline import HOLD_RULES
 from ..config import (
     EXIT_CONFIG,
@@ -111,14 +112,16 @@ def run_options(fn: Any) -> Any:
         click.option("--observer", type=click.Choice(["predict", "previous"]),
                      default="predict", show_default=True,
                      help="Newton-Raphson start: prediction (1 iteration) or previous (2)."),
-        click.option("--model-state", type=click.Choice(["acting", "sample"]),
+        click.option("--model-state", type=click.Choice(list(MODEL_STATES)),
                      default="acting", show_default=True,
                      help="Resolved acceleration: servo the state predicted for the period "
                      "in which the command acts (carried forward at the commands in flight) "
                      "and evaluate the model (second round's kinematics, dynamics) there, "
-                     "from a velocity taken from the observed positions (acting), or servo "
-                     "and evaluate at the sample's estimate with pdot = J qdot as the "
-                     "thesis (sample)."),
+                     "from a velocity taken from the observed positions (acting); the same "
+                     "with the model's kinematics at that state foreseen from the previous "
+                     "interval, so that at depth 2 the peripherals compute them before the "
+                     "sample (foreseen); or servo and evaluate at the sample's estimate "
+                     "with pdot = J qdot as the thesis (sample)."),
         click.option("--bandwidth", "bandwidth_hz", type=float, default=None,
                      help="Closed-loop bandwidth of the gains in Hz (default: 20, at most "
                      "1/(12.5 period) with resolved acceleration at the acting state, "
