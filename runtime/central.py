@@ -175,6 +175,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.rss_series: list[tuple[int, int]] = []
         self.last_vals: dict[str, list[Any]] = {}
         self.late_per_axis = [0, 0, 0]
+        self.computed = 0  # late peripherals' rounds the central ran itself (compute)
         self.held: set[tuple[int, int, int]] = set()
         self.last_reply_ns = [0] * self.n
         self.cycle_spans: dict[int, list[tuple[str, int, int]]] = {}
@@ -319,6 +320,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                                            list(ctx["qdmeas_i"])))
                 ahead.sample_ns, ahead.start_ns = t_ns, t0
                 ahead.awaiting_sample = False
+                if ahead.waiting and self.rc.schedule.clock == "realtime":
+                    ahead.late_ns = t_ns  # a round run ahead is late once its sample is here
                 self.admit_ns += time.perf_counter_ns() - t_in
                 if ahead.gated:  # its rounds are back: on from the sample's steps
                     ahead.gated = False

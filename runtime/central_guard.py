@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import msgpack
 
 from ..kernels.workspace import check_point
-from .config import EXIT_OBSERVER, EXIT_PERIPHERAL, EXIT_PLANT
+from .config import EXIT_OBSERVER, EXIT_PERIPHERAL, EXIT_PLANT, LATE_POLICIES
 from .engine import Engine
 
 if TYPE_CHECKING:
@@ -234,9 +234,9 @@ class CentralGuard:
             raise Fault(f"{name} exited (status {rc})", process=name, code=code)
 
     def _late_policies(self) -> dict[int, str]:
-        """Policy per round: the strictest of its blocks' (fault > hold > wait); every
-        round has at least one block."""
-        order = {"wait": 0, "hold": 1, "fault": 2}
+        """Policy per round: the strictest of its blocks' (fault > hold > compute > wait);
+        every round has at least one block."""
+        order = {p: k for k, p in enumerate(LATE_POLICIES)}
         sch = self.rc.schedule
         return {r.index: max((sch.late.get(b.name, sch.late_policy) for b in r.blocks),
                              key=order.__getitem__) for r in self.plan.rounds}
@@ -250,6 +250,12 @@ class CentralGuard:
             policy = self.late_policy[f.round.index]
             if policy == "wait":
                 f.late_ns = 0
+                continue
+            if policy == "compute":
+                if self.node.events.pending():
+                    continue  # a reply may be among them: read first, look again after
+                if not self._compute_late(f):
+                    f.late_ns = 0  # it needs values the peripherals kept: wait
                 continue
             k = min(f.waiting)
             late = [b.name for b in f.round.blocks]
@@ -282,6 +288,40 @@ class CentralGuard:
                     self.held.discard(min(self.held))
             f.waiting.clear()
             self._advance(f)
+
+    def _compute_late(self, f: InFlight) -> bool:
+        """``--late-policy compute``: run the round of ``f`` for the axes of the peripherals
+        that have not answered, here, with the kernels they would have run on the values
+        they were sent (bit for bit their reply's values), and go on with the interval.
+        Their replies, when they come, are counted as late; their silence is still
+        watched (a peripheral that stays silent is a fault as ever). False, and nothing
+        done, where the round needs values only the peripherals hold."""
+        rnd = f.round
+        assert rnd is not None
+        late = sorted(f.waiting)
+        axes = [a for p in late for a in self.plan.placement.axes[p]]
+        if not Engine.can_run(rnd, f.ctx, axes):
+            return False
+        t0 = time.monotonic_ns()
+        self.engine.run_round(rnd, f.ctx, axes)
+        for p in late:
+            paxes = self.plan.placement.axes[p]
+            Engine.merge(self.last_vals, Engine.reply_vals(rnd, f.ctx, paxes), paxes)
+            for a in paxes:
+                self.late_per_axis[a] += 1
+            f.dropped.add(p)
+            self.held.add((f.cycle, rnd.index, p))
+            self.computed += 1
+            if self.on_message is not None:  # the recording: replay knows the reply is missing
+                self.on_message("computed", f"{self.node.keys.root}/faults/computed", f.cycle,
+                                rnd.index, msgpack.packb({"cycle": f.cycle, "stage": rnd.index,
+                                                          "peripheral": p}), t0)
+        if len(self.held) > 1024:
+            self.held.discard(min(self.held))
+        self._span("central", f.cycle, t0, time.monotonic_ns())
+        f.waiting.clear()
+        self._advance(f)
+        return True
 
     def _check_state(self, f: InFlight) -> None:
         """The observed state must track the reference and stay in the usable workspace

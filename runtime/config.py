@@ -23,7 +23,12 @@ from .sections import (
 
 CLOCKS = ("lockstep", "realtime", "freerun")
 REPLY_MODES = ("auto", "fused", "each")
-LATE_POLICIES = ("wait", "hold", "fault")
+LATE_POLICIES = ("wait", "compute", "hold", "fault")
+"""``--late-policy``: what the central does with a round whose replies are late (its share
+of the deadline passed, runtime/central_guard.py): wait for them, compute the late
+peripherals' blocks itself (the same arithmetic: the commands do not change), hold their
+last values, or stop with a fault. A round takes the strictest of its blocks', in this
+order."""
 MISSED_COMMANDS = ("extrapolate", "hold")
 """``--missed-command``: what the plant applies in a period whose command is late: the
 command the central extrapolated for it and sent with the one before (runtime/central.py,

@@ -155,6 +155,26 @@ class Engine:
             self._run_block(b.name, c, axes)
         self.cost.settle()
 
+    @staticmethod
+    def can_run(rnd: Round, c: Ctx, axes: Iterable[int]) -> bool:
+        """Whether ``c`` holds every input of ``rnd``'s blocks for ``axes`` that the round
+        does not make itself (a round a peripheral would run on values it kept from an
+        earlier round of the interval cannot run where those were never returned)."""
+        axes = tuple(axes)
+        made: set[str] = set()
+        for b in rnd.blocks:
+            for v in b.inputs:
+                if v in made:
+                    continue
+                if v.endswith("_i"):
+                    slot = c.get(v)
+                    if slot is None or any(slot[a] is None for a in axes):
+                        return False
+                elif v not in c:
+                    return False
+            made.update(b.outputs)
+        return True
+
     def prefix(self, c: Ctx) -> None:
         """Run the interval's leading steps that need no sample
         (:attr:`~ctrlunit.topology.plan.ExchangePlan.presample_steps`), their rounds

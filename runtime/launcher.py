@@ -281,7 +281,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     report["scheduling_fallback"] = guard.report() if guard is not None else None
     report["zenoh"] = zenoh_ids
     report["late"] = {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),
-                      "misses_per_axis": list(central.late_per_axis)}
+                      "misses_per_axis": list(central.late_per_axis),
+                      "computed": central.computed}
     report["memory_kb"] = {"central": {"warm": central.rss_warm,
                                        "end": central.rss_end if central.rss_end > 0
                                        else rss_kb(), "series": central.rss_series}}

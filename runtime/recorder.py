@@ -12,7 +12,9 @@ Channels
   ``/faults/rejected`` (rejection counters, every 500 intervals and at the end),
   ``/faults/deadline`` (deadline misses and skipped samples as they change),
   ``/faults/held`` (a late round's values replaced by the last ones, ``--late-policy
-  hold``: cycle, stage, peripheral and the values used, which replay uses too).
+  hold``: cycle, stage, peripheral and the values used, which replay uses too),
+  ``/faults/computed`` (a late round the central computed itself for a peripheral,
+  ``--late-policy compute``: cycle, stage, peripheral; replay expects no reply there).
 ``json`` with ``jsonschema`` schemas (open in Foxglove): ``/signals/state`` (p, reference,
   q, torque, tracking error, period, traversal). NaN and infinities are written as null.
 

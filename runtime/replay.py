@@ -19,7 +19,7 @@ from __future__ import annotations
 import csv
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -168,6 +168,9 @@ def verify(
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
     held = {(m["peripheral"], m["cycle"], m["stage"]): m["vals"]
             for _, m in rec.decoded("/faults/held")}
+    # rounds the central computed itself for a late peripheral: no reply to compare
+    computed = {(m["peripheral"], m["cycle"], m["stage"])
+                for _, m in rec.decoded("/faults/computed")}
     last: dict[str, list[Any]] = {}  # the last accepted values, by name and axis
     central_trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
     current: dict[str, int] = {}  # the interval being re-executed (for ``alter``)
@@ -213,7 +216,7 @@ def verify(
                         sent = _diff(Engine.request_vals(rnd, ctx, (0, 1, 2)), m["vals"],
                                      (0, 1, 2), producer, k)
                 engine.run_round(rnd, ctx, (0, 1, 2))
-                d = _apply_held(plan, rnd.index, ctx, k, held, replies, last)
+                d = _apply_held(plan, rnd.index, ctx, k, held, replies, last, computed)
                 if d and compare:
                     return done, d
                 rnd = gen.send(None)
@@ -223,7 +226,8 @@ def verify(
         # the end of the interval are those the central handed off at its hand-off point
         ctl.handoff(ctx)
         if compare:
-            d = _compare_blocks(plan, ctx, k, central_trace.get(k), replies, held) or sent
+            d = _compare_blocks(plan, ctx, k, central_trace.get(k), replies,
+                                held.keys() | computed) or sent
             if d:
                 return done, d
             rec_cmd = commands.get(k)
@@ -236,15 +240,21 @@ def verify(
 
 
 def _apply_held(plan: Any, stage: int, ctx: dict, k: int, held: dict, replies: dict,
-                last: dict[str, list[Any]]) -> Divergence | None:
+                last: dict[str, list[Any]], computed: Collection[tuple[int, int, int]] = ()
+                ) -> Divergence | None:
     """After round ``stage`` of interval ``k``: where the central held a late reply, put
     the held values into ``ctx`` (as the central did) and check they are the last accepted
-    ones; elsewhere note the accepted reply's values as the last ones."""
+    ones; where it computed the round itself (``computed``), its values (here in ``ctx``)
+    are the last ones, as the central keeps them; elsewhere note the accepted reply's
+    values as the last ones."""
     from .engine import Engine
 
     out = None
     for p in range(plan.placement.peripherals):
         axes = plan.placement.axes[p]
+        if (p, k, stage) in computed:
+            Engine.merge(last, Engine.reply_vals(plan.rounds[stage], ctx, axes), axes)
+            continue
         vals = held.get((p, k, stage))
         if vals is None:  # accepted: its values are the last ones, as the central keeps them
             Engine.merge(last, (replies.get((p, k, stage)) or {}).get("vals") or {}, axes)
@@ -260,11 +270,12 @@ def _apply_held(plan: Any, stage: int, ctx: dict, k: int, held: dict, replies: d
 
 def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
                     replies: dict[tuple[int, int, Any], dict],
-                    held: dict) -> Divergence | None:
+                    held: Collection[tuple[int, int, int]]) -> Divergence | None:
     """Compare every block's outputs, in plan order, with what the recording holds: the
     central's trace for central blocks, the replies (values and trace) for per-axis blocks
-    run on the peripherals (except the rounds the central held: :func:`_apply_held`
-    checked those). The first difference names its block."""
+    run on the peripherals (except the rounds the central held, which
+    :func:`_apply_held` checked, or computed itself: ``held`` names both). The first
+    difference names its block."""
     for step in plan.steps:
         if step.round is None:
             b = step.block

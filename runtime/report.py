@@ -129,15 +129,21 @@ def _overload_lines(r: dict[str, Any]) -> list[str]:
 
 
 def _late_lines(r: dict[str, Any]) -> list[str]:
-    """The late intervals and where their time went (:func:`late_work_figures`)."""
+    """The late rounds the central computed itself (``--late-policy compute``), the late
+    intervals and where their time went (:func:`late_work_figures`)."""
+    out = []
+    computed = (r.get("late") or {}).get("computed")
+    if computed:
+        out.append(f"  late data   {computed} late peripheral round(s) computed by the central "
+                   "(the same arithmetic: the commands are unchanged)")
     late = r.get("late_intervals")
     if not late or not late["intervals"] or not late["work_stretch"]:
-        return []
+        return out
     st = late["work_stretch"]
     why = {True: ": the machine itself ran slower",
            False: ": the time went to waiting, not to the work"}.get(late["machine_slower"], "")
-    return [f"  late        {late['intervals']} command(s) left after their deadline; there "
-            f"the peripherals' work took {st['median']:.1f}x its median of "
+    return [*out, f"  late        {late['intervals']} command(s) left after their deadline; "
+            f"there the peripherals' work took {st['median']:.1f}x its median of "
             f"{late['work_median_s'] * 1e6:.0f} us (max {st['max']:.1f}x){why}"]
 
 

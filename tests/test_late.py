@@ -92,3 +92,23 @@ def test_a_per_block_policy_overrides_the_default_for_its_round(tmp_path):
     code, _, out = freeze_briefly(tmp_path, "hold", "--late", "ik=fault")
     assert code == 3, out
     assert "late data: peripheral 2 missed the deadline of round 1 (ik, jinv" in out
+
+
+def test_compute_policy_computes_the_late_rounds_and_replay_verifies_them(tmp_path):
+    """Under compute the frozen peripheral's late rounds are run by the central (the
+    recording names them); replay --verify re-executes the run without those replies and
+    finds every command bit for bit."""
+    from ctrlunit.runtime.recording import read
+    from ctrlunit.runtime.replay import verify
+
+    mcap = tmp_path / "compute.mcap"
+    code, rep, out = freeze_briefly(tmp_path, "compute", "--record", str(mcap))
+    assert code == 0, out
+    computed = [m for _, m in read(mcap).decoded("/faults/computed")]
+    print(f"compute: {len(computed)} rounds, misses per axis {rep['late']['misses_per_axis']}")
+    assert computed and {m["peripheral"] for m in computed} == {1}
+    assert rep["late"]["computed"] == len(computed) == rep["late"]["misses_per_axis"][1]
+    assert "late peripheral round(s) computed by the central" in out
+    n, div = verify(read(mcap))
+    assert div is None, div
+    assert n == rep["cycles"]

@@ -15,6 +15,7 @@ from ...topology.pipeline import HOLD_RULES
 from ..config import (
     EXIT_CONFIG,
     FLAT,
+    LATE_POLICIES,
     MISSED_COMMANDS,
     ConfigError,
     RunConfig,
@@ -134,10 +135,11 @@ def run_options(fn: Any) -> Any:
         click.option("--fault-periods", default=3.0, type=click.FloatRange(1.0, 1000.0),
                      show_default=True, help="Realtime: a peripheral, the plant or a link "
                      "silent for this many periods is a fault (the robot is stopped)."),
-        click.option("--late-policy", type=click.Choice(["wait", "hold", "fault"]),
+        click.option("--late-policy", type=click.Choice(list(LATE_POLICIES)),
                      default="wait", show_default=True,
-                     help="Realtime: a peripheral's late reply is waited for, replaced by "
-                     "its last values (hold), or a fault."),
+                     help="Realtime: a peripheral's late reply is waited for, computed by "
+                     "the central itself (compute: the same arithmetic, so the same "
+                     "commands), replaced by its last values (hold), or a fault."),
         click.option("--late", "late_items", multiple=True, metavar="BLOCK=POLICY",
                      help="Late-data policy for one block (overrides --late-policy)."),
         click.option("--missed-command", type=click.Choice(list(MISSED_COMMANDS)),

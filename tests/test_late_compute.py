@@ -1,0 +1,172 @@
+"""``--late-policy compute``: the central runs a late peripheral's round itself, with the
+kernels the peripheral runs, on the values it sent; the commands are those the reply would
+have given, bit for bit. A real central on the loopback bus (tests/loopback.py), its
+peripherals' replies held back or let through, the clock set by the test."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgpack
+import pytest
+from ctrlunit.runtime.central_guard import Fault
+from ctrlunit.runtime.codec import decode
+from ctrlunit.runtime.config import EXIT_PERIPHERAL, RunConfig
+from loopback import LoopbackUnit
+from runner import unit_id
+
+ON_THE_PATH = ["accel", "dyn_axis", "residual0"]
+
+
+def unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUnit:
+    kw.setdefault("peripherals", 3)
+    kw.setdefault("pipeline", 2)
+    return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", **kw),
+                        on_message=on_message)
+
+
+def sample(u: LoopbackUnit, k: int) -> None:
+    assert u.server is not None
+    u.server.sample_no = k
+    u.server.publish_sample((0, 0))
+    u.central._handle(u.node.events.get_nowait())
+
+
+def turn(u: LoopbackUnit) -> None:
+    """Start, send, run ahead, send; the peripherals not muted answer; take the replies."""
+    c = u.central
+    c._start_ready()
+    c._flush(0)
+    c._prime()
+    c._flush(0)
+    u.pump()
+    while u.node.events.pending():
+        c._handle(u.node.events.get_nowait())
+
+
+def commands(u: LoopbackUnit) -> dict[int, list[float]]:
+    key = u.node.keys.command
+    return {m["cycle"]: m["tau"] for m in (decode(d, u.rc.transport.unit)
+                                           for k, d in u.bus.log if k == key)}
+
+
+def foreseen(tag: str, **kw: Any) -> LoopbackUnit:
+    return unit(tag, model_state="foreseen", central_blocks=ON_THE_PATH, **kw)
+
+
+def test_a_late_round_run_ahead_is_computed_at_its_sample_with_the_same_commands():
+    """Peripheral 2 never answers from interval 2 on: under ``compute`` each interval's
+    round is computed by the central once its sample is here, and every command equals
+    that of the same run where every reply came."""
+    seen: list[tuple] = []
+    ref, u = foreseen("cmpref"), foreseen("cmp", late_policy="compute",
+                                          on_message=lambda *a: seen.append(a))
+    for x in (ref, u):
+        turn(x)
+    for k in range(6):
+        for x in (ref, u):
+            if x is u and k == 1:
+                u.muted = {1}  # from interval 2's round on (sent at interval 1's end)
+            sample(x, k)
+            turn(x)
+        c = u.central
+        if k >= 2:
+            f = c.inflight.get(k)
+            assert f is not None and f.waiting == {1} and f.late_ns  # late at its sample
+            c._check_late(f.late_ns - 1)
+            assert f.waiting == {1} and k not in commands(u)
+            c._check_late(f.late_ns)
+            assert not f.waiting and f.dropped == {1}
+            turn(u)
+    assert commands(u) == commands(ref) and len(commands(u)) == 6
+    c = u.central
+    assert c.computed == 4 and c.late_per_axis == [0, 4, 0]
+    assert {(k, 0, 1) for k in range(2, 6)} <= c.held  # their replies: late when they come
+    rec = [a for a in seen if a[0] == "computed"]
+    assert [msgpack.unpackb(a[4]) for a in rec] == [
+        {"cycle": k, "stage": 0, "peripheral": 1} for k in range(2, 6)]
+    assert all(a[1] == f"{u.node.keys.root}/faults/computed" for a in rec)
+    # a late reply is counted as such, never merged
+    for k, reply in u.withheld[:1]:
+        c._handle(("reply", k, reply, 1))
+    assert c.node.rejected == {"late_reply": 1}
+
+
+def test_a_computed_round_reads_the_replies_already_waiting_first():
+    u = foreseen("cmpwait", late_policy="compute")
+    c = u.central
+    u.muted = {0}
+    turn(u)
+    sample(u, 0)
+    turn(u)
+    f = c.inflight[0]
+    assert f.waiting == {0}
+    for k, reply in u.withheld:  # the reply is in the inbox, not yet read
+        u.bus.put(u.node.keys.reply(k + 1), reply)
+    u.withheld.clear()
+    c._check_late(f.late_ns)
+    assert f.waiting == {0} and c.computed == 0  # read it first
+    c._handle(u.node.events.get_nowait())
+    assert not f.waiting and c.computed == 0 and 0 in commands(u)
+
+
+def test_a_round_that_needs_values_the_peripherals_kept_waits():
+    """The thesis's placement of the foreseen graph: round 1 (residual0) reads the IK the
+    peripheral kept from round 0, which the central never received: it cannot be computed
+    here, so the central waits, as under ``wait``."""
+    u = unit("cmpkept", model_state="foreseen", late_policy="compute")
+    c = u.central
+    turn(u)
+    sample(u, 0)
+    u.muted = {2}
+    turn(u)
+    f = c.inflight[0]
+    assert f.round is not None and f.round.index == 1 and f.waiting == {2}
+    c._check_late(f.late_ns)
+    assert f.waiting == {2} and f.late_ns == 0 and c.computed == 0
+
+
+def test_the_acting_graph_computes_its_late_rounds_at_their_share_of_the_deadline():
+    """Any plan: a round is late at its share of the deadline and computed then; the
+    interval's next round leaves, and the command equals the one with every reply."""
+    ref, u = unit("cmparef", pipeline=1), unit("cmpa", pipeline=1, late_policy="compute")
+    sample(ref, 0)
+    turn(ref)
+    turn(ref)  # its second round
+    assert ref.central.done == 1
+    u.muted = {0}
+    sample(u, 0)
+    turn(u)
+    c = u.central
+    f = c.inflight[0]
+    assert f.round is not None and f.round.index == 0 and f.waiting == {0}
+    c._check_late(f.late_ns)
+    turn(u)  # round 1: peripheral 1 still muted
+    assert f.round.index == 1 and f.waiting == {0}
+    c._check_late(f.late_ns)
+    assert c.done == 1 and commands(u) == commands(ref) and c.computed == 2
+
+
+def test_a_peripheral_that_stays_silent_is_still_a_fault():
+    """Computing its rounds keeps the commands on time, not a dead peripheral alive: its
+    silence past the limit is the named fault, as under every policy."""
+    u = foreseen("cmpdead", late_policy="compute")
+    c = u.central
+    turn(u)
+    sample(u, 0)
+    turn(u)
+    c.done = 30  # past the start-up's longer limit
+    u.muted = {2}
+    c.last_reply_ns[2] = 1
+    for k in range(1, 3):
+        sample(u, k)
+        turn(u)
+        f = c.inflight.get(k)
+        if f is not None and f.waiting:
+            c._check_late(f.late_ns)
+            turn(u)
+    limit = c._timeout_ns()
+    c.role_state = None
+    with pytest.raises(Fault) as info:
+        c._find_silence(limit)  # peripheral 3 last answered at t = 1 ns
+    assert info.value.process == "peripheral-3" and info.value.code == EXIT_PERIPHERAL
