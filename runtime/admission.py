@@ -239,7 +239,7 @@ def predicted_tracking(central: Central, period: float) -> float:
                    gains=Gains.from_bandwidth(rc.bandwidth), period=period,
                    cycles=min(rc.total_cycles(task.period), round(task.period / period) + 1),
                    delay=rc.delay_periods,
-                   observer=rc.control.observer, model_state=rc.control.model_state)
+                   observer=rc.control.observer, model_state=rc.resolved_model_state)
     ref = np.asarray(res.references, dtype=float)
     pos = np.asarray(res.positions, dtype=float)
     return float(np.max(np.linalg.norm(ref - pos, axis=1))) if ref.size else math.nan

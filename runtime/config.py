@@ -216,8 +216,8 @@ class RunConfig:
             raise bad("cost_model", "native or t800")
         if self.control.observer not in ("predict", "previous"):
             raise bad("observer", "predict or previous")
-        if self.control.model_state not in MODEL_STATES:
-            raise bad("model_state", ", ".join(MODEL_STATES))
+        if self.control.model_state not in ("auto", *MODEL_STATES):
+            raise bad("model_state", ", ".join(("auto", *MODEL_STATES)))
         if self.control.bandwidth_hz is not None and not 0.1 <= self.control.bandwidth_hz <= 200.0:
             raise bad("bandwidth_hz", "0.1 to 200 Hz")
         if not 0.01 <= self.transport.timeout <= 600.0:
@@ -305,8 +305,25 @@ class RunConfig:
         ``period`` (s): ``1 / (12.5 T)`` for resolved acceleration at the ``acting`` model
         state, ``1 / (50 T)`` for the other laws (:attr:`bandwidth`)."""
         predicted = (self.control.law == "resolved-acceleration"
-                     and self.control.model_state in ("acting", "foreseen"))
+                     and self.resolved_model_state in ("acting", "foreseen"))
         return 1.0 / ((12.5 if predicted else 50.0) * period)
+
+    @property
+    def resolved_model_state(self) -> str:
+        """``--model-state`` resolved: ``auto`` is ``foreseen`` where the model's round
+        can run ahead of the sample and the time from sample to command counts
+        (resolved acceleration in realtime at depth 2: the path then holds the central's
+        work alone), else ``acting``, which computes the same commands to within 1 % of the
+        tracking error: in freerun its rounds of two intervals fuse into one exchange,
+        and lockstep has no deadline (docs/architecture.md, where the model is
+        evaluated)."""
+        asked = self.control.model_state
+        if asked != "auto":
+            return asked
+        if (self.control.law == "resolved-acceleration" and self.schedule.clock == "realtime"
+                and self.schedule.pipeline >= 2):
+            return "foreseen"
+        return "acting"
 
     @property
     def gains_hold_halved(self) -> bool:

@@ -24,8 +24,9 @@ class ControlConfig:
     law: str = "resolved-acceleration"
     model: str = "complete"
     observer: str = "predict"
-    model_state: str = "acting"
-    """Where resolved acceleration evaluates its model (topology/graph.py, MODEL_STATES)."""
+    model_state: str = "auto"
+    """Where resolved acceleration evaluates its model (topology/graph.py, MODEL_STATES),
+    or ``auto`` (config.RunConfig.resolved_model_state)."""
     bandwidth_hz: float | None = None
     params: str | None = None
     max_error: float = 0.02
@@ -61,7 +62,8 @@ class ScheduleConfig:
     replies: str = "auto"
     hold_rounds: str = "auto"
     """``--hold-rounds`` (topology/pipeline.py, ``HOLD_RULES``)."""
-    late_policy: str = "wait"
+    late_policy: str = "compute"
+    """``--late-policy`` (config.LATE_POLICIES)."""
     missed_command: str = "extrapolate"
     """``--missed-command`` (config.MISSED_COMMANDS)."""
     late: dict[str, str] = field(default_factory=dict)

@@ -108,7 +108,7 @@ def make_setup(rc: RunConfig) -> Setup:
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     graph = stage_graph(rc.control.law, rc.control.model, observer=rc.control.observer,
-                        model_state=rc.control.model_state)
+                        model_state=rc.resolved_model_state)
     if rc.schedule.placement:
         placement = load_placement(rc.schedule.placement,
                                    block_names={b.name for b in graph.axis_blocks})

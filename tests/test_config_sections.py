@@ -55,10 +55,28 @@ def test_flat_dict_round_trip_is_exact() -> None:
 
 def test_a_configuration_recorded_before_the_model_state_evaluates_it_at_the_sample() -> None:
     data = RunConfig.of(unit="uold").to_dict()
-    assert data.pop("model_state") == "acting"  # the default of a run today
+    assert data.pop("model_state") == "auto"  # the default of a run today
     assert RunConfig.from_dict(data).control.model_state == "sample"
-    with pytest.raises(ConfigError, match=r"--model-state = 'later': allowed acting, sample"):
+    with pytest.raises(ConfigError, match=r"--model-state = 'later': allowed auto, acting, "
+                                          r"sample, foreseen"):
         RunConfig.of(model_state="later").validate()
+
+
+@pytest.mark.parametrize(("clock", "depth", "law", "state"), [
+    ("realtime", 2, "resolved-acceleration", "foreseen"),
+    ("realtime", 1, "resolved-acceleration", "acting"),
+    ("lockstep", 2, "resolved-acceleration", "acting"),
+    ("freerun", 2, "resolved-acceleration", "acting"),
+    ("realtime", 2, "computed-torque", "acting"),
+])
+def test_the_model_state_auto_is_foreseen_in_realtime_at_depth_two(clock, depth, law, state):
+    rc = RunConfig.of(clock=clock, pipeline=depth, law=law)
+    assert rc.control.model_state == "auto" and rc.resolved_model_state == state
+    assert RunConfig.of(clock=clock, pipeline=depth, model_state="sample"
+                        ).resolved_model_state == "sample"
+    # the gains: the foreseen model servoes the acting state, as acting does
+    assert rc.replace(period=8e-3).bandwidth == (10.0 if law == "resolved-acceleration"
+                                                 else 2.5)
 
 
 @pytest.mark.parametrize(("period", "law", "state", "hz"), [

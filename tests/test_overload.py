@@ -141,6 +141,9 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tm
          "--peripherals", "3", "--pipeline", "2", "--period", "5ms", "--bandwidth", "8",
          "--task", slow_task(tmp_path), "--duration", "6s", "--no-admission",
          "--overload", "halve", "--fault-periods", "20", "--max-error", "0.005",
+         # the frozen peripheral's rounds must make the intervals late: not computed by
+         # the central (the default late policy, tests/test_late_compute.py)
+         "--late-policy", "wait",
          "--record", str(rec), "--status-file", str(status), "--report", str(report)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:

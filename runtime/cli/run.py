@@ -113,8 +113,8 @@ def run_options(fn: Any) -> Any:
         click.option("--observer", type=click.Choice(["predict", "previous"]),
                      default="predict", show_default=True,
                      help="Newton-Raphson start: prediction (1 iteration) or previous (2)."),
-        click.option("--model-state", type=click.Choice(list(MODEL_STATES)),
-                     default="acting", show_default=True,
+        click.option("--model-state", type=click.Choice(["auto", *MODEL_STATES]),
+                     default="auto", show_default=True,
                      help="Resolved acceleration: servo the state predicted for the period "
                      "in which the command acts (carried forward at the commands in flight) "
                      "and evaluate the model (second round's kinematics, dynamics) there, "
@@ -122,7 +122,8 @@ def run_options(fn: Any) -> Any:
                      "with the model's kinematics at that state foreseen from the previous "
                      "interval, so that at depth 2 the peripherals compute them before the "
                      "sample (foreseen); or servo and evaluate at the sample's estimate "
-                     "with pdot = J qdot as the thesis (sample)."),
+                     "with pdot = J qdot as the thesis (sample); auto: foreseen in "
+                     "realtime at depth 2, acting otherwise."),
         click.option("--bandwidth", "bandwidth_hz", type=float, default=None,
                      help="Closed-loop bandwidth of the gains in Hz (default: 20, at most "
                      "1/(12.5 period) with resolved acceleration at the acting state, "
@@ -136,7 +137,7 @@ def run_options(fn: Any) -> Any:
                      show_default=True, help="Realtime: a peripheral, the plant or a link "
                      "silent for this many periods is a fault (the robot is stopped)."),
         click.option("--late-policy", type=click.Choice(list(LATE_POLICIES)),
-                     default="wait", show_default=True,
+                     default="compute", show_default=True,
                      help="Realtime: a peripheral's late reply is waited for, computed by "
                      "the central itself (compute: the same arithmetic, so the same "
                      "commands), replaced by its last values (hold), or a fault."),
@@ -235,7 +236,8 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
     for item in kw.pop("late_items", ()) or ():
         block, _, pol = item.partition("=")
         if not block or not pol:
-            raise ConfigError(f"--late {item!r}: expected BLOCK=POLICY (wait, hold, fault)")
+            raise ConfigError(f"--late {item!r}: expected BLOCK=POLICY (POLICY one of "
+                              f"{', '.join(LATE_POLICIES)})")
         late[block] = pol
     kw["late"] = late
     placement = kw.get("placement")
