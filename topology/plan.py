@@ -98,12 +98,14 @@ class ExchangePlan:
 
     def describe(self) -> str:
         lines = []
+        ahead = self.ahead_rounds
         for s in self.steps:
             if s.kind == "round":
                 r = s.round
                 assert r is not None
                 lines.append(
-                    f"round {r.index}: send {', '.join(r.send)} -> run "
+                    f"round {r.index}{' (needs no sample)' if r.index < ahead else ''}: "
+                    f"send {', '.join(r.send)} -> run "
                     f"{', '.join(b.name for b in r.blocks)} -> recv {', '.join(r.recv)}"
                 )
             else:
