@@ -150,6 +150,25 @@ def test_lockstep_commands_equal_the_one_process_reference(n, depth, central):
     assert u.central.done == CYCLES and not u.node.rejected and not u.central.inflight
 
 
+def test_in_freerun_an_interval_starts_before_its_model_round_leaves():
+    """Freerun has no sample to wait for: the next interval starts as soon as the newest
+    hands off, before the central would run it ahead, so its model round is its first
+    (the schedule model, topology/schedule.py, plays freerun so)."""
+    seen: list[tuple[str, int]] = []
+
+    def note(_d: str, key: str, cycle: int, *_: object) -> None:
+        if key.endswith(("/sample", "/request")):
+            seen.append(("sample" if key.endswith("/sample") else "request", cycle))
+
+    u = LoopbackUnit(lockstep_config(unit_id("fsfree"), clock="freerun", peripherals=3,
+                                     pipeline=2, cycles=40, model_state="foreseen",
+                                     central_blocks=sorted(ON_THE_PATH)), on_message=note)
+    u.run()
+    assert u.central.done == 40 and u.central.exchanges == 40
+    for k in range(40):
+        assert seen.index(("sample", k)) < seen.index(("request", k)), seen[:12]
+
+
 # -- the star in realtime, step by step ----------------------------------------------------
 
 

@@ -8,6 +8,10 @@ ahead at depth 2, ready rounds fused into one request, a lone second half held f
 next first round, replies fused or one per part (first rounds first), and the central
 finishing an interval after the next request is out. The central is one server that
 handles replies in the order they arrive; each peripheral runs its requests in order.
+Rounds that need no sample (``ExchangePlan.ahead_rounds``) leave ahead of their interval
+only where its sample has yet to come (lockstep, realtime); in freerun the next interval
+starts as soon as the newest hands off, before the central would run it ahead, so such a
+round is its interval's first, as here.
 
 It predicts the period, the traversal, each process's business and a Gantt chart, for a
 placement that has never run: what ``ctrlunit balance`` needs to rank placements
