@@ -36,6 +36,7 @@ from ..topology.pipeline import (
     may_prime,
     may_start,
 )
+from ..topology.plan import Round
 from .blocks import ObserverDiverged
 from .central_guard import CentralGuard, Fault
 from .central_intake import CentralIntake
@@ -407,26 +408,13 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
     def _advance(self, f: InFlight) -> None:
         """Run the interval's central steps up to its next round (or its end)."""
         f.start_ns = time.monotonic_ns()  # the central's span starts here, not at a send
-        try:
-            rnd = f.gen.send(None) if f.started else next(f.gen)
-        except StopIteration:
-            rnd = None
-        except ObserverDiverged as exc:
-            raise Fault(f"cycle {f.cycle}: {exc}", process="central",
-                        code=EXIT_OBSERVER) from None
-        f.started = True
+        rnd = self._step(f)
         while rnd is AWAIT_SAMPLE:  # run ahead: its sample-free steps and rounds are done
             if f.awaiting_sample:
                 f.gated, f.round = True, None
                 self._span("central", f.cycle, f.start_ns, time.monotonic_ns())
                 return
-            try:  # the sample came while its rounds were out
-                rnd = f.gen.send(None)
-            except StopIteration:
-                rnd = None
-            except ObserverDiverged as exc:
-                raise Fault(f"cycle {f.cycle}: {exc}", process="central",
-                            code=EXIT_OBSERVER) from None
+            rnd = self._step(f)  # the sample came while its rounds were out
         if not f.handed_off and (rnd is None or self.round_step[rnd.index] > self.hand):
             self.ctl.handoff(f.ctx)
             f.handed_off = True
@@ -436,6 +424,19 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         f.round = rnd
         self.outbox.append(f)
         self._span("central", f.cycle, f.start_ns, time.monotonic_ns())
+
+    @staticmethod
+    def _step(f: InFlight) -> Round | None:
+        """Run the steps of ``f`` up to its next round (None: to its end)."""
+        try:
+            rnd = f.gen.send(None) if f.started else next(f.gen)
+        except StopIteration:
+            rnd = None
+        except ObserverDiverged as exc:
+            raise Fault(f"cycle {f.cycle}: {exc}", process="central",
+                        code=EXIT_OBSERVER) from None
+        f.started = True
+        return rnd
 
     def _flush(self, now: int) -> int:
         """Send every queued round as the parts of one request; returns, when a round is
