@@ -263,20 +263,38 @@ def k_inflight(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     period at the accelerations of the commands already sent (:func:`acting_acceleration`),
     ``p += pdot T + pddot T^2/2``, ``pdot += pddot T`` (a Smith predictor: the law then
     servoes the state its command will meet, docs/architecture.md)."""
-    est = c[n["est"]]
-    t, T = c[n["t"]], cfg.period
-    (px, py, pz), (vx, vy, vz) = c[n["p"]], c[n["pd"]]
+    c[n["p0"]], c[n["v0"]] = carried(c[n["est"]], c[n["t"]], cfg.delay, cfg, c[n["p"]],
+                                     c[n["pd"]])
+
+
+Vec = tuple[float, float, float]
+
+
+def carried(est: tuple, start: float, periods: int, cfg: BlockConfig, p: Vec, v: Vec
+            ) -> tuple[Vec, Vec]:
+    """``p, pdot`` at ``start`` (s) carried ``periods`` periods forward, each at the
+    acceleration of the command acting in it (:func:`acting_acceleration`): ``p += pdot T
+    + pddot T^2/2``, ``pdot += pddot T``."""
+    T = cfg.period
+    (px, py, pz), (vx, vy, vz) = p, v
     h = 0.5 * T * T
-    for k in range(cfg.delay):
-        a = acting_acceleration(est, t + k * T, cfg)
+    for k in range(periods):
+        a = acting_acceleration(est, start + k * T, cfg)
         px += vx * T + a[0] * h
         py += vy * T + a[1] * h
         pz += vz * T + a[2] * h
         vx += a[0] * T
         vy += a[1] * T
         vz += a[2] * T
-    c[n["p0"]] = (px, py, pz)
-    c[n["v0"]] = (vx, vy, vz)
+    return (px, py, pz), (vx, vy, vz)
+
+
+def half_span(p: Vec, v: Vec, a: Vec, L: float) -> tuple[Vec, Vec]:
+    """``p, pdot`` carried ``L`` (s) on at the acceleration ``a``: ``p + pdot L + a
+    L^2/2``, ``pdot + a L``."""
+    h = 0.5 * L * L
+    return ((p[0] + v[0] * L + a[0] * h, p[1] + v[1] * L + a[1] * h,
+             p[2] + v[2] * L + a[2] * h), (v[0] + a[0] * L, v[1] + a[1] * L, v[2] + a[2] * L))
 
 
 def k_law(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
@@ -290,12 +308,8 @@ def k_ahead(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     ``pa = p0 + pdot0 L + pddot L^2/2``, ``pda = pdot0 + pddot L``, ``L = hold T/2``
     (``hold``: the periods the command acts for; docs/architecture.md, where the model is
     evaluated)."""
-    p, pd, a = c[n["p"]], c[n["pd"]], c[n["pdd"]]
-    L = 0.5 * cfg.period * c[n["hold"]]
-    h = 0.5 * L * L
-    c[n["pa"]] = (p[0] + pd[0] * L + a[0] * h, p[1] + pd[1] * L + a[1] * h,
-                  p[2] + pd[2] * L + a[2] * h)
-    c[n["pda"]] = (pd[0] + a[0] * L, pd[1] + a[1] * L, pd[2] + a[2] * L)
+    c[n["pa"]], c[n["pda"]] = half_span(c[n["p"]], c[n["pd"]], c[n["pdd"]],
+                                        0.5 * cfg.period * c[n["hold"]])
 
 
 def k_foresee(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
@@ -311,22 +325,10 @@ def k_foresee(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     evaluated)."""
     est = c[n["est"]]
     t, T = c[n["t"]], cfg.period
-    (px, py, pz), (vx, vy, vz), t_est = est[0], est[1], est[3]
-    start = t if t_est is None else t_est
-    h = 0.5 * T * T
-    for k in range(max(0, round((t - start) / T)) + cfg.delay):
-        a = acting_acceleration(est, start + k * T, cfg)
-        px += vx * T + a[0] * h
-        py += vy * T + a[1] * h
-        pz += vz * T + a[2] * h
-        vx += a[0] * T
-        vy += a[1] * T
-        vz += a[2] * T
-    a = c[n["ac"]]
-    L = 0.5 * T * c[n["hold"]]
-    h = 0.5 * L * L
-    c[n["pa"]] = (px + vx * L + a[0] * h, py + vy * L + a[1] * h, pz + vz * L + a[2] * h)
-    c[n["pda"]] = (vx + a[0] * L, vy + a[1] * L, vz + a[2] * L)
+    start = t if est[3] is None else est[3]
+    p0, v0 = carried(est, start, max(0, round((t - start) / T)) + cfg.delay, cfg, est[0],
+                     est[1])
+    c[n["pa"]], c[n["pda"]] = half_span(p0, v0, c[n["ac"]], 0.5 * T * c[n["hold"]])
 
 
 def k_task_accel(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:

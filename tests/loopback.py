@@ -260,3 +260,26 @@ def record_lockstep(path: str, unit: str, **kw: Any) -> LoopbackUnit:
         recorder.close(unit_.central)
         recorder.write_report({})
     return unit_
+
+
+def take_sample(u: LoopbackUnit, k: int) -> None:
+    """Realtime by hand: the plant's sample ``k`` (the robot's present state), taken by the
+    central."""
+    assert u.server is not None
+    u.server.sample_no = k
+    u.server.publish_sample((0, 0))
+    u.central._handle(u.node.events.get_nowait())
+
+
+def turn(u: LoopbackUnit) -> None:
+    """Realtime by hand, one turn of the central's loop without its wait: start what may
+    start, send, run the next interval ahead, send; then the peripherals that are not
+    muted answer and the central takes their replies."""
+    c = u.central
+    c._start_ready()
+    c._flush(0)
+    c._prime()
+    c._flush(0)
+    u.pump()
+    while u.node.events.pending():
+        c._handle(u.node.events.get_nowait())

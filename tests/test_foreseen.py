@@ -20,7 +20,8 @@ from ctrlunit.topology.balance import auto_central_blocks
 from ctrlunit.topology.graph import KINEMATICS, LAWS, OBSERVERS, stage_graph
 from ctrlunit.topology.placement import Placement, default_placement
 from ctrlunit.topology.plan import exchange_plan, needs_sample
-from loopback import LoopbackUnit, lockstep_config
+from loopback import LoopbackUnit, lockstep_config, turn
+from loopback import take_sample as sample
 from runner import unit_id
 
 CYCLES = 120
@@ -176,26 +177,6 @@ def realtime_unit(tag: str) -> LoopbackUnit:
     return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", peripherals=3,
                                      pipeline=2, model_state="foreseen",
                                      central_blocks=sorted(ON_THE_PATH)))
-
-
-def sample(u: LoopbackUnit, k: int) -> None:
-    assert u.server is not None
-    u.server.sample_no = k
-    u.server.publish_sample((0, 0))
-    u.central._handle(u.node.events.get_nowait())
-
-
-def turn(u: LoopbackUnit) -> None:
-    """One turn of the central's loop without its wait: start, send, run ahead, send;
-    then let the peripherals answer and take the replies."""
-    c = u.central
-    c._start_ready()
-    c._flush(0)
-    c._prime()
-    c._flush(0)
-    u.pump()
-    while u.node.events.pending():
-        c._handle(u.node.events.get_nowait())
 
 
 def messages(u: LoopbackUnit, start: int = 0) -> list[tuple[str, int]]:

@@ -12,7 +12,8 @@ import pytest
 from ctrlunit.runtime.central_guard import Fault
 from ctrlunit.runtime.codec import decode
 from ctrlunit.runtime.config import EXIT_PERIPHERAL, RunConfig
-from loopback import LoopbackUnit
+from loopback import LoopbackUnit, turn
+from loopback import take_sample as sample
 from runner import unit_id
 
 ON_THE_PATH = ["accel", "dyn_axis", "residual0"]
@@ -23,25 +24,6 @@ def unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUnit:
     kw.setdefault("pipeline", 2)
     return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", **kw),
                         on_message=on_message)
-
-
-def sample(u: LoopbackUnit, k: int) -> None:
-    assert u.server is not None
-    u.server.sample_no = k
-    u.server.publish_sample((0, 0))
-    u.central._handle(u.node.events.get_nowait())
-
-
-def turn(u: LoopbackUnit) -> None:
-    """Start, send, run ahead, send; the peripherals not muted answer; take the replies."""
-    c = u.central
-    c._start_ready()
-    c._flush(0)
-    c._prime()
-    c._flush(0)
-    u.pump()
-    while u.node.events.pending():
-        c._handle(u.node.events.get_nowait())
 
 
 def commands(u: LoopbackUnit) -> dict[int, list[float]]:
