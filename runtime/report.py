@@ -389,9 +389,14 @@ def summary(r: dict[str, Any]) -> str:
                      + ")" + (f"; the first trial at it had one stall ({adm['rungs'][-2]['late']}"
                               " intervals late), so it ran again"
                               if adm["rungs"][-1].get("retry") else ""))
-    if r["rejected_messages"]:
+    rejected = dict(r["rejected_messages"])
+    late = rejected.pop("late_reply", 0)  # not malformed: a round already held or computed
+    if late:
+        lines.append(f"  late replies {late} (dropped: their rounds were held or computed "
+                     "by the central)")
+    if rejected:
         lines.append("  rejected messages " + ", ".join(
-            f"{k}: {v}" for k, v in sorted(r["rejected_messages"].items())))
+            f"{k}: {v}" for k, v in sorted(rejected.items())))
     if r.get("fault"):
         f = r["fault"]
         code = f" (exit {f['code']})" if f.get("code") is not None else ""

@@ -152,3 +152,21 @@ def test_a_peripheral_that_stays_silent_is_still_a_fault():
     with pytest.raises(Fault) as info:
         c._find_silence(limit)  # peripheral 3 last answered at t = 1 ns
     assert info.value.process == "peripheral-3" and info.value.code == EXIT_PERIPHERAL
+
+
+def test_the_summary_tells_late_replies_from_rejected_messages():
+    """A late reply is no malformed message: the summary says so on a line of its own."""
+    from ctrlunit.runtime.report import finish_report, summary
+    from loopback import lockstep_config
+
+    u = LoopbackUnit(lockstep_config(unit_id("cmpsum"), peripherals=3, pipeline=2,
+                                     cycles=20, max_error=1.0))
+    u.run()
+    r = finish_report(u.setup, u.central, None)
+    r["rejected_messages"] = {"late_reply": 3, "bad_value": 1}
+    lines = summary(r).splitlines()
+    assert "  late replies 3 (dropped: their rounds were held or computed by the central)" \
+        in lines
+    assert "  rejected messages bad_value: 1" in lines
+    r["rejected_messages"] = {"late_reply": 2}
+    assert not any("rejected" in x for x in summary(r).splitlines())
