@@ -223,6 +223,9 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.round_step = {s.round.index: k for k, s in enumerate(self.plan.steps)
                            if s.round is not None}
         self.last_round = self.plan.rounds[-1].index if self.plan.rounds else -1
+        # rounds that need no sample (sent ahead of it at depth 2); derived once: the
+        # plan's property walks the graph (about 10 us), and the loop asks per interval
+        self.ahead_rounds = self.plan.ahead_rounds if self.n else 0
         self.late_policy = self._late_policies()
         self.warm_rtt_s: list[float] = []
 
@@ -375,7 +378,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         k = self.next_cycle
         t0 = time.monotonic_ns()
         ctx = self.ctl.context(k)
-        if self.plan.ahead_rounds and self.n:  # its rounds run ahead of the sample too
+        if self.ahead_rounds:  # its rounds run ahead of the sample too
             f = InFlight(k, self.engine.cycle(ctx, gate=True), ctx, 0, t0,
                          awaiting_sample=True)
             self.inflight[k] = f

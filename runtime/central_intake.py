@@ -157,7 +157,7 @@ class CentralIntake:
         # finish after the next request is out (their last central blocks, command,
         # recording and progress overlap the peripherals' work)
         finishing = [f for f in complete if f.round is not None
-                     and f.round.index >= self.plan.ahead_rounds
+                     and f.round.index >= self.ahead_rounds
                      and finishes_after_next_request(depth=self.depth,
                                                      round_index=f.round.index,
                                                      last_round=self.last_round)]
