@@ -181,6 +181,22 @@ def k_predict(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
         c[n["p_lin0"]] = tuple(p)
 
 
+def k_predict_span(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    """The observer's starting point from an estimate that may lie several periods back
+    (the source ``est2`` of a ``foreseen2`` graph): ``p + pdot dt + pddot dt^2/2`` with
+    ``dt`` the time from the estimate's sample to this one's (one period for the starting
+    estimate, which is at rest), as :func:`k_predict` does over one period."""
+    est = c[n["est"]]
+    p, pd, pdd = est[0], est[1], est[2]
+    if cfg.observer == "predict":
+        dt = cfg.period if est[3] is None else c[n["t"]] - est[3]
+        h = 0.5 * dt * dt
+        c[n["p_lin0"]] = (p[0] + pd[0] * dt + pdd[0] * h, p[1] + pd[1] * dt + pdd[1] * h,
+                          p[2] + pd[2] * dt + pdd[2] * h)
+    else:
+        c[n["p_lin0"]] = tuple(p)
+
+
 def k_observer(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     rows = c[n["row_i"]]
     r = c[n["r_i"]]
@@ -380,6 +396,7 @@ CENTRAL_KERNELS: dict[str, Callable[[Ctx, BlockConfig, dict[str, str]], None]] =
     "reference": k_reference, "reference_acting": k_reference_acting, "predict": k_predict,
     "observer": k_observer, "velocity": k_velocity, "velocity_diff": k_velocity_diff,
     "inflight": k_inflight, "law": k_law, "ahead": k_ahead, "foresee": k_foresee,
+    "predict_span": k_predict_span,
     "task_accel": k_task_accel,
     "dyn_central": k_dyn_central, "gravity_central": k_gravity_central,
     "collect": k_collect, "output": k_output,

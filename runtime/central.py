@@ -29,6 +29,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..kernels.kinematics import ik_axis
+from ..topology.graph import EST2
 from ..topology.pipeline import (
     handoff_step,
     hold_rule,
@@ -84,6 +85,13 @@ rate will hold again: the return is its own trial)."""
 OVERLOAD_PROBE_LATE = 3
 """Late intervals within :data:`OVERLOAD_WINDOW` that end a return on trial
 (:data:`OVERLOAD_PROBE_S`)."""
+
+
+def t1_input(ctx: dict) -> tuple:
+    """What ``t_1`` recomputes an interval from (runtime/engine.py, :func:`measure_t1`):
+    its sources ``t, est, qmeas, qdmeas`` and, where the graph has it, ``est2``."""
+    base = (ctx["t"], ctx["est"], list(ctx["qmeas_i"]), list(ctx["qdmeas_i"]))
+    return (*base, ctx[EST2]) if EST2 in ctx else base
 
 
 def extrapolated_command(tau: list[float], prev: list[float]) -> list[float]:
@@ -188,7 +196,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.excuses = 0  # silences past their limit excused (central_guard._excuse)
         self._next_child_check = 0.0
         self.outbox: list[InFlight] = []  # intervals whose next round waits to be sent
-        self.primed: tuple[int, dict] | None = None  # next interval, sample-free steps run
+        self.primed: list[tuple[int, dict]] = []  # next intervals, sample-free steps run
         self.exchanges = 0  # requests sent (each may carry several rounds)
         self.send_ns = 0  # time spent sending requests (encode, put)
         self.reply_ns = 0  # time spent on replies (decode, check, merge), not what follows
@@ -314,14 +322,14 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                     counts = self._synthetic_sample(k)
             self.next_cycle = k + self.ctl.hold_of(k)
             t0 = time.monotonic_ns()
-            primed, self.primed = self.primed, None
-            ahead = self.inflight.get(k) if primed is not None and primed[0] == k else None
+            primed = self._take_primed(k)
+            ahead = self.inflight.get(k) if primed is not None else None
             if ahead is not None and ahead.awaiting_sample:  # its rounds ran ahead
+                ahead.ctx["est"] = self.ctl.est  # final now (foresight 2: not when primed)
                 self.ctl.measure(ahead.ctx, k, counts)
                 if len(self.t1_inputs) < self.rc.run.t1_cycles:
                     ctx = ahead.ctx
-                    self.t1_inputs.append((ctx["t"], ctx["est"], list(ctx["qmeas_i"]),
-                                           list(ctx["qdmeas_i"])))
+                    self.t1_inputs.append(t1_input(ctx))
                 ahead.sample_ns, ahead.start_ns = t_ns, t0
                 ahead.awaiting_sample = False
                 if ahead.waiting and self.rc.schedule.clock == "realtime":
@@ -331,24 +339,34 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                     ahead.gated = False
                     self._advance(ahead)
                 continue
-            if primed is not None:
-                self._drop_ahead(primed[0])
-            if primed is not None and primed[0] == k:  # its sample-free steps are done
-                ctx = primed[1]
+            if primed is not None:  # its sample-free steps are done
+                ctx = primed
                 self.ctl.measure(ctx, k, counts)
                 gen = self.engine.cycle(ctx, skip_prefix=True)
             else:
-                if primed is not None and self.on_message is not None:
-                    self._note_discarded(primed[0])
                 ctx = self.ctl.sources(k, counts)
                 gen = self.engine.cycle(ctx)
             if len(self.t1_inputs) < self.rc.run.t1_cycles:
-                self.t1_inputs.append((ctx["t"], ctx["est"], list(ctx["qmeas_i"]),
-                                       list(ctx["qdmeas_i"])))
+                self.t1_inputs.append(t1_input(ctx))
             f = InFlight(k, gen, ctx, t_ns, t0)
             self.inflight[k] = f
             self.admit_ns += time.perf_counter_ns() - t_in
             self._advance(f)
+
+    def _take_primed(self, k: int) -> dict | None:
+        """The context of interval ``k`` if its sample-free steps ran (it was primed),
+        else None. Intervals primed before ``k`` are dropped (their samples were
+        skipped); those after it stay (foresight 2: the next one was primed with it)."""
+        ctx = None
+        while self.primed and self.primed[0][0] <= k:
+            cycle, c = self.primed.pop(0)
+            if cycle == k:
+                ctx = c
+                continue
+            self._drop_ahead(cycle)
+            if self.on_message is not None:
+                self._note_discarded(cycle)
+        return ctx
 
     def _drop_ahead(self, cycle: int) -> None:
         """Forget an interval started ahead of a sample that was skipped: its replies, if
@@ -371,27 +389,40 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         interval's last reply and the next request, with the peripherals idle. Same
         arithmetic: the estimate they use is final at the hand-off. Returns whether it
         ran them."""
-        if not may_prime(depth=self.depth, primed=self.primed is not None,
+        if not may_prime(depth=self.depth, primed=bool(self.primed),
                          next_cycle=self.next_cycle, cycles=self.cycles,
                          newest_handed_off=self._newest_handed_off()):
             return False
-        k = self.next_cycle
-        t0 = time.monotonic_ns()
-        ctx = self.ctl.context(k)
-        if self.ahead_rounds:  # its rounds run ahead of the sample too
-            f = InFlight(k, self.engine.cycle(ctx, gate=True), ctx, 0, t0,
-                         awaiting_sample=True)
-            self.inflight[k] = f
-            self.primed = (k, ctx)
-            self._advance(f)
-            return True
-        try:
-            self.engine.prefix(ctx)
-        except ObserverDiverged as exc:
-            raise Fault(f"cycle {k}: {exc}", process="central", code=EXIT_OBSERVER) from None
-        self.primed = (k, ctx)
-        self._span("central", k, t0, time.monotonic_ns())
+        for k in self._prime_cycles():
+            t0 = time.monotonic_ns()
+            ctx = self.ctl.context(k)
+            if self.ahead_rounds:  # its rounds run ahead of the sample too
+                f = InFlight(k, self.engine.cycle(ctx, gate=True), ctx, 0, t0,
+                             awaiting_sample=True)
+                self.inflight[k] = f
+                self.primed.append((k, ctx))
+                self._advance(f)
+                continue
+            try:
+                self.engine.prefix(ctx)
+            except ObserverDiverged as exc:
+                raise Fault(f"cycle {k}: {exc}", process="central",
+                            code=EXIT_OBSERVER) from None
+            self.primed.append((k, ctx))
+            self._span("central", k, t0, time.monotonic_ns())
         return True
+
+    def _prime_cycles(self) -> list[int]:
+        """The intervals :meth:`_prime` starts: the next one, and where the graph's
+        sample-free steps read the estimate of two intervals back (foresight 2) and the
+        next interval comes a period after it, that one too: its ``est2`` is final
+        already, and the two intervals' rounds go in one request (one exchange per two
+        intervals)."""
+        k = self.next_cycle
+        if (self.plan.graph.foresight > 1 and self.ctl.hold_of(k) == 1
+                and k + 1 < self.cycles and self.ctl.on_grid(k + 1)):
+            return [k, k + 1]
+        return [k]
 
     def _note_discarded(self, cycle: int) -> None:
         """Tell the recording that the primed steps of ``cycle`` ran but its interval did

@@ -305,7 +305,7 @@ class RunConfig:
         ``period`` (s): ``1 / (12.5 T)`` for resolved acceleration at the ``acting`` model
         state, ``1 / (50 T)`` for the other laws (:attr:`bandwidth`)."""
         predicted = (self.control.law == "resolved-acceleration"
-                     and self.resolved_model_state in ("acting", "foreseen"))
+                     and self.resolved_model_state in ("acting", "foreseen", "foreseen2"))
         return 1.0 / ((12.5 if predicted else 50.0) * period)
 
     @property

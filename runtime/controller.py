@@ -77,6 +77,9 @@ class Controller:
     grid: StrideSchedule = field(default_factory=StrideSchedule, init=False)
     """Which samples run an interval (every one until the rate is halved: :meth:`halve`,
     runtime/stride.py)."""
+    older: tuple[Estimate, ...] = field(default=(), init=False)
+    """The estimates handed off before :attr:`est`, newest last (two kept): the source
+    ``est2`` (:meth:`est_before`)."""
 
     def __post_init__(self) -> None:
         # plain floats: a numpy scalar here would make every value computed from the
@@ -93,7 +96,22 @@ class Controller:
         """Context of interval ``cycle`` before its sample: time and the estimate handed
         off by the previous interval (enough for the plan's sample-free leading steps)."""
         return self.engine.new_ctx(self.time_of(cycle), self.est, (0.0,) * 3, (0.0,) * 3,
-                                   hold=self.hold_of(cycle))
+                                   hold=self.hold_of(cycle),
+                                   est2=self.est_before(cycle) if self.engine.has_est2
+                                   else None)
+
+    def est_before(self, cycle: int) -> Estimate:
+        """The source ``est2`` of interval ``cycle`` (topology/graph.py, ``EST2``): the
+        newest estimate handed off by an interval whose sample is at least two periods
+        before this one's (the starting estimate if none is). It is decided by the
+        samples' times alone, so the central, which takes it before the previous
+        interval has handed off, and a one-process run or a replay, which take it after,
+        find the same one."""
+        limit = self.time_of(cycle) - 1.5 * self.period  # two periods back, less rounding
+        for e in (self.est, *reversed(self.older)):
+            if e.t is None or e.t <= limit:
+                return e
+        return self.older[0] if self.older else self.est
 
     def halve(self, start: int) -> None:
         """Halve the control rate from cycle ``start`` on (a realtime run on overload):
@@ -137,6 +155,7 @@ class Controller:
         """Take the observer's estimate from an interval at its hand-off point."""
         pdd = tuple(ctx.get("pdd", (0.0, 0.0, 0.0)))
         keep = self.engine.cfg.delay + 1
+        self.older = (*self.older, self.est)[-2:]
         self.est = Estimate(
             tuple(ctx.get("p", self.est[0])),
             tuple(ctx.get("pd", (0.0, 0.0, 0.0))),

@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Generator, Iterable
 from typing import Any
 
+from ..topology.graph import EST2
 from ..topology.plan import ExchangePlan, Round
 from .blocks import AXIS_KERNELS, CENTRAL_KERNELS, BlockConfig, Ctx, ObserverDiverged, names_for
 
@@ -108,6 +109,7 @@ class Engine:
             names.update(b.inputs)
             names.update(b.outputs)
         self.axis_names = sorted(n for n in names if n.endswith("_i"))
+        self.has_est2 = EST2 in plan.graph.sources
         self.presample = plan.presample_steps
         # bind kernels once
         self._bound: dict[str, tuple[Any, dict[str, str], float, bool]] = {}
@@ -118,13 +120,16 @@ class Engine:
     # -- contexts ---------------------------------------------------------------------
 
     def new_ctx(self, t: float, est: Any, qmeas: Iterable[float], qdmeas: Iterable[float],
-                *, hold: int = 1) -> Ctx:
+                *, hold: int = 1, est2: Any = None) -> Ctx:
         """A fresh interval context from its sources (topology/graph.py, ``SOURCES``);
-        ``hold``: the periods the interval's command acts for."""
+        ``hold``: the periods the interval's command acts for; ``est2``: where the graph
+        has the source ``est2``, the estimate of two intervals back (default ``est``)."""
         c: Ctx = {n: [None, None, None] for n in self.axis_names}
         c["t"] = t
         c["hold"] = hold
         c["est"] = est
+        if self.has_est2:
+            c[EST2] = est if est2 is None else est2
         c["qmeas_i"] = list(qmeas)
         c["qdmeas_i"] = list(qdmeas)
         return c
@@ -258,7 +263,8 @@ def measure_t1(engine_factory: Callable[[], Engine], inputs: list[tuple], *, rep
     Parameters
     ----------
     engine_factory : builds an n = 0 engine (same law, model, cost model).
-    inputs : ``(t, est, qmeas, qdmeas)`` of recorded intervals.
+    inputs : ``(t, est, qmeas, qdmeas)`` of recorded intervals, and ``est2`` after them
+        where the graph reads it.
 
     Returns
     -------
@@ -273,8 +279,8 @@ def measure_t1(engine_factory: Callable[[], Engine], inputs: list[tuple], *, rep
     eng.span = span
     times = []
     for _ in range(repeat):
-        for t, est, q, qd in inputs:
-            ctx = eng.new_ctx(t, est, q, qd)
+        for t, est, q, qd, *est2 in inputs:
+            ctx = eng.new_ctx(t, est, q, qd, est2=est2[0] if est2 else None)
             t0 = time.perf_counter_ns()
             try:
                 eng.run_local(ctx)

@@ -421,6 +421,7 @@ def _delay_lines(r: dict[str, Any]) -> list[str]:
         return []
     where = {"acting": "; model at the state where it acts",
              "foreseen": "; model at the state where it acts, foreseen a period ahead",
+             "foreseen2": "; model at the state where it acts, foreseen two periods ahead",
              "sample": "; model at the sample"}.get(r.get("model_state"), "")
     return [f"  command delay {d['periods']} period(s) from sample to the period it acts in "
             f"({d['convention']}){where}"]

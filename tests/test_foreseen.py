@@ -138,15 +138,16 @@ def test_foreseen_tracks_pick_place_as_the_model_at_the_acting_state(period):
 # -- the star in lockstep ------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("state", ["foreseen", "foreseen2"])
 @pytest.mark.parametrize("central", [frozenset(), ON_THE_PATH])
 @pytest.mark.parametrize(("n", "depth"), [(1, 1), (3, 1), (1, 2), (2, 2), (3, 2)])
-def test_lockstep_commands_equal_the_one_process_reference(n, depth, central):
+def test_lockstep_commands_equal_the_one_process_reference(n, depth, central, state):
     u = LoopbackUnit(lockstep_config(unit_id("fs"), peripherals=n, pipeline=depth,
-                                     cycles=CYCLES, max_error=1.0, model_state="foreseen",
+                                     cycles=CYCLES, max_error=1.0, model_state=state,
                                      central_blocks=sorted(central)))
     u.run()
     ref = simulate(P, pick_place_task(), gains=Gains.from_bandwidth(20.0), cycles=CYCLES,
-                   delay=u.rc.delay_periods, model_state="foreseen")
+                   delay=u.rc.delay_periods, model_state=state)
     assert u.commands() == [[float(x) for x in c] for c in ref.commands]
     assert u.central.done == CYCLES and not u.node.rejected and not u.central.inflight
 

@@ -24,7 +24,7 @@ KINEMATICS = "kinematics"
 (observer, J^-1, d/dt(J^-1) pdot, acceleration mapper), for the thesis's 'all kinematics'
 efficiency (1320 us on one T-800, 582 us on four)."""
 OBSERVERS = ("predict", "previous")
-MODEL_STATES = ("acting", "sample", "foreseen")
+MODEL_STATES = ("acting", "sample", "foreseen", "foreseen2")
 """Where resolved acceleration evaluates its model (the second round's kinematics and the
 dynamics of Eq. V.50): ``acting``, at the state predicted for the middle of the period in
 which the command acts (block ``ahead``), from a velocity at the sample's instant taken
@@ -33,8 +33,10 @@ estimate with ``pdot = J qdot`` of the backward-difference rates, as the thesis;
 ``foreseen``, the model's kinematics (IK, J^-1 rows, d/dt(J^-1) pdot) at the same instant
 but foreseen from the previous interval's estimate (block ``foresee``), so that they need
 no sample and run ahead of it at depth 2 (the feedback still uses the sample: ``inflight``
-and the law are as with ``acting``). The other laws evaluate at the sample (or at the
-reference) either way."""
+and the law are as with ``acting``); ``foreseen2``, as ``foreseen`` but from the estimate of
+two intervals back (source ``est2``), the observer's prediction too, so that at depth 2
+the sample-free rounds of two intervals travel in one exchange. The other laws evaluate at
+the sample (or at the reference) either way."""
 MEASURED = ("qmeas_i", "qdmeas_i")
 """The sources that come from the plant's sample (the others, ``t``, ``hold`` and ``est``,
 are known before the sample arrives)."""
@@ -42,6 +44,10 @@ SOURCES = ("t", "hold", "est", "qmeas_i", "qdmeas_i")
 """An interval's sources: the sample's time ``t`` (s), ``hold`` (the periods its command
 acts for: 1, or 2 once a realtime run halved its control rate on overload), the estimate
 handed off by the previous interval, and the measured angles and rates."""
+EST2 = "est2"
+"""The extra source of a ``foreseen2`` graph: the newest estimate handed off by an interval
+at least two periods before this one's sample (runtime/controller.py), final when the
+interval before this one starts."""
 
 
 @dataclass(frozen=True)
@@ -96,7 +102,13 @@ class StageGraph:
         """Whether per-axis blocks that need no sample form rounds of their own, which at
         depth 2 run before the sample (``foreseen``: the model's kinematics); in the other
         graphs a round holds whatever per-axis blocks are ready together."""
-        return self.model_state == "foreseen"
+        return self.model_state in ("foreseen", "foreseen2")
+
+    @property
+    def foresight(self) -> int:
+        """How many intervals ahead of its sample an interval's sample-free steps may run:
+        2 when they read the estimate of two intervals back (``foreseen2``), else 1."""
+        return 2 if self.model_state == "foreseen2" else 1
 
     def block(self, name: str) -> Block:
         for b in self.blocks:
@@ -118,6 +130,7 @@ class StageGraph:
 T800 = {
     "reference": 60.0,  # profile generator (not in the table; a few dozen FLOP)
     "predict": 10.0,
+    "predict_span": 10.0,  # predict over the time since the estimate: as predict
     "ik": 80.0,  # 240 / 3
     "jinv": 140.0 / 3.0,  # (380 - 240) / 3
     "residual": 4.0,
@@ -156,14 +169,22 @@ def _b(name: str, kind: str, kernel: str, inputs: str, outputs: str, eq: str,
                  T800[kernel], bind)
 
 
-def _observer_blocks(iterations: int, observer: str, *, velocity: str = "jacobian"
-                     ) -> list[Block]:
+def _observer_blocks(iterations: int, observer: str, *, velocity: str = "jacobian",
+                     est2: bool = False) -> list[Block]:
     """Newton-Raphson observer (Eq. II.20): ``iterations`` rounds of IK + J^-1 row +
     residual on the axes, update on the central; then the velocity at the sample,
     ``jacobian`` (``pdot = J qdot``, the thesis) or ``difference`` (of the observed
-    positions, docs/architecture.md, where the model is evaluated)."""
-    out = [_b("predict", CENTRAL, "predict", "est", "p_lin0",
-              "prediction p + pdot T + pddot T^2/2" if observer == "predict" else "previous p")]
+    positions, docs/architecture.md, where the model is evaluated). ``est2``: the
+    prediction starts from the estimate of two intervals back (:data:`EST2`), carried
+    over the time since it (kernel ``predict_span``)."""
+    if est2:
+        out = [_b("predict", CENTRAL, "predict_span", f"t {EST2}", "p_lin0",
+                  "prediction p + pdot dt + pddot dt^2/2 from the estimate two intervals "
+                  "back" if observer == "predict" else "previous p", (("est", EST2),))]
+    else:
+        out = [_b("predict", CENTRAL, "predict", "est", "p_lin0",
+                  "prediction p + pdot T + pddot T^2/2" if observer == "predict"
+                  else "previous p")]
     for k in range(iterations):
         lin, nxt = f"p_lin{k}", (f"p_lin{k + 1}" if k + 1 < iterations else "p")
         s = f"{k}"
@@ -248,8 +269,11 @@ def stage_graph(
         iterations = 1 if observer == "predict" else 2
     if not 1 <= iterations <= 5:
         raise ValueError(f"observer iterations must be in [1, 5], got {iterations}")
-    acting = law == "resolved-acceleration" and model_state in ("acting", "foreseen")
-    foreseen = acting and model_state == "foreseen"
+    acting = law == "resolved-acceleration" and model_state in ("acting", "foreseen",
+                                                                "foreseen2")
+    foreseen = acting and model_state in ("foreseen", "foreseen2")
+    est2 = acting and model_state == "foreseen2"
+    ahead_est = EST2 if est2 else "est"
     ref = [_b("reference", CENTRAL, "reference_acting", "t hold", "pc vc ac pcd vcd",
               "II.33, also at the acting period's start")] if acting else [
         _b("reference", CENTRAL, "reference", "t hold", "pc vc ac", "II.33")]
@@ -270,11 +294,14 @@ def stage_graph(
         ] if acting else [_b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14")]
         if foreseen:  # the model's state from the previous estimate: no sample needed
             law_blocks.pop()  # no ``ahead``: ``foresee`` gives pa, pda
-            ref.append(_b("foresee", CENTRAL, "foresee", "t hold est ac", "pa pda",
+            ref.append(_b("foresee", CENTRAL, "foresee", f"t hold {ahead_est} ac", "pa pda",
                           "the middle of the acting period foreseen from the previous "
-                          "estimate: p, pdot carried at the commands in flight"))
+                          "estimate: p, pdot carried at the commands in flight"
+                          + (" (two intervals back)" if est2 else ""),
+                          (("est", EST2),) if est2 else ()))
             ref += _state_blocks("pa", "pda")
-        blocks = ref + _observer_blocks(iterations, observer, velocity=velocity) + [
+        blocks = ref + _observer_blocks(iterations, observer, velocity=velocity,
+                                        est2=est2) + [
             *law_blocks,
             *(() if foreseen else _state_blocks("pa", "pda") if acting else _state_blocks()),
             _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
@@ -328,7 +355,8 @@ def stage_graph(
                "joint PD, no model terms"),
             _b("collect", CENTRAL, "collect", "taufb_i", "tau", "tau = feedback"),
         ] + out
-    graph = StageGraph(law, model, observer, iterations, tuple(blocks), SOURCES,
+    graph = StageGraph(law, model, observer, iterations, tuple(blocks),
+                       (*SOURCES, EST2) if est2 else SOURCES,
                        model_state if acting else "sample")
     validate_graph(graph)
     return graph

@@ -118,8 +118,11 @@ class ExchangePlan:
 def needs_sample(graph: StageGraph) -> set[str]:
     """Names of the blocks that need the sample: those with a measured source
     (:data:`~ctrlunit.topology.graph.MEASURED`) or a value made from one among their
-    inputs."""
-    tainted_vals = set(MEASURED)
+    inputs. Where the graph's sample-free steps run two intervals ahead
+    (:attr:`~ctrlunit.topology.graph.StageGraph.foresight`), the previous interval's
+    estimate ``est`` counts as the sample's: it is final only once that interval has
+    handed off, which is after those steps ran."""
+    tainted_vals = set(MEASURED) | ({"est"} if graph.foresight > 1 else set())
     out: set[str] = set()
     for b in graph.blocks:  # a topological order
         if any(v in tainted_vals for v in b.inputs):

@@ -121,7 +121,9 @@ def run_options(fn: Any) -> Any:
                      "from a velocity taken from the observed positions (acting); the same "
                      "with the model's kinematics at that state foreseen from the previous "
                      "interval, so that at depth 2 the peripherals compute them before the "
-                     "sample (foreseen); or servo and evaluate at the sample's estimate "
+                     "sample (foreseen); the same from the estimate of two intervals back, "
+                     "the observer's prediction too, so that two intervals' rounds go in "
+                     "one exchange (foreseen2); or servo and evaluate at the sample's estimate "
                      "with pdot = J qdot as the thesis (sample); auto: foreseen in "
                      "realtime at depth 2, acting otherwise."),
         click.option("--bandwidth", "bandwidth_hz", type=float, default=None,
