@@ -58,18 +58,18 @@ def test_a_configuration_recorded_before_the_model_state_evaluates_it_at_the_sam
     assert data.pop("model_state") == "auto"  # the default of a run today
     assert RunConfig.from_dict(data).control.model_state == "sample"
     with pytest.raises(ConfigError, match=r"--model-state = 'later': allowed auto, acting, "
-                                          r"sample, foreseen"):
+                                          r"sample, foreseen, foreseen2"):
         RunConfig.of(model_state="later").validate()
 
 
 @pytest.mark.parametrize(("clock", "depth", "law", "state"), [
-    ("realtime", 2, "resolved-acceleration", "foreseen"),
+    ("realtime", 2, "resolved-acceleration", "foreseen2"),
     ("realtime", 1, "resolved-acceleration", "acting"),
     ("lockstep", 2, "resolved-acceleration", "acting"),
     ("freerun", 2, "resolved-acceleration", "acting"),
     ("realtime", 2, "computed-torque", "acting"),
 ])
-def test_the_model_state_auto_is_foreseen_in_realtime_at_depth_two(clock, depth, law, state):
+def test_the_model_state_auto_is_foreseen2_in_realtime_at_depth_two(clock, depth, law, state):
     rc = RunConfig.of(clock=clock, pipeline=depth, law=law)
     assert rc.control.model_state == "auto" and rc.resolved_model_state == state
     assert RunConfig.of(clock=clock, pipeline=depth, model_state="sample"

@@ -124,7 +124,7 @@ def run_options(fn: Any) -> Any:
                      "sample (foreseen); the same from the estimate of two intervals back, "
                      "the observer's prediction too, so that two intervals' rounds go in "
                      "one exchange (foreseen2); or servo and evaluate at the sample's estimate "
-                     "with pdot = J qdot as the thesis (sample); auto: foreseen in "
+                     "with pdot = J qdot as the thesis (sample); auto: foreseen2 in "
                      "realtime at depth 2, acting otherwise."),
         click.option("--bandwidth", "bandwidth_hz", type=float, default=None,
                      help="Closed-loop bandwidth of the gains in Hz (default: 20, at most "
