@@ -187,6 +187,7 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.computed = 0  # late peripherals' rounds the central ran itself (compute)
         self.held: set[tuple[int, int, int]] = set()
         self.last_reply_ns = [0] * self.n
+        self.asked_ns = [0] * self.n  # the first request sent to each after its last reply
         self.cycle_spans: dict[int, list[tuple[str, int, int]]] = {}
         self.child_check: Callable[[], tuple[str, int] | None] | None = None
         # what a role's process is doing (supervise.process_state), for the roles this
@@ -496,6 +497,9 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             parts.append({"cycle": f.cycle, "stage": rnd.index,
                           "vals": Engine.request_vals(rnd, f.ctx, (0, 1, 2))})
         self.outbox.clear()
+        for k in range(self.n):
+            if self.asked_ns[k] <= self.last_reply_ns[k]:
+                self.asked_ns[k] = now
         extra = {"each": True} if self.reply_each and len(parts) > 1 else {}
         payload = encode(self.node.unit, parts[0]["cycle"], parts[0]["stage"], parts=parts,
                          **extra)

@@ -161,12 +161,23 @@ class CentralGuard:
                     for k in f.waiting:
                         if self.last_reply_ns[k]:
                             wake = min(wake, self._silence_ends(
-                                f"peripheral-{k + 1}", self.last_reply_ns[k], now,
+                                f"peripheral-{k + 1}", self._silent_since(k), now,
                                 timeout_ns))
         if self.rc.schedule.clock == "realtime" and self.last_sample_ns:
             wake = min(wake, self._silence_ends("plant", self.last_sample_ns, now,
                                                 timeout_ns))
         return wake
+
+    def _silent_since(self, k: int) -> int:
+        """Since when peripheral ``k`` has been silent: its last reply, or the first request
+        sent to it after that reply if one was. Time in which nothing was asked of it is
+        not silence: with two intervals' rounds in one request (``foreseen2``) a
+        peripheral is asked every second period, and counted from its last reply the
+        silence limit would lose a period of its margin. A peripheral whose rounds the
+        central computes is still asked, so a hung one is caught within the limit of the
+        first request it did not answer (one that exits, within 50 ms:
+        :meth:`_check_children`)."""
+        return max(self.last_reply_ns[k], self.asked_ns[k])
 
     def _check_deadlines(self, timeout_ns: int) -> None:
         """Raise the fault of a silent peripheral or plant, unless messages are still
@@ -183,7 +194,8 @@ class CentralGuard:
     def _find_silence(self, timeout_ns: int) -> None:
         now = time.monotonic_ns()
         if self.rc.schedule.clock == "realtime" and self.done:
-            for k, t in enumerate(self.last_reply_ns):  # alive, even when its data is held
+            for k, last in enumerate(self.last_reply_ns):  # alive, even when its data is held
+                t = self._silent_since(k) if last else 0
                 role = f"peripheral-{k + 1}"
                 if t and any(k in f.dropped or k in f.waiting for f in self.inflight.values()) \
                         and self._silent(role, t, now, timeout_ns):

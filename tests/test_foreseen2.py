@@ -181,6 +181,43 @@ def test_a_skipped_sample_drops_its_interval_and_keeps_the_next_of_the_pair():
     assert c.log.digest is not None and not u.node.rejected
 
 
+def test_silence_counts_from_the_first_request_after_the_last_reply():
+    """A peripheral asked every second period is not silent while nothing is asked of it:
+    its silence runs from its last reply or, once a request went out after that reply,
+    from that request (a later request does not move it)."""
+    import time
+
+    u = realtime_unit("f2quiet")
+    c = u.central
+    turn(u)  # the pair's rounds out and back
+    last = list(c.last_reply_ns)
+    assert all(last) and c._silent_since(0) == last[0]
+    sample(u, 0)
+    turn(u)  # nothing sent: interval 1 ran ahead with 0
+    assert c._silent_since(0) == last[0]
+    u.muted = {0}
+    sample(u, 1)
+    c._start_ready()
+    assert c._prime() and [f.cycle for f in c.outbox] == [2, 3]
+    asked = time.monotonic_ns()
+    c._flush(asked)
+    assert c._silent_since(0) == asked
+    u.pump()
+    while u.node.events.pending():
+        c._handle(u.node.events.get_nowait())
+    assert c._silent_since(1) == c.last_reply_ns[1] >= asked  # answered: from its reply
+    for k in (2, 3):  # the central computes peripheral 1's late rounds (compute)
+        sample(u, k)
+        c._start_ready()
+        f = c.inflight[k]
+        c._check_late(f.late_ns)
+        assert not f.waiting and f.dropped == {0}
+        turn(u)
+    assert c.done == 4 and requests(u)[-1] == [4, 5]  # sent after the first
+    assert c._silent_since(0) == asked  # it still owes the first request
+    assert c._silent_since(1) == c.last_reply_ns[1] > asked
+
+
 # -- the star over Zenoh -------------------------------------------------------------------
 
 
