@@ -377,6 +377,36 @@ def test_a_silent_plant_that_is_runnable_is_excused_once(monkeypatch):
         "was runnable"), str(exc)
 
 
+def test_a_silent_plant_asleep_past_its_tick_is_excused_once(monkeypatch):
+    """The plant samples on its own clock: asleep with its sample overdue, it waits for a
+    timer the machine has not served, not for a message; a stopped plant is a fault at
+    its limit."""
+    u = realtime_unit("plant-asleep")
+    c = u.central
+    first_interval(u)
+    c.done = 100
+    c.last_sample_ns = 5 * MS
+    clock = Clock(5 * MS + 3 * MS + 1)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c.role_state = lambda role: "sleeping"  # the central's Zenoh threads too
+    c._check_deadlines(3 * MS)
+    assert c.excuses == 1
+    clock.now = 5 * MS + 6 * MS
+    exc = fault_just_past(c, clock, 3 * MS)
+    assert exc.process == "plant" and str(exc).endswith(
+        "its process was sleeping (after one extension of its limit)"), str(exc)
+    u = realtime_unit("plant-stopped")
+    c = u.central
+    first_interval(u)
+    c.done = 100
+    c.last_sample_ns = 5 * MS
+    clock = Clock(5 * MS + 3 * MS)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c.role_state = lambda role: "stopped" if role == "plant" else "runnable"
+    exc = fault_just_past(c, clock, 3 * MS)
+    assert exc.process == "plant" and c.excuses == 0
+
+
 def test_no_silence_is_excused_outside_realtime_or_where_the_process_is_unknown(monkeypatch):
     c, clock, limit = silent_peripheral_2("unknown", monkeypatch)
     c.role_state = None  # a role started by hand, maybe on another host
