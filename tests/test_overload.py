@@ -126,7 +126,9 @@ def _freeze_now_and_then(pid: int, *, times: int, hold_s: float, every_s: float)
 
 @pytest.mark.zenoh
 def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tmp_path: Path):
-    """A peripheral frozen for three periods again and again: its intervals come late,
+    """A peripheral frozen for five periods of eight again and again (with the default
+    model state two intervals' rounds leave together, up to two periods before they are
+    due, so shorter freezes make too few intervals late): its intervals come late,
     the central halves the rate; 2 s without a late interval after the freezing stops, it
     goes back to every sample. The run completes, the plant took the commands of every
     second cycle in between and of every cycle after, and the recording replays bit for
@@ -152,7 +154,7 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tm
         pid = next(p for p in pids_of(unit)
                    if "peripheral" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")
                    and "--index\x002" in Path(f"/proc/{p}/cmdline").read_text(errors="replace"))
-        _freeze_now_and_then(pid, times=20, hold_s=0.016, every_s=0.04)
+        _freeze_now_and_then(pid, times=20, hold_s=0.025, every_s=0.04)
         out, _ = proc.communicate(timeout=60)
     finally:
         kill_unit(unit)
