@@ -381,6 +381,19 @@ class RunConfig:
                                   f"{_type_name(_FLAT_TYPES[k])}")
         return cls.of(**data)
 
+    @classmethod
+    def from_recording(cls, data: Any) -> RunConfig:
+        """The configuration a recording was made with (:meth:`from_dict`), its model state
+        as it ran. The recorder writes ``--model-state auto`` resolved; a recording that
+        says ``auto`` is older, from when ``auto`` meant ``foreseen`` where it now means
+        ``foreseen2`` (:attr:`resolved_model_state`, 2026-11-25), and replays as it
+        ran."""
+        rc = cls.from_dict(data, source="recording")
+        if rc.control.model_state != "auto":
+            return rc
+        state = rc.resolved_model_state
+        return rc.replace(model_state="foreseen" if state == "foreseen2" else state)
+
     def total_cycles(self, task_period: float) -> int:
         """Cycles to run: ``cycles``, else ``duration / period``, else one task loop."""
         if self.run.cycles is not None:

@@ -388,7 +388,7 @@ def plot_recording(rec: Recording, out: str | Path, *,
     cfg = rec.config
     if not cfg:
         raise ValueError(f"{rec.path}: no ctrlunit configuration in the recording")
-    rc = RunConfig.from_dict(cfg)
+    rc = RunConfig.from_recording(cfg)
     from ..kernels.params import DELTA_IA, load_params
 
     path = rc.control.params

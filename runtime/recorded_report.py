@@ -30,7 +30,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     measured again here on the recorded intervals.
     """
     cfg = rec.config
-    rc = RunConfig.from_dict(cfg).replace(record=None, report=None)
+    rc = RunConfig.from_recording(cfg).replace(record=None, report=None)
     setup = make_setup(rc)
     samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
     cmd_ns, sample_ns, commands = [], [], []

@@ -98,7 +98,8 @@ class Recorder:
         self.setup = setup
         rc = setup.rc
         meta = {
-            "config": json.dumps(rc.to_dict()),
+            # the model state as it runs: what ``auto`` resolves to may change
+            "config": json.dumps(rc.replace(model_state=rc.resolved_model_state).to_dict()),
             "placement": json.dumps(setup.placement.to_dict()),
             "plan": setup.plan.describe(),
             "round_trips": str(setup.plan.round_trips),

@@ -51,7 +51,7 @@ def _setup(rec: Recording) -> Any:
     from .config import RunConfig
     from .setup import make_setup
 
-    return make_setup(RunConfig.from_dict(rec.config).replace(record=None, report=None))
+    return make_setup(RunConfig.from_recording(rec.config).replace(record=None, report=None))
 
 
 def _index(rec: Recording, kind: str) -> dict[tuple[int, ...], dict]:

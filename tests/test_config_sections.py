@@ -62,6 +62,20 @@ def test_a_configuration_recorded_before_the_model_state_evaluates_it_at_the_sam
         RunConfig.of(model_state="later").validate()
 
 
+@pytest.mark.parametrize(("clock", "depth", "state"), [
+    ("realtime", 2, "foreseen"), ("realtime", 1, "acting"), ("lockstep", 2, "acting")])
+def test_a_recording_that_says_auto_replays_with_the_model_state_auto_meant_then(
+        clock, depth, state):
+    """Recordings now say what ``auto`` resolved to; one that says ``auto`` was made when
+    ``auto`` meant ``foreseen`` in realtime at depth 2, and replays so."""
+    old = RunConfig.of(clock=clock, pipeline=depth).to_dict()
+    assert old["model_state"] == "auto"
+    assert RunConfig.from_recording(old).control.model_state == state
+    rc = RunConfig.of(clock=clock, pipeline=depth)
+    new = rc.replace(model_state=rc.resolved_model_state).to_dict()  # as the recorder writes
+    assert RunConfig.from_recording(new).resolved_model_state == rc.resolved_model_state
+
+
 @pytest.mark.parametrize(("clock", "depth", "law", "state"), [
     ("realtime", 2, "resolved-acceleration", "foreseen2"),
     ("realtime", 1, "resolved-acceleration", "acting"),
