@@ -176,6 +176,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         self.last_sample_ns = 0
         # the plant's silences over two periods (from, to), the newest: see _fault_at
         self.plant_gaps: deque[tuple[int, int]] = deque(maxlen=8)
+        # the central's own stalls (from, to): it woke more than a period after it meant to
+        self.own_gaps: deque[tuple[int, int]] = deque(maxlen=8)
         self.t1_inputs: list[tuple] = []
         self.newest_sample = -1
         self.peers_seen: set[str] = set()
@@ -268,12 +270,21 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
                 ev = self.node.events.get(timeout=max(0.0, (wait_until - now) / 1e9))
             except queue.Empty:
                 ev = None
-            self.wait_ns += time.monotonic_ns() - t0
+            t1 = time.monotonic_ns()
+            self.wait_ns += t1 - t0
+            self._woke(wait_until, t1)
             if ev is not None:
                 self._handle(ev)
             self._check_late(time.monotonic_ns())
             self._check_deadlines(timeout_ns)
             self._check_children()
+
+    def _woke(self, meant_ns: int, now: int) -> None:
+        """Note a stall of the central itself: it meant to be awake again by ``meant_ns``
+        and woke more than a period later (the machine did not run it). The silence rule
+        does not count that time (:meth:`CentralGuard._own_stall`)."""
+        if now - meant_ns > self.period_ns:
+            self.own_gaps.append((meant_ns, now))
 
     # -- intervals --------------------------------------------------------------------
 

@@ -59,23 +59,39 @@ class CentralGuard:
     """Realtime: until this many intervals are done the silence limit is at least
     ``STARTUP_LIMIT_S`` (first samples, first real values through every process)."""
 
-    def _fault_at(self, since: int, now: int, timeout_ns: int) -> int:
-        """When a process silent since ``since`` becomes a fault: ``since + timeout_ns``;
-        in realtime, once that has passed, later by the part of the silence the plant's
-        samples shared (gaps in them longer than two periods, less the period a sample
-        takes anyway), up to one more limit. A silence the whole unit shares is a stall of
-        the machine (all five processes stopped: a busy host's stalls run 6-13 ms), not a
-        failed process; a frozen process is still named while the plant goes on talking.
-        """
-        end = since + timeout_ns
-        if end >= now or self.rc.schedule.clock != "realtime":
-            return end
+    def _own_stall(self, since: int, now: int) -> int:
+        """Realtime: how much of ``[since, now]`` the central itself did not run (it woke
+        more than a period after it meant to: ``own_gaps``). No silence can be judged
+        while the judge is stopped; a process that failed in that time is named within
+        the limit after the central runs again."""
+        if self.rc.schedule.clock != "realtime":
+            return 0
+        return sum(max(0, min(b, now) - max(a, since)) for a, b in self.own_gaps)
+
+    def _plant_shared(self, since: int, now: int, timeout_ns: int) -> int:
+        """The part of a silence since ``since`` that the plant's samples shared (gaps in
+        them longer than two periods, less the period a sample takes anyway) beyond the
+        central's own stalls (:meth:`_own_stall`), up to one limit."""
         shared = 0
         every = self.period_ns * self.ctl.stride  # how often the plant samples
         for a, b in (*self.plant_gaps, (self.last_sample_ns, now)):
             if a and b - a > 2 * every:
                 shared += max(0, min(b, now) - max(a, since) - every)
-        return end + min(shared, timeout_ns)
+        return min(max(0, shared - self._own_stall(since, now)), timeout_ns)
+
+    def _fault_at(self, since: int, now: int, timeout_ns: int) -> int:
+        """When a process silent since ``since`` becomes a fault: ``since + timeout_ns``;
+        in realtime, later by the part of the silence in which the central itself did not
+        run (:meth:`_own_stall`), and once that has passed, by the part the plant's
+        samples shared, up to one more limit (:meth:`_plant_shared`). A silence the whole
+        unit shares is a stall of the machine (all five processes stopped: a busy host's
+        stalls run 6-26 ms), not a failed process; a frozen process is still named while
+        the plant goes on talking.
+        """
+        end = since + timeout_ns + self._own_stall(since, now)
+        if end >= now or self.rc.schedule.clock != "realtime":
+            return end
+        return end + self._plant_shared(since, now, timeout_ns)
 
     def _silence_ends(self, role: str, since: int, now: int, timeout_ns: int) -> int:
         """When the silence of ``role`` (silent since ``since``) becomes a fault: after
@@ -90,7 +106,7 @@ class CentralGuard:
 
     def _limit_end(self, role: str, since: int, now: int, timeout_ns: int) -> int:
         if role == "plant":  # its silence is the one the others' may share
-            return since + timeout_ns
+            return since + timeout_ns + self._own_stall(since, now)
         return self._fault_at(since, now, timeout_ns)
 
     def _silent(self, role: str, since: int, now: int, timeout_ns: int,
@@ -137,10 +153,16 @@ class CentralGuard:
             if self.excused.get(role, (None,))[0] == since else ""
         return f"; its process was {self.role_state(role)}{excused}"
 
-    def _shared_note(self, since: int, now: int, timeout_ns: int) -> str:
-        """For a fault's message: how much of a silence was not counted (:meth:`_fault_at`)."""
-        shared = self._fault_at(since, now, timeout_ns) - since - timeout_ns
-        return f", plus {shared / 1e6:.1f} ms the plant was silent too" if shared > 0 else ""
+    def _shared_note(self, since: int, now: int, timeout_ns: int, *,
+                     plant: bool = False) -> str:
+        """For a fault's message: how much of a silence was not counted (:meth:`_fault_at`;
+        ``plant``: the plant's own silence, where only the central's stalls count)."""
+        own = self._own_stall(since, now)
+        shared = 0 if plant or since + timeout_ns + own >= now else self._plant_shared(
+            since, now, timeout_ns)
+        return (f", plus {own / 1e6:.1f} ms the central itself did not run" if own > 0
+                else "") + (f", plus {shared / 1e6:.1f} ms the plant was silent too"
+                            if shared > 0 else "")
 
     def _next_check(self, now: int, timeout_ns: int, hold_until: int) -> int:
         """When the loop must look at the clock again, however quiet the inbox: a held
@@ -232,7 +254,9 @@ class CentralGuard:
             if self._silent("plant", last, now, timeout_ns):
                 raise Fault(f"no sample from the plant for {(now - last) / 1e6:.1f} ms "
                             f"(cycle {self.next_cycle} awaited, newest seen "
-                            f"{self.newest_sample}){self._state_note('plant', last)}"
+                            f"{self.newest_sample}"
+                            f"{self._shared_note(last, now, timeout_ns, plant=True)})"
+                            f"{self._state_note('plant', last)}"
                             f"{self._overload_hint()}", process="plant", code=EXIT_PLANT)
 
     def _check_children(self) -> None:

@@ -218,6 +218,19 @@ def test_silence_counts_from_the_first_request_after_the_last_reply():
     assert c._silent_since(1) == c.last_reply_ns[1] > asked
 
 
+def test_the_central_notes_its_own_stalls_for_the_silence_rule():
+    """Woken more than a period after it meant to, the central notes the gap; the silence
+    of a peripheral over that gap is judged as if the gap had not been."""
+    ms = 1_000_000
+    c = realtime_unit("f2own").central
+    c._woke(10 * ms, 10 * ms + c.period_ns)  # a period late: ordinary
+    assert not c.own_gaps
+    c._woke(10 * ms, 35 * ms)
+    assert list(c.own_gaps) == [(10 * ms, 35 * ms)]
+    limit = 3 * c.period_ns
+    assert c._fault_at(9 * ms, 36 * ms, limit) == 9 * ms + limit + 25 * ms
+
+
 # -- the star over Zenoh -------------------------------------------------------------------
 
 

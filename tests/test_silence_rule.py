@@ -24,6 +24,7 @@ class Guard(CentralGuard):
         self.rc = RunConfig.of(clock=clock, period=PERIOD / 1e9)
         self.period_ns = PERIOD
         self.plant_gaps: deque[tuple[int, int]] = deque(maxlen=8)
+        self.own_gaps: deque[tuple[int, int]] = deque(maxlen=8)
         self.last_sample_ns = 0
         self.ctl = SimpleNamespace(stride=1)  # the controller: 2 once the rate is halved
 
@@ -87,3 +88,28 @@ def test_at_the_halved_rate_the_plant_samples_every_two_periods_and_that_is_no_s
     assert g._fault_at(since, now, 2 * LIMIT) == since + 2 * LIMIT  # nothing shared
     g.ctl.stride = 1  # at the full rate the same gap was a stall the plant shared
     assert g._fault_at(since, now, 2 * LIMIT) == since + 2 * LIMIT + 3 * PERIOD - PERIOD
+
+
+def test_the_time_the_central_itself_did_not_run_is_not_counted_at_all():
+    """A stall of the central (it woke long after it meant to) hides every other process:
+    that part of a silence is not counted, however long, on top of the plant's shared
+    part (beyond what the central's stall explains); a stall before the silence began
+    does not count."""
+    g = Guard()
+    g.last_sample_ns = 130 * MS  # the plant samples again after the stall
+    since, now = 90 * MS, 131 * MS
+    g.own_gaps.append((95 * MS, 125 * MS))  # 30 ms without the central
+    assert g._fault_at(since, now, LIMIT) == since + LIMIT + 30 * MS
+    # the plant silent through the same stall: nothing more than the central's stall
+    g.plant_gaps.append((94 * MS, 126 * MS))
+    assert g._fault_at(since, now, LIMIT) == since + LIMIT + 30 * MS
+    assert g._limit_end("plant", since, now, LIMIT) == since + LIMIT + 30 * MS
+    g.own_gaps.clear()
+    g.own_gaps.append((50 * MS, 80 * MS))  # over before the silence began
+    g.plant_gaps.clear()
+    assert g._fault_at(since, now, LIMIT) == since + LIMIT
+    note = Guard()
+    note.own_gaps.append((95 * MS, 125 * MS))
+    note.last_sample_ns = 130 * MS
+    assert note._shared_note(since, 140 * MS, LIMIT) == (
+        ", plus 30.0 ms the central itself did not run")
