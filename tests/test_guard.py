@@ -359,15 +359,23 @@ def test_a_silent_process_that_is_not_runnable_is_a_fault_at_its_limit(monkeypat
                                f"its process was {state}"), str(exc)
 
 
-def test_a_silent_plant_that_is_runnable_is_excused_once(monkeypatch):
-    u = realtime_unit("plant-runnable")
+def silent_plant(tag: str, monkeypatch, state) -> tuple[Any, Clock]:
+    """A central whose plant's last sample came at 5 ms, the clock at its 3 ms limit
+    plus one nanosecond, ``state(role)`` what the processes are doing."""
+    u = realtime_unit(tag)
     c = u.central
     first_interval(u)
     c.done = 100
     c.last_sample_ns = 5 * MS
     clock = Clock(5 * MS + 3 * MS + 1)
     monkeypatch.setattr(central_guard, "time", clock)
-    c.role_state = lambda role: "runnable" if role == "plant" else "sleeping"
+    c.role_state = state
+    return c, clock
+
+
+def test_a_silent_plant_that_is_runnable_is_excused_once(monkeypatch):
+    c, clock = silent_plant("plant-runnable", monkeypatch,
+                            lambda role: "runnable" if role == "plant" else "sleeping")
     c._check_deadlines(3 * MS)
     assert c.excuses == 1
     clock.now = 5 * MS + 6 * MS
@@ -381,28 +389,17 @@ def test_a_silent_plant_asleep_past_its_tick_is_excused_once(monkeypatch):
     """The plant samples on its own clock: asleep with its sample overdue, it waits for a
     timer the machine has not served, not for a message; a stopped plant is a fault at
     its limit."""
-    u = realtime_unit("plant-asleep")
-    c = u.central
-    first_interval(u)
-    c.done = 100
-    c.last_sample_ns = 5 * MS
-    clock = Clock(5 * MS + 3 * MS + 1)
-    monkeypatch.setattr(central_guard, "time", clock)
-    c.role_state = lambda role: "sleeping"  # the central's Zenoh threads too
+    # asleep, and the central's Zenoh threads too: nothing in transit
+    c, clock = silent_plant("plant-asleep", monkeypatch, lambda role: "sleeping")
     c._check_deadlines(3 * MS)
     assert c.excuses == 1
     clock.now = 5 * MS + 6 * MS
     exc = fault_just_past(c, clock, 3 * MS)
     assert exc.process == "plant" and str(exc).endswith(
         "its process was sleeping (after one extension of its limit)"), str(exc)
-    u = realtime_unit("plant-stopped")
-    c = u.central
-    first_interval(u)
-    c.done = 100
-    c.last_sample_ns = 5 * MS
-    clock = Clock(5 * MS + 3 * MS)
-    monkeypatch.setattr(central_guard, "time", clock)
-    c.role_state = lambda role: "stopped" if role == "plant" else "runnable"
+    c, clock = silent_plant("plant-stopped", monkeypatch,
+                            lambda role: "stopped" if role == "plant" else "runnable")
+    clock.now -= 1
     exc = fault_just_past(c, clock, 3 * MS)
     assert exc.process == "plant" and c.excuses == 0
 
