@@ -337,7 +337,6 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
             primed = self._take_primed(k)
             ahead = self.inflight.get(k) if primed is not None else None
             if ahead is not None and ahead.awaiting_sample:  # its rounds ran ahead
-                ahead.ctx["est"] = self.ctl.est  # final now (foresight 2: not when primed)
                 self.ctl.measure(ahead.ctx, k, counts)
                 if len(self.t1_inputs) < self.rc.run.t1_cycles:
                     ctx = ahead.ctx
@@ -367,13 +366,15 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
 
     def _take_primed(self, k: int) -> dict | None:
         """The context of interval ``k`` if its sample-free steps ran (it was primed),
-        else None. Intervals primed before ``k`` are dropped (their samples were
-        skipped); those after it stay (foresight 2: the next one was primed with it)."""
+        else None, with the previous interval's estimate, final now (with foresight 2 it
+        was not when ``k`` was primed). Intervals primed before ``k`` are dropped (their
+        samples were skipped); those after it stay (foresight 2: primed with ``k``)."""
         ctx = None
         while self.primed and self.primed[0][0] <= k:
             cycle, c = self.primed.pop(0)
             if cycle == k:
                 ctx = c
+                ctx["est"] = self.ctl.est
                 continue
             self._drop_ahead(cycle)
             if self.on_message is not None:

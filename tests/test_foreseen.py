@@ -140,7 +140,7 @@ def test_foreseen_tracks_pick_place_as_the_model_at_the_acting_state(period):
 
 @pytest.mark.parametrize("state", ["foreseen", "foreseen2"])
 @pytest.mark.parametrize("central", [frozenset(), ON_THE_PATH])
-@pytest.mark.parametrize(("n", "depth"), [(1, 1), (3, 1), (1, 2), (2, 2), (3, 2)])
+@pytest.mark.parametrize(("n", "depth"), [(0, 2), (1, 1), (3, 1), (1, 2), (2, 2), (3, 2)])
 def test_lockstep_commands_equal_the_one_process_reference(n, depth, central, state):
     u = LoopbackUnit(lockstep_config(unit_id("fs"), peripherals=n, pipeline=depth,
                                      cycles=CYCLES, max_error=1.0, model_state=state,
