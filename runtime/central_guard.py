@@ -158,8 +158,7 @@ class CentralGuard:
         """For a fault's message: how much of a silence was not counted (:meth:`_fault_at`;
         ``plant``: the plant's own silence, where only the central's stalls count)."""
         own = self._own_stall(since, now)
-        shared = 0 if plant or since + timeout_ns + own >= now else self._plant_shared(
-            since, now, timeout_ns)
+        shared = 0 if plant else self._fault_at(since, now, timeout_ns) - since - timeout_ns - own
         return (f", plus {own / 1e6:.1f} ms the central itself did not run" if own > 0
                 else "") + (f", plus {shared / 1e6:.1f} ms the plant was silent too"
                             if shared > 0 else "")
