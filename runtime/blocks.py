@@ -169,16 +169,20 @@ def k_reference_acting(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     c[n["vcd"]] = (float(v[0]), float(v[1]), float(v[2]))
 
 
-def k_predict(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
-    est = c[n["est"]]
+def _start_point(est: tuple, dt: float, observer: str) -> Vec:
+    """The Newton-Raphson start: the estimate carried ``dt`` on at its own velocity and
+    acceleration, ``p + pdot dt + pddot dt^2/2`` (``predict``), or its ``p``
+    (``previous``)."""
     p, pd, pdd = est[0], est[1], est[2]
-    if cfg.observer == "predict":
-        T = cfg.period
-        h = 0.5 * T * T
-        c[n["p_lin0"]] = (p[0] + pd[0] * T + pdd[0] * h, p[1] + pd[1] * T + pdd[1] * h,
-                          p[2] + pd[2] * T + pdd[2] * h)
-    else:
-        c[n["p_lin0"]] = tuple(p)
+    if observer != "predict":
+        return tuple(p)
+    h = 0.5 * dt * dt
+    return (p[0] + pd[0] * dt + pdd[0] * h, p[1] + pd[1] * dt + pdd[1] * h,
+            p[2] + pd[2] * dt + pdd[2] * h)
+
+
+def k_predict(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
+    c[n["p_lin0"]] = _start_point(c[n["est"]], cfg.period, cfg.observer)
 
 
 def k_predict_span(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
@@ -187,14 +191,8 @@ def k_predict_span(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     ``dt`` the time from the estimate's sample to this one's (one period for the starting
     estimate, which is at rest), as :func:`k_predict` does over one period."""
     est = c[n["est"]]
-    p, pd, pdd = est[0], est[1], est[2]
-    if cfg.observer == "predict":
-        dt = cfg.period if est[3] is None else c[n["t"]] - est[3]
-        h = 0.5 * dt * dt
-        c[n["p_lin0"]] = (p[0] + pd[0] * dt + pdd[0] * h, p[1] + pd[1] * dt + pdd[1] * h,
-                          p[2] + pd[2] * dt + pdd[2] * h)
-    else:
-        c[n["p_lin0"]] = tuple(p)
+    dt = cfg.period if est[3] is None else c[n["t"]] - est[3]
+    c[n["p_lin0"]] = _start_point(est, dt, cfg.observer)
 
 
 def k_observer(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
