@@ -39,7 +39,7 @@ from ..topology.pipeline import (
 )
 from ..topology.plan import Round
 from .blocks import ObserverDiverged
-from .central_guard import CentralGuard, Fault
+from .central_guard import CentralGuard, Excuse, Fault
 from .central_intake import CentralIntake
 from .central_lifecycle import CentralLifecycle
 from .central_state import LATE_KEPT, CycleLog, InFlight
@@ -51,6 +51,7 @@ from .config import EXIT_OBSERVER, RunConfig
 from .controller import Controller
 from .engine import AWAIT_SAMPLE, Engine
 from .node import WARM_RSS_AT, Node, rss_kb
+from .supervise import ThreadTimes
 
 OVERLOAD_WINDOW = 100
 """The intervals over which :meth:`Central._check_overload` counts late ones."""
@@ -195,7 +196,10 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         # what a role's process is doing (supervise.process_state), for the roles this
         # central started; None: unknown (roles started by hand, on other hosts)
         self.role_state: Callable[[str], str] | None = None
-        self.excused: dict[str, tuple[int, int]] = {}  # role -> (silent since, until)
+        # the scheduler accounting of a role's threads (supervise.thread_times), where
+        # this central can read it: renews an excuse while the machine starves a role
+        self.role_times: Callable[[str], ThreadTimes] | None = None
+        self.excused: dict[str, Excuse] = {}  # role -> the excuse of its silence
         self.excuses = 0  # silences past their limit excused (central_guard._excuse)
         self._next_child_check = 0.0
         self.outbox: list[InFlight] = []  # intervals whose next round waits to be sent

@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import math
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import msgpack
 
 from ..kernels.workspace import check_point
 from .config import EXIT_OBSERVER, EXIT_PERIPHERAL, EXIT_PLANT, LATE_POLICIES
 from .engine import Engine
+from .supervise import ThreadTimes, cpu_denied
 
 if TYPE_CHECKING:
     from .central_state import InFlight
@@ -35,6 +36,25 @@ class Fault(RuntimeError):
         super().__init__(message)
         self.process = process
         self.code = code
+
+
+class Excuse(NamedTuple):
+    """A silence past its limit that is not a fault yet (:meth:`CentralGuard._excuse`)."""
+
+    since: int
+    """When the silence it excuses began."""
+    until: int
+    """No fault before this."""
+    at: int
+    """When it was granted or last renewed."""
+    times: tuple[ThreadTimes, ThreadTimes] | None
+    """The silent process's and the central's Zenoh threads' scheduler accounting then."""
+    runnable: bool
+    """Whether the silent process was runnable then."""
+    renewals: int = 0
+    seen: tuple[int, int, int] | None = None
+    """Of the last window looked at: its length, how long the machine kept the process
+    from a CPU, how much CPU it got (ns); for the fault's message."""
 
 
 class CentralGuard:
@@ -97,12 +117,23 @@ class CentralGuard:
         """When the silence of ``role`` (silent since ``since``) becomes a fault: after
         ``timeout_ns`` for the plant, :meth:`_fault_at` for a peripheral, or later while
         it is excused (:meth:`_excuse`)."""
-        return self._excused_end(role, since, self._limit_end(role, since, now, timeout_ns))
+        return self._excused_end(role, self._limit_end(role, since, now, timeout_ns))
 
-    def _excused_end(self, role: str, since: int, end: int) -> int:
-        """``end`` (the limit's end of a silence since ``since``), or later while excused."""
+    def _excused_end(self, role: str, end: int) -> int:
+        """``end`` (the limit's end of a silence of ``role``), or later while excused."""
+        excused = self._excuse_of(role)
+        return max(end, excused.until) if excused is not None else end
+
+    def _excuse_of(self, role: str) -> Excuse | None:
+        """The excuse of the silence ``role`` is in: one granted or renewed since it last
+        answered (a reply, a sample), whichever of its silence's starts (its last reply,
+        the request after it, a round's sending) the check that granted it looked at."""
         excused = self.excused.get(role)
-        return max(end, excused[1]) if excused and excused[0] == since else end
+        if excused is None:
+            return None
+        answered = self.last_sample_ns if role == "plant" \
+            else self.last_reply_ns[int(role.rsplit("-", 1)[1]) - 1]
+        return excused if excused.at > answered else None
 
     def _limit_end(self, role: str, since: int, now: int, timeout_ns: int) -> int:
         if role == "plant":  # its silence is the one the others' may share
@@ -115,43 +146,100 @@ class CentralGuard:
         limit's end, when the caller has it)."""
         if end is None:
             end = self._limit_end(role, since, now, timeout_ns)
-        return now > self._excused_end(role, since, end) \
+        return now > self._excused_end(role, end) \
             and not self._excuse(role, since, now, timeout_ns)
+
+    EXCUSED_LIMITS = 8
+    """Realtime: however long the machine keeps a silent process (or the central's own
+    Zenoh threads) from a CPU, its silence is a fault once it lasts this many limits
+    (24 ms at 1 ms and ``--fault-periods 3``; the reference machine's stalls ran 6-26
+    ms). The robot's tracking is watched all along (``--max-error``)."""
 
     def _excuse(self, role: str, since: int, now: int, timeout_ns: int) -> bool:
         """Realtime, a role this central started: a silence past its limit is not yet a
-        fault while the silent process is runnable (running or waiting for a CPU), or
-        while it sleeps and one of the central's own Zenoh threads is runnable, once per
-        silence and for at most one more limit. Then the machine, not the process, is
-        slow: the silent process is working through what it was sent, or the central's
-        own Zenoh thread has yet to send the request or to read the answer (on 2026-11-24
-        a 60 s run at 1 ms ended 30 intervals before its end on a peripheral silent 3.3
-        ms against a 3 ms limit). The plant is excused while it sleeps too: it samples on
+        fault while the machine, not the process, is slow. The first time, for one more
+        limit, while the silent process is runnable (running or waiting for a CPU), or
+        while it sleeps and one of the central's own Zenoh threads is runnable (the
+        silent process is working through what it was sent, or the central's own Zenoh
+        thread has yet to send the request or to read the answer: on 2026-11-24 a 60 s
+        run at 1 ms ended 30 intervals before its end on a peripheral silent 3.3 ms
+        against a 3 ms limit). The plant is excused while it sleeps too: it samples on
         its own clock and waits for nothing in transit, so a plant asleep past its tick
         is a timer the machine has not served yet (on 2026-11-25 a 60 s run at 1 ms
         stopped after 4202 periods on the plant silent 3.1 ms, asleep when looked at and
-        runnable a moment later). A stopped or exited process is a fault at once, a
-        sleeping peripheral with nothing in transit too, and one that stays silent past
-        the extra limit (e.g. in an endless loop) too."""
-        if self.rc.schedule.clock != "realtime" or self.role_state is None \
-                or self.excused.get(role, (None,))[0] == since:
+        runnable a moment later). Then, a limit at a time, while the kernel's accounting
+        shows that over the last limit the machine kept the silent process or the
+        central's Zenoh threads from a CPU for at least half of it (:meth:`_renew`), up
+        to :attr:`EXCUSED_LIMITS` in all. A stopped or exited process is a fault at
+        once, a sleeping peripheral with nothing in transit too, and one that ran but
+        did not answer (e.g. in an endless loop) at the end of its extension."""
+        if self.rc.schedule.clock != "realtime" or self.role_state is None:
             return False
+        prev = self._excuse_of(role)
+        if prev is not None:
+            return self._renew(role, prev, now, timeout_ns)
         state = self.role_state(role)
         if not (state == "runnable" or (state == "sleeping" and (
                 role == "plant" or self.role_state("central") == "runnable"))):
             return False
-        self.excused[role] = (since, self._limit_end(role, since, now, timeout_ns) + timeout_ns)
+        self.excused[role] = Excuse(since, self._limit_end(role, since, now, timeout_ns)
+                                    + timeout_ns, now, self._times(role), state == "runnable")
         self.excuses += 1
         return True
 
-    def _state_note(self, role: str, since: int) -> str:
+    def _times(self, role: str) -> tuple[ThreadTimes, ThreadTimes] | None:
+        """The scheduler accounting of ``role``'s threads and of the central's Zenoh
+        threads (None where this central cannot read them)."""
+        if self.role_times is None:
+            return None
+        return self.role_times(role), self.role_times("central")
+
+    def _renew(self, role: str, prev: Excuse, now: int, timeout_ns: int) -> bool:
+        """Extend an excused silence by one more limit if, in the window since it was
+        granted (:func:`~.supervise.cpu_denied`), the machine kept the silent process,
+        or the central's Zenoh threads, from a CPU for at least half the window, and the
+        silence is shorter than :attr:`EXCUSED_LIMITS` limits (plus the central's own
+        stalls). A process that got the CPU and did not answer is a fault."""
+        times = self._times(role)
+        last = prev.since + self.EXCUSED_LIMITS * timeout_ns \
+            + self._own_stall(prev.since, now)
+        if prev.times is None or times is None or now >= last:
+            return False
+        state = self.role_state(role) if self.role_state is not None else "unknown"
+        if state not in ("runnable", "sleeping"):
+            return False
+        window = now - prev.at
+        denied, ran = cpu_denied(prev.times[0], times[0], window_ns=window,
+                                 runnable=prev.runnable and state == "runnable")
+        ours, _ = cpu_denied(prev.times[1], times[1], window_ns=window, runnable=False)
+        seen = (window, max(denied, ours), ran)
+        if 2 * max(denied, ours) < window:
+            self.excused[role] = prev._replace(seen=seen)
+            return False
+        self.excused[role] = Excuse(prev.since, min(now + timeout_ns, last), now, times,
+                                    state == "runnable", prev.renewals + 1, seen)
+        self.excuses += 1
+        return True
+
+    def _state_note(self, role: str) -> str:
         """For a silence fault's message: what the silent process was doing, where known,
-        and whether this silence was excused once (:meth:`_excuse`)."""
+        whether this silence was excused (:meth:`_excuse`) and, where its last extension
+        was looked at, how long the machine kept it from a CPU in it and how much CPU
+        it got."""
         if self.role_state is None:
             return ""
-        excused = " (after one extension of its limit)" \
-            if self.excused.get(role, (None,))[0] == since else ""
-        return f"; its process was {self.role_state(role)}{excused}"
+        excused = self._excuse_of(role)
+        note = ""
+        if excused is not None:
+            n = excused.renewals + 1
+            note = (" (after one extension of its limit" if n == 1
+                    else f" (after {n} extensions of its limit")
+            if excused.seen is not None:
+                window, denied, ran = excused.seen
+                note += (f"; in the last {window / 1e6:.1f} ms it was kept from a CPU "
+                         f"{denied / 1e6:.1f} ms and ran {ran / 1e6:.1f} ms")
+            note += ")"
+        return f"; its process was {self.role_state(role)}{note}"
 
     def _shared_note(self, since: int, now: int, timeout_ns: int, *,
                      plant: bool = False) -> str:
@@ -178,7 +266,7 @@ class CentralGuard:
                 since = f.deadline_ns - timeout_ns
                 end = self._fault_at(since, now, timeout_ns)  # the same for each peripheral
                 for k in f.waiting:
-                    wake = min(wake, self._excused_end(f"peripheral-{k + 1}", since, end))
+                    wake = min(wake, self._excused_end(f"peripheral-{k + 1}", end))
                 if f.late_ns and f.round is not None \
                         and self.late_policy[f.round.index] != "wait":
                     wake = min(wake, f.late_ns)
@@ -227,7 +315,7 @@ class CentralGuard:
                     raise Fault(f"peripheral {k + 1} has not answered for "
                                 f"{(now - t) / 1e6:.1f} ms (limit {timeout_ns / 1e6:.1f} ms"
                                 f"{self._shared_note(t, now, timeout_ns)})"
-                                f"{self._state_note(role, t)}{self._overload_hint()}",
+                                f"{self._state_note(role)}{self._overload_hint()}",
                                 process=role, code=EXIT_PERIPHERAL)
         for f in self.inflight.values():
             since = f.deadline_ns - timeout_ns
@@ -244,7 +332,7 @@ class CentralGuard:
                     f"peripheral {k + 1} did not answer round {f.round.index if f.round else '?'}"
                     f" of cycle {f.cycle}: silent for {(now - since) / 1e6:.1f} ms (limit "
                     f"{timeout_ns / 1e6:.1f} ms{self._shared_note(since, now, timeout_ns)})"
-                    f"{self._state_note(role, since)}{self._overload_hint()}",
+                    f"{self._state_note(role)}{self._overload_hint()}",
                     process=role, code=EXIT_PERIPHERAL)
         if (self.rc.schedule.clock != "freerun" and not self.samples
                 and self.next_cycle < self.cycles
@@ -255,7 +343,7 @@ class CentralGuard:
                             f"(cycle {self.next_cycle} awaited, newest seen "
                             f"{self.newest_sample}"
                             f"{self._shared_note(last, now, timeout_ns, plant=True)})"
-                            f"{self._state_note('plant', last)}"
+                            f"{self._state_note('plant')}"
                             f"{self._overload_hint()}", process="plant", code=EXIT_PLANT)
 
     def _check_children(self) -> None:

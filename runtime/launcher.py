@@ -42,10 +42,12 @@ from .setup import Setup, make_setup
 from .stopping import STOP_SIGNALS, not_ignored, stop_of, stop_signals, stopped_by_user
 from .supervise import (
     ZENOH_THREADS,
+    ThreadTimes,
     end_children,
     process_state,
     role_cpus,
     spawn_role,
+    thread_times,
     unit_cores,
 )
 from .zsession import default_endpoint, make_config
@@ -197,7 +199,13 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
                     return process_state(os.getpid(), threads=ZENOH_THREADS)
                 return process_state(pids[role]) if role in pids else "unknown"
 
+            def role_times(role: str) -> ThreadTimes:
+                if role == "central":
+                    return thread_times(os.getpid(), threads=ZENOH_THREADS)
+                return thread_times(pids[role]) if role in pids else {}
+
             central.role_state = role_state
+            central.role_times = role_times
         central.handshake()
         central.warm_up()
         central.choose_replies()

@@ -137,6 +137,60 @@ def process_state(pid: int, *, threads: re.Pattern[str] | None = None) -> str:
     return "sleeping"
 
 
+ThreadTimes = dict[int, tuple[int, int]]
+"""Per thread id: nanoseconds run on a CPU, nanoseconds waited on a runqueue for one."""
+
+
+def thread_times(pid: int, *, threads: re.Pattern[str] | None = None) -> ThreadTimes:
+    """The CPU time and the runqueue wait of each thread of process ``pid`` (those whose
+    name matches ``threads``, if given) since it started, from
+    ``/proc/<pid>/task/<tid>/schedstat`` (the kernel's scheduler accounting; on a guest
+    with paravirtual time accounting a thread's CPU time leaves out what the hypervisor
+    took). Empty where the process is gone or the kernel does not keep them."""
+    out: ThreadTimes = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            if threads is not None:
+                with open(f"/proc/{pid}/task/{tid}/comm") as fh:
+                    if not threads.fullmatch(fh.read().strip()):
+                        continue
+            with open(f"/proc/{pid}/task/{tid}/schedstat") as fh:
+                run, wait = fh.read().split()[:2]
+            out[int(tid)] = (int(run), int(wait))
+    return out
+
+
+def cpu_denied(before: ThreadTimes, after: ThreadTimes, *, window_ns: int,
+               runnable: bool) -> tuple[int, int]:
+    """Of a window of ``window_ns`` between two :func:`thread_times` readings of one
+    process, how long the machine kept it from running, and how much CPU it got.
+
+    Kept from running: the longest any one thread waited on a runqueue in the window, or,
+    where the process was runnable at both ends (``runnable``), the window less the CPU
+    time its threads got, if more (a thread left on a CPU the hypervisor took neither
+    runs nor waits in the guest's accounting). Threads started in the window count from
+    zero. A reading that is empty (the process gone, the accounting unreadable) is no
+    evidence: nothing denied.
+
+    Returns
+    -------
+    (denied_ns, ran_ns) : both at least 0; ``ran_ns`` summed over the threads.
+    """
+    if not before or not after:
+        return 0, 0
+    waited = ran = 0
+    for tid, (run, wait) in after.items():
+        run0, wait0 = before.get(tid, (0, 0))
+        waited = max(waited, wait - wait0)
+        ran += max(0, run - run0)
+    denied = max(waited, window_ns - ran if runnable else 0)
+    return max(0, min(denied, window_ns)), ran
+
+
 def unit_cores(central: set[int] | None, others: set[int] | None) -> int:
     """How many CPUs the roles started on this host can use together, given
     :func:`role_cpus` (read before the central pins itself)."""

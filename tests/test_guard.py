@@ -336,6 +336,133 @@ def test_a_silence_is_excused_once_while_the_centrals_own_zenoh_thread_is_runnab
         c._check_deadlines(limit)
 
 
+class Accounting:
+    """Fake scheduler accounting: each role's one thread gains ``run`` and ``wait`` ns
+    per ns of the guard's clock from ``gains[role]`` (default nothing)."""
+
+    def __init__(self, clock: Clock, gains: dict[str, tuple[float, float]]) -> None:
+        self.clock, self.gains = clock, gains
+
+    def __call__(self, role: str) -> dict[int, tuple[int, int]]:
+        run, wait = self.gains.get(role, (0.0, 0.0))
+        return {7: (int(run * self.clock.now), int(wait * self.clock.now))}
+
+
+def renewals_until_fault(c: Any, clock: Clock, limit: int) -> tuple[Fault, list[int]]:
+    """Judge the silence just after each moment the guard would look again, the plant
+    sampling on, until it is a fault (bounded by 20 looks); the moments looked at."""
+    looks = []
+    for _ in range(20):
+        clock.now = c.last_sample_ns = c._next_check(clock.now, limit, 0) + 1
+        looks.append(clock.now)
+        try:
+            c._check_deadlines(limit)
+        except Fault as exc:
+            return exc, looks
+    raise AssertionError("no fault after 20 looks")
+
+
+def test_a_process_the_machine_keeps_from_a_cpu_is_excused_a_limit_at_a_time_up_to_a_cap(
+        monkeypatch):
+    """Runnable, waiting on a runqueue all along: each limit is renewed while the kernel's
+    accounting shows the process denied a CPU for half of it or more, until the silence
+    has lasted EXCUSED_LIMITS limits."""
+    c, clock, limit = silent_peripheral_2("starved", monkeypatch)
+    c.role_state = lambda role: "runnable"
+    c.role_times = Accounting(clock, {"peripheral-2": (0.0, 1.0)})
+    since = c.last_reply_ns[1]
+    exc, looks = renewals_until_fault(c, clock, limit)
+    cap = c.EXCUSED_LIMITS
+    assert looks[-1] == since + cap * limit + 1  # no look wasted, none missed
+    assert c.excuses == cap - 1  # the first excuse and its renewals
+    assert exc.process == "peripheral-2" and str(exc).startswith(
+        f"peripheral 2 has not answered for {cap * limit / 1e6:.1f} ms (limit 3.0 ms); its "
+        f"process was runnable (after {cap - 1} extensions of its limit"), str(exc)
+
+
+def first_then(first: str, then: str) -> Any:
+    """The silent peripheral 2's state: ``first`` at the first look, ``then`` at every
+    later one; the central's Zenoh threads asleep."""
+    looks: list[str] = []
+
+    def state(role: str) -> str:
+        if role != "peripheral-2":
+            return "sleeping"
+        looks.append(role)
+        return first if len(looks) == 1 else then
+    return state
+
+
+@pytest.mark.parametrize("gains, then", [
+    ((1.0, 0.0), "runnable"),  # it ran the whole extension: an endless loop
+    ((0.1, 0.3), "sleeping"),  # it ran a little, waited a little, sleeps: it was served
+])
+def test_a_process_that_had_its_cpu_and_stayed_silent_is_a_fault_after_one_extension(
+        monkeypatch, gains, then):
+    """Runnable at its limit, but over its extension the machine let it run, or kept it
+    waiting for less than half of it: the process, not the machine, is at fault."""
+    c, clock, limit = silent_peripheral_2(f"served-{then}", monkeypatch)
+    c.role_state = first_then("runnable", then)
+    c.role_times = Accounting(clock, {"peripheral-2": gains})
+    since = c.last_reply_ns[1]
+    exc, looks = renewals_until_fault(c, clock, limit)
+    assert looks[-1] == since + 2 * limit + 1 and c.excuses == 1
+    window = limit  # from the first look, a nanosecond past the limit, to the second
+    assert str(exc).endswith(
+        f"its process was {then} (after one extension of its limit; in the last "
+        f"{window / 1e6:.1f} ms it was kept from a CPU {gains[1] * window / 1e6:.1f} ms "
+        f"and ran {gains[0] * window / 1e6:.1f} ms)"), str(exc)
+
+
+def test_a_sleeping_peripheral_is_excused_while_the_centrals_zenoh_threads_wait_for_a_cpu(
+        monkeypatch):
+    """The request or the reply is in transit at the central, whose Zenoh threads the
+    machine does not run: renewed as long as they wait (up to the cap), whatever the
+    peripheral itself does meanwhile (asleep: nothing to do)."""
+    c, clock, limit = silent_peripheral_2("central-starved", monkeypatch)
+    c.role_state = lambda role: "runnable" if role == "central" else "sleeping"
+    c.role_times = Accounting(clock, {"central": (0.0, 0.9)})
+    exc, looks = renewals_until_fault(c, clock, limit)
+    assert looks[-1] == c.last_reply_ns[1] + c.EXCUSED_LIMITS * limit + 1
+    assert c.excuses == c.EXCUSED_LIMITS - 1
+    assert "its process was sleeping" in str(exc)
+
+
+def test_without_the_accounting_a_silence_is_excused_once(monkeypatch):
+    """A kernel or a process whose accounting cannot be read gives no evidence: one
+    extension, as for any runnable silent process."""
+    c, clock, limit = silent_peripheral_2("no-accounting", monkeypatch)
+    c.role_state = lambda role: "runnable"
+    c.role_times = lambda role: {}
+    since = c.last_reply_ns[1]
+    exc, looks = renewals_until_fault(c, clock, limit)
+    assert looks[-1] == since + 2 * limit + 1 and c.excuses == 1
+    assert exc.process == "peripheral-2"
+
+
+def test_a_process_stopped_during_its_extension_is_a_fault_at_its_end(monkeypatch):
+    c, clock, limit = silent_peripheral_2("stopped-later", monkeypatch)
+    c.role_state = first_then("runnable", "stopped")
+    c.role_times = Accounting(clock, {"peripheral-2": (0.0, 1.0)})  # starved, yet stopped
+    since = c.last_reply_ns[1]
+    exc, looks = renewals_until_fault(c, clock, limit)
+    assert looks[-1] == since + 2 * limit + 1 and c.excuses == 1
+    assert "its process was stopped (after one extension of its limit)" in str(exc)
+
+
+def test_a_starved_plant_is_excused_a_limit_at_a_time_too(monkeypatch):
+    c, clock = silent_plant("plant-starved", monkeypatch, lambda role: "runnable")
+    c.role_times = Accounting(clock, {"plant": (0.0, 1.0)})
+    looks = []
+    with pytest.raises(Fault) as info:
+        for _ in range(20):
+            looks.append(clock.now)
+            c._check_deadlines(3 * MS)
+            clock.now = c._next_check(clock.now, 3 * MS, 0) + 1
+    assert info.value.process == "plant" and c.excuses == c.EXCUSED_LIMITS - 1
+    assert looks[-1] == 5 * MS + c.EXCUSED_LIMITS * 3 * MS + 1
+
+
 @pytest.mark.parametrize("state", ["stopped", "exited", "blocked"])
 def test_a_frozen_or_exited_process_is_a_fault_whatever_the_central_is_doing(monkeypatch,
                                                                               state):
