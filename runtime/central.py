@@ -51,7 +51,7 @@ from .config import EXIT_OBSERVER, RunConfig
 from .controller import Controller
 from .engine import AWAIT_SAMPLE, Engine
 from .node import WARM_RSS_AT, Node, rss_kb
-from .supervise import ThreadTimes
+from .supervise import MachineLoad, ThreadTimes
 
 OVERLOAD_WINDOW = 100
 """The intervals over which :meth:`Central._check_overload` counts late ones."""
@@ -199,6 +199,8 @@ class Central(CentralLifecycle, CentralIntake, CentralGuard, CentralWarmUp):
         # the scheduler accounting of a role's threads (supervise.thread_times), where
         # this central can read it: renews an excuse while the machine starves a role
         self.role_times: Callable[[str], ThreadTimes] | None = None
+        # how short of CPUs the machine is (supervise.machine_load), read with role_state
+        self.machine_load: Callable[[], MachineLoad] | None = None
         self.excused: dict[str, Excuse] = {}  # role -> the excuse of its silence
         self.excuses = 0  # silences past their limit excused (central_guard._excuse)
         self._next_child_check = 0.0

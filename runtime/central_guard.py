@@ -23,7 +23,7 @@ import msgpack
 from ..kernels.workspace import check_point
 from .config import EXIT_OBSERVER, EXIT_PERIPHERAL, EXIT_PLANT, LATE_POLICIES
 from .engine import Engine
-from .supervise import ThreadTimes, cpu_denied
+from .supervise import MachineLoad, ThreadTimes, cpu_denied
 
 if TYPE_CHECKING:
     from .central_state import InFlight
@@ -47,14 +47,16 @@ class Excuse(NamedTuple):
     """No fault before this."""
     at: int
     """When it was granted or last renewed."""
-    times: tuple[ThreadTimes, ThreadTimes] | None
-    """The silent process's and the central's Zenoh threads' scheduler accounting then."""
+    times: tuple[ThreadTimes, ThreadTimes, int | None] | None
+    """The silent process's and the central's Zenoh threads' scheduler accounting then,
+    and the machine's CPU pressure (:attr:`~.supervise.MachineLoad.pressure_ns`)."""
     runnable: bool
     """Whether the silent process was runnable then."""
     renewals: int = 0
-    seen: tuple[int, int, int] | None = None
+    seen: tuple[int, int, int, int] | None = None
     """Of the last window looked at: its length, how long the machine kept the process
-    from a CPU, how much CPU it got (ns); for the fault's message."""
+    (or the central's Zenoh threads) from a CPU, how much CPU it got, how long tasks
+    waited for a CPU in it (ns); for the fault's message."""
 
 
 class CentralGuard:
@@ -159,20 +161,21 @@ class CentralGuard:
         """Realtime, a role this central started: a silence past its limit is not yet a
         fault while the machine, not the process, is slow. The first time, for one more
         limit, while the silent process is runnable (running or waiting for a CPU), or
-        while it sleeps and one of the central's own Zenoh threads is runnable (the
-        silent process is working through what it was sent, or the central's own Zenoh
-        thread has yet to send the request or to read the answer: on 2026-11-24 a 60 s
+        while it sleeps and one of the central's own Zenoh threads is runnable or the
+        machine has more runnable tasks than CPUs (the silent process is working through
+        what it was sent, or what is in transit waits for a CPU: on 2026-11-24 a 60 s
         run at 1 ms ended 30 intervals before its end on a peripheral silent 3.3 ms
         against a 3 ms limit). The plant is excused while it sleeps too: it samples on
         its own clock and waits for nothing in transit, so a plant asleep past its tick
         is a timer the machine has not served yet (on 2026-11-25 a 60 s run at 1 ms
         stopped after 4202 periods on the plant silent 3.1 ms, asleep when looked at and
         runnable a moment later). Then, a limit at a time, while the kernel's accounting
-        shows that over the last limit the machine kept the silent process or the
-        central's Zenoh threads from a CPU for at least half of it (:meth:`_renew`), up
-        to :attr:`EXCUSED_LIMITS` in all. A stopped or exited process is a fault at
-        once, a sleeping peripheral with nothing in transit too, and one that ran but
-        did not answer (e.g. in an endless loop) at the end of its extension."""
+        shows that over the last limit the machine kept the silent process, the
+        central's Zenoh threads or any of its tasks from a CPU for at least half of it
+        (:meth:`_renew`), up to :attr:`EXCUSED_LIMITS` in all. A stopped or exited
+        process is a fault at once, a sleeping peripheral with nothing in transit too,
+        and one that ran but did not answer while the machine let everything run (e.g.
+        a deadlock) at the end of its extension."""
         if self.rc.schedule.clock != "realtime" or self.role_state is None:
             return False
         prev = self._excuse_of(role)
@@ -180,26 +183,36 @@ class CentralGuard:
             return self._renew(role, prev, now, timeout_ns)
         state = self.role_state(role)
         if not (state == "runnable" or (state == "sleeping" and (
-                role == "plant" or self.role_state("central") == "runnable"))):
+                role == "plant" or self.role_state("central") == "runnable"
+                or self._machine().waiting))):
             return False
         self.excused[role] = Excuse(since, self._limit_end(role, since, now, timeout_ns)
                                     + timeout_ns, now, self._times(role), state == "runnable")
         self.excuses += 1
         return True
 
-    def _times(self, role: str) -> tuple[ThreadTimes, ThreadTimes] | None:
+    def _times(self, role: str) -> tuple[ThreadTimes, ThreadTimes, int | None] | None:
         """The scheduler accounting of ``role``'s threads and of the central's Zenoh
-        threads (None where this central cannot read them)."""
+        threads, and the machine's CPU pressure (None where this central cannot read
+        them)."""
         if self.role_times is None:
             return None
-        return self.role_times(role), self.role_times("central")
+        return self.role_times(role), self.role_times("central"), self._machine().pressure_ns
+
+    def _machine(self) -> MachineLoad:
+        """How short of CPUs the machine is, where this central can read it."""
+        return self.machine_load() if self.machine_load is not None \
+            else MachineLoad(None, None)
 
     def _renew(self, role: str, prev: Excuse, now: int, timeout_ns: int) -> bool:
         """Extend an excused silence by one more limit if, in the window since it was
-        granted (:func:`~.supervise.cpu_denied`), the machine kept the silent process,
-        or the central's Zenoh threads, from a CPU for at least half the window, and the
-        silence is shorter than :attr:`EXCUSED_LIMITS` limits (plus the central's own
-        stalls). A process that got the CPU and did not answer is a fault."""
+        granted or last renewed, the machine kept the silent process or the central's
+        Zenoh threads from a CPU (:func:`~.supervise.cpu_denied`), or kept some task
+        waiting for one (the CPU pressure, which counts a wait still going on: a thread's
+        own wait is added up only when it runs again), for at least half the window, and
+        the silence is shorter than :attr:`EXCUSED_LIMITS` limits (plus the central's
+        own stalls). A process that was not denied its CPU and did not answer is a
+        fault, as is one stopped or exited meanwhile."""
         times = self._times(role)
         last = prev.since + self.EXCUSED_LIMITS * timeout_ns \
             + self._own_stall(prev.since, now)
@@ -212,8 +225,10 @@ class CentralGuard:
         denied, ran = cpu_denied(prev.times[0], times[0], window_ns=window,
                                  runnable=prev.runnable and state == "runnable")
         ours, _ = cpu_denied(prev.times[1], times[1], window_ns=window, runnable=False)
-        seen = (window, max(denied, ours), ran)
-        if 2 * max(denied, ours) < window:
+        waited = 0 if prev.times[2] is None or times[2] is None \
+            else min(window, max(0, times[2] - prev.times[2]))
+        seen = (window, max(denied, ours), ran, waited)
+        if 2 * max(denied, ours, waited) < window:
             self.excused[role] = prev._replace(seen=seen)
             return False
         self.excused[role] = Excuse(prev.since, min(now + timeout_ns, last), now, times,
@@ -224,8 +239,8 @@ class CentralGuard:
     def _state_note(self, role: str) -> str:
         """For a silence fault's message: what the silent process was doing, where known,
         whether this silence was excused (:meth:`_excuse`) and, where its last extension
-        was looked at, how long the machine kept it from a CPU in it and how much CPU
-        it got."""
+        was looked at, how long the machine kept it from a CPU in it, how much CPU it
+        got and how long the machine's tasks waited for one."""
         if self.role_state is None:
             return ""
         excused = self._excuse_of(role)
@@ -235,9 +250,10 @@ class CentralGuard:
             note = (" (after one extension of its limit" if n == 1
                     else f" (after {n} extensions of its limit")
             if excused.seen is not None:
-                window, denied, ran = excused.seen
+                window, denied, ran, waited = excused.seen
                 note += (f"; in the last {window / 1e6:.1f} ms it was kept from a CPU "
-                         f"{denied / 1e6:.1f} ms and ran {ran / 1e6:.1f} ms")
+                         f"{denied / 1e6:.1f} ms and ran {ran / 1e6:.1f} ms, and tasks "
+                         f"waited for a CPU {waited / 1e6:.1f} ms")
             note += ")"
         return f"; its process was {self.role_state(role)}{note}"
 

@@ -44,6 +44,7 @@ from .supervise import (
     ZENOH_THREADS,
     ThreadTimes,
     end_children,
+    machine_load,
     process_state,
     role_cpus,
     spawn_role,
@@ -206,6 +207,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
 
             central.role_state = role_state
             central.role_times = role_times
+            central.machine_load = machine_load
         central.handshake()
         central.warm_up()
         central.choose_replies()

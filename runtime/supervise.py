@@ -14,6 +14,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 from .config import RunConfig
 
@@ -189,6 +190,33 @@ def cpu_denied(before: ThreadTimes, after: ThreadTimes, *, window_ns: int,
         ran += max(0, run - run0)
     denied = max(waited, window_ns - ran if runnable else 0)
     return max(0, min(denied, window_ns)), ran
+
+
+class MachineLoad(NamedTuple):
+    """How short of CPUs this machine is (:func:`machine_load`)."""
+
+    pressure_ns: int | None
+    """How long, in all, at least one task has waited for a CPU since boot (the
+    kernel's pressure stall information, ``some`` line of ``/proc/pressure/cpu``), in ns;
+    unlike a thread's own runqueue wait, which the kernel adds up only once the thread
+    runs again, it counts a wait still going on. None where the kernel does not keep it
+    (before Linux 4.20, or PSI disabled)."""
+    waiting: int | None
+    """Tasks runnable now beyond the machine's CPUs (``/proc/loadavg``), the reader
+    included; None where unknown."""
+
+
+def machine_load() -> MachineLoad:
+    """Read :class:`MachineLoad` (two small files, about 20 us)."""
+    pressure = waiting = None
+    with contextlib.suppress(OSError, IndexError, ValueError):
+        with open("/proc/pressure/cpu") as fh:
+            pressure = int(fh.readline().rsplit("total=", 1)[1]) * 1000
+    with contextlib.suppress(OSError, IndexError, ValueError):
+        with open("/proc/loadavg") as fh:
+            running = int(fh.read().split()[3].split("/")[0])
+        waiting = max(0, running - (os.cpu_count() or 1))
+    return MachineLoad(pressure, waiting)
 
 
 def unit_cores(central: set[int] | None, others: set[int] | None) -> int:

@@ -22,6 +22,7 @@ from ctrlunit.runtime.config import (
     RunConfig,
 )
 from ctrlunit.runtime.controller import Estimate
+from ctrlunit.runtime.supervise import MachineLoad
 from loopback import LoopbackUnit
 from runner import unit_id
 
@@ -338,14 +339,21 @@ def test_a_silence_is_excused_once_while_the_centrals_own_zenoh_thread_is_runnab
 
 class Accounting:
     """Fake scheduler accounting: each role's one thread gains ``run`` and ``wait`` ns
-    per ns of the guard's clock from ``gains[role]`` (default nothing)."""
+    per ns of the guard's clock from ``gains[role]`` (default nothing); the machine's CPU
+    pressure gains ``pressure`` ns per ns."""
 
-    def __init__(self, clock: Clock, gains: dict[str, tuple[float, float]]) -> None:
-        self.clock, self.gains = clock, gains
+    def __init__(self, clock: Clock, gains: dict[str, tuple[float, float]], *,
+                 pressure: float = 0.0, waiting: int = 0) -> None:
+        self.clock, self.gains, self.pressure, self.waiting = clock, gains, pressure, waiting
 
     def __call__(self, role: str) -> dict[int, tuple[int, int]]:
         run, wait = self.gains.get(role, (0.0, 0.0))
         return {7: (int(run * self.clock.now), int(wait * self.clock.now))}
+
+    def install(self, c: Any) -> None:
+        c.role_times = self
+        c.machine_load = lambda: MachineLoad(int(self.pressure * self.clock.now),
+                                             self.waiting)
 
 
 def renewals_until_fault(c: Any, clock: Clock, limit: int) -> tuple[Fault, list[int]]:
@@ -369,7 +377,7 @@ def test_a_process_the_machine_keeps_from_a_cpu_is_excused_a_limit_at_a_time_up_
     has lasted EXCUSED_LIMITS limits."""
     c, clock, limit = silent_peripheral_2("starved", monkeypatch)
     c.role_state = lambda role: "runnable"
-    c.role_times = Accounting(clock, {"peripheral-2": (0.0, 1.0)})
+    Accounting(clock, {"peripheral-2": (0.0, 1.0)}).install(c)
     since = c.last_reply_ns[1]
     exc, looks = renewals_until_fault(c, clock, limit)
     cap = c.EXCUSED_LIMITS
@@ -403,7 +411,7 @@ def test_a_process_that_had_its_cpu_and_stayed_silent_is_a_fault_after_one_exten
     waiting for less than half of it: the process, not the machine, is at fault."""
     c, clock, limit = silent_peripheral_2(f"served-{then}", monkeypatch)
     c.role_state = first_then("runnable", then)
-    c.role_times = Accounting(clock, {"peripheral-2": gains})
+    Accounting(clock, {"peripheral-2": gains}, pressure=0.4).install(c)
     since = c.last_reply_ns[1]
     exc, looks = renewals_until_fault(c, clock, limit)
     assert looks[-1] == since + 2 * limit + 1 and c.excuses == 1
@@ -411,7 +419,8 @@ def test_a_process_that_had_its_cpu_and_stayed_silent_is_a_fault_after_one_exten
     assert str(exc).endswith(
         f"its process was {then} (after one extension of its limit; in the last "
         f"{window / 1e6:.1f} ms it was kept from a CPU {gains[1] * window / 1e6:.1f} ms "
-        f"and ran {gains[0] * window / 1e6:.1f} ms)"), str(exc)
+        f"and ran {gains[0] * window / 1e6:.1f} ms, and tasks waited for a CPU "
+        f"{0.4 * window / 1e6:.1f} ms)"), str(exc)
 
 
 def test_a_sleeping_peripheral_is_excused_while_the_centrals_zenoh_threads_wait_for_a_cpu(
@@ -421,11 +430,46 @@ def test_a_sleeping_peripheral_is_excused_while_the_centrals_zenoh_threads_wait_
     peripheral itself does meanwhile (asleep: nothing to do)."""
     c, clock, limit = silent_peripheral_2("central-starved", monkeypatch)
     c.role_state = lambda role: "runnable" if role == "central" else "sleeping"
-    c.role_times = Accounting(clock, {"central": (0.0, 0.9)})
+    Accounting(clock, {"central": (0.0, 0.9)}).install(c)
     exc, looks = renewals_until_fault(c, clock, limit)
     assert looks[-1] == c.last_reply_ns[1] + c.EXCUSED_LIMITS * limit + 1
     assert c.excuses == c.EXCUSED_LIMITS - 1
     assert "its process was sleeping" in str(exc)
+
+
+def test_a_sleeping_plant_is_excused_while_the_machines_tasks_wait_for_a_cpu(monkeypatch):
+    """The plant's timer fired and its thread waits on a CPU another task holds: the
+    thread's own wait is added up only once it runs, the CPU pressure counts it now."""
+    c, clock = silent_plant("plant-pressure", monkeypatch, lambda role: "sleeping")
+    Accounting(clock, {"plant": (0.05, 0.0)}, pressure=0.6).install(c)
+    looks = []
+    with pytest.raises(Fault) as info:
+        for _ in range(20):
+            looks.append(clock.now)
+            c._check_deadlines(3 * MS)
+            clock.now = c._next_check(clock.now, 3 * MS, 0) + 1
+    assert c.excuses == c.EXCUSED_LIMITS - 1
+    assert looks[-1] == 5 * MS + c.EXCUSED_LIMITS * 3 * MS + 1
+    assert "tasks waited for a CPU 1.8 ms)" in str(info.value), str(info.value)
+
+
+def test_a_sleeping_peripheral_is_excused_once_while_more_tasks_are_runnable_than_cpus(
+        monkeypatch):
+    """What is in transit may wait for a CPU in a thread the central does not look at
+    (the peripheral's, the plant's): the machine short of CPUs excuses the first limit;
+    the accounting decides the next."""
+    c, clock, limit = silent_peripheral_2("machine-short", monkeypatch)
+    c.role_state = lambda role: "sleeping"
+    Accounting(clock, {}, waiting=2).install(c)
+    since = c.last_reply_ns[1]
+    exc, looks = renewals_until_fault(c, clock, limit)
+    assert looks[-1] == since + 2 * limit + 1 and c.excuses == 1
+    assert exc.process == "peripheral-2"
+    c, clock, limit = silent_peripheral_2("machine-idle", monkeypatch)
+    c.role_state = lambda role: "sleeping"
+    Accounting(clock, {}, waiting=0).install(c)
+    assert fault_just_past(c, clock, limit).process == "peripheral-2"
+    assert c.excuses == 0
 
 
 def test_without_the_accounting_a_silence_is_excused_once(monkeypatch):
@@ -434,6 +478,7 @@ def test_without_the_accounting_a_silence_is_excused_once(monkeypatch):
     c, clock, limit = silent_peripheral_2("no-accounting", monkeypatch)
     c.role_state = lambda role: "runnable"
     c.role_times = lambda role: {}
+    c.machine_load = lambda: MachineLoad(None, None)
     since = c.last_reply_ns[1]
     exc, looks = renewals_until_fault(c, clock, limit)
     assert looks[-1] == since + 2 * limit + 1 and c.excuses == 1
@@ -443,7 +488,7 @@ def test_without_the_accounting_a_silence_is_excused_once(monkeypatch):
 def test_a_process_stopped_during_its_extension_is_a_fault_at_its_end(monkeypatch):
     c, clock, limit = silent_peripheral_2("stopped-later", monkeypatch)
     c.role_state = first_then("runnable", "stopped")
-    c.role_times = Accounting(clock, {"peripheral-2": (0.0, 1.0)})  # starved, yet stopped
+    Accounting(clock, {"peripheral-2": (0.0, 1.0)}).install(c)  # starved, yet stopped
     since = c.last_reply_ns[1]
     exc, looks = renewals_until_fault(c, clock, limit)
     assert looks[-1] == since + 2 * limit + 1 and c.excuses == 1
@@ -452,7 +497,7 @@ def test_a_process_stopped_during_its_extension_is_a_fault_at_its_end(monkeypatc
 
 def test_a_starved_plant_is_excused_a_limit_at_a_time_too(monkeypatch):
     c, clock = silent_plant("plant-starved", monkeypatch, lambda role: "runnable")
-    c.role_times = Accounting(clock, {"plant": (0.0, 1.0)})
+    Accounting(clock, {"plant": (0.0, 1.0)}).install(c)
     looks = []
     with pytest.raises(Fault) as info:
         for _ in range(20):

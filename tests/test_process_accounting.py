@@ -12,7 +12,7 @@ import threading
 import time
 
 import pytest
-from ctrlunit.runtime.supervise import cpu_denied, process_state, thread_times
+from ctrlunit.runtime.supervise import cpu_denied, machine_load, process_state, thread_times
 
 MS = 1_000_000
 
@@ -135,3 +135,15 @@ def test_an_empty_reading_is_no_evidence_of_anything():
     assert cpu_denied({}, {}, window_ns=3 * MS, runnable=True) == (0, 0)
     assert cpu_denied({1: (0, 0)}, {}, window_ns=3 * MS, runnable=True) == (0, 0)
     assert cpu_denied({}, {1: (0, 0)}, window_ns=3 * MS, runnable=True) == (0, 0)
+
+
+def test_the_machines_load_is_a_growing_pressure_total_in_ns_and_a_count_or_unknown():
+    first = machine_load()
+    time.sleep(0.01)
+    second = machine_load()
+    assert first.waiting is None or first.waiting >= 0
+    if first.pressure_ns is None:  # no PSI on this kernel: no evidence, never an error
+        assert second.pressure_ns is None
+        return
+    assert second.pressure_ns is not None and second.pressure_ns >= first.pressure_ns
+    assert first.pressure_ns % 1000 == 0  # the kernel counts microseconds
