@@ -170,9 +170,9 @@ class CentralGuard:
         is a timer the machine has not served yet (on 2026-11-25 a 60 s run at 1 ms
         stopped after 4202 periods on the plant silent 3.1 ms, asleep when looked at and
         runnable a moment later). Then, a limit at a time, while the kernel's accounting
-        shows that over the last limit the machine kept the silent process, the
-        central's Zenoh threads or any of its tasks from a CPU for at least half of it
-        (:meth:`_renew`), up to :attr:`EXCUSED_LIMITS` in all. A stopped or exited
+        shows that over the last limit the machine kept the silent process or the
+        central's Zenoh threads from a CPU, or kept its own tasks waiting for one, for at
+        least half of it (:meth:`_renew`), up to :attr:`EXCUSED_LIMITS` in all. A stopped or exited
         process is a fault at once, a sleeping peripheral with nothing in transit too,
         and one that ran but did not answer while the machine let everything run (e.g.
         a deadlock) at the end of its extension."""
