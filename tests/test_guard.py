@@ -356,12 +356,16 @@ class Accounting:
                                              self.waiting)
 
 
-def renewals_until_fault(c: Any, clock: Clock, limit: int) -> tuple[Fault, list[int]]:
+def renewals_until_fault(c: Any, clock: Clock, limit: int, *, plant_samples: bool = True
+                         ) -> tuple[Fault, list[int]]:
     """Judge the silence just after each moment the guard would look again, the plant
-    sampling on, until it is a fault (bounded by 20 looks); the moments looked at."""
+    sampling on (unless ``plant_samples`` is false: the plant is the silent one), until it
+    is a fault (bounded by 20 looks); the moments looked at."""
     looks = []
     for _ in range(20):
-        clock.now = c.last_sample_ns = c._next_check(clock.now, limit, 0) + 1
+        clock.now = c._next_check(clock.now, limit, 0) + 1
+        if plant_samples:
+            c.last_sample_ns = clock.now
         looks.append(clock.now)
         try:
             c._check_deadlines(limit)
@@ -442,15 +446,10 @@ def test_a_sleeping_plant_is_excused_while_the_machines_tasks_wait_for_a_cpu(mon
     thread's own wait is added up only once it runs, the CPU pressure counts it now."""
     c, clock = silent_plant("plant-pressure", monkeypatch, lambda role: "sleeping")
     Accounting(clock, {"plant": (0.05, 0.0)}, pressure=0.6).install(c)
-    looks = []
-    with pytest.raises(Fault) as info:
-        for _ in range(20):
-            looks.append(clock.now)
-            c._check_deadlines(3 * MS)
-            clock.now = c._next_check(clock.now, 3 * MS, 0) + 1
+    exc, looks = renewals_until_fault(c, clock, 3 * MS, plant_samples=False)
     assert c.excuses == c.EXCUSED_LIMITS - 1
     assert looks[-1] == 5 * MS + c.EXCUSED_LIMITS * 3 * MS + 1
-    assert "tasks waited for a CPU 1.8 ms)" in str(info.value), str(info.value)
+    assert "tasks waited for a CPU 1.8 ms)" in str(exc), str(exc)
 
 
 def test_a_sleeping_peripheral_is_excused_once_while_more_tasks_are_runnable_than_cpus(
@@ -498,13 +497,8 @@ def test_a_process_stopped_during_its_extension_is_a_fault_at_its_end(monkeypatc
 def test_a_starved_plant_is_excused_a_limit_at_a_time_too(monkeypatch):
     c, clock = silent_plant("plant-starved", monkeypatch, lambda role: "runnable")
     Accounting(clock, {"plant": (0.0, 1.0)}).install(c)
-    looks = []
-    with pytest.raises(Fault) as info:
-        for _ in range(20):
-            looks.append(clock.now)
-            c._check_deadlines(3 * MS)
-            clock.now = c._next_check(clock.now, 3 * MS, 0) + 1
-    assert info.value.process == "plant" and c.excuses == c.EXCUSED_LIMITS - 1
+    exc, looks = renewals_until_fault(c, clock, 3 * MS, plant_samples=False)
+    assert exc.process == "plant" and c.excuses == c.EXCUSED_LIMITS - 1
     assert looks[-1] == 5 * MS + c.EXCUSED_LIMITS * 3 * MS + 1
 
 
