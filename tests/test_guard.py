@@ -406,7 +406,8 @@ def first_then(first: str, then: str) -> Any:
 
 
 @pytest.mark.parametrize("gains, then", [
-    ((1.0, 0.0), "runnable"),  # it ran the whole extension: an endless loop
+    ((1.0, 0.0), "runnable"),  # it ran the whole extension: an endless loop, with CPU
+    # to spare for the machine's other tasks (they waited 0.4 of it)
     ((0.1, 0.3), "sleeping"),  # it ran a little, waited a little, sleeps: it was served
 ])
 def test_a_process_that_had_its_cpu_and_stayed_silent_is_a_fault_after_one_extension(
@@ -482,6 +483,21 @@ def test_without_the_accounting_a_silence_is_excused_once(monkeypatch):
     exc, looks = renewals_until_fault(c, clock, limit)
     assert looks[-1] == since + 2 * limit + 1 and c.excuses == 1
     assert exc.process == "peripheral-2"
+
+
+def test_the_rounds_check_does_not_excuse_again_what_the_peripherals_check_excused(
+        monkeypatch):
+    """A peripheral's silence is judged from its last reply and from its round's sending,
+    two starts of one silence: an excuse holds for that silence until it answers, so the
+    two checks cannot grant each other's extensions in turn (each keyed by its own start,
+    they did, for as long as the process stayed runnable)."""
+    c, clock, limit = silent_peripheral_2("two-starts", monkeypatch)
+    since = c.last_reply_ns[1]
+    c.inflight[1].deadline_ns = since + MS + limit  # its round went out 1 ms later
+    c.role_state = lambda role: "runnable"  # no accounting: one extension
+    exc, looks = renewals_until_fault(c, clock, limit)
+    assert c.excuses == 1 and looks[-1] <= since + MS + 2 * limit + 1
+    assert "after one extension" in str(exc)
 
 
 def test_a_process_stopped_during_its_extension_is_a_fault_at_its_end(monkeypatch):
