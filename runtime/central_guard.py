@@ -135,7 +135,10 @@ class CentralGuard:
             return None
         answered = self.last_sample_ns if role == "plant" \
             else self.last_reply_ns[int(role.rsplit("-", 1)[1]) - 1]
-        return excused if excused.at > answered else None
+        if excused.at > answered:
+            return excused
+        del self.excused[role]  # that silence ended: the loop's next looks find nothing
+        return None
 
     def _limit_end(self, role: str, since: int, now: int, timeout_ns: int) -> int:
         if role == "plant":  # its silence is the one the others' may share
@@ -182,22 +185,26 @@ class CentralGuard:
         if prev is not None:
             return self._renew(role, prev, now, timeout_ns)
         state = self.role_state(role)
+        load = self._machine()
         if not (state == "runnable" or (state == "sleeping" and (
                 role == "plant" or self.role_state("central") == "runnable"
-                or self._machine().waiting))):
+                or load.waiting))):
             return False
         self.excused[role] = Excuse(since, self._limit_end(role, since, now, timeout_ns)
-                                    + timeout_ns, now, self._times(role), state == "runnable")
+                                    + timeout_ns, now, self._times(role, load),
+                                    state == "runnable")
         self.excuses += 1
         return True
 
-    def _times(self, role: str) -> tuple[ThreadTimes, ThreadTimes, int | None] | None:
+    def _times(self, role: str, load: MachineLoad | None = None
+               ) -> tuple[ThreadTimes, ThreadTimes, int | None] | None:
         """The scheduler accounting of ``role``'s threads and of the central's Zenoh
-        threads, and the machine's CPU pressure (None where this central cannot read
-        them)."""
+        threads, and the machine's CPU pressure (from ``load`` where the caller has just
+        read it); None where this central cannot read them."""
         if self.role_times is None:
             return None
-        return self.role_times(role), self.role_times("central"), self._machine().pressure_ns
+        load = load or self._machine()
+        return self.role_times(role), self.role_times("central"), load.pressure_ns
 
     def _machine(self) -> MachineLoad:
         """How short of CPUs the machine is, where this central can read it."""

@@ -500,6 +500,22 @@ def test_the_rounds_check_does_not_excuse_again_what_the_peripherals_check_excus
     assert "after one extension" in str(exc)
 
 
+def test_an_answer_ends_the_excuse_and_the_next_silence_starts_afresh(monkeypatch):
+    """The peripheral answers during its extension: its excuse is gone (and dropped, so
+    that the loop's next looks do not weigh it), and a later silence is judged from its
+    own limit, with a first extension of its own."""
+    c, clock, limit = silent_peripheral_2("answered", monkeypatch)
+    c.role_state = lambda role: "runnable"
+    clock.now += 1
+    c._check_deadlines(limit)
+    assert c.excuses == 1 and "peripheral-2" in c.excused
+    c.last_reply_ns[1] = clock.now + 1  # it answers
+    assert c._excuse_of("peripheral-2") is None and "peripheral-2" not in c.excused
+    clock.now = c.last_sample_ns = c.last_reply_ns[1] + limit + 1
+    c._check_deadlines(limit)  # silent again past its limit: excused anew
+    assert c.excuses == 2
+
+
 def test_a_process_stopped_during_its_extension_is_a_fault_at_its_end(monkeypatch):
     c, clock, limit = silent_peripheral_2("stopped-later", monkeypatch)
     c.role_state = first_then("runnable", "stopped")
