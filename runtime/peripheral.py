@@ -7,10 +7,15 @@ part: the values the central needs and the compute span ``(t0, t1)`` on the host
 monotonic clock. Values from earlier rounds of the same cycle stay here (a few cycles at
 most).
 
-:class:`Peripheral` is the role without its transport (bytes in, bytes out), so that what
-it does with any payload can be checked without Zenoh; :func:`serve` is its loop on a
-:class:`~.node.Node`. A payload that fails validation in any way is counted under a
-reason and dropped: no payload ends the role.
+When the request asks for a reply per round (``each``), each reply leaves the moment its
+part is computed, before the next part's computation starts: that is what lets the
+central go on with interval k while this peripheral computes interval k+1's round, the
+overlap of the two-stage pipeline (§ IV.7.2, Fig. 24; docs/architecture.md).
+
+:class:`Peripheral` is the role without its transport (bytes in, bytes out, one reply
+at a time), so that what it does with any payload can be checked without Zenoh;
+:func:`serve` is its loop on a :class:`~.node.Node`. A payload that fails validation in
+any way is counted under a reason and dropped: no payload ends the role.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import queue
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from ..topology.pipeline import reply_order
@@ -48,12 +53,15 @@ class Peripheral:
     place : ``place(central_blocks) -> Engine``, the engine of the same run with those
         blocks on the central (raises :class:`~.config.ConfigError` on anything but a list
         of the law's per-axis block names); None: ``place`` orders are refused.
+    clock : the monotonic clock (ns) that stamps each part's compute span.
     """
 
     def __init__(self, engine: Engine, index: int, unit: str, *, trace: bool = False,
                  rejected: Counter[str] | None = None,
-                 place: Callable[[Any], Engine] | None = None) -> None:
+                 place: Callable[[Any], Engine] | None = None,
+                 clock: Callable[[], int] = time.monotonic_ns) -> None:
         self.unit = unit
+        self.clock = clock
         self.place = place
         self.index = index
         self.trace = trace
@@ -111,24 +119,30 @@ class Peripheral:
             parts.append((part["cycle"], rnd, check_vals(part.get("vals"), rnd.send, 3)))
         return parts, each
 
-    def on_request(self, data: bytes) -> list[bytes]:
-        """Answer one request: the reply payloads to publish, in order (none when the
-        request was rejected). Never raises for anything in ``data``."""
+    def on_request(self, data: bytes) -> Iterator[bytes]:
+        """Answer one request: yield the reply payloads to publish, in order (none when
+        the request was rejected). Never raises for anything in ``data``.
+
+        With ``each``, a part's reply is yielded as soon as that part is computed and the
+        next part is computed only when the caller asks for the next reply: publish each
+        payload before taking the next one (``for p in role.on_request(data):
+        publish(p)``), so that the central can use it while this role computes on.
+        Otherwise the one reply holding every part is yielded once all are computed.
+        """
         try:
             parts, each = self._parts(data)
         except BadMessage as exc:
             self.rejected[exc.reason] += 1
-            return []
+            return
         except Exception as exc:  # a validation gap must not end the role: count it
             self.rejected[f"invalid:{type(exc).__name__}"] += 1
-            return []
+            return
         # first rounds first when each is answered at once (docs/architecture.md)
         parts = [parts[i] for i in reply_order([p[1].index for p in parts], each=each)]
-        replies: list[bytes] = []
         out: list[dict[str, Any]] = []
         engine = self.engine
         for cycle, rnd, vals in parts:
-            t0 = time.monotonic_ns()
+            t0 = self.clock()
             ctx = self._ctxs.get(cycle)  # the central's warm-up intervals are kept alike
             if ctx is None:
                 if rnd.index != 0 and engine.plan.round_trips > 1:
@@ -151,7 +165,7 @@ class Peripheral:
             if self.trace:  # recording: every intermediate value too, for replay --verify
                 part["trace"] = {n: [ctx[n][i] for i in self.axes]
                                  for n in self._trace_names[rnd.index]}
-            t1 = time.monotonic_ns()
+            t1 = self.clock()
             part["span"] = [t0, t1]
             out.append(part)
             self.busy_ns += t1 - t0
@@ -160,12 +174,11 @@ class Peripheral:
                 self.rss_warm = rss_kb()
             if rnd.index == engine.plan.round_trips - 1:
                 self._ctxs.pop(cycle, None)
-            if each:
-                replies.append(encode(self.unit, cycle, rnd.index, parts=out))
+            if each:  # this part's reply leaves now, before the next part is computed
+                yield encode(self.unit, cycle, rnd.index, parts=out)
                 out = []
         if out:
-            replies.append(encode(self.unit, out[0]["cycle"], out[0]["stage"], parts=out))
-        return replies
+            yield encode(self.unit, out[0]["cycle"], out[0]["stage"], parts=out)
 
 
 def declare(node: Node, index: int) -> Any:
@@ -220,10 +233,8 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
             continue
         if ev.kind != "request":
             continue
-        replies = role.on_request(ev.data)
-        if replies:  # a request that passed validation: the central is alive
-            node.last_heard_ns = ev.rx_ns
-        for payload in replies:
+        for payload in role.on_request(ev.data):  # each reply out as soon as it is made
+            node.last_heard_ns = ev.rx_ns  # a request that passed validation: central alive
             reply.put(payload)
 
 
