@@ -27,25 +27,43 @@ def _idle_phrase(idle: dict[str, Any] | None) -> str:
 
 
 def write_markdown(path: Path, r: dict[str, Any]) -> None:
+    """``report.md`` of the stages that ran (``r["stages"]``), one section each."""
     m = r["machine"]
+    stages = ", ".join(r.get("stages") or ["all"])
     lines = [
         "# ctrlunit benchmark",
         "",
         f"Machine: {m['platform']}, {m['cores']} cores, Python {m['python']}. "
-        f"{'Quick' if r['quick'] else 'Full'} sweep, {r['repeats']} repeat(s), "
-        f"{r['wall_s']:.0f} s.",
+        f"{'Quick' if r['quick'] else 'Full'} bench, {r['repeats']} repeat(s), stages "
+        f"{stages}; {r['wall_s']:.0f} s.",
         "",
         "Method: " + "; ".join(f"{k}: {v}" for k, v in r["method"].items()) + ".",
+    ]
+    for section in (_floor, _sweep, _thesis, _recording, _target, _balance):
+        lines += section(r)
+    if r.get("realtime"):
+        lines += ["", *markdown_lines(r["realtime"])]
+    lines += ["", "## Figures", ""]
+    for f in r.get("figures", []):
+        lines.append(f"![{f}]({f})")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _floor(r: dict[str, Any]) -> list[str]:
+    fl = r.get("floor")
+    if not fl:
+        return []
+    lines = [
         "",
         "## Transport floor (same scatter/gather pattern, 64-byte payloads)",
         "",
         "| n | pipes p50 (us) | Zenoh p50 (us) | Zenoh p99 (us) | Zenoh / pipes |",
         "|---|---|---|---|---|",
     ]
-    for n, f in r["floor"]["by_n"].items():
+    for n, f in fl["by_n"].items():
         lines.append(f"| {n} | {_us(f['pipe_s']['p50'])} | {_us(f['zenoh_s']['p50'])} | "
                      f"{_us(f['zenoh_s']['p99'])} | {f['ratio_p50']:.1f} |")
-    paced = r["floor"].get("paced")
+    paced = fl.get("paced")
     if paced:
         lines += [
             "",
@@ -63,7 +81,14 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
             x = paced[kind]
             lines.append(f"| {kind} | {_us(x['cpu_caller_s'])} | {_us(x['cpu_echo_s'])} | "
                          f"{_us(x['round_trip_s']['p50'])} / {_us(x['round_trip_s']['p99'])} |")
-    lines += [
+    return lines
+
+
+def _sweep(r: dict[str, Any]) -> list[str]:
+    rows = [x for x in r.get("runs", []) if x["tag"] in ("sweep", "realtime", "live")]
+    if not rows:
+        return []
+    lines = [
         "",
         "## Sweep (freerun unless stated; medians over repeats)",
         "",
@@ -76,9 +101,7 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
         "efficiency (spread) | speedup | misses | business |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for x in r["runs"]:
-        if x["tag"] in ("thesis", "record"):
-            continue
+    for x in rows:
         busy = ", ".join(f"{k.replace('peripheral_', 'p')} {v * 100:.0f}%"
                          for k, v in x["business"].items() if v is not None)
         sp = x["efficiency_spread"]
@@ -90,36 +113,58 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
             f"{_us(x['traversal_s']['p50'])} | {_us(x['t1_s'])} | {_pct(x['efficiency'])} "
             f"({_pct(sp[0])}..{_pct(sp[1])}) | {x['speedup']:.2f} | {x['deadline_misses']} |"
             f" {busy} |")
-    t = r["thesis_1994"]
-    lines += [
+    return lines
+
+
+def _thesis(r: dict[str, Any]) -> list[str]:
+    """The 1994 comparison and its guarded figures (:mod:`.thesis`)."""
+    th = r.get("thesis")
+    if not th:
+        return []
+    from .thesis import guard_lines
+
+    by = {(x["law"], x["pipeline"]): x for x in r["runs"] if x["tag"] == "thesis"}
+    kin, whole1, whole2 = (by.get(("kinematics", 1)), by.get(("resolved-acceleration", 1)),
+                           by.get(("resolved-acceleration", 2)))
+    f = th["figures"]
+    lines = [
         "",
         f"## Against the 1994 unit (t800 cost model x {r['cost_scale_thesis_runs']:g}, "
         "so that arithmetic outweighs messages as on the Transputers)",
         "",
+        f"{th['config']}.",
+        "",
         "| what | 1994 | ctrlunit |",
         "|---|---|---|",
     ]
-    by = {(x["law"], x["peripherals"], x["pipeline"]): x for x in r["runs"]
-          if x["tag"] == "thesis"}
-    kin = by.get(("kinematics", 3, 1))
-    whole1 = by.get(("resolved-acceleration", 3, 1))
-    whole2 = by.get(("resolved-acceleration", 3, 2))
     if kin:
         lines.append(f"| all kinematics, N = 4, depth 1 | 57 % (1320 us / (582 us x 4)) | "
-                     f"{_pct(kin['efficiency'])} (t_1 {_us(kin['t1_s'])} us, traversal "
-                     f"{_us(kin['traversal_s']['p50'])} us, N = {kin['processors']}) |")
+                     f"{_pct(f['kinematics_efficiency'])} (t_1 {_us(kin['t1_s'])} us, "
+                     f"traversal {_us(kin['traversal_s']['p50'])} us, "
+                     f"N = {kin['processors']}) |")
     if whole1:
         lines.append(f"| whole cycle, N = 4, depth 1 | 46 % by Eq. IV.23 (54 % printed) | "
-                     f"{_pct(whole1['efficiency'])} (t_1 {_us(whole1['t1_s'])} us, traversal "
-                     f"{_us(whole1['traversal_s']['p50'])} us) |")
+                     f"{_pct(f['whole_cycle_efficiency'])} (t_1 {_us(whole1['t1_s'])} us, "
+                     f"traversal {_us(whole1['traversal_s']['p50'])} us) |")
     if whole1 and whole2:
-        m1, m2 = whole1.get("period_mean_s", math.nan), whole2.get("period_mean_s", math.nan)
+        busy = f.get("depth2_business_peripherals")
         lines.append(f"| depth-2 period / depth-1 period (mean: the throughput) | 0.5 "
-                     f"designed, not run reliably | {m2 / m1:.2f} ({_us(m2)} / {_us(m1)} us; "
-                     f"p50 {_us(whole2['period_s']['p50'])} / "
-                     f"{_us(whole1['period_s']['p50'])} us) |")
+                     f"designed, not run reliably | {f['depth_ratio']:.2f} "
+                     f"({_us(f['depth2_period_mean_s'])} / {_us(f['depth1_period_mean_s'])} "
+                     f"us; peripherals {_pct(busy)} busy at depth 2) |")
+        lines.append(f"| depth-2 period from the model calibrated at depth 1 | n/a | "
+                     f"{_us(f['model_depth2_period_s'])} us predicted, "
+                     f"{_pct(f['model_depth2_error'], sign=True)} measured against it |")
+    t = r["thesis_1994"]
     lines.append(f"| sampling period | {t['period_1_us']} us on 1, {t['period_4_us']} us on 4"
                  " | see the sweep |")
+    lines += ["", "Guarded figures (a regression fails CI):", "",
+              *(f"- {g}" for g in guard_lines(th))]
+    return lines
+
+
+def _recording(r: dict[str, Any]) -> list[str]:
+    lines: list[str] = []
     rc_ = r.get("recording_cost")
     if rc_:
         lines += ["", "## What recording costs", "",
@@ -148,6 +193,11 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
                       f"most the recording's +10 %); the viewer read "
                       f"{lv['viewer_messages']:.0f} messages for {lv['cycles']:.0f} "
                       "intervals."]
+    return lines
+
+
+def _target(r: dict[str, Any]) -> list[str]:
+    lines: list[str] = []
     tg = r.get("target") or {}
     if tg.get("variants"):
         target_us = _us(tg["target_s"])
@@ -168,6 +218,11 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
                 f"{(v['exchanges_per_interval'] or 0):.2f} | {_us(v['period_mean_s'])} | "
                 + (f"{_us(sp[0])}..{_us(sp[1])}" if sp else "n/a")
                 + f" | {_us(v['cpu_per_interval_s'])} | {'met' if met else 'missed'} |")
+    return lines
+
+
+def _balance(r: dict[str, Any]) -> list[str]:
+    lines: list[str] = []
     bal = r.get("balance") or {}
     if bal.get("native"):
         lines += ["", "## Load balancing (§ IV.7.2): ctrlunit balance, then a re-run", "",
@@ -187,17 +242,4 @@ def write_markdown(path: Path, r: dict[str, Any]) -> None:
                 f"{_us(e['predicted_period_s'])} us | {_us(e.get('measured_before_s'))} us | "
                 f"{_us(e.get('measured_after_s'))} us | {_pct(e.get('error'), sign=True)} | "
                 f"{_pct(e.get('gain'), sign=True)} |")
-        t8 = bal.get("t800_depth2_from_depth1")
-        if t8:
-            m, pr = t8["measured_period_s"], t8["predicted_period_s"]
-            err = m / pr - 1 if m and pr else math.nan
-            lines += ["", f"The model calibrated on the t800 depth-1 run predicts its depth-2 "
-                      f"period as {_us(pr)} us; measured {_us(m)} us "
-                      f"({_pct(err, sign=True)}). Balance there: "
-                      f"{t8['recommendations'][0]}."]
-    if r.get("realtime"):
-        lines += ["", *markdown_lines(r["realtime"])]
-    lines += ["", "## Figures", ""]
-    for f in r.get("figures", []):
-        lines.append(f"![{f}]({f})")
-    path.write_text("\n".join(lines) + "\n")
+    return lines

@@ -32,16 +32,10 @@ from ..runtime.stopping import raise_if_stopped
 from ..runtime.timing import warm_intervals
 from .floor import floor
 from .realtime import realtime_stage, stage_steps
+from .thesis import THESIS, thesis_stage
 
-THESIS = {
-    "inverse_kinematics_3": {"t1_us": 240, "tp_us": 88, "n": 3, "efficiency": 0.91},
-    "ik_and_jacobian_3": {"t1_us": 380, "tp_us": 128, "n": 3, "efficiency": 0.96},
-    "all_kinematics_4": {"t1_us": 1320, "tp_us": 582, "n": 4, "efficiency": 0.57},
-    "whole_cycle_4": {"t1_us": 1604, "tp_us": 866, "n": 4, "efficiency_printed": 0.54,
-                      "efficiency_formula": 1604 / (866 * 4)},
-    "period_1_us": 2000, "period_4_us": 1000, "period_pipeline_designed_us": 500,
-}
-
+STAGES = ("floor", "sweep", "recording", "thesis", "balance", "target", "realtime")
+"""The bench's stages, in the order they run (``ctrlunit bench --stages``)."""
 
 @dataclass
 class Config:
@@ -70,31 +64,42 @@ class Config:
                 f"{f':model-{self.model_state}' if self.model_state != 'acting' else ''}")
 
 
-def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float) -> list[Config]:
+def plan_configs(*, quick: bool, realtime_periods: list[float], scale: float,
+                 stages: tuple[str, ...] = STAGES) -> list[Config]:
+    """The configurations run shuffled in each repeat: the sweep's and the recording's
+    (the thesis stage runs its own alternated pairs, :mod:`.thesis`). The balance stage
+    starts from the sweep's n = 3 native runs: they are planned for it alone too."""
+    del quick, scale  # the same configurations in a quick bench
     out = []
-    for n in (0, 1, 2, 3):
-        for d in (1, 2):
-            for cm in ("native", "t800"):
-                out.append(Config(n, d, cm))
-    for per in realtime_periods:
-        for d in (1, 2):
-            out.append(Config(3, d, "native", "realtime", per, tag="realtime"))
-    # what recording costs: the same freerun configuration without --record, and with it
-    # uncompressed and compressed (the default)
-    for rec in (None, "none", "zstd"):
-        out.append(Config(3, 2, "native", tag="record", record=rec))
-    # what the live view costs, with a viewer connected and reading
-    out.append(Config(3, 2, "native", tag="live", foxglove=True))
-    # the thesis comparison: T-800 arithmetic scaled so that it outweighs the messages
-    # as it did in 1994 (Zenoh here: ~200 us a round; a T-800 link: tens of us)
-    for law in ("resolved-acceleration", "kinematics"):
-        for n in (0, 3):
+    if "sweep" in stages:
+        for n in (0, 1, 2, 3):
             for d in (1, 2):
-                if law == "kinematics" and d == 2:
-                    continue
-                out.append(Config(n, d, "t800", cost_scale=scale, law=law, tag="thesis",
-                                  model_state="sample"))
+                for cm in ("native", "t800"):
+                    out.append(Config(n, d, cm))
+        for per in realtime_periods:
+            for d in (1, 2):
+                out.append(Config(3, d, "native", "realtime", per, tag="realtime"))
+    elif "balance" in stages:
+        out += [Config(3, d, "native") for d in (1, 2)]
+    if "recording" in stages:
+        # what recording costs: the same freerun configuration without --record, and with
+        # it uncompressed and compressed (the default)
+        for rec in (None, "none", "zstd"):
+            out.append(Config(3, 2, "native", tag="record", record=rec))
+        # what the live view costs, with a viewer connected and reading
+        out.append(Config(3, 2, "native", tag="live", foxglove=True))
     return out
+
+
+def thesis_cycles(quick: bool) -> int:
+    """Intervals of each thesis run: at T-800 x 30 an interval takes 12-50 ms."""
+    return 40 if quick else 80
+
+
+def thesis_pairs(quick: bool, repeats: int | None) -> int:
+    """Alternated pairs of the thesis stage: at least two, so that its figures are medians
+    no single slow run decides."""
+    return max(2, repeats or (2 if quick else 3))
 
 
 def cycles_for(cfg: Config, quick: bool) -> int:
@@ -153,8 +158,8 @@ def _balance_stage(results: dict[str, list[dict]], configs: list[Config], out: P
                    quick: bool, repeats: int, progress: Callable[[str, int, int], None] | None,
                    done: int, total: int) -> dict[str, Any]:
     """§ IV.7.2 in the report: balance's recommendation for n = 3 (native, freerun, depth 1
-    and 2), re-run against the default placement alternately, predicted against measured;
-    and the model calibrated on the thesis's depth-1 t800 run, against its depth-2 run.
+    and 2), re-run against the default placement alternately, predicted against measured
+    (the model calibrated on the thesis's depth-1 t800 run is judged in :mod:`.thesis`).
 
     The placement comes from the sweep's run; the prediction it is judged by comes from the
     model calibrated again on the median default-placement re-run, made alternately with
@@ -214,16 +219,6 @@ def _balance_stage(results: dict[str, list[dict]], configs: list[Config], out: P
                     "balance's placement (predicted)": a["predicted"]["gantt_ms"],
                     "balance's placement, re-run (measured)": mid.get("gantt_ms") or []}
         stage["native"].append(entry)
-    th1 = next((c for c in configs if c.tag == "thesis" and c.peripherals == 3
-                and c.pipeline == 1 and c.law == "resolved-acceleration"), None)
-    th2 = next((c for c in configs if c.tag == "thesis" and c.peripherals == 3
-                and c.pipeline == 2 and c.law == "resolved-acceleration"), None)
-    if th1 and th2 and results[th1.key] and results[th2.key]:
-        a = analyse(results[th1.key][0])
-        stage["t800_depth2_from_depth1"] = {
-            "predicted_period_s": a["current"]["depth2"]["period_s"],
-            "measured_period_s": results[th2.key][0].get("period_mean_s"),
-            "recommendations": a["recommendations"]}
     return stage
 
 
@@ -326,33 +321,48 @@ def summarise(reps: list[dict[str, Any]], cfg: Config) -> dict[str, Any]:
     }
 
 
-def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = None,
-          realtime_periods: list[float] | None = None, scale: float = 30.0,
-          realtime_runs: int | None = None, realtime_long_s: float | None = None,
+def bench(out_dir: str | Path, *, stages: tuple[str, ...] = STAGES, quick: bool = False,
+          repeats: int | None = None, realtime_periods: list[float] | None = None,
+          scale: float = 30.0, realtime_runs: int | None = None,
+          realtime_long_s: float | None = None,
           progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
-    """Run the sweep and write the reports into ``out_dir``. ``realtime_runs`` main-job
-    runs (default 20; 2 with ``quick``) and a ``realtime_long_s`` run (default 60 s; none
-    with ``quick``) make the realtime stage (:mod:`.realtime`)."""
+    """Run the ``stages`` asked (:data:`STAGES`) and write the reports into ``out_dir``.
+
+    ``realtime_runs`` main-job runs (default 20; 2 with ``quick``) and a
+    ``realtime_long_s`` run (default 60 s; none with ``quick``) make the realtime stage
+    (:mod:`.realtime`); the thesis stage's guarded figures are in ``report["thesis"]``."""
+    unknown = [s for s in stages if s not in STAGES]
+    if unknown:
+        raise ValueError(f"stages {unknown}: allowed {', '.join(STAGES)}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     realtime_periods = realtime_periods if realtime_periods is not None else [3e-3]
     repeats = repeats or (1 if quick else 3)
-    configs = plan_configs(quick=quick, realtime_periods=realtime_periods, scale=scale)
+    configs = plan_configs(quick=quick, realtime_periods=realtime_periods, scale=scale,
+                           stages=stages)
     results: dict[str, list[dict]] = {c.key: [] for c in configs}
     samples: dict[str, dict[str, list[float]]] = {}
     gantt: dict[str, list] = {}
     rt_runs = realtime_runs if realtime_runs is not None else (2 if quick else 20)
     rt_long = realtime_long_s if realtime_long_s is not None else (0.0 if quick else 60.0)
-    total = (len(configs) * repeats + 1 + 2 * 2 * repeats + 4 * repeats
-             + stage_steps(rt_runs, rt_long))
+    pairs = thesis_pairs(quick, repeats)
+    steps = {"floor": 1, "sweep": 0, "recording": 0, "thesis": 3 * pairs,
+             "balance": 2 * 2 * repeats, "target": 4 * repeats,
+             "realtime": stage_steps(rt_runs, rt_long)}
+    total = len(configs) * repeats + sum(steps[s] for s in stages)
     done = 0
     t_start = time.monotonic()
     rng = random.Random(1994)
-    if progress:
-        progress("floor (pipes and Zenoh)", done, total)
-    fl = floor((1, 2, 3), rounds=500 if quick else 3000, paced_rounds=300 if quick else 3000)
-    done += 1
-    for rep_i in range(repeats):
+    report: dict[str, Any] = {"machine": machine_info(), "stages": list(stages),
+                              "thesis_1994": THESIS, "quick": quick, "repeats": repeats,
+                              "cost_scale_thesis_runs": scale}
+    if "floor" in stages:
+        if progress:
+            progress("floor (pipes and Zenoh)", done, total)
+        report["floor"] = floor((1, 2, 3), rounds=500 if quick else 3000,
+                                paced_rounds=300 if quick else 3000)
+        done += 1
+    for rep_i in range(repeats if configs else 0):
         order = list(configs)
         rng.shuffle(order)  # interleave: no configuration always runs first or last
         for cfg in order:
@@ -369,21 +379,81 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
                 warm = warm_intervals(len(c))
                 samples[cfg.key] = {"period_s": (np.diff(c[warm:]) / 1e9).tolist(),
                                     "traversal_s": ((c[warm:] - s[warm:]) / 1e9).tolist()}
-                if cfg.tag == "thesis" and cfg.peripherals == 3 and cfg.law != "kinematics":
-                    gantt[f"depth {cfg.pipeline}"] = gantt_window(central.spans)
-    runs = [summarise(results[c.key], c) for c in configs]
-    balance = _balance_stage(results, configs, out, quick=quick, repeats=repeats,
-                             progress=progress, done=done, total=total)
-    done += 2 * 2 * repeats
-    target = _target_stage(out, quick=quick, repeats=repeats, progress=progress, done=done,
-                           total=total)
-    done += 4 * repeats
-    realtime = realtime_stage(runs=rt_runs, long_s=rt_long, progress=progress, done=done,
-                              total=total)
+    report["runs"] = [summarise(results[c.key], c) for c in configs]
+    if "thesis" in stages:
+        th = thesis_stage(scale=scale, repeats=pairs, cycles=thesis_cycles(quick),
+                          run=lambda cfg, n: _run_kept(cfg, n, out, gantt), config=Config,
+                          progress=progress, done=done, total=total)
+        done += 3 * pairs
+        report["runs"] += [summarise(th["reports"][c.key], c)
+                           for c in _thesis_configs(scale)]
+        report["thesis"] = {k: v for k, v in th.items() if k != "reports"}
+    if "balance" in stages:
+        report["balance"] = _balance_stage(results, configs, out, quick=quick,
+                                           repeats=repeats, progress=progress, done=done,
+                                           total=total)
+        done += 2 * 2 * repeats
+    if "target" in stages:
+        report["target"] = _target_stage(out, quick=quick, repeats=repeats,
+                                         progress=progress, done=done, total=total)
+        done += 4 * repeats
+    if "realtime" in stages:
+        report["realtime"] = realtime_stage(runs=rt_runs, long_s=rt_long, progress=progress,
+                                            done=done, total=total)
+    if "recording" in stages:
+        report["recording_cost"] = _recording_cost(report["runs"], configs, results)
+    report["wall_s"] = time.monotonic() - t_start
+    report["method"] = METHOD
+    from .figures import write_figures
+    from .markdown import write_markdown
+
+    report["figures"] = write_figures(out, report, samples, gantt)
+    (out / "report.json").write_text(json.dumps(_safe(report), indent=2))
+    write_markdown(out / "report.md", report)
+    return report
+
+
+METHOD = {
+    "interleaving": "the sweep's and the recording's configurations shuffled anew for each "
+                    "repeat; figures are medians over repeats with the min..max spread of "
+                    "efficiency; the thesis stage alternates its configurations in pairs",
+    "t800": "each block computes its real result and the process then owes the block's "
+            "1994 T-800 time (per axis for per-axis blocks); before sending it sleeps until "
+            "twice its mean sleep overshoot (50 us to 1 ms) before the debt is paid and "
+            "spins the rest",
+    "efficiency": "Eq. IV.23: t_1 / (t_parallel x N), N = processors taking part (central "
+                  "included); t_parallel = traversal p50 at depth 1, mean period at depth 2",
+    "balance": "ctrlunit balance on the first n = 3 native freerun run of each depth "
+               "recommends a placement; it is re-run alternately with the default one; its "
+               "predicted period, from the model calibrated again on the median default "
+               "re-run, against the measured mean period",
+}
+
+
+def _thesis_configs(scale: float) -> list[Config]:
+    from .thesis import pair_configs
+
+    return pair_configs(scale, Config)
+
+
+def _run_kept(cfg: Config, cycles: int, out: Path,
+              gantt: dict[str, list]) -> tuple[dict[str, Any], Any]:
+    """:func:`run_one`, keeping the first Gantt window of the whole cycle at each depth."""
+    rep, central = run_one(cfg, cycles, out)
+    key = f"depth {cfg.pipeline}"
+    if central is not None and cfg.law != "kinematics" and key not in gantt:
+        gantt[key] = gantt_window(central.spans)
+    return rep, central
+
+
+def _recording_cost(runs: list[dict[str, Any]], configs: list[Config],
+                    results: dict[str, list[dict]]) -> dict[str, Any]:
+    """What recording and the live view cost: the recording stage's runs against the same
+    configuration not recorded."""
     recorded = {c.record: (r, results[c.key]) for r, c in zip(runs, configs)
                 if c.tag == "record"}
     rec_off = recorded[None][0]
-    recording_cost = {
+    cost: dict[str, Any] = {
         "period_p50_without_s": rec_off["period_s"]["p50"],
         "config": "freerun, n = 3, depth 2, native; interleaved with the sweep",
         "compressions": {
@@ -397,45 +467,15 @@ def bench(out_dir: str | Path, *, quick: bool = False, repeats: int | None = Non
     live = [(r, results[c.key]) for r, c in zip(runs, configs) if c.tag == "live"]
     if live:
         r, reps = live[0]
-        recording_cost["live_view"] = {
+        cost["live_view"] = {
             "period_p50_with_s": r["period_s"]["p50"],
             "ratio": r["period_s"]["p50"] / rec_off["period_s"]["p50"],
             "viewer_messages": statistics.median(x.get("viewer_messages", 0) for x in reps),
             "cycles": statistics.median(x.get("cycles", 0) for x in reps)}
     # the default (zstd) stands for "with --record"
-    recording_cost["period_p50_with_s"] = \
-        recording_cost["compressions"]["zstd"]["period_p50_with_s"]
-    recording_cost["ratio"] = recording_cost["compressions"]["zstd"]["ratio"]
-    report = {
-        "machine": machine_info(), "floor": fl, "runs": runs, "thesis_1994": THESIS,
-        "recording_cost": recording_cost, "balance": balance, "target": target,
-        "realtime": realtime,
-        "quick": quick, "repeats": repeats, "cost_scale_thesis_runs": scale,
-        "wall_s": time.monotonic() - t_start,
-        "method": {
-            "interleaving": "configurations shuffled anew for each repeat; figures are "
-                            "medians over repeats with the min..max spread of efficiency",
-            "t800": "each block computes its real result and the process then owes the "
-                    "block's 1994 T-800 time (per axis for per-axis blocks); before sending "
-                    "it sleeps until twice its mean sleep overshoot (50 us to 1 ms) before "
-                    "the debt is paid and spins the rest",
-            "efficiency": "Eq. IV.23: t_1 / (t_parallel x N), N = processors taking part "
-                          "(central included); t_parallel = traversal p50 at depth 1, "
-                          "mean period at depth 2",
-            "balance": "ctrlunit balance on the first n = 3 native freerun run of each depth "
-                       "recommends a placement; it is re-run alternately with the default "
-                       "one; its predicted period, from the model calibrated again on the "
-                       "median default re-run, against the measured mean period",
-        },
-    }
-    from .figures import write_figures
-    from .markdown import write_markdown
-
-    figs = write_figures(out, report, samples, gantt)
-    report["figures"] = figs
-    (out / "report.json").write_text(json.dumps(_safe(report), indent=2))
-    write_markdown(out / "report.md", report)
-    return report
+    cost["period_p50_with_s"] = cost["compressions"]["zstd"]["period_p50_with_s"]
+    cost["ratio"] = cost["compressions"]["zstd"]["ratio"]
+    return cost
 
 
 def _safe(x: Any) -> Any:

@@ -257,10 +257,10 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
 
 
 def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
-    """``ctrlunit bench --only realtime --realtime-runs 1 --realtime-long 0``: one run of
+    """``ctrlunit bench --stages realtime --realtime-runs 1 --realtime-long 0``: one run of
     the main job as a user starts it, one baseline, a report that names the levers."""
     out = tmp_path / "rt"
-    res = ctrlunit("bench", "--only", "realtime", "--realtime-runs", "1", "--realtime-long",
+    res = ctrlunit("bench", "--stages", "realtime", "--realtime-runs", "1", "--realtime-long",
                    "0", "--out", str(out), timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
     st = json.loads((out / "report.json").read_text())["realtime"]
@@ -278,7 +278,7 @@ def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
 
 
 def test_bench_rejects_a_negative_long_run():
-    res = ctrlunit("bench", "--only", "realtime", "--realtime-long", "-5s", "--check")
+    res = ctrlunit("bench", "--stages", "realtime", "--realtime-long", "-5s", "--check")
     assert res.returncode != 0 and "--realtime-long" in res.stdout + res.stderr
 
 
@@ -300,7 +300,7 @@ def test_a_stopped_bench_stops_its_run_and_runs_nothing_more(signum, sigint, tmp
          f"signal.signal(signal.SIGINT, {handler}); "
          "sys.argv = ['ctrlunit'] + sys.argv[1:]; "
          "runpy.run_module('ctrlunit.runtime.cli', run_name='__main__')",
-         "bench", "--only", "realtime", "--realtime-runs", "0", "--realtime-long", "40s",
+         "bench", "--stages", "realtime", "--realtime-runs", "0", "--realtime-long", "40s",
          "--out", str(tmp_path / "bench")],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     unit = f"rt-{proc.pid}-"  # the runs' unit ids start so (bench/realtime.py)

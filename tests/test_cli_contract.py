@@ -562,17 +562,23 @@ def _short(text: str) -> bool:
                        max_size=2),
        repeats=st.one_of(numbers_as_text, st.sampled_from(["1", "2", "20"])),
        scale=st.one_of(numbers_as_text, st.sampled_from(["1", "30", "1000"])),
-       quick=st.booleans())
-def test_bench_keeps_the_contract(work, periods, repeats, scale, quick):
+       quick=st.booleans(),
+       stages=st.one_of(st.text(max_size=12),
+                        st.sampled_from(["all", "thesis,floor", "realtime", "sweep, thesis",
+                                         "thesis,bogus", ","])))
+def test_bench_keeps_the_contract(work, periods, repeats, scale, quick, stages):
     """``bench --check`` checks the options and lists the runs; it starts none."""
     args = ["bench", "--check", "--out", str(work / "bench-out"), "--repeats", repeats,
-            "--thesis-scale", scale, *(["--quick"] if quick else [])]
+            "--thesis-scale", scale, "--stages", stages, *(["--quick"] if quick else [])]
     for p in periods:
         args += ["--realtime-period", p]
     res = invoke(*args)
     check_contract(res, tuple(args))
     if res.exit_code == 0:
-        assert "configurations" in res.stdout and not (work / "bench-out").exists()
+        assert not (work / "bench-out").exists()
+        assert "configurations" in res.stdout or "realtime stage" in res.stdout
+    if stages in ("thesis,bogus", ","):
+        assert res.exit_code in (1, 2)  # 2: another option was refused first
 
 
 @pytest.mark.slow

@@ -33,16 +33,26 @@ from .base import _fail, _json_safe, _rt_priority, cli
 @click.option("--realtime-long", "rt_long", default=None,
               help="Length of the realtime stage's long run of the main job, e.g. 60s; 0: "
                    "none.  [default: 60s; with --quick 0]")
-@click.option("--only", type=click.Choice(["all", "realtime"]), default="all",
-              show_default=True, help="realtime: the realtime stage alone.")
+@click.option("--stages", "stages_text", default="all", show_default=True,
+              help="Comma-separated stages to run: floor, sweep, recording, thesis, "
+                   "balance, target, realtime (e.g. thesis,floor); all: every one.")
 @click.option("--check", is_flag=True,
               help="Check the options and list the runs the bench would make; run nothing.")
 def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str, ...],
-          thesis_scale: float, realtime_runs: int | None, rt_long: str | None, only: str,
-          check: bool) -> None:
-    """Sweep n x depth x cost model, measure the floor, write reports and figures."""
+          thesis_scale: float, realtime_runs: int | None, rt_long: str | None,
+          stages_text: str, check: bool) -> None:
+    """Sweep n x depth x cost model, measure the floor, compare with the 1994 unit and
+    check its guarded figures, write reports and figures.
+
+    Exits 1 when a figure of the thesis stage leaves its guarded range (report.md lists
+    them)."""
+    from ...bench.sweep import STAGES, cycles_for, plan_configs, thesis_cycles, thesis_pairs
     from ...bench.sweep import bench as run_bench
-    from ...bench.sweep import cycles_for, plan_configs
+    from ...bench.thesis import guard_lines
+
+    stages = _stages(stages_text, STAGES)
+    if stages is None:
+        return
 
     periods = [parse_duration(p, field_name="--realtime-period") for p in rt_periods]
     for p in periods:
@@ -56,7 +66,7 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
         return
     runs_rt = realtime_runs if realtime_runs is not None else (2 if quick else 20)
     long_rt = long_s if long_s is not None else (0.0 if quick else 60.0)
-    if only == "realtime":
+    if stages == ("realtime",):
         if check:
             click.echo(f"realtime stage: {runs_rt} main-job runs, each with its baseline"
                        + (f", then {long_rt:g} s of the main job" if long_rt else ""))
@@ -65,21 +75,49 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
             _realtime_only(out_dir, runs_rt, long_rt)
         return
     if check:
-        configs = plan_configs(quick=quick, realtime_periods=periods, scale=thesis_scale)
+        configs = plan_configs(quick=quick, realtime_periods=periods, scale=thesis_scale,
+                               stages=stages)
         runs = repeats or (1 if quick else 3)
         for c in configs:
             click.echo(f"  {c.key}  {cycles_for(c, quick)} intervals x {runs}")
-        click.echo(f"{len(configs)} configurations x {runs} repeat(s), plus the floor, the "
-                   f"balance and the target stages, and the realtime stage ({runs_rt} "
-                   f"main-job runs" + (f", {long_rt:g} s long run" if long_rt else "")
-                   + f"); reports into {out_dir}/")
+        if "thesis" in stages:
+            click.echo(f"  thesis: {thesis_pairs(quick, repeats)} alternated pairs of 3 runs, "
+                       f"{thesis_cycles(quick)} intervals each, t800 x {thesis_scale:g}")
+        click.echo(f"{len(configs)} configurations x {runs} repeat(s); stages "
+                   f"{', '.join(stages)}"
+                   + (f" (realtime: {runs_rt} main-job runs"
+                      + (f", {long_rt:g} s long run" if long_rt else "") + ")"
+                      if "realtime" in stages else "")
+                   + f"; reports into {out_dir}/")
         return
     with stop_signals(), _ticker("bench") as tick:
-        rep = run_bench(out_dir, quick=quick, repeats=repeats, realtime_periods=periods,
-                        scale=thesis_scale, realtime_runs=runs_rt, realtime_long_s=long_rt,
-                        progress=tick)
+        rep = run_bench(out_dir, stages=stages, quick=quick, repeats=repeats,
+                        realtime_periods=periods, scale=thesis_scale, realtime_runs=runs_rt,
+                        realtime_long_s=long_rt, progress=tick)
     click.echo(f"wrote {out_dir}/report.md, report.json and {len(rep['figures'])} figures "
                f"in {rep['wall_s']:.0f} s")
+    th = rep.get("thesis")
+    if th:
+        for line in guard_lines(th):
+            click.echo(f"  {line}")
+        failed = [g["name"] for g in th["guards"] if not g["ok"]]
+        if failed:
+            _fail(f"guarded figures out of range: {', '.join(failed)} ({out_dir}/report.md)",
+                  EXIT_CONFIG)
+
+
+def _stages(text: str, allowed: tuple[str, ...]) -> tuple[str, ...] | None:
+    """``--stages``: the names given, in the bench's order; None (after the error) when a
+    name is not a stage."""
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if names == ["all"]:
+        return allowed
+    unknown = [n for n in names if n not in allowed]
+    if unknown or not names:
+        _fail(f"--stages = {text!r}: allowed a comma-separated list of "
+              f"{', '.join(allowed)}, or all", EXIT_CONFIG)
+        return None
+    return tuple(n for n in allowed if n in names)
 
 
 @contextlib.contextmanager
@@ -97,7 +135,7 @@ def _ticker(label: str) -> Iterator[Callable[[str, int, int], None]]:
 
 
 def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
-    """``ctrlunit bench --only realtime``: the realtime stage into report.json and
+    """``ctrlunit bench --stages realtime``: the realtime stage into report.json and
     report.md, its summary on the terminal."""
     import time
     from pathlib import Path
