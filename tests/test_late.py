@@ -112,3 +112,17 @@ def test_compute_policy_computes_the_late_rounds_and_replay_verifies_them(tmp_pa
     n, div = verify(read(mcap))
     assert div is None, div
     assert n == rep["cycles"]
+
+
+def test_waiting_for_a_frozen_peripheral_makes_the_plant_count_missed_deadlines(tmp_path):
+    """The plant's deadline-miss counter, end to end: under ``wait`` the central holds
+    every interval until the frozen peripheral answers, so for 250 ms (two and a half
+    periods) no new command reaches the plant. The plant counts each period whose command
+    was due and had not come (measured: 1; the command extrapolated the period before
+    covers it), the sample carries the count, the report prints it. A counter stuck at 0
+    (or lost on the way) fails here."""
+    code, rep, out = freeze_briefly(tmp_path, "wait")
+    assert code == 0, out
+    print(f"wait: deadline misses {rep['deadline_misses']}, skipped {rep['skipped_samples']}")
+    assert 1 <= rep["deadline_misses"] <= 6, out
+    assert f"deadline misses {rep['deadline_misses']}" in out

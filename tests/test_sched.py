@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 
+import machine
 import pytest
 from ctrlunit.runtime import sched
 from ctrlunit.runtime.config import ConfigError, RunConfig
@@ -383,13 +384,15 @@ def test_zero_leaves_a_policy_given_from_outside_alone() -> None:
 @pytest.mark.zenoh
 def test_every_role_of_a_unit_reports_the_launchers_policy(tmp_path) -> None:
     """The roles inherit the launcher's policy; the report names each role's. Without
-    the option, in freerun, nothing changes (auto: no deadlines to keep)."""
-    permitted = sched.fifo_permitted()
+    the option, in freerun, nothing changes (auto: no deadlines to keep). Where this
+    machine does not permit SCHED_FIFO (tried by the test itself) there is no policy to
+    inherit, and the test says so by skipping."""
+    if not machine.fifo_permitted():
+        pytest.skip("SCHED_FIFO is not permitted here: no policy for the roles to inherit")
     code, rep, out = start_json(tmp_path, "--peripherals", "2", "--pipeline", "2", "--clock",
-                                "freerun", "--cycles", "300", "--rt-priority",
-                                "7" if permitted else "0", tag="rt")
+                                "freerun", "--cycles", "300", "--rt-priority", "7", tag="rt")
     assert code == 0, out
-    want = "SCHED_FIFO 7" if permitted else "SCHED_OTHER"
+    want = "SCHED_FIFO 7"
     assert rep["scheduling"] == {"central": want, "peripheral_1": want, "peripheral_2": want}
     assert f"scheduling  {want}, every role" in out
     code, rep, out = start_json(tmp_path, "--peripherals", "1", "--clock", "freerun",

@@ -99,8 +99,12 @@ def test_a_bad_foxglove_address_is_refused_before_anything_starts():
     assert "Traceback" not in res.stderr
 
 
-def test_a_foxglove_client_gets_valid_messages_and_a_stalled_one_holds_nothing_back(
-        tmp_path):
+def test_a_foxglove_client_gets_valid_messages_beside_one_that_does_not_read(tmp_path):
+    """A real run's live view: a reader gets schema-valid messages and the report's
+    figures while a second client subscribes and stops reading. The 1 500 messages fit in
+    the kernel's socket buffers, so that client never reaches the server's backlog here,
+    and lockstep commands cannot show timing: that a stalled viewer holds nothing back is
+    :func:`test_a_viewer_that_stops_reading_never_blocks_the_callers_thread`'s to show."""
     port, unit = free_port(), unit_id("fox")
     report = tmp_path / "run.json"
     proc = subprocess.Popen(
@@ -167,8 +171,6 @@ def test_a_foxglove_client_gets_valid_messages_and_a_stalled_one_holds_nothing_b
     # the view's tracking error is the report's
     assert running[-1]["tracking_error_m"]["max"] == pytest.approx(
         rep["tracking_error_m"]["max"], rel=1e-9)
-    # (1 500 messages fit in the kernel's socket buffers: the stall that reaches the
-    # server's backlog is the next test's)
     print(f"the stalled viewer had {stalled_got} frames waiting, the reader read "
           f"{len(frames)}")
     ref = simulate(P, pick_place_task(), gains=Gains.from_bandwidth(20.0), cycles=CYCLES,
