@@ -229,32 +229,66 @@ def _intervals(c, n: int, *, late: bool) -> None:
 def test_a_return_on_trial_halves_again_after_three_late_intervals_not_ten():
     """After going back to the full rate, the return is on trial for 0.5 s: 3 late
     intervals halve the rate again; past the trial it takes 10, as the first time. The
-    wait before a return doubles each time."""
-    from ctrlunit.runtime import central as cm
-
+    wait before a return doubles each time. (README states 10 of the last 100, 2 s, 3 on
+    trial for 0.5 s: written here as literals.)"""
     c = _overload_central(1e-3)
     _intervals(c, 100, late=False)
     _intervals(c, 10, late=True)
     first = c.rate_changes[-1]
-    assert (first["stride"], first["late"]) == (2, cm.OVERLOAD_LATE)
+    assert (first["stride"], first["late"]) == (2, 10)
     assert "after_return" not in first
     _intervals(c, 999, late=False)
     assert c.ctl.stride == 2  # 2 s at the halved rate: 1000 intervals
     _intervals(c, 1, late=False)
     assert c.ctl.stride == 1 and c.rate_changes[-1]["calm"] == 1000
     _intervals(c, 200, late=False)
-    _intervals(c, cm.OVERLOAD_PROBE_LATE, late=True)  # still on trial: halved again
+    _intervals(c, 3, late=True)  # still on trial: halved again
     again = c.rate_changes[-1]
-    assert again["stride"] == 2 and again["late"] == cm.OVERLOAD_PROBE_LATE
-    assert again["after_return"] == 200 + cm.OVERLOAD_PROBE_LATE
+    assert again["stride"] == 2 and again["late"] == 3
+    assert again["after_return"] == 200 + 3
     _intervals(c, 2000, late=False)  # the wait doubled
     assert c.ctl.stride == 1 and c.rate_changes[-1]["calm"] == 2000
     _intervals(c, 600, late=False)  # past the trial (0.5 s and the lead)
-    _intervals(c, cm.OVERLOAD_PROBE_LATE, late=True)
+    _intervals(c, 3, late=True)
     assert c.ctl.stride == 1
-    _intervals(c, cm.OVERLOAD_LATE - cm.OVERLOAD_PROBE_LATE, late=True)
+    _intervals(c, 10 - 3, late=True)
     assert c.ctl.stride == 2 and "after_return" not in c.rate_changes[-1]
     assert [x["stride"] for x in c.rate_changes] == [2, 1, 2, 1, 2]
+
+
+def test_ten_late_intervals_within_the_last_100_halve_the_rate_and_no_fewer():
+    """README: halve once 10 of the last 100 intervals came late. One late interval in 12
+    puts at most 9 in any 100 (never halves); one in 11 puts 10 in 100 (halves)."""
+    for every, halves in ((12, False), (11, True)):
+        c = _overload_central(1e-3)
+        _intervals(c, 100, late=False)
+        for _ in range(1200 // every):
+            _intervals(c, every - 1, late=False)
+            _intervals(c, 1, late=True)
+        assert (c.ctl.stride == 2) == halves, every
+        if halves:
+            assert c.rate_changes[0]["late"] == 10
+
+
+def test_the_rate_goes_back_at_most_three_times_after_2_4_and_8_s():
+    """README: back to every sample after 2 s without a late interval, 4 s after a second
+    halving, 8 s after a third, at most three returns: after the fourth halving the rate
+    stays halved however long it is calm (1 ms period: a halved interval covers 2 ms)."""
+    c = _overload_central(1e-3)
+    _intervals(c, 100, late=False)
+    for calm in (1000, 2000, 4000):  # 2 s, 4 s, 8 s at the halved rate
+        _intervals(c, 10, late=True)
+        assert c.ctl.stride == 2
+        _intervals(c, calm - 1, late=False)
+        assert c.ctl.stride == 2, calm
+        _intervals(c, 1, late=False)
+        assert c.ctl.stride == 1 and c.rate_changes[-1]["calm"] == calm
+        _intervals(c, 600, late=False)  # past the return's trial
+    _intervals(c, 10, late=True)
+    assert c.ctl.stride == 2
+    _intervals(c, 20_000, late=False)  # 40 s
+    assert c.ctl.stride == 2
+    assert [x["stride"] for x in c.rate_changes] == [2, 1, 2, 1, 2, 1, 2]
 
 
 class _StrideNode:

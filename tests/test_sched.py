@@ -213,6 +213,30 @@ def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of
         (1, "default"), (9, "fifo"), (10, "default"), (14, "fifo"), (15, "default")]
 
 
+def test_the_guard_start_builds_goes_back_to_fifo_after_2_s_under_85_percent_three_times(
+        monkeypatch) -> None:
+    """README: under FIFO again after 2 s under 85 % of the budget, at most three times.
+    The guard as ``ctrlunit start`` builds it (budget and priority only; the rest its
+    defaults), the figures written here."""
+    guard, window, _demoted = _windows_guard(monkeypatch, priority=10)
+    c = 0
+    for back in range(4):
+        c += 1
+        window(1.0, c)  # over the budget: back to the default policy
+        assert not guard.fifo
+        for _ in range(3):  # 1.5 s under 85 %
+            c += 1
+            window(0.8, c)
+        assert not guard.fifo
+        c += 1
+        window(0.8, c)  # the fourth window: 2 s
+        assert guard.fifo == (back < 3), back
+    for _ in range(40):  # 20 s calm: no fourth way back
+        c += 1
+        window(0.1, c)
+    assert not guard.fifo and guard.restores == 3
+
+
 def _windows_guard(monkeypatch, **kw):
     """A guard on one CPU whose windows the test sets: ``window(share, cycle)`` adds
     ``share`` of 200 ticks in 0.5 s (the reference kernel's 250 Hz tick accounting gives
