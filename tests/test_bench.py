@@ -104,8 +104,10 @@ def _balance_pair(tmp_path, tag):
     a = json.loads(res.stdout)
     assert a["t_p_s"] < a["t_s_s"]
     assert a["placement"]["central_blocks"], a["recommendations"]  # it moved something
-    # the model of the run itself reproduces the run (its latency is fitted to it)
-    assert a["current"]["depth1"]["period_s"] == pytest.approx(rep["period_mean_s"], rel=0.02)
+    # (the model's latency is fitted to this run's mean period, so its period for this
+    # run says nothing of the model: it is judged on runs it was not fitted on, the
+    # depth-2 run beside the depth-1 one it was calibrated on, in
+    # tests/test_thesis_figures.py)
     code2, rep2, out2 = start_json(tmp_path, "--peripherals", "3", "--clock", "freerun",
                                    "--cycles", "2000", "--placement", str(placement),
                                    tag=tag + "2")

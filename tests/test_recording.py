@@ -228,20 +228,36 @@ def test_replay_options_do_what_they_say(short):
     assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(10, 20))
 
 
-def test_replay_waits_for_subscribers_at_most_the_time_asked(short):
-    """With nobody listening, replay waits --wait-subscribers seconds, then sends anyway."""
+def test_replay_waits_for_subscribers_at_most_the_time_asked(short, monkeypatch):
+    """With nobody listening, ``replay --wait-subscribers S`` polls Zenoh's matching
+    status for S seconds, then sends anyway: the CLI with a real session, on a clock the
+    test moves (each 5 ms poll advances it), so the bound is exact, not a wall-time
+    window."""
     from click.testing import CliRunner
+    from ctrlunit.runtime import replay
     from ctrlunit.runtime.cli import cli
 
+    class Clock:
+        def __init__(self) -> None:
+            self.now, self.polls = 1000.0, 0.0
+
+        def monotonic(self) -> float:
+            return self.now
+
+        def sleep(self, s: float) -> None:
+            self.polls += s if s == 0.005 else 0.0  # the matching status's polls
+            self.now += s
+
     path, _ = short
-    walls = {}
+    waited = {}
     for wait in ("0", "1.5"):
-        t0 = time.monotonic()
+        clock = Clock()
+        monkeypatch.setattr(replay, "time", clock)
         res = CliRunner().invoke(cli, ["replay", str(path), "--unit", unit_id("nobody"),
                                        "--topics", "/plant/command", "--cycles", "0:5",
                                        "--rate", "100", "--wait-subscribers", wait])
-        walls[wait] = time.monotonic() - t0
         assert res.exit_code == 0, res.output
         assert "republished 5 messages" in res.output
-    print(f"replay with nobody listening: {walls}")
-    assert 1.45 <= walls["1.5"] < walls["0"] + 10.0
+        waited[wait] = clock.polls
+    assert waited["0"] == 0.0
+    assert 1.5 <= waited["1.5"] <= 1.5 + 0.005 + 1e-9

@@ -530,3 +530,58 @@ def test_a_start_offset_keeps_a_message_logged_exactly_at_it(rec, fake):
                        (10_000_000_000, msgpack.packb({"cycle": 1}))]}
     assert replay.republish(r, unit="u7", start_offset=10.0, conf=object()) == 1
     assert [msgpack.unpackb(d)["cycle"] for _, _, d in session.puts] == [1]
+
+
+def copy_with(src: Path, dst: Path, topic: str, edit: Any) -> None:
+    """Copy an MCAP file message by message, ``edit(msg) -> msg`` applied to ``topic``."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as fin, open(dst, "wb") as fout:
+        reader = make_reader(fin)
+        writer = Writer(fout)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, msg in reader.iter_messages(log_time_order=False):
+            if schema is not None and schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding,
+                                                            schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding,
+                    schemas.get(channel.schema_id, 0), channel.metadata)
+            data = msg.data
+            if channel.topic == topic:
+                data = msgpack.packb(edit(msgpack.unpackb(data)), use_single_float=False)
+            writer.add_message(channels[channel.id], msg.log_time, data, msg.publish_time)
+        for m in reader.iter_metadata():
+            writer.add_metadata(m.name, dict(m.metadata))
+        writer.finish()
+
+
+def test_the_cli_says_where_a_recording_diverges_on_stderr_and_exits_1(made, tmp_path):
+    """``ctrlunit replay --verify`` on a recording one reply value of which was changed
+    after the run: exit 1, one ``ctrlunit: error:`` line on stderr naming the cycle, the
+    block, the axis and both values (the exit-1 contract of every command); an untouched
+    copy made the same way verifies."""
+    from runner import ctrlunit
+
+    src = made[0]
+    same, bad = tmp_path / "same.mcap", tmp_path / "bad.mcap"
+    copy_with(src, same, "/central/reply/2", lambda m: m)
+    part = reply_part(recording.read(src), 1, 40, 1)
+    name = next(n for n in part["vals"] if n.startswith("tauq"))
+
+    def spoil(p: dict) -> dict:
+        p["vals"][name][0] += 1e-9
+        return p
+    copy_with(src, bad, "/central/reply/2", parts_edit(40, 1, spoil))
+    ok = ctrlunit("replay", str(same), "--verify", timeout=120)
+    assert ok.returncode == 0 and "verified" in ok.stdout, ok.stderr
+    res = ctrlunit("replay", str(bad), "--verify", timeout=120)
+    assert res.returncode == 1
+    err = res.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("ctrlunit: error: "), res.stderr
+    assert "after 40 identical intervals" in err[0]
+    assert f"cycle 40, block dyn_axis (axis 1), value {name}" in err[0]

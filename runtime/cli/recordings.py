@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import sys
 from typing import Any
 
 import click
 
+from ..config import EXIT_CONFIG
 from .base import _fail, _json_safe, cli
 
 
@@ -69,8 +69,8 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
     if verify:
         n, div = rp.verify(rec, cycles=cycle_range)
         if div is not None:
-            click.echo(f"DIVERGENCE after {n} identical intervals: {div}")
-            sys.exit(1)
+            _fail(f"replay --verify: the recording diverges after {n} identical intervals: "
+                  f"{div}", EXIT_CONFIG)
         click.echo(f"verified {n} intervals: every block's outputs are bit-identical to the "
                    "recording")
         return
