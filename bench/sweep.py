@@ -422,7 +422,8 @@ METHOD = {
             "twice its mean sleep overshoot (50 us to 1 ms) before the debt is paid and "
             "spins the rest",
     "efficiency": "Eq. IV.23: t_1 / (t_parallel x N), N = processors taking part (central "
-                  "included); t_parallel = traversal p50 at depth 1, mean period at depth 2",
+                  "included); t_parallel = traversal p50 at depth 1, mean period at depth 2; in "
+                  "realtime, whose clock imposes the period, the traversal p50",
     "balance": "ctrlunit balance on the first n = 3 native freerun run of each depth "
                "recommends a placement; it is re-run alternately with the default one; its "
                "predicted period, from the model calibrated again on the median default "

@@ -263,6 +263,13 @@ class Task:
                 return hit
         return self._sample(t)
 
+    def position(self, t: float) -> Vec3:
+        """Reference position at ``t``, computed afresh (Eq. II.33): the tracking error's
+        reference. :meth:`sample` caches a grid time's value from whichever nearby ``t``
+        (a few ulps apart) asked first, so two runs of the same intervals may see it in
+        different last bits; this does not depend on what was asked before."""
+        return self._sample(t)[0]
+
     def _sample(self, t: float) -> tuple[Vec3, Vec3, Vec3]:
         d, w = self.duration, self.dwell
         t = t % self.period

@@ -93,7 +93,7 @@ class CentralIntake:
         if len(true_p) > 64:
             del true_p[min(true_p)]
         if cycle < self.cycles:  # the run's samples only: the plant may publish one more
-            ref = self.engine.cfg.task.sample(self.ctl.time_of(cycle))[0]  # type: ignore[union-attr]
+            ref = self.engine.cfg.task.position(self.ctl.time_of(cycle))  # type: ignore[union-attr]
             self.log.errors.append(math.dist(true_p[cycle], ref))
         self.plant_busy_ns += span[1] - span[0]
         misses = msg.get("misses")

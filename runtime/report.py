@@ -41,7 +41,7 @@ def command_digest(commands: list[float] | np.ndarray) -> str:
 def tracking_errors(task: Task, period: float, true_p: dict[int, tuple[float, float, float]]
                     ) -> list[float]:
     """Platform error against the reference at each sample time (m), by sample number."""
-    return [math.dist(p, task.sample(k * period)[0]) for k, p in sorted(true_p.items())]
+    return [math.dist(p, task.position(k * period)) for k, p in sorted(true_p.items())]
 
 
 def error_stats(errs: list[float] | np.ndarray) -> dict[str, float]:
@@ -164,6 +164,23 @@ def gantt_window(spans: list[tuple[str, int, int, int]], *, intervals: int = 4
     return [(p, c, (a - t0) / 1e6, (b - t0) / 1e6) for p, c, a, b in sel]
 
 
+def parallel_time(rc: RunConfig, *, traversal_p50: float,
+                  period_mean: float) -> tuple[float, str]:
+    """Eq. IV.23's t_parallel for this run, and what it is.
+
+    In realtime the clock imposes the period, so the period says how the unit was paced,
+    not how fast it computed: t_parallel is the traversal (sample to command, p50), the
+    time the N processors took for one interval. In freerun and lockstep: at depth 1 the
+    traversal too (one interval at a time); at depth 2 the time per interval, the mean
+    period (when two intervals share an exchange their commands come in pairs, and the
+    median period is either gap, not the rate)."""
+    if rc.schedule.clock == "realtime":
+        return traversal_p50, "traversal p50; the realtime clock imposes the period"
+    if rc.schedule.pipeline == 1:
+        return traversal_p50, "traversal p50"
+    return period_mean, "period mean"
+
+
 def build_report(
     *,
     rc: Any,
@@ -198,11 +215,8 @@ def build_report(
     processors = plan.placement.processors
     cycles = timing["cycles"]
     pq, tq = timing["period_s"], timing["traversal_s"]
-    # depth 1: one interval at a time, its traversal; depth 2: the time per interval (the
-    # mean period: when two intervals share one exchange their commands come in pairs and
-    # the median period is either the short or the long gap, not the rate)
     period_mean = timing["period_mean_s"]
-    t_par = tq["p50"] if rc.schedule.pipeline == 1 else period_mean
+    t_par, t_par_is = parallel_time(rc, traversal_p50=tq["p50"], period_mean=period_mean)
     eff = t1_s / (t_par * processors) if t_par and t_par > 0 else math.nan
     speedup = t1_s / t_par if t_par and t_par > 0 else math.nan
     graph = plan.graph
@@ -247,7 +261,7 @@ def build_report(
         "business": business,
         "t1_s": t1_s,
         "t_parallel_s": t_par,
-        "t_parallel_is": "traversal p50" if rc.schedule.pipeline == 1 else "period mean",
+        "t_parallel_is": t_par_is,
         "efficiency": eff,
         "efficiency_n": processors,
         "speedup": speedup,

@@ -99,12 +99,12 @@ def state_message(iv: Interval, *, period_s: float, task: Any | None,
     ----------
     iv : the interval.
     period_s : the nominal period (s); the reference time is ``cycle * period_s``.
-    task : the task whose ``sample(t)[0]`` is the reference ``p_c`` (m); ``None`` when
+    task : the task whose ``position(t)`` is the reference ``p_c`` (m); ``None`` when
         the run has no reference (freerun).
     previous_cmd_ns : when the previous interval's command left, or ``None``.
     """
     t = iv.cycle * period_s
-    ref = task.sample(t)[0] if task is not None else None
+    ref = task.position(t) if task is not None else None  # not the central's cache
     err = math.dist(iv.true_p, ref) if (iv.true_p is not None and ref is not None) \
         else math.nan
     period = (iv.cmd_ns - previous_cmd_ns) / 1e9 if previous_cmd_ns is not None else math.nan

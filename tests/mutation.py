@@ -1,6 +1,6 @@
 """Mutation testing of the runtime's claims with mutmut (not part of the CI run).
 
-    pip install -e '.[test]' mutmut
+    pip install -e '.[test,mutation]'
     python tests/mutation.py codec laws      # or: all; --keep DIR keeps the work tree
 
 mutmut expects the package under ``src/``; ctrlunit installs its top-level folders under
@@ -34,7 +34,18 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
     "guard": (["runtime/central_guard.py"], ["tests/test_guard.py", "tests/test_loopback.py",
                                              "tests/test_validation.py"]),
     "replay": (["runtime/replay.py"], ["tests/test_replay_unit.py"]),
+    "pipeline": (["topology/pipeline.py"], ["tests/test_pipeline.py", "tests/test_schedule.py",
+                                            "tests/test_loopback.py",
+                                            "tests/test_pipeline_overlap.py"]),
+    "peripheral": (["runtime/peripheral.py"], ["tests/test_validation.py",
+                                               "tests/test_pipeline_overlap.py",
+                                               "tests/test_loopback.py",
+                                               "tests/test_late_compute.py"]),
+    "admission": (["runtime/admission.py"], ["tests/test_admission.py"]),
 }
+
+MUTMUT = "3.8.1"
+"""The mutmut these scores are measured with (pyproject's ``mutation`` extra pins it)."""
 
 
 def stage(where: Path, modules: list[str], tests: list[str]) -> None:
@@ -101,6 +112,11 @@ def run(target: str, keep: Path | None) -> dict[str, int]:
 
 
 def main() -> None:
+    from importlib.metadata import version
+
+    if version("mutmut") != MUTMUT:
+        raise SystemExit(f"mutmut {version('mutmut')} is installed; the scores are "
+                         f"measured with {MUTMUT}: pip install -e '.[test,mutation]'")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("targets", nargs="+", choices=[*TARGETS, "all"])
     ap.add_argument("--keep", type=Path, default=None, help="Keep the work trees in DIR.")

@@ -124,3 +124,17 @@ def test_validation_names_the_flat_option() -> None:
         RunConfig.of(plant_substeps=0).validate()
     with pytest.raises(ConfigError, match=r"--max-error = 2 m: allowed"):
         RunConfig.of(max_error=2.0).validate()
+
+
+def test_eq_iv23_takes_the_traversal_where_the_clock_imposes_the_period():
+    """Realtime at either depth: the traversal (the period is the clock's); freerun and
+    lockstep: the traversal at depth 1, the mean period at depth 2."""
+    from ctrlunit.runtime.report import parallel_time
+
+    for clock, depth, want in (("realtime", 1, 2e-4), ("realtime", 2, 2e-4),
+                               ("freerun", 1, 2e-4), ("freerun", 2, 9e-4),
+                               ("lockstep", 2, 9e-4)):
+        rc = RunConfig.of(clock=clock, pipeline=depth)
+        t, what = parallel_time(rc, traversal_p50=2e-4, period_mean=9e-4)
+        assert t == want, (clock, depth)
+        assert ("imposes the period" in what) == (clock == "realtime")

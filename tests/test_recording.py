@@ -261,3 +261,19 @@ def test_replay_waits_for_subscribers_at_most_the_time_asked(short, monkeypatch)
         waited[wait] = clock.polls
     assert waited["0"] == 0.0
     assert 1.5 <= waited["1.5"] <= 1.5 + 0.005 + 1e-9
+
+
+def test_report_of_a_recording_gives_the_live_tracking_figures_to_the_bit(tmp_path):
+    """``ctrlunit report FILE.mcap`` against the run's own report: the same tracking max
+    and rms to the bit. The reference at a sample time once came from the task's cache,
+    filled by whichever nearby time asked first (the live run's blocks; nothing in the
+    report), so the rms differed in its last bits."""
+    mcap = tmp_path / "run.mcap"
+    code, live, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2",
+                                 "--clock", "lockstep", "--record", str(mcap), tag="rms")
+    assert code == 0, out
+    res = ctrlunit("report", str(mcap), "--json", timeout=120)
+    assert res.returncode == 0, res.stderr
+    again = json.loads(res.stdout)
+    assert again["tracking_error_m"] == live["tracking_error_m"]
+    assert again["command_digest"] == live["command_digest"]

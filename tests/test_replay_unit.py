@@ -585,3 +585,4 @@ def test_the_cli_says_where_a_recording_diverges_on_stderr_and_exits_1(made, tmp
     assert len(err) == 1 and err[0].startswith("ctrlunit: error: "), res.stderr
     assert "after 40 identical intervals" in err[0]
     assert f"cycle 40, block dyn_axis (axis 1), value {name}" in err[0]
+
