@@ -75,3 +75,46 @@ def test_replies_each_answer_first_rounds_first_and_auto_weighs_the_round_trip()
     assert reply_mode("auto", **kw, between_s=2e-4, round_trip_s=1e-4)[0] == "each"
     assert reply_mode("auto", **kw, between_s=1e-4, round_trip_s=2e-4)[0] == "fused"
     assert reply_mode("fused", **kw, between_s=1.0, round_trip_s=0.0) == ("fused", "asked")
+
+
+@pytest.mark.parametrize("law", LAWS)
+def test_the_hand_off_step_produces_the_last_of_the_estimate_or_is_minus_one(law):
+    """The step ``handoff_step`` names is itself one that produces an estimate name; -1
+    exactly where no step does (the PD laws keep no estimate). The estimate is the
+    central's: no round produces it (so a round's blocks never decide the hand-off)."""
+    plan = exchange_plan(stage_graph(law, "complete"), default_placement(3))
+    k = handoff_step(plan)
+
+    def produces(step) -> bool:
+        blocks = step.round.blocks if step.round is not None else [step.block]
+        return any(o in EST_NAMES for b in blocks for o in b.outputs)
+
+    assert (k == -1) == (not any(produces(s) for s in plan.steps))
+    assert k == -1 or produces(plan.steps[k])
+    assert not any(produces(s) for s in plan.steps if s.round is not None)
+    assert k == {"resolved-acceleration": 6, "computed-torque": 6, "pd-gravity": 3,
+                 "pd-feedforward": -1, "pd": -1}[law]
+
+
+def test_the_last_interval_is_neither_started_nor_primed_past_the_run():
+    assert not may_prime(depth=2, primed=False, next_cycle=10, cycles=10,
+                         newest_handed_off=True)
+    assert may_prime(depth=2, primed=False, next_cycle=9, cycles=10, newest_handed_off=None)
+
+
+def test_only_the_last_round_of_a_depth_two_interval_finishes_after_the_next_request():
+    assert finishes_after_next_request(depth=2, round_index=1, last_round=1)
+    assert not finishes_after_next_request(depth=2, round_index=0, last_round=1)
+    assert not finishes_after_next_request(depth=1, round_index=0, last_round=0)
+
+
+def test_reply_modes_and_their_reasons():
+    one = dict(depth=2, between_s=1.0, round_trip_s=0.0)
+    assert reply_mode("each", peripherals=0, **one) == ("fused", "one interval per exchange")
+    assert reply_mode("each", peripherals=1, **one) == ("each", "asked")
+    assert reply_mode("each", depth=1, peripherals=1, between_s=1.0, round_trip_s=0.0) == (
+        "fused", "one interval per exchange")
+    why = "each if the central's work between two rounds exceeds a round trip"
+    kw = dict(depth=2, peripherals=1)
+    assert reply_mode("auto", **kw, between_s=2e-4, round_trip_s=1e-4) == ("each", why)
+    assert reply_mode("auto", **kw, between_s=1e-4, round_trip_s=1e-4) == ("fused", why)
