@@ -1,0 +1,255 @@
+"""The admission's rules (runtime/admission.py) with every figure written out: a trial's
+length, the ladder, one trial's verdict at each of its edges, and how ``admit`` climbs,
+repeats a trial once after one stall, and words a refusal. ``admit`` runs here on a
+central reduced to what it reads, its trials and tracking predictions scripted; the real
+trials run in tests/test_admission.py."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+from ctrlunit.runtime import admission, sched
+from ctrlunit.runtime.admission import (
+    LADDER_S,
+    Unsustainable,
+    admit,
+    fifo_busy_limit,
+    ladder_from,
+    rung_verdict,
+    trial_intervals,
+)
+from ctrlunit.runtime.config import RunConfig
+
+MS = 1e-3
+
+
+def test_a_trial_lasts_0_3_s_within_50_and_300_intervals():
+    assert trial_intervals(1e-3) == 300
+    assert trial_intervals(0.5e-3) == 300
+    assert trial_intervals(2e-3) == 150
+    assert trial_intervals(1.6e-3) == 187  # 0.3 / 0.0016 is 187.4999...: rounded down
+    assert trial_intervals(10e-3) == 50
+    assert trial_intervals(1e-3, seconds=0.1, least=20, most=90) == 90
+    assert trial_intervals(1e-2, seconds=0.1, least=20, most=90) == 20
+
+
+def test_the_ladder_and_where_a_period_asked_joins_it():
+    assert LADDER_S == (1.0e-3, 1.25e-3, 1.6e-3, 2.0e-3, 2.5e-3, 3.2e-3, 4.0e-3, 5.0e-3,
+                        6.4e-3, 8.0e-3, 10.0e-3)
+    assert ladder_from(1e-3) == list(LADDER_S)
+    assert ladder_from(1.2e-3) == [1.2e-3, *LADDER_S[1:]]
+    assert ladder_from(1.2498e-3)[:2] == [1.2498e-3, 1.25e-3]
+    assert ladder_from(1.24995e-3)[:2] == [1.24995e-3, 1.6e-3]  # within 1e-4: the same
+    assert ladder_from(20e-3) == [20e-3]
+
+
+def verdict(t: Any, **kw: Any) -> dict[str, Any]:
+    args: dict[str, Any] = {"skipped": 0, "budget_s": 2 * MS, "transit_s": 0.0} | kw
+    return rung_verdict(np.asarray(t, dtype=float), **args)
+
+
+def test_a_verdict_reports_its_figures_with_the_transit_added():
+    t = np.linspace(0.1, 1.0, 1000) * MS
+    v = verdict(t, transit_s=0.1 * MS, skipped=2, busy_share=0.5, busy_limit=0.8)
+    tt = t + 0.1 * MS
+    assert v["intervals"] == 1002 and v["skipped"] == 2 and v["budget_s"] == 2 * MS
+    assert v["busy_share"] == 0.5 and v["busy_limit"] == 0.8
+    assert v["traversal_p50_s"] == float(np.median(tt))
+    assert v["traversal_p99_s"] == float(np.quantile(tt, 0.99))
+    assert v["traversal_p999_s"] == float(np.quantile(tt, 0.999))
+    assert v["traversal_max_s"] == float(tt.max())
+    assert v["late"] == 2 and v["held"]
+
+
+def test_an_empty_trial_has_no_figures_and_does_not_hold():
+    v = verdict([])
+    assert v["intervals"] == 0 and not v["held"]
+    assert v["traversal_p50_s"] == v["traversal_p99_s"] == v["traversal_p999_s"] == \
+        v["traversal_max_s"] == math.inf
+
+
+def test_one_late_interval_in_200_holds_and_the_p99_may_use_95_percent_of_the_budget():
+    t = np.full(400, 1.0 * MS)
+    t[:2] = 2.5 * MS  # 2 of 400 past the 2 ms budget: one in 200
+    assert verdict(t)["late"] == 2 and verdict(t)["held"]
+    t[2] = 2.5 * MS
+    assert not verdict(t)["held"]
+    edge = np.full(400, 0.95 * 2 * MS)
+    assert verdict(edge)["held"]  # p99 at exactly 95 % of the budget
+    assert not verdict(edge * 1.0001)["held"]
+    # the late count is against the budget, the p99 against 95 % of it
+    assert verdict(np.full(400, 1.99 * MS))["late"] == 0
+
+
+def test_a_busy_cpu_under_fifo_refuses_at_its_limit_and_not_before():
+    t = np.full(400, 1.0 * MS)
+    assert verdict(t, busy_share=0.8, busy_limit=0.8)["held"]
+    assert not verdict(t, busy_share=0.81, busy_limit=0.8)["held"]
+    assert verdict(t, busy_share=None, busy_limit=0.8)["held"]
+    assert verdict(t, busy_share=0.99, busy_limit=None)["held"]
+
+
+def test_late_intervals_under_ten_apart_are_one_episode():
+    t = np.full(400, 1.0 * MS)
+    t[[100, 109]] = 3 * MS
+    assert verdict(t)["late_episodes"] == 1
+    t[109], t[110] = 1.0 * MS, 3 * MS
+    assert verdict(t)["late_episodes"] == 2
+    # a skip located at interval 105 joins the episode; one more skip not located: +1
+    t[110] = 1.0 * MS
+    t[109] = 3 * MS
+    assert verdict(t, skipped=2, skip_marks=[(105, 2)])["late_episodes"] == 1
+    assert verdict(t, skipped=3, skip_marks=[(105, 2)])["late_episodes"] == 2
+    assert verdict(np.full(400, 1.0 * MS))["late_episodes"] == 0
+
+
+def test_one_stall_is_one_episode_without_which_at_least_half_the_trial_holds():
+    t = np.full(400, 1.0 * MS)
+    t[200:210] = 5 * MS  # 10 late in one episode, the rest fine
+    v = verdict(t)
+    assert not v["held"] and v["late_episodes"] == 1 and v["one_stall"]
+    assert not verdict(t, busy_share=0.9, busy_limit=0.8)["one_stall"]  # busy: no repeat
+    t[[50, 350]] = 5 * MS  # two more episodes
+    assert not verdict(t)["one_stall"]
+    long = np.full(400, 1.0 * MS)
+    long[150:351] = 5 * MS  # one episode, but the rest (199 of 400) is under half
+    assert not verdict(long)["one_stall"]
+    long[350] = 1.0 * MS  # the rest is 200 of 400: half
+    assert verdict(long)["one_stall"]
+    slow_rest = np.full(400, 1.96 * MS)
+    slow_rest[200:210] = 5 * MS  # the rest's p99 past 95 % of the budget
+    assert not verdict(slow_rest)["one_stall"]
+    held = np.full(400, 1.0 * MS)
+    held[7] = 5 * MS  # one late: held, nothing to repeat
+    assert verdict(held)["held"] and not verdict(held)["one_stall"]
+
+
+def test_the_fifo_busy_limit_is_85_percent_of_the_real_time_budget(monkeypatch):
+    monkeypatch.setattr(sched, "rt_budget", lambda: 0.95)
+    monkeypatch.setattr(sched, "fifo_in_force", lambda: True)
+    assert fifo_busy_limit() == pytest.approx(0.85 * 0.95)
+    monkeypatch.setattr(sched, "fifo_in_force", lambda: False)
+    assert fifo_busy_limit() is None
+    monkeypatch.setattr(sched, "fifo_in_force", lambda: True)
+    monkeypatch.setattr(sched, "rt_budget", lambda: None)
+    assert fifo_busy_limit() is None
+
+
+# -- admit, its trials scripted --------------------------------------------------------
+
+
+def rung(period: float, *, held: bool, one_stall: bool = False, busy: float | None = None,
+         limit: float | None = None) -> dict[str, Any]:
+    return {"period_s": period, "held": held, "one_stall": one_stall, "intervals": 300,
+            "late": 0 if held else 12, "traversal_p99_s": 0.8 * period if held else
+            2.4 * period, "budget_s": 2 * period, "busy_share": busy, "busy_limit": limit}
+
+
+def scripted(monkeypatch, verdicts: list[dict[str, Any]], tracking: dict[float, float]
+             | None = None, **rc: Any) -> tuple[Any, list[tuple[float, int]]]:
+    calls: list[tuple[float, int]] = []
+    queue = list(verdicts)
+
+    def trial(central: Any, period: float, *, base: int, transit_s: float) -> dict:
+        assert transit_s == 0.25 * MS  # half the median warm-up round trip
+        calls.append((period, base))
+        return dict(queue.pop(0))
+
+    monkeypatch.setattr(admission, "trial", trial)
+    monkeypatch.setattr(admission, "predicted_tracking",
+                        lambda central, period: (tracking or {}).get(period, 1e-5))
+    monkeypatch.setattr(sched, "fifo_in_force", lambda: False)
+    central = SimpleNamespace(rc=RunConfig.of(clock="realtime", pipeline=2, **rc),
+                              warm_rtt_s=[0.4 * MS, 0.5 * MS, 0.9 * MS])
+    return central, calls
+
+
+def test_a_period_that_holds_at_once_is_admitted_with_the_rules_figures(monkeypatch):
+    central, calls = scripted(monkeypatch, [rung(1e-3, held=True)])
+    info = admit(central)
+    assert calls == [(1e-3, 1 << 41)]
+    assert info["period_s"] == info["sustainable_period_s"] == 1e-3
+    assert (info["asked"], info["depth"], info["transit_s"]) == (1e-3, 2, 0.25 * MS)
+    assert (info["headroom"], info["late_share"], info["tracking_share"]) == (0.95, 1 / 200,
+                                                                              0.5)
+    assert info["rungs"][0]["predicted_tracking_max_m"] == 1e-5
+
+
+def test_one_stall_repeats_the_trial_once_and_only_once(monkeypatch):
+    central, calls = scripted(monkeypatch, [rung(1e-3, held=False, one_stall=True),
+                                            rung(1e-3, held=False, one_stall=True),
+                                            rung(1.25e-3, held=True)], period_auto=True)
+    with pytest.raises(Unsustainable) as e:
+        admit(central)
+    base = 1 << 41
+    assert calls == [(1e-3, base), (1e-3, base + (1 << 20)), (1.25e-3, base + (2 << 20))]
+    info = e.value.info
+    assert [r.get("retry", False) for r in info["rungs"]] == [False, True, False]
+    assert info["sustainable_period_s"] == 1.25e-3 and info["asked"] == "auto"
+    assert e.value.code == 7
+    assert "the shortest period measured to hold is 1.25 ms" in str(e.value)
+    assert "Try" not in str(e.value)  # auto starts again at 1.25 ms by itself
+
+
+def test_a_refusal_names_the_first_trials_figures_and_what_to_try(monkeypatch):
+    central, _ = scripted(monkeypatch, [rung(1e-3, held=False), rung(1.25e-3, held=True)])
+    with pytest.raises(Unsustainable) as e:
+        admit(central)
+    assert str(e.value) == (
+        "the period of 1 ms cannot be held here: in a trial of 300 intervals before any "
+        "motion, 12 were late and the traversal p99 was 2.40 ms of a 2.00 ms budget (2 "
+        "period(s)); the shortest period measured to hold is 1.25 ms. Try --period auto "
+        "or --period 1.25ms, --rt-priority (as root), a placement from ctrlunit balance, "
+        "or fewer --peripherals (ctrlunit latency measures this machine)")
+
+
+def test_a_busy_cpu_is_named_in_the_refusal(monkeypatch):
+    central, _ = scripted(monkeypatch, [rung(1e-3, held=False, busy=0.9, limit=0.8075)]
+                          + [rung(p, held=False) for p in LADDER_S[1:]])
+    with pytest.raises(Unsustainable) as e:
+        admit(central)
+    msg = str(e.value)
+    assert ", and a CPU was 90% busy under SCHED_FIFO (limit 81%); " in msg
+    assert "none of the ladder's periods up to 10 ms held either (the last: traversal " \
+           "p99 24.00 ms of 20.00 ms)" in msg
+    assert e.value.info["sustainable_period_s"] is None
+
+
+def test_a_task_the_period_cannot_track_is_refused_before_any_trial(monkeypatch):
+    central, calls = scripted(monkeypatch, [], tracking={1e-3: 0.011})
+    with pytest.raises(Unsustainable) as e:
+        admit(central)
+    assert calls == []
+    assert str(e.value).startswith(
+        "the task cannot be tracked at 1 ms: the one-process simulation at it tracks "
+        "within 11.0 mm, more than half of --max-error 20 mm; refused before any motion")
+    assert e.value.info["untrackable_from_s"] == 1e-3
+
+
+def test_the_climb_stops_where_tracking_gets_too_poor(monkeypatch):
+    central, calls = scripted(monkeypatch, [rung(1e-3, held=False)],
+                              tracking={1.25e-3: 0.0101})
+    with pytest.raises(Unsustainable) as e:
+        admit(central)
+    assert calls == [(1e-3, 1 << 41)]
+    assert "the longer periods that might hold track the task worse than half of " \
+           "--max-error (at 1.25 ms: 10.1 mm in the one-process simulation)" in str(e.value)
+    assert e.value.info["untrackable_from_s"] == 1.25e-3
+
+
+def test_the_tracking_a_period_predicts_is_the_one_process_loops_at_it():
+    """1 ms with the main job's settings (depth 2, foreseen2): 0.019 mm, as README says;
+    at 8 ms 3.6 mm; the kinematics law has no torques to track with (NaN)."""
+    from ctrlunit.runtime.setup import make_setup
+
+    rc = RunConfig.of(clock="realtime", pipeline=2)
+    engine = make_setup(rc).engine()
+    central = SimpleNamespace(rc=rc, engine=engine)
+    assert f"{admission.predicted_tracking(central, 1e-3) * 1e3:.3f}" == "0.019"
+    assert f"{admission.predicted_tracking(central, 8e-3) * 1e3:.1f}" == "3.6"
+    kin = SimpleNamespace(rc=rc.replace(law="kinematics"), engine=engine)
+    assert math.isnan(admission.predicted_tracking(kin, 1e-3))
