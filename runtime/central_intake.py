@@ -89,12 +89,12 @@ class CentralIntake:
         if len(self.samples) > 64:  # realtime and far behind: keep the newest
             del self.samples[min(self.samples)]
         true_p = self.log.true_p
-        true_p[cycle] = (p[0], p[1], p[2])
-        if len(true_p) > 64:
+        here = true_p[cycle] = (p[0], p[1], p[2])
+        if len(true_p) > 64:  # the oldest goes, even the one just taken (samples ahead)
             del true_p[min(true_p)]
         if cycle < self.cycles:  # the run's samples only: the plant may publish one more
             ref = self.engine.cfg.task.position(self.ctl.time_of(cycle))  # type: ignore[union-attr]
-            self.log.errors.append(math.dist(true_p[cycle], ref))
+            self.log.errors.append(math.dist(here, ref))
         self.plant_busy_ns += span[1] - span[0]
         misses = msg.get("misses")
         if isinstance(misses, int) and not isinstance(misses, bool):

@@ -7,6 +7,7 @@ import re
 import types
 import typing
 from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
 from typing import Any
 
 from ..topology.graph import MODEL_STATES
@@ -284,9 +285,23 @@ class RunConfig:
                     check_endpoint(e, option=option)
             if self.transport.zenoh_config is not None:
                 check_zenoh_config(self.transport.zenoh_config)
+            self.link_security()
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         return self
+
+    def link_security(self, *, check_files: bool = True) -> str:
+        """How this run's links are protected (runtime/security.py, ``link_security``):
+        ``tls``, ``local``, ``loopback`` or ``insecure``. Raises ValueError for a link
+        beyond the host without ``--keys`` or ``--insecure``; with ``check_files``, a
+        ``--keys`` directory must hold the authority's certificate."""
+        from .security import CA_CERT, link_security
+
+        t = self.transport
+        if check_files and t.keys is not None and not (Path(t.keys) / CA_CERT).is_file():
+            raise ValueError(f"--keys {t.keys}: no {CA_CERT} there (make a unit's keys with: "
+                             "ctrlunit keys init DIR)")
+        return link_security(t.listen, t.connect, t.keys, t.insecure)
 
     @property
     def bandwidth(self) -> float:

@@ -151,7 +151,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         os.sched_setaffinity(0, central_cpus)  # before zenoh.open: its threads inherit it
     # --connect joins the central to another Zenoh network (e.g. another unit's)
     node = Node(make_config(listen=[endpoint], connect=rc.transport.connect,
-                            config_file=rc.transport.zenoh_config), rc.transport.unit, "central")
+                            config_file=rc.transport.zenoh_config, keys=rc.transport.keys,
+                            role="central"), rc.transport.unit, "central")
     engine = setup.engine()
     ctl = setup.controller(engine)
     children: list[subprocess.Popen] = []

@@ -241,6 +241,7 @@ def build_report(
         "cost_model": rc.control.cost_model,
         "cost_scale": rc.control.cost_scale,
         "unit": rc.transport.unit,
+        "links": rc.link_security(check_files=False),
         "round_trips": plan.round_trips,
         "rounds_ahead": plan.ahead_rounds if n and rc.schedule.pipeline > 1 else 0,
         "exchanges_per_interval": (exchanges / cycles) if exchanges is not None
@@ -342,6 +343,16 @@ def _safe_stop_line(stop: Any) -> str:
         return "  safe stop   NOT confirmed: the plant did not report one"
 
 
+LINK_LINES = {
+    "tls": "TLS with mutual authentication, under the unit's access control (--keys)",
+    "loopback": "TCP on a loopback address without keys: any process on this host may "
+                "connect (--keys DIR makes it TLS)",
+    "insecure": "INSECURE: links beyond this host without keys (--insecure): anyone who "
+                "reaches them may read the unit's traffic and move the robot",
+}
+"""The summary's line on how the links were protected (none for the local socket)."""
+
+
 def summary(r: dict[str, Any]) -> str:
     """The human summary printed at the end of a run."""
 
@@ -395,6 +406,9 @@ def summary(r: dict[str, Any]) -> str:
     choice = r.get("placement_choice")
     if choice:
         lines.append(f"  placement   auto: {choice['why']}")
+    links = LINK_LINES.get(r.get("links", "local"))
+    if links:
+        lines.append(f"  links       {links}")
     adm = r.get("admission")
     if adm and adm.get("period_s"):
         lines.append(f"  admission   {adm['period_s'] * 1e3:g} ms held in a trial of "

@@ -101,6 +101,11 @@ class TransportConfig:
     listen: list[str] | None = None
     connect: list[str] | None = None
     zenoh_config: str | None = None
+    keys: str | None = None
+    """``--keys DIR``: the unit's credentials (runtime/security.py): every link but the
+    local socket is mutual TLS, and access control holds each role to its keys."""
+    insecure: bool = False
+    """``--insecure``: allow links beyond the host without keys (a lab bench)."""
     timeout: float = 2.0
     startup_timeout: float = 30.0
 

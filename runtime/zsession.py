@@ -136,6 +136,8 @@ def make_config(
     connect: list[str] | None = None,
     lowlatency: bool = True,
     config_file: str | None = None,
+    keys: str | None = None,
+    role: str = "central",
 ) -> zenoh.Config:
     """A Zenoh configuration for one role.
 
@@ -145,7 +147,16 @@ def make_config(
     lowlatency : use the low-latency transport (QoS off).
     config_file : a Zenoh JSON5 configuration passed through (``--zenoh-config``); the
         options above are applied on top of it only where given.
+    keys, role : with the unit's keys (``--keys DIR``), ``tcp`` endpoints become ``tls``
+        ones, authenticated both ways as ``role`` (``central``, ``plant``,
+        ``peripheral-K``, ``viewer``), under the unit's access control
+        (runtime/security.py).
     """
+    if keys is not None:
+        from .security import tls_endpoint
+
+        listen = [tls_endpoint(e) for e in listen or []]
+        connect = None if connect is None else [tls_endpoint(e) for e in connect]
     # keep Zenoh's own logging quiet, here and in the roles started after (they inherit it)
     os.environ.setdefault("RUST_LOG", "error")
     # Zenoh's runtimes on one thread (read when a process opens its first session)
@@ -162,6 +173,10 @@ def make_config(
     conf.insert_json5("listen/endpoints", json.dumps(listen or []))
     if connect is not None:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if keys is not None:
+        from .security import secure
+
+        secure(conf, keys, role)
     return conf
 
 

@@ -74,15 +74,17 @@ def star():
 
 
 def run_star(tmp_path, central: str, hosts: list[str], tag: str,
-             endpoints: list[str] | None = None) -> dict:
+             endpoints: list[str] | None = None, *, keys: str | None = None) -> dict:
     """One lockstep session across the namespaces; ``endpoints[k]`` is what role k connects
-    to (default: the central's address on its veth link)."""
+    to (default: the central's address on its veth link). With ``keys`` every link is
+    mutual TLS under the unit's access control; without, ``--insecure``."""
     unit = f"mh-{tag}-{os.getpid()}"
     report = tmp_path / f"{tag}.json"
     # the thesis's placement: two round trips per interval to each peripheral, whatever
     # --placement auto would choose on these links
     common = ["--unit", unit, "--clock", "lockstep", "--cycles", "300", "--peripherals", "3",
-              "--timeout", "5s", "--placement", "axes"]
+              "--timeout", "5s", "--placement", "axes",
+              *(["--keys", keys] if keys else ["--insecure"])]
     py = [sys.executable, "-m", "ctrlunit.runtime.cli"]
     procs = [subprocess.Popen(["ip", "netns", "exec", central, *py, "central", *common,
                                "--listen", "tcp/0.0.0.0:7447", "--report", str(report)],
@@ -124,8 +126,20 @@ def delay_lines(hosts: list[str], delay: str) -> tuple[list[subprocess.Popen], l
 
 
 def test_each_role_on_its_own_host_with_and_without_link_limits(tmp_path, star):
+    from ctrlunit.runtime.security import make_keys
+
     central, hosts, links = star
     plain = run_star(tmp_path, central, hosts, "plain")
+    make_keys(tmp_path / "keys")
+    secure = run_star(tmp_path, central, hosts, "tls", keys=str(tmp_path / "keys"))
+    assert plain["links"] == "insecure" and secure["links"] == "tls"
+    assert secure["command_digest"] == plain["command_digest"]
+    for name, r in (("insecure", plain), ("TLS + access control", secure)):
+        print(f"{name}: period p50 {r['period_s']['p50'] * 1e3:.3f} ms, p99 "
+              f"{r['period_s']['p99'] * 1e3:.3f} ms, traversal p50 "
+              f"{r['traversal_s']['p50'] * 1e3:.3f} ms, misses {r['deadline_misses']}, "
+              f"CPU per interval {(r.get('cpu_per_interval_s') or {}).get('total', 0) * 1e6:.0f}"
+              " us")
     # a Transputer-like link: 20 Mbit/s and 1 ms each way
     netem = True
     for ns_c, a, ns_r, b in links:

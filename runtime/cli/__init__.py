@@ -2,15 +2,16 @@
 
 ``base`` holds the group and the shared helpers; ``kinematics`` (ik, fk, trajectory,
 workspace), ``run`` (start and the single roles), ``recordings`` (replay, report) and
-``tools`` (bench, balance) register their commands on it when imported here.
+``tools`` (bench, balance) and ``keys`` (keys init) register their commands on it when
+imported here.
 """
 
 from __future__ import annotations
 
-from . import kinematics, recordings, run, tools
+from . import keys, kinematics, recordings, run, tools
 from .base import cli
 
-__all__ = ["cli", "kinematics", "main", "recordings", "run", "tools"]
+__all__ = ["cli", "keys", "kinematics", "main", "recordings", "run", "tools"]
 
 
 def main() -> None:

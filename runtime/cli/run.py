@@ -132,6 +132,11 @@ def run_options(fn: Any) -> Any:
                      "1/(50 period) otherwise)."),
         click.option("--listen", multiple=True, help="Zenoh endpoint to listen on."),
         click.option("--connect", multiple=True, help="Zenoh endpoint to connect to."),
+        click.option("--keys", "keys", type=click.Path(file_okay=False), default=None,
+                     help="The unit's credentials (ctrlunit keys init DIR): every link but "
+                     "the local socket is mutual TLS under the unit's access control."),
+        click.option("--insecure", is_flag=True,
+                     help="Allow links beyond this host without --keys (a lab bench)."),
         click.option("--zenoh-config", type=click.Path(dir_okay=False), default=None),
         click.option("--timeout", default="2s", show_default=True, callback=_duration,
                      help="Reply timeout in lockstep and freerun (realtime: --fault-periods)."),
@@ -422,8 +427,14 @@ def _role_setup(kw: dict[str, Any], *, role: str,
         held.enter_context(idle_request(rc.schedule.idle, clock=rc.schedule.clock))
     except IdlePermissionError as exc:
         _fail(str(exc), EXIT_CONFIG)
-    return setup, make_config(listen=rc.transport.listen, connect=rc.transport.connect,
-                              config_file=rc.transport.zenoh_config), held
+    name = role if index is None else f"{role}-{index}"
+    try:
+        conf = make_config(listen=rc.transport.listen, connect=rc.transport.connect,
+                           config_file=rc.transport.zenoh_config, keys=rc.transport.keys,
+                           role=name)
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc), EXIT_CONFIG)
+    return setup, conf, held
 
 
 @cli.command()

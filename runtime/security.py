@@ -1,0 +1,228 @@
+"""Who may talk to a unit: mutual TLS and Zenoh's access control, by role.
+
+A unit's credentials (``ctrlunit keys init DIR``, :func:`make_keys`) are one certificate
+authority and one key and certificate per role, each certificate's common name the role's
+name (``central``, ``plant``, ``peripheral-K``, ``viewer``). With ``--keys DIR`` every
+link that is not the local socket is TLS with mutual authentication (a peer without a
+certificate signed by the unit's authority cannot connect), and each role's session
+carries the same access-control policy (:func:`access_control`), default deny:
+
+- only the plant publishes samples to the central;
+- only peripheral K publishes its replies (``central/reply/K``);
+- only the central publishes into the plant's and the peripherals' inboxes (requests,
+  commands, orders);
+- the unit's roles say hello and bye to the central;
+- every authenticated peer, a viewer included, may subscribe and be sent what the
+  central publishes; a viewer may publish nothing.
+
+Zenoh drops a message the policy denies before the role sees it. What this protects, and
+what not, is in docs/faults-and-errors.md (Security).
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+CA_CERT = "ca.pem"
+CA_KEY = "ca.key"
+VIEWER = "viewer"
+MAX_PERIPHERALS = 3
+VALID_DAYS = 365
+
+
+def role_names(peripherals: int = MAX_PERIPHERALS) -> list[str]:
+    """The roles a unit's credentials cover: central, plant, peripheral-1..n, viewer."""
+    return ["central", "plant", *(f"peripheral-{k}" for k in range(1, peripherals + 1)),
+            VIEWER]
+
+
+def make_keys(directory: str | Path, *, peripherals: int = MAX_PERIPHERALS,
+              days: int = VALID_DAYS) -> list[Path]:
+    """Write a unit's credentials into ``directory`` (made if missing; existing files are
+    not overwritten: a :class:`FileExistsError` names the first). Private keys are
+    readable by their owner only. Returns the files written.
+
+    Uses the ``cryptography`` package: an ECDSA P-256 authority and, per role, a
+    certificate for both TLS server and client use whose common name is the role."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    out = Path(directory)
+    names = role_names(peripherals)
+    files = [out / CA_CERT, out / CA_KEY] + [out / f"{r}.{x}" for r in names
+                                             for x in ("pem", "key")]
+    for f in files:
+        if f.exists():
+            raise FileExistsError(f"{f} exists: keys are never overwritten (choose another "
+                                  "directory)")
+    out.mkdir(parents=True, exist_ok=True)
+    now = datetime.datetime.now(datetime.UTC)
+    start, end = now - datetime.timedelta(minutes=5), now + datetime.timedelta(days=days)
+
+    def write_key(key: Any, path: Path) -> None:
+        data = key.private_bytes(serialization.Encoding.PEM,
+                                 serialization.PrivateFormat.PKCS8,
+                                 serialization.NoEncryption())
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+
+    def write_cert(cert: Any, path: Path) -> None:
+        path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+
+    def name(cn: str) -> Any:
+        return x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "ctrlunit"),
+                          x509.NameAttribute(NameOID.COMMON_NAME, cn)])
+
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca_name = name("ctrlunit unit authority")
+    usage = {k: False for k in ("digital_signature", "content_commitment", "key_encipherment",
+                                "data_encipherment", "key_agreement", "key_cert_sign",
+                                "crl_sign", "encipher_only", "decipher_only")}
+    ca = (x509.CertificateBuilder().subject_name(ca_name).issuer_name(ca_name)
+          .public_key(ca_key.public_key()).serial_number(x509.random_serial_number())
+          .not_valid_before(start).not_valid_after(end)
+          .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+          .add_extension(x509.KeyUsage(**usage | {"digital_signature": True,
+                                                  "key_cert_sign": True, "crl_sign": True}),
+                         critical=True)
+          .sign(ca_key, hashes.SHA256()))
+    write_cert(ca, out / CA_CERT)
+    write_key(ca_key, out / CA_KEY)
+    for role in names:
+        key = ec.generate_private_key(ec.SECP256R1())
+        cert = (x509.CertificateBuilder().subject_name(name(role)).issuer_name(ca_name)
+                .public_key(key.public_key()).serial_number(x509.random_serial_number())
+                .not_valid_before(start).not_valid_after(end)
+                .add_extension(x509.BasicConstraints(ca=False, path_length=None),
+                               critical=True)
+                .add_extension(x509.KeyUsage(**usage | {"digital_signature": True}),
+                               critical=True)
+                .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH,
+                                                      ExtendedKeyUsageOID.CLIENT_AUTH]),
+                               critical=False)
+                .add_extension(x509.SubjectAlternativeName([
+                    x509.DNSName("localhost"),
+                    x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False)
+                .sign(ca_key, hashes.SHA256()))
+        write_cert(cert, out / f"{role}.pem")
+        write_key(key, out / f"{role}.key")
+    return files
+
+
+def credentials(directory: str | Path, role: str) -> dict[str, str]:
+    """The authority's certificate and ``role``'s key and certificate in ``directory``.
+
+    Raises
+    ------
+    FileNotFoundError
+        Naming the missing file and how to make the unit's keys."""
+    d = Path(directory)
+    files = {"ca": d / CA_CERT, "key": d / f"{role}.key", "cert": d / f"{role}.pem"}
+    for f in files.values():
+        if not f.is_file():
+            raise FileNotFoundError(f"--keys {directory}: {f.name} is missing (make a unit's "
+                                    "keys with: ctrlunit keys init DIR)")
+    return {k: str(v) for k, v in files.items()}
+
+
+def _rule(rid: str, messages: list[str], keys: list[str], flows: list[str]) -> dict[str, Any]:
+    return {"id": rid, "permission": "allow", "messages": messages, "key_exprs": keys,
+            "flows": flows}
+
+
+def access_control(peripherals: int = MAX_PERIPHERALS) -> dict[str, Any]:
+    """The unit's access-control policy (Zenoh's ``access_control`` section), the same on
+    every role's session; subjects are certificate common names (module notes)."""
+    unit = "ctrlunit/*"
+    roles = role_names(peripherals)
+    units = [r for r in roles if r != VIEWER]
+    rules = [
+        _rule("subscribe", ["declare_subscriber"], ["ctrlunit/**"], ["ingress", "egress"]),
+        _rule("send", ["put"], ["ctrlunit/**"], ["egress"]),
+        _rule("hello", ["put"], [f"{unit}/central/hello"], ["ingress"]),
+        _rule("sample", ["put"], [f"{unit}/central/sample"], ["ingress"]),
+        _rule("orders", ["put"], [f"{unit}/plant/**", f"{unit}/peripheral/**"], ["ingress"]),
+        *(_rule(f"reply-{k}", ["put"], [f"{unit}/central/reply/{k}"], ["ingress"])
+          for k in range(1, peripherals + 1)),
+    ]
+    subjects = [{"id": r, "cert_common_names": [r]} for r in roles]
+    policies = [
+        {"id": "everyone", "rules": ["subscribe", "send"], "subjects": roles},
+        {"id": "roles", "rules": ["hello"], "subjects": [r for r in units if r != "central"]},
+        {"id": "plant", "rules": ["sample"], "subjects": ["plant"]},
+        {"id": "central", "rules": ["orders"], "subjects": ["central"]},
+        *({"id": f"peripheral-{k}", "rules": [f"reply-{k}"], "subjects": [f"peripheral-{k}"]}
+          for k in range(1, peripherals + 1)),
+    ]
+    return {"enabled": True, "default_permission": "deny", "rules": rules,
+            "subjects": subjects, "policies": policies}
+
+
+def secure(conf: Any, directory: str | Path, role: str) -> None:
+    """Make ``conf`` (a ``zenoh.Config``) authenticate as ``role`` with the unit's keys in
+    ``directory`` and enforce :func:`access_control`. Names in certificates are roles, not
+    host names: the peer is identified by its certificate's chain to the unit's authority
+    and its common name, not by the address it was reached at."""
+    c = credentials(directory, role)
+    tls = {"root_ca_certificate": c["ca"], "enable_mtls": True,
+           "listen_private_key": c["key"], "listen_certificate": c["cert"],
+           "connect_private_key": c["key"], "connect_certificate": c["cert"],
+           "verify_name_on_connect": False}
+    conf.insert_json5("transport/link/tls", json.dumps(tls))
+    conf.insert_json5("access_control", json.dumps(access_control()))
+
+
+def tls_endpoint(endpoint: str) -> str:
+    """``tcp/HOST:PORT`` as ``tls/HOST:PORT``; other endpoints (the local socket, tls) as
+    they are."""
+    return "tls/" + endpoint[4:] if endpoint.startswith("tcp/") else endpoint
+
+
+def reaches_beyond_host(endpoint: str) -> bool:
+    """Whether an endpoint can be reached from another host: anything but a unix socket
+    or a loopback address (127.0.0.0/8, ::1, localhost)."""
+    proto, _, addr = endpoint.partition("/")
+    if proto.startswith("unixsock"):
+        return False
+    host = addr.rsplit(":", 1)[0].strip("[]") if ":" in addr else addr
+    host = host.split("?")[0].split("#")[0]
+    if host == "localhost":
+        return False
+    try:
+        return not ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return True  # a host name other than localhost
+
+
+def link_security(listen: list[str] | None, connect: list[str] | None, keys: str | None,
+                  insecure: bool) -> str:
+    """How a role's links are protected, for the report: ``tls`` (with ``keys``),
+    ``local`` (unix sockets only), ``loopback`` (a loopback address without keys: any
+    process on this host may connect) or ``insecure`` (beyond the host, ``--insecure``).
+
+    Raises
+    ------
+    ValueError
+        A link beyond the host without keys or ``--insecure``, naming the endpoint and
+        the fix."""
+    eps = [*(listen or []), *(connect or [])]
+    if keys:
+        return "tls"
+    beyond = [e for e in eps if reaches_beyond_host(e)]
+    if beyond and not insecure:
+        raise ValueError(
+            f"{beyond[0]} can be reached from other hosts, and without keys anyone who can "
+            "reach it may read the unit's traffic and move the robot: make keys with "
+            "'ctrlunit keys init DIR' and give --keys DIR to every role, or --insecure for "
+            "a lab bench")
+    if beyond:
+        return "insecure"
+    return "loopback" if any(not e.startswith("unixsock") for e in eps) else "local"
