@@ -294,3 +294,64 @@ def test_the_watchdog_waits_its_seconds_from_the_last_word_of_the_central():
     node.last_heard_ns = time.monotonic_ns()
     assert serve(node, ENGINE, 0, reply, watchdog=0.3)["exit"] == "watchdog"
     assert time.monotonic() - t0 >= 0.3  # a lower bound only: never a wall-time window
+
+
+# -- run_peripheral: the role's whole life over a real Zenoh session, in this process ----
+
+
+@pytest.mark.zenoh
+def test_run_peripheral_says_hello_serves_after_go_and_says_bye_at_stop(tmp_path):
+    """A scripted central on a unix socket: the role says hello until ``go``, answers a
+    request on its own reply key, and at ``stop`` ends with exit 0 and a bye carrying its
+    report (served, its scheduling policy). A role that hears no go ends with exit 6."""
+    import threading
+    import time
+
+    import zenoh
+    from ctrlunit.runtime.config import EXIT_LINK, EXIT_OK, RunConfig
+    from ctrlunit.runtime.peripheral import run_peripheral
+    from ctrlunit.runtime.setup import make_setup
+    from ctrlunit.runtime.zsession import Keys, make_config
+
+    endpoint = f"unixsock-stream/{tmp_path / 'c.sock'}"
+    rc = RunConfig.of(unit=UNIT + "-life", peripherals=3, clock="lockstep",
+                      startup_timeout=5.0, timeout=1.0)
+    setup = make_setup(rc)
+    keys = Keys(rc.transport.unit)
+    heard: list[dict] = []
+    replies: list[dict] = []
+    with zenoh.open(make_config(listen=[endpoint])) as central:
+        central.declare_subscriber(keys.hello, lambda s: heard.append(
+            decode(bytes(s.payload.to_bytes()), rc.transport.unit)))
+        central.declare_subscriber(keys.reply(2), lambda s: replies.append(
+            decode(bytes(s.payload.to_bytes()), rc.transport.unit)))
+        control = central.declare_publisher(keys.control("peripheral"))
+        requests = central.declare_publisher(keys.request)
+        result: list[int] = []
+        role = threading.Thread(target=lambda: result.append(run_peripheral(
+            setup, 2, make_config(connect=[endpoint]))), daemon=True)
+        role.start()
+        deadline = time.monotonic() + 10
+        while not heard and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert heard and heard[0]["stage"] == "hello" and heard[0]["role"] == "peripheral-2"
+        control.put(encode(rc.transport.unit, 0, "go"))
+        while not replies and time.monotonic() < deadline:
+            requests.put(encode(rc.transport.unit, 1, 0,
+                                parts=[part(ENGINE_BY_LAW["resolved-acceleration"][1][0],
+                                            1)]))
+            time.sleep(0.05)
+        control.put(encode(rc.transport.unit, 0, "stop"))
+        role.join(timeout=10)
+        time.sleep(0.1)
+    assert not role.is_alive() and result == [EXIT_OK]
+    assert replies and replies[0]["parts"][0]["cycle"] == 1
+    bye = [m for m in heard if m["stage"] == "bye"]
+    assert bye and bye[0]["role"] == "peripheral-2"
+    assert bye[0]["report"]["exit"] == "stop" and bye[0]["report"]["served"] >= 1
+    assert bye[0]["report"]["sched"].startswith("SCHED_")
+    lonely = RunConfig.of(unit=UNIT + "-alone", peripherals=3, clock="lockstep",
+                          startup_timeout=0.3)
+    code = run_peripheral(make_setup(lonely), 1,
+                          make_config(connect=[f"unixsock-stream/{tmp_path / 'none.sock'}"]))
+    assert code == EXIT_LINK
