@@ -86,10 +86,8 @@ def run_options(fn: Any) -> Any:
                      help="MCAP chunk compression of --record, done on a writer thread "
                      "off the control path (zstd: about 3x smaller)."),
         click.option("--foxglove", default=None, metavar="[HOST:]PORT",
-                     help="Serve a live view of the run to Foxglove (WebSocket; host "
-                     "127.0.0.1 unless given; port 0: any free port): /signals/state every "
-                     "interval (at most --foxglove-rate per second), /report/running every "
-                     "second, off the control path."),
+                     help="Serve a live view to Foxglove (WebSocket; host 127.0.0.1 "
+                     "unless given; port 0: any free one), off the control path."),
         click.option("--foxglove-rate", type=float, default=200.0, show_default=True,
                      metavar="HZ", help="/signals/state messages per second of the live "
                      "view; 0: every interval (each costs the central ~0.1 ms of CPU)."),
@@ -102,12 +100,9 @@ def run_options(fn: Any) -> Any:
                      show_default=True, help="Multiply the T-800 block times (t800 cost "
                      "model): reproduce the 1994 ratio of arithmetic to communication."),
         click.option("--placement", default="auto", show_default=True, metavar="auto|axes|FILE",
-                     help="Which process runs which block. axes: each peripheral runs "
-                     "every per-axis block of its axes (§ IV.7); auto: at warm-up, a round "
-                     "whose arithmetic costs the central less than its round trip runs on "
-                     "the central (the roles take the new plan before the first interval; "
-                     "the report's placement_choice says why); FILE: a placement written "
-                     "by ctrlunit balance."),
+                     help="Which process runs which block: axes (each peripheral all of "
+                     "its axes' blocks, § IV.7), auto (at warm-up, a round cheaper than its "
+                     "round trip moves to the central) or a FILE from ctrlunit balance."),
         click.option("--params", type=click.Path(dir_okay=False), default=None,
                      help="TOML file of Delta parameters."),
         click.option("--observer", type=click.Choice(["predict", "previous"]),
@@ -216,10 +211,33 @@ def run_options(fn: Any) -> Any:
                      help="Run configuration written by ctrlunit start (internal)."),
         click.option("--status-file", type=click.Path(dir_okay=False), default=None,
                      hidden=True, help="Write the completed-interval count every 10."),
+        click.option("--help-all", is_flag=True, expose_value=False, is_eager=True,
+                     callback=_help_all, help="Show every option, the tuning ones too."),
     ]
     for o in reversed(opts):
         fn = o(fn)
+    for param in getattr(fn, "__click_params__", []):
+        if param.name not in EVERYDAY:
+            param.hidden = True
     return fn
+
+
+EVERYDAY = frozenset({"check", "peripherals", "pipeline", "clock", "period", "task", "law",
+                      "cycles", "duration", "record", "report", "foxglove", "placement",
+                      "listen", "connect", "keys", "help_all", "as_json", "plot_dir"})
+"""The options ``--help`` shows (the rest: ``--help-all``, README's table): what a person
+running the unit sets; the others are tuning levers with good defaults."""
+
+
+def _help_all(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
+    """``--help-all``: the help with every option shown."""
+    if not value or ctx.resilient_parsing:
+        return
+    for p in ctx.command.params:
+        if p.name != "status_file":  # the launcher's, not a person's
+            p.hidden = False
+    click.echo(ctx.get_help())
+    ctx.exit()
 
 
 def _duration_or_zero(ctx: Any, param: click.Parameter, value: str) -> float:
@@ -261,10 +279,13 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
     return RunConfig.of(**options)
 
 
-@cli.command()
+@cli.command(epilog="Every other setting (the pipeline's and the scheduler's levers, late "
+             "data, overload, the plant model, the transport) has a default that suits "
+             "the main job: ctrlunit start --help-all lists them, README's table says what "
+             "each does.")
 @run_options
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
-@click.option("--progress/--no-progress", default=None,
+@click.option("--progress/--no-progress", default=None, hidden=True,
               help="Progress display (default: when stdout is a terminal).")
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None,
               help="At the end, draw the run into DIR (as ctrlunit plot does); records it "
