@@ -33,15 +33,18 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                                    "tests/test_laws.py"]),
     "guard": (["runtime/central_guard.py"], ["tests/test_guard.py", "tests/test_loopback.py",
                                              "tests/test_validation.py"]),
-    "replay": (["runtime/replay.py"], ["tests/test_replay_unit.py"]),
+    "replay": (["runtime/replay.py"], ["tests/test_replay_unit.py", "tests/test_overload.py",
+                                       "tests/test_foreseen2.py", "tests/test_late.py"]),
     "pipeline": (["topology/pipeline.py"], ["tests/test_pipeline.py", "tests/test_schedule.py",
                                             "tests/test_loopback.py",
                                             "tests/test_pipeline_overlap.py"]),
-    "peripheral": (["runtime/peripheral.py"], ["tests/test_validation.py",
+    "peripheral": (["runtime/peripheral.py"], ["tests/test_peripheral_role.py",
+                                               "tests/test_validation.py",
                                                "tests/test_pipeline_overlap.py",
                                                "tests/test_loopback.py",
                                                "tests/test_late_compute.py"]),
-    "admission": (["runtime/admission.py"], ["tests/test_admission.py"]),
+    "admission": (["runtime/admission.py"], ["tests/test_admission_rules.py",
+                                             "tests/test_admission.py"]),
 }
 
 MUTMUT = "3.8.1"
