@@ -27,7 +27,7 @@ def test_start_help_shows_the_everyday_options_on_one_screen():
     shown = options_in(res.stdout)
     assert len(lines) <= 60, len(lines)
     assert len(shown) <= 20, sorted(shown)
-    assert {"peripherals", "pipeline", "clock", "period", "record", "keys",
+    assert {"peripherals", "pipeline", "clock", "period", "record", "profile", "config", "set",
             "help-all"} <= shown
     assert "ctrlunit start --help-all" in res.stdout
 

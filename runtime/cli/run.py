@@ -211,6 +211,16 @@ def run_options(fn: Any) -> Any:
                      help="Run configuration written by ctrlunit start (internal)."),
         click.option("--status-file", type=click.Path(dir_okay=False), default=None,
                      hidden=True, help="Write the completed-interval count every 10."),
+        click.option("--profile", type=click.Choice(["main-job", "thesis"]),
+                     default="main-job", show_default=True,
+                     help="Settings for an intent: the realtime main job, or the thesis's "
+                     "graph (model at the sample, axes placement, observer previous)."),
+        click.option("--config", "config_file", type=click.Path(dir_okay=False),
+                     default=None, help="A run file (TOML, the sections ctrlunit config "
+                     "prints) over the profile."),
+        click.option("--set", "set_items", multiple=True, metavar="SECTION.KEY=VALUE",
+                     help="One setting over the run file (repeatable), e.g. "
+                     "schedule.late_policy=wait."),
         click.option("--help-all", is_flag=True, expose_value=False, is_eager=True,
                      callback=_help_all, help="Show every option, the tuning ones too."),
     ]
@@ -224,7 +234,8 @@ def run_options(fn: Any) -> Any:
 
 EVERYDAY = frozenset({"check", "peripherals", "pipeline", "clock", "period", "task", "law",
                       "cycles", "duration", "record", "report", "foxglove", "placement",
-                      "listen", "connect", "keys", "help_all", "as_json", "plot_dir"})
+                      "profile", "config_file", "set_items", "help_all", "as_json",
+                      "plot_dir"})
 """The options ``--help`` shows (the rest: ``--help-all``, README's table): what a person
 running the unit sets; the others are tuning levers with good defaults."""
 
@@ -246,7 +257,42 @@ def _duration_or_zero(ctx: Any, param: click.Parameter, value: str) -> float:
     return _duration(ctx, param, value) or 0.0
 
 
+PARAM_FLATS = {"placement": ("placement", "placement_auto"), "period": ("period", "period_auto"),
+               "late_items": ("late",)}
+"""Options a flag sets other than its own name."""
+
+
+def explicit_params() -> set[str]:
+    """The parameters given on the command line (or by environment), not defaulted."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is None:
+        return set()
+    given = (click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)
+    return {n for n in ctx.params if ctx.get_parameter_source(n) in given}
+
+
 def make_rc(kw: dict[str, Any]) -> RunConfig:
+    """The run's configuration: the defaults, then ``--profile``, the run file
+    (``--config``), ``--set``, and the flags given (runtime/run_file.py)."""
+    from ..run_file import parse_set, profile, read_run_file
+
+    layered: dict[str, Any] = profile(kw.pop("profile", None) or "main-job")
+    config_file = kw.pop("config_file", None)
+    if config_file:
+        layered |= read_run_file(config_file)
+    layered |= parse_set(kw.pop("set_items", ()) or ())
+    options = _flag_options(kw)
+    if isinstance(options, RunConfig):  # a role the launcher started: the run's spec
+        return options
+    if not layered:
+        return RunConfig.of(**options)
+    given = {f for p in explicit_params() for f in PARAM_FLATS.get(p, (p,)) if f in options}
+    return RunConfig.of(**(options | layered | {f: options[f] for f in given}))
+
+
+def _flag_options(kw: dict[str, Any]) -> dict[str, Any] | RunConfig:
+    """The flags as options by flat name (every flag, defaulted ones too); the run's
+    spec instead for a role the launcher started."""
     from ..setup import load_spec
 
     spec = kw.pop("spec", None)
@@ -276,7 +322,7 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
     options.update(plant_lag=kw.get("plant_lag", 0.0), listen=listen, connect=connect)
     if unit:
         options["unit"] = unit
-    return RunConfig.of(**options)
+    return options
 
 
 @cli.command(epilog="Every other setting (the pipeline's and the scheduler's levers, late "
@@ -512,3 +558,29 @@ def _quiet(fn: Any) -> int:
         return fn()
     except KeyboardInterrupt:
         return 130
+
+
+@cli.command("config")
+@run_options
+def config_cmd(check: bool, **kw: Any) -> None:
+    """Print the run's settings as a run file: the defaults, or what the given profile,
+    run file, --set and flags resolve to (ctrlunit start --config reads it back)."""
+    from ..run_file import to_toml
+
+    del check
+    asked_unit = bool(kw.get("unit")) or any(
+        i.strip().startswith("transport.unit") for i in kw.get("set_items") or ())
+    try:
+        if kw.get("config_file"):
+            from ..run_file import read_run_file
+
+            asked_unit |= "unit" in read_run_file(kw["config_file"])
+        rc = make_rc(kw).validate()
+    except ConfigError as exc:
+        _fail(str(exc), EXIT_CONFIG)
+        return
+    settings = rc.to_dict()
+    if not asked_unit:  # a fresh random id per run: a file that fixed it would share it
+        settings["unit"] = None
+    click.echo(to_toml(settings), nl=False)
+

@@ -1,0 +1,116 @@
+"""Profiles, the run file and --set (runtime/run_file.py): each layer over the one
+before, the flags given over all of them; ``ctrlunit config`` prints what they resolve
+to and ``start --config`` reads it back."""
+
+from __future__ import annotations
+
+import pytest
+from click.testing import CliRunner
+from ctrlunit.runtime.cli import cli
+from ctrlunit.runtime.config import ConfigError, RunConfig
+from ctrlunit.runtime.run_file import PROFILES, parse_set, read_run_file, to_toml
+
+
+def config(*args: str) -> str:
+    res = CliRunner().invoke(cli, ["config", *args])
+    assert res.exit_code == 0, res.output
+    return res.output
+
+
+def resolved(*args: str) -> RunConfig:
+    """What ``ctrlunit config ARGS`` prints, read back."""
+    import tempfile
+
+    with tempfile.NamedTemporaryFile("w", suffix=".toml", delete=False) as fh:
+        fh.write(config(*args))
+    return RunConfig.of(**read_run_file(fh.name))
+
+
+def test_the_defaults_are_the_main_job():
+    rc = resolved()
+    assert (rc.schedule.clock, rc.schedule.period_auto, rc.schedule.placement_auto) == (
+        "realtime", True, True)
+    assert rc.control.model_state == "auto" and rc.transport.unit != ""
+
+
+def test_each_layer_overrides_the_one_before_and_the_flags_given_override_all(tmp_path):
+    run = tmp_path / "run.toml"
+    run.write_text('[control]\nobserver = "predict"\n[schedule]\npipeline = 2\n'
+                   'late_policy = "wait"\nfault_periods = 4\n')
+    rc = resolved("--profile", "thesis")
+    assert (rc.control.model_state, rc.control.observer, rc.schedule.placement_auto) == (
+        "sample", "previous", False)
+    rc = resolved("--profile", "thesis", "--config", str(run))
+    assert rc.control.observer == "predict" and rc.control.model_state == "sample"
+    assert (rc.schedule.pipeline, rc.schedule.late_policy) == (2, "wait")
+    rc = resolved("--profile", "thesis", "--config", str(run), "--set",
+                  "schedule.fault_periods=6", "--set", "schedule.late_policy=hold")
+    assert (rc.schedule.fault_periods, rc.schedule.late_policy) == (6.0, "hold")
+    rc = resolved("--config", str(run), "--set", "schedule.pipeline=1", "--pipeline", "2",
+                  "--placement", "axes", "--late-policy", "fault")
+    assert rc.schedule.pipeline == 2 and rc.schedule.late_policy == "fault"
+    rc = resolved("--profile", "thesis", "--placement", "auto")  # a flag equal to default
+    assert rc.schedule.placement_auto is True
+
+
+def test_a_resolved_file_runs_as_asked(tmp_path):
+    run = tmp_path / "resolved.toml"
+    run.write_text(config("--profile", "thesis", "--clock", "lockstep", "--pipeline", "2"))
+    assert "# unit =" in run.read_text()  # a fresh id per run, not pinned by the file
+    res = CliRunner().invoke(cli, ["start", "--check", "--json", "--config", str(run)])
+    assert res.exit_code == 0, res.output
+    assert '"pipeline": 2' in res.output and '"clock": "lockstep"' in res.output
+    assert '"placement_auto": false' in res.output
+
+
+@pytest.mark.parametrize("item, message", [
+    ("pipeline=2", "expected SECTION.KEY=VALUE"),
+    ("schedule.nope=1", "[schedule] has no 'nope'"),
+    ("sched.pipeline=1", "no section [sched]"),
+    ("schedule.pipeline=two", "'two': allowed an integer"),
+    ("schedule.admission=1", "allowed true or false"),
+])
+def test_a_bad_setting_is_refused_by_name(item, message):
+    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        parse_set([item])
+
+
+def test_set_reads_toml_values_and_bare_words():
+    assert parse_set(["schedule.late_policy=wait", "schedule.fault_periods=2.5",
+                      "schedule.admission=false", "transport.listen=[\"tcp/127.0.0.1:1\"]",
+                      'schedule.late={ik="hold"}']) == {
+        "late_policy": "wait", "fault_periods": 2.5, "admission": False,
+        "listen": ["tcp/127.0.0.1:1"], "late": {"ik": "hold"}}
+
+
+def test_a_bad_run_file_names_the_file_and_the_key(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[schedule]\npipeline = \n")
+    with pytest.raises(ConfigError, match="--config .*bad.toml"):
+        read_run_file(str(bad))
+    bad.write_text('[schedule]\nlate_policy = 3\n')
+    with pytest.raises(ConfigError, match=r"\[schedule\] late_policy: 3: allowed a string"):
+        read_run_file(str(bad))
+    bad.write_text('pipeline = 2\n')
+    with pytest.raises(ConfigError, match="must be a section"):
+        read_run_file(str(bad))
+    res = CliRunner().invoke(cli, ["start", "--check", "--config", str(tmp_path / "none")])
+    assert res.exit_code == 1
+
+
+def test_to_toml_writes_every_section_and_reads_back():
+    import tomllib
+
+    rc = RunConfig.of(pipeline=2, late={"ik": "hold"}, listen=["tcp/127.0.0.1:9"])
+    data = tomllib.loads(to_toml(rc.to_dict()))
+    assert list(data) == ["control", "schedule", "plant", "transport", "run"]
+    back = {k: v for k, v in rc.to_dict().items() if v is not None}
+    assert RunConfig.of(**read_back(data)).to_dict() == RunConfig.of(**back).to_dict()
+    assert set(PROFILES) == {"main-job", "thesis"}
+
+
+def read_back(data: dict) -> dict:
+    from ctrlunit.runtime.config import FLAT
+
+    by_field = {v: k for k, v in FLAT.items()}
+    return {by_field[(sec, k)]: v for sec, table in data.items() for k, v in table.items()}
