@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import msgpack
 
 from ..kernels.workspace import check_point
+from . import silence_rule
 from .config import EXIT_OBSERVER, EXIT_PERIPHERAL, EXIT_PLANT, LATE_POLICIES
 from .engine import Engine
 from .supervise import MachineLoad, ThreadTimes, cpu_denied
@@ -88,18 +89,16 @@ class CentralGuard:
         the limit after the central runs again."""
         if self.rc.schedule.clock != "realtime":
             return 0
-        return sum(max(0, min(b, now) - max(a, since)) for a, b in self.own_gaps)
+        return silence_rule.overlap(self.own_gaps, since, now)
 
     def _plant_shared(self, since: int, now: int, timeout_ns: int) -> int:
         """The part of a silence since ``since`` that the plant's samples shared (gaps in
         them longer than two periods, less the period a sample takes anyway) beyond the
         central's own stalls (:meth:`_own_stall`), up to one limit."""
-        shared = 0
-        every = self.period_ns * self.ctl.stride  # how often the plant samples
-        for a, b in (*self.plant_gaps, (self.last_sample_ns, now)):
-            if a and b - a > 2 * every:
-                shared += max(0, min(b, now) - max(a, since) - every)
-        return min(max(0, shared - self._own_stall(since, now)), timeout_ns)
+        return silence_rule.plant_shared(
+            self.plant_gaps, self.last_sample_ns, since, now,
+            every_ns=self.period_ns * self.ctl.stride,  # how often the plant samples
+            own_ns=self._own_stall(since, now), limit_ns=timeout_ns)
 
     def _fault_at(self, since: int, now: int, timeout_ns: int) -> int:
         """When a process silent since ``since`` becomes a fault: ``since + timeout_ns``;
@@ -110,8 +109,10 @@ class CentralGuard:
         stalls run 6-26 ms), not a failed process; a frozen process is still named while
         the plant goes on talking.
         """
-        end = since + timeout_ns + self._own_stall(since, now)
-        if end >= now or self.rc.schedule.clock != "realtime":
+        realtime = self.rc.schedule.clock == "realtime"
+        end = silence_rule.fault_at(since, now, timeout_ns,
+                                    own_ns=self._own_stall(since, now), realtime=realtime)
+        if end >= now or not realtime:
             return end
         return end + self._plant_shared(since, now, timeout_ns)
 
@@ -221,8 +222,8 @@ class CentralGuard:
         own stalls). A process that was not denied its CPU and did not answer is a
         fault, as is one stopped or exited meanwhile."""
         times = self._times(role)
-        last = prev.since + self.EXCUSED_LIMITS * timeout_ns \
-            + self._own_stall(prev.since, now)
+        last = silence_rule.renewal_cap(prev.since, timeout_ns, self.EXCUSED_LIMITS,
+                                        self._own_stall(prev.since, now))
         if prev.times is None or times is None or now >= last:
             return False
         state = self.role_state(role) if self.role_state is not None else "unknown"
@@ -235,7 +236,7 @@ class CentralGuard:
         waited = 0 if prev.times[2] is None or times[2] is None \
             else min(window, max(0, times[2] - prev.times[2]))
         seen = (window, max(denied, ours), ran, waited)
-        if 2 * max(denied, ours, waited) < window:
+        if not silence_rule.renewal_holds(window, denied, ours, waited):
             self.excused[role] = prev._replace(seen=seen)
             return False
         self.excused[role] = Excuse(prev.since, min(now + timeout_ns, last), now, times,
