@@ -951,3 +951,37 @@ def test_tracking_error_at_exactly_max_error_is_allowed_and_reported_in_mm():
     u = realtime_unit("mm", max_error=0.5)
     with pytest.raises(Fault, match=r"tracking error 750\.0 mm exceeds --max-error 500\.0 mm"):
         u.central._check_state(state(u, 3, (0.75, 0.0, -0.35), pc))
+
+
+def test_at_the_halved_rate_the_silence_limit_is_three_halved_periods(monkeypatch):
+    """The plant samples every second period at the halved rate: three of its periods,
+    6 ms at 1 ms."""
+    u = realtime_unit("halved-limit")
+    c = u.central
+    c.done = 100
+    assert c._timeout_ns() == 3 * MS
+    c.ctl.halve(c.next_cycle)
+    assert c.ctl.stride == 2 and c._timeout_ns() == 6 * MS
+
+
+def test_an_excused_peripheral_does_not_hide_another_ones_fault(monkeypatch):
+    """Peripherals 1 and 3 silent past their limit: peripheral 1 is runnable (excused),
+    peripheral 3 asleep with nothing in transit: the fault names peripheral 3."""
+    u = realtime_unit("two-silent", late_policy="hold")
+    c = u.central
+    first_interval(u)
+    sample(u, 1)
+    settle(u, muted=frozenset({0, 2}))
+    c.done = 100
+    limit = c._timeout_ns()
+    c.inflight[1].deadline_ns = 10**18
+    c.inflight[1].late_ns = 0
+    c.plant_gaps.clear()
+    clock = Clock(max(c.last_reply_ns[0], c.last_reply_ns[2]) + limit + 1)
+    monkeypatch.setattr(central_guard, "time", clock)
+    c.last_sample_ns = clock.now
+    c.role_state = lambda role: "runnable" if role == "peripheral-1" else "sleeping"
+    with pytest.raises(Fault) as info:
+        c._check_deadlines(limit)
+    assert info.value.process == "peripheral-3", str(info.value)
+    assert c.excuses == 1
