@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pytest
@@ -253,3 +253,170 @@ def test_the_tracking_a_period_predicts_is_the_one_process_loops_at_it():
     assert f"{admission.predicted_tracking(central, 8e-3) * 1e3:.1f}" == "3.6"
     kin = SimpleNamespace(rc=rc.replace(law="kinematics"), engine=engine)
     assert math.isnan(admission.predicted_tracking(kin, 1e-3))
+
+
+# -- edges of the verdict and the refusal's wording ------------------------------------
+
+
+def test_a_verdict_at_its_exact_edges():
+    assert verdict(np.full(400, 2 * MS))["late"] == 0  # at the budget: on time
+    one = verdict([1.0 * MS])
+    assert one["intervals"] == 1 and one["held"] is True  # a single interval can hold
+    busy = verdict(np.full(400, 1.0 * MS), busy_share=0.9, busy_limit=0.8)
+    assert busy["held"] is False and busy["one_stall"] is False
+    edge = np.full(400, 0.95 * 2 * MS)
+    edge[200:205] = 5 * MS  # one stall; the rest's p99 exactly at 95 % of the budget
+    assert verdict(edge)["one_stall"] is True
+
+
+def test_without_a_warm_up_round_trip_the_transit_is_zero(monkeypatch):
+    central, _ = scripted(monkeypatch, [rung(1e-3, held=True)])
+    central.warm_rtt_s = []
+    seen = []
+    monkeypatch.setattr(admission, "trial", lambda c, period, *, base, transit_s: (
+        seen.append((c, transit_s)) or rung(period, held=True)))
+    info = admit(central)
+    assert info["transit_s"] == 0.0 and seen == [(central, 0.0)]
+
+
+def test_the_trials_and_the_tracking_are_asked_of_this_central(monkeypatch):
+    central, _ = scripted(monkeypatch, [rung(1e-3, held=False, one_stall=True),
+                                        rung(1e-3, held=True)],
+                          tracking={1e-3: 0.01})  # exactly half of --max-error: fine
+    asked = []
+    monkeypatch.setattr(admission, "predicted_tracking",
+                        lambda c, period: asked.append(c) or 0.01)
+    inner = admission.trial
+    monkeypatch.setattr(admission, "trial", lambda c, *a, **k: (
+        asked.append(c) or inner(c, *a, **k)))
+    info = admit(central)
+    assert asked == [central, central, central]
+    assert info["rungs"][1]["retry"] is True
+    assert info["rungs"][1]["predicted_tracking_max_m"] == 0.01
+
+
+def test_the_refusals_words_and_figures_in_full(monkeypatch):
+    central, _ = scripted(monkeypatch, [rung(10e-3, held=False)], period=10e-3)
+    with pytest.raises(Unsustainable) as e:
+        admit(central)
+    assert str(e.value) == (
+        "the period of 10 ms cannot be held here: in a trial of 300 intervals before any "
+        "motion, 12 were late and the traversal p99 was 24.00 ms of a 20.00 ms budget (2 "
+        "period(s)); none of the ladder's periods up to 10 ms held either (the last: "
+        "traversal p99 24.00 ms of 20.00 ms). Try --rt-priority (as root), a placement "
+        "from ctrlunit balance, or fewer --peripherals (ctrlunit latency measures this "
+        "machine)")
+    monkeypatch.setattr(sched, "fifo_in_force", lambda: True)
+    central, _ = scripted(monkeypatch, [rung(10e-3, held=False)], period=10e-3)
+    monkeypatch.setattr(sched, "fifo_in_force", lambda: True)
+    with pytest.raises(Unsustainable) as e:
+        admit(central)
+    assert str(e.value).endswith("Try a placement from ctrlunit balance, or fewer "
+                                 "--peripherals (ctrlunit latency measures this machine)")
+    central, _ = scripted(monkeypatch, [], tracking={1e-3: 0.1234})
+    with pytest.raises(Unsustainable, match="tracks within 123.4 mm"):
+        admit(central)
+    central, _ = scripted(monkeypatch, [rung(1e-3, held=False)], tracking={1.25e-3: 0.1234})
+    with pytest.raises(Unsustainable, match=r"\(at 1.25 ms: 123.4 mm in the one-process"):
+        admit(central)
+    central, _ = scripted(monkeypatch, [rung(1e-3, held=False), rung(1.25e-3, held=True)],
+                          period_auto=True)
+    with pytest.raises(Unsustainable) as e:
+        admit(central)
+    assert str(e.value).endswith("the shortest period measured to hold is 1.25 ms. ")
+
+
+def test_each_law_is_simulated_as_it_runs():
+    """The prediction uses the run's law: PD + gravity tracks far worse than resolved
+    acceleration at 1 ms."""
+    from ctrlunit.runtime.setup import make_setup
+
+    rc = RunConfig.of(clock="realtime", pipeline=2, law="pd-gravity")
+    central = SimpleNamespace(rc=rc, engine=make_setup(rc).engine())
+    assert admission.predicted_tracking(central, 1e-3) > 10 * 0.019e-3
+
+
+# -- one trial, its probe scripted ------------------------------------------------------
+
+
+class Probe:
+    """Stands for the trial central (runtime/central.py, ``Central(trial=True)``): ``run``
+    makes the traversals, skips and fault the test scripts."""
+
+    script: ClassVar[dict[str, Any]] = {}
+    made: ClassVar[list[Probe]] = []
+
+    def __init__(self, node: Any, rc: Any, engine: Any, ctl: Any, n: int, *,
+                 trial: bool) -> None:
+        assert trial is True
+        self.node, self.rc, self.engine, self.ctl, self.n = node, rc, engine, ctl, n
+        self.child_check = self.reply_each = None
+        s = self.script
+        self.log = SimpleNamespace(traversal_ns=SimpleNamespace(
+            recent=[int(t * 1e9) for t in s.get("traversal_s", [])]))
+        self.skipped, self.skip_marks = s.get("skipped", 0), s.get("marks", [])
+        Probe.made.append(self)
+
+    def run(self) -> None:
+        if self.script.get("fault"):
+            from ctrlunit.runtime.central import Fault
+
+            raise Fault(self.script["fault"], process="peripheral-1", code=3)
+
+
+def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
+    from ctrlunit.runtime import central as central_module
+
+    Probe.script, Probe.made = script, []
+    monkeypatch.setattr(central_module, "Central", Probe)
+    monkeypatch.setattr(sched, "cpu_times", lambda: [(0, 0)])
+    monkeypatch.setattr(sched, "busy_share", lambda a, b: 0.42)
+    monkeypatch.setattr(admission, "fifo_busy_limit", lambda: None)
+    said, drained = [], []
+    cfg = RunConfig.of(clock="realtime", pipeline=2, **rc)
+    ctl = SimpleNamespace(first_cycle=0, q_prev=[1, 2, 3], k_prev=0)
+    return SimpleNamespace(
+        rc=cfg, node="node", engine="engine", ctl=ctl, child_check=None, reply_each=True,
+        say=lambda stage, **kw: said.append((stage, kw)),
+        drain_trial=lambda *, seconds: drained.append(seconds), said=said, drained=drained)
+
+
+def test_a_trial_runs_its_intervals_on_a_copy_of_the_controller_and_judges_them(monkeypatch):
+    t = [0.4 * MS] * 299 + [3 * MS]
+    c = trial_central(monkeypatch, {"traversal_s": t, "skipped": 1, "marks": [(10, 1)]})
+    out = admission.trial(c, 1e-3, base=1 << 41, transit_s=0.1 * MS)
+    probe = Probe.made[0]
+    assert probe.n == 300 and probe.rc.schedule.period == 1e-3
+    assert probe.rc.run.t1_cycles == 0 and probe.rc.run.record is None
+    assert probe.node == "node" and probe.engine == "engine" and probe.reply_each is True
+    assert probe.ctl is not c.ctl and c.ctl.first_cycle == 0  # a copy, the run's untouched
+    assert (probe.ctl.first_cycle, probe.ctl.q_prev, probe.ctl.k_prev) == (1 << 41, None,
+                                                                           1 << 41)
+    assert c.said == [("probe", {"period": 1e-3, "ticks": 300, "base": 1 << 41})]
+    assert out["period_s"] == 1e-3 and out["budget_s"] == 2e-3  # depth 2: two periods
+    assert out["intervals"] == 301 and out["late"] == 2 and out["busy_share"] == 0.42
+    assert out["traversal_max_s"] == pytest.approx(3.1 * MS)
+    assert "fault" not in out and out["wall_s"] >= 0 and c.drained == [0.0]
+
+
+def test_a_trial_that_faults_does_not_hold_and_drains_its_stragglers(monkeypatch):
+    c = trial_central(monkeypatch, {"traversal_s": [0.4 * MS] * 100,
+                                    "fault": "peripheral 1 has not answered"})
+    out = admission.trial(c, 1e-3, base=5, transit_s=0.0)
+    assert out["held"] is False and out["one_stall"] is False
+    assert out["fault"] == "peripheral 1 has not answered"
+    assert out["intervals"] == 300 and out["late"] == 200  # the 200 that never ran
+    assert c.drained == [pytest.approx(0.05)]  # 50 periods, at most 0.2 s
+    c = trial_central(monkeypatch, {"fault": "x"})
+    admission.trial(c, 10e-3, base=5, transit_s=0.0)
+    assert c.drained == [0.2]
+
+
+def test_a_trial_whose_child_died_is_the_runs_fault(monkeypatch):
+    from ctrlunit.runtime.central import Fault
+
+    c = trial_central(monkeypatch, {"fault": "peripheral 1 exited"})
+    c.child_check = lambda: ("peripheral-1", 1)
+    with pytest.raises(Fault, match="peripheral 1 exited"):
+        admission.trial(c, 1e-3, base=5, transit_s=0.0)
+    assert Probe.made[0].child_check is c.child_check
