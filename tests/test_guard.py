@@ -554,8 +554,8 @@ def test_a_silent_process_that_is_not_runnable_is_a_fault_at_its_limit(monkeypat
     c.role_state = lambda role: "sleeping" if role == "central" else state
     exc = fault_just_past(c, clock, limit)
     assert exc.process == "peripheral-2" and c.excuses == 0
-    assert str(exc).startswith(f"peripheral 2 has not answered for 3.0 ms (limit 3.0 ms); "
-                               f"its process was {state}"), str(exc)
+    assert str(exc) == (f"peripheral 2 has not answered for 3.0 ms (limit 3.0 ms); "
+                        f"its process was {state}"), str(exc)
 
 
 def silent_plant(tag: str, monkeypatch, state) -> tuple[Any, Clock]:
