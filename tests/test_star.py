@@ -130,6 +130,11 @@ LOCKSTEP = ("--clock", "lockstep")
 MOVING_IN_REALTIME = ("--period", "4ms", "--no-admission")  # light on a 2-core machine
 
 
+def _default_stop_signals() -> None:
+    for s in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM):
+        signal.signal(s, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize(("signum", "code", "whom", "clock"), [
     (signal.SIGINT, 130, "group", LOCKSTEP),  # a terminal's Ctrl-C: every process of the job
     (signal.SIGHUP, 129, "group", LOCKSTEP),  # the terminal closed
@@ -152,7 +157,10 @@ def test_a_stop_signal_stops_the_robot_safely_and_keeps_report_and_recording(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, *clock,
          "--duration", "600s", "--no-progress", "--report", str(report),
          "--record", str(rec), "--status-file", str(tmp_path / "status")],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        # as from a terminal, whatever this runner ignores (under nohup SIGHUP is ignored,
+        # and a run that inherits that keeps running on purpose: the next test)
+        preexec_fn=_default_stop_signals)
     try:
         # moving: every role up, the warm-up and placement done (a count of processes
         # saw a role between fork and exec once)
