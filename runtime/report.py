@@ -1,4 +1,5 @@
-"""The run report: the brief's keys, as JSON and as a human summary."""
+"""The run report: its keys (docs/architecture.md, Measurement), as JSON and as a human
+summary."""
 
 from __future__ import annotations
 
@@ -205,7 +206,7 @@ def build_report(
     central_costs: dict[str, float] | None = None,
     gantt: list[tuple[str, int, float, float]] | None = None,
 ) -> dict[str, Any]:
-    """Assemble the report (see the brief's "Interfaces" for the keys).
+    """Assemble the report (its keys: docs/architecture.md, Measurement).
 
     ``timing`` holds the run's timing figures (:func:`~.timing.timing_figures` or
     :meth:`~.timing.IntervalTimes.figures`), ``tracking`` the tracking error's max and RMS

@@ -584,7 +584,7 @@ def test_bench_keeps_the_contract(work, periods, repeats, scale, quick, stages):
 @pytest.mark.slow
 def test_every_command_keeps_the_contract_on_two_thousand_examples():
     """``pytest -m slow``: this module again with 2000 examples per command (147 s on the
-    2-core reference machine, 2026-11-26)."""
+    2-core reference machine; docs/measurements/ has the dated runs)."""
     import subprocess
     import sys
 

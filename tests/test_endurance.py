@@ -1,7 +1,7 @@
 """Endurance: many freerun intervals at n = 3, depth 2, no deadlock, bounded memory.
 
 CI runs a bounded version (CTRLUNIT_SOAK_CYCLES, default 20 000: past the central's exact
-window, so its log folds); the full soak of a million intervals (228 s here, 2026-11-26) is
+window, so its log folds); the full soak of a million intervals (228 s here; docs/measurements/) is
 ``python -m pytest -m slow tests/test_endurance.py``.
 """
 

@@ -13,7 +13,7 @@ cost-scale placement params observer model-state bandwidth listen connect zenoh-
 timeout fault-periods late-policy late missed-command overload max-error replies hold-rounds
 pin cpus rt-priority idle plant-substeps plant-lag plant-friction belt spec json progress
 plot""".split()
-"""The 50 options of ``start`` on 2026-11-26, before --help showed only the everyday ones."""
+"""The 50 options ``start`` had when --help began to show only the everyday ones."""
 
 
 def options_in(text: str) -> set[str]:

@@ -41,7 +41,7 @@ def _period(ctx: Any, param: click.Parameter, value: str) -> float | str:
 
 
 def run_options(fn: Any) -> Any:
-    """Options shared by start and the single roles (see the brief's Interfaces)."""
+    """Options shared by start and the single roles (README, ctrlunit start)."""
     opts = [
         click.option("--check", is_flag=True,
                      help="Check the options and files (task, placement, parameters, Zenoh "
