@@ -6,8 +6,8 @@ start of period k + 2) and the plant's own rule for a command that is not there 
 (runtime/plant_node.py, ``PlantServer.apply``). A burst of ``length`` consecutive commands,
 each ``late`` periods late, is placed at 16 phases of the task; the worst tracking error
 over the phases is reported for ``--missed-command hold`` and ``extrapolate``. Each
-command's extrapolation is :func:`~ctrlunit.runtime.central.extrapolated_command`, as the
-central sends it.
+command's extrapolation is
+:func:`~ctrlunit.runtime.central.settings.extrapolated_command`, as the central sends it.
 
 ``python -m ctrlunit.bench.missed [--period 1.6ms ...]`` prints the table.
 """
@@ -21,7 +21,7 @@ from types import SimpleNamespace
 from typing import Any
 
 from ..plant.simulator import Plant, PlantConfig
-from ..runtime.central import extrapolated_command
+from ..runtime.central.settings import extrapolated_command
 from ..runtime.config import RunConfig
 from ..runtime.controller import initial_angles, initial_command
 from ..runtime.plant_node import PlantServer

@@ -443,7 +443,7 @@ def _run_kept(cfg: Config, cycles: int, out: Path,
     rep, central = run_one(cfg, cycles, out)
     key = f"depth {cfg.pipeline}"
     if central is not None and cfg.law != "kinematics" and key not in gantt:
-        gantt[key] = gantt_window(central.spans)
+        gantt[key] = gantt_window(central.meters.spans)
     return rep, central
 
 

@@ -155,7 +155,7 @@ def admit(central: Central) -> dict[str, Any]:
     :class:`Unsustainable` otherwise (with ``--period auto`` the caller starts again at
     ``info["sustainable_period_s"]``), before any command has been sent."""
     rc = central.rc
-    transit = statistics.median(central.warm_rtt_s) / 2 if central.warm_rtt_s else 0.0
+    transit = statistics.median(central.warmup.warm_rtt_s) / 2 if central.warmup.warm_rtt_s else 0.0
     asked = rc.schedule.period
     rungs: list[dict[str, Any]] = []
     held_at: float | None = None
@@ -266,38 +266,39 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
     copy of the controller) runs the pipeline on them. A fault during the trial (a silent
     peripheral or plant at this period) means the period does not hold; a dead process is
     a fault of the run."""
-    from .central import Central, Fault
+    from .central import Central, Fault, Supervision
 
     rc = central.rc
     n = trial_intervals(period)
     trc = rc.replace(period=period, t1_cycles=0, record=None, report=None)
     ctl = copy.copy(central.ctl)
     ctl.first_cycle, ctl.q_prev, ctl.k_prev = base, None, base
-    probe = Central(central.node, trc, central.engine, ctl, n, trial=True)
-    probe.child_check = central.child_check
-    probe.reply_each = central.reply_each
-    central.say("probe", period=period, ticks=n, base=base)
+    child_check = central.silence.supervision.child_check
+    probe = Central(central.node, trc, central.engine, ctl, n, trial=True,
+                    supervision=Supervision(child_check=child_check),
+                    reply_each=central.intervals.reply_each)
+    central.orders.say("probe", period=period, ticks=n, base=base)
     t0 = time.monotonic()
     busy0 = sched.cpu_times()
     fault = None
     try:
         probe.run()
     except Fault as exc:
-        if central.child_check is not None and central.child_check() is not None:
+        if child_check is not None and child_check() is not None:
             raise
         fault = str(exc)
     busy = sched.busy_share(busy0, sched.cpu_times())
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
     trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
     out = {"period_s": period}
-    out |= rung_verdict(trav, skipped=probe.skipped, budget_s=budget, transit_s=transit_s,
+    out |= rung_verdict(trav, skipped=probe.meters.skipped, budget_s=budget, transit_s=transit_s,
                         busy_share=busy, busy_limit=fifo_busy_limit(),
-                        skip_marks=probe.skip_marks)
+                        skip_marks=probe.meters.skip_marks)
     if fault is not None:
         out["held"] = out["one_stall"] = False
         out["fault"] = fault
         out["intervals"] = n
         out["late"] = max(out["late"], n - int(trav.size))
     out["wall_s"] = time.monotonic() - t0
-    central.drain_trial(seconds=min(0.2, 50 * period) if fault else 0.0)
+    central.orders.drain(seconds=min(0.2, 50 * period) if fault else 0.0)
     return out

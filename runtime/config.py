@@ -26,17 +26,17 @@ CLOCKS = ("lockstep", "realtime", "freerun")
 REPLY_MODES = ("auto", "fused", "each")
 LATE_POLICIES = ("wait", "compute", "hold", "fault")
 """``--late-policy``: what the central does with a round whose replies are late (its share
-of the deadline passed, runtime/central_guard.py): wait for them, compute the late
+of the deadline passed, runtime/central/late.py): wait for them, compute the late
 peripherals' blocks itself (the same arithmetic: the commands do not change), hold their
 last values, or stop with a fault. A round takes the strictest of its blocks', in this
 order."""
 MISSED_COMMANDS = ("extrapolate", "hold")
 """``--missed-command``: what the plant applies in a period whose command is late: the
-command the central extrapolated for it and sent with the one before (runtime/central.py,
-``Central._next_command``), or the last one that came (runtime/plant_node.py)."""
+command the central extrapolated for it and sent with the one before (runtime/central/settings.py,
+``CommandAhead``), or the last one that came (runtime/plant_node.py)."""
 OVERLOAD_ACTIONS = ("auto", "halve", "continue")
 """``--overload``: what a realtime run does when its commands keep missing their deadline
-(runtime/central.py, ``Central._check_overload``): ``halve`` the control rate (every
+(runtime/central/overload.py, ``Overload.after_interval``): ``halve`` the control rate (every
 second sample, each command held two periods, the plant still ticking at the period),
 ``continue`` as it is; ``auto``: halve when the admission is on (the main job) and the gains
 keep their margin at twice the period (``RunConfig.halves_on_overload``), continue otherwise

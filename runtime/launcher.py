@@ -26,7 +26,7 @@ from typing import Any
 
 from . import sched
 from .admission import LADDER_S, Unsustainable, admit
-from .central import Central, Fault
+from .central import Central, Fault, Supervision
 from .config import (
     EXIT_CONFIG,
     EXIT_OK,
@@ -116,6 +116,30 @@ def _climb(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         sched.restore(saved)
 
 
+def _supervision(children: list[subprocess.Popen], pids: dict[str, int],
+                 names: list[str]) -> Supervision:
+    """What the central can learn of the role processes it starts (``children``, named
+    ``names`` in order; ``pids`` by name, filled once they are started)."""
+
+    def check() -> tuple[str, int] | None:
+        for p, name in zip(children, names, strict=False):
+            if p.poll() is not None:
+                return name, p.returncode
+        return None
+
+    def role_state(role: str) -> str:
+        if role == "central":  # its Zenoh threads: is anything in transit here?
+            return process_state(os.getpid(), threads=ZENOH_THREADS)
+        return process_state(pids[role]) if role in pids else "unknown"
+
+    def role_times(role: str) -> ThreadTimes:
+        if role == "central":
+            return thread_times(os.getpid(), threads=ZENOH_THREADS)
+        return thread_times(pids[role]) if role in pids else {}
+
+    return Supervision(check, role_state, role_times, machine_load)
+
+
 def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
            inspect: dict | None, view: list[Any], idle: dict[str, Any]) -> tuple[int, dict]:
     """One start of the unit; ``view`` holds the live view across starts (made at the
@@ -166,10 +190,13 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         from .recorder import Recorder
 
         recorder = Recorder(rc.run.record, setup)
+    pids: dict[str, int] = {}  # the roles' processes, once started
     central = Central(node, rc, engine, ctl, setup.cycles,
                       on_cycle=_chain(recorder.on_cycle if recorder else None, progress,
                                       viewer, _status_writer(rc.run.status_file), guard),
-                      on_message=recorder.on_message if recorder else None)
+                      on_message=recorder.on_message if recorder else None,
+                      supervision=_supervision(children, pids, _child_names(rc, setup))
+                      if spawn else Supervision())
     code, fault = EXIT_OK, None
     admission: dict | None = None
     placement_choice: dict | None = None
@@ -185,36 +212,13 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             children.append(spawn_role(spec, "peripheral", k + 1, connect_ep,
                                        run_dir / f"peripheral-{k + 1}.log", cpus=child_cpus))
         names = _child_names(rc, setup) if spawn else []
-
-        def check() -> tuple[str, int] | None:
-            for p, name in zip(children, names, strict=False):
-                if p.poll() is not None:
-                    return name, p.returncode
-            return None
-
-        central.child_check = check
-        if spawn:  # what the silent process is doing, where this central can see it
-            pids = {name: p.pid for p, name in zip(children, names, strict=False)}
-
-            def role_state(role: str) -> str:
-                if role == "central":  # its Zenoh threads: is anything in transit here?
-                    return process_state(os.getpid(), threads=ZENOH_THREADS)
-                return process_state(pids[role]) if role in pids else "unknown"
-
-            def role_times(role: str) -> ThreadTimes:
-                if role == "central":
-                    return thread_times(os.getpid(), threads=ZENOH_THREADS)
-                return thread_times(pids[role]) if role in pids else {}
-
-            central.role_state = role_state
-            central.role_times = role_times
-            central.machine_load = machine_load
-        central.handshake()
-        central.warm_up()
+        pids.update({name: p.pid for p, name in zip(children, names, strict=False)})
+        central.orders.handshake()
+        central.warmup.run()
         central.choose_replies()
         if (rc.schedule.placement_auto and rc.schedule.central_blocks is None
                 and setup.placement.peripherals):
-            placement_choice = central.choose_placement()
+            placement_choice = central.warmup.choose_placement()
             if placement_choice["central_blocks"] != sorted(setup.placement.central_blocks):
                 # the roles take the new plan where they are: no start again
                 setup = setup.with_central_blocks(placement_choice["central_blocks"])
@@ -222,7 +226,7 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
                 engine = setup.engine()
                 central.place(rc, engine, setup.controller(engine))
                 echo(f"ctrlunit: --placement auto: {placement_choice['why']}")
-                central.warm_up()  # the new plan's path, and its round trip
+                central.warmup.run()  # the new plan's path, and its round trip
                 central.choose_replies()
         if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
             admission = admit(central)
@@ -230,7 +234,8 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             freeze_heap(collect=True)  # this process may host many runs (bench, tests)
             if recorder is not None:
                 recorder.begin(setup)
-            central.say("start")
+            central.orders.zenoh_identity()  # the peers now (others may leave before the end)
+            central.orders.say("start")
             central.run()
     except Fault as exc:
         code = exc.code
@@ -247,9 +252,9 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             for s in old_handlers:
                 signal.signal(s, lambda signum, _f: ctrl_c.append(signum))
         gc.unfreeze()  # what the run kept alive may be collected again
-        central.t_end_ns = central.t_end_ns or time.monotonic_ns()
+        central.meters.t_end_ns = central.meters.t_end_ns or time.monotonic_ns()
         try:
-            zenoh_ids = central.zenoh_identity()
+            zenoh_ids = central.orders.zenoh_identity()
         except Exception:
             zenoh_ids = {}
         interrupted = stopped_by_user({"fault": fault})
@@ -292,20 +297,22 @@ def _start(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
     report["scheduling_fallback"] = guard.report() if guard is not None else None
     report["zenoh"] = zenoh_ids
     report["late"] = {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),
-                      "misses_per_axis": list(central.late_per_axis),
-                      "computed": central.computed}
-    report["memory_kb"] = {"central": {"warm": central.rss_warm,
-                                       "end": central.rss_end if central.rss_end > 0
-                                       else rss_kb(), "series": central.rss_series}}
-    for role, rep in central.role_reports.items():
+                      "misses_per_axis": list(central.late.late_per_axis),
+                      "computed": central.late.computed}
+    m = central.meters
+    report["memory_kb"] = {"central": {"warm": m.rss_warm,
+                                       "end": m.rss_end if m.rss_end > 0 else rss_kb(),
+                                       "series": m.rss_series}}
+    for role, rep in central.orders.role_reports.items():
         if isinstance(rep.get("rss_kb"), dict):
             report["memory_kb"][role] = rep["rss_kb"]
     report.update(cpu_budget(central, _child_names(rc, setup), cores))
+    reports = central.orders.role_reports
     report["scheduling"] = {"central": sched.policy_name()} | {
-        name.replace("-", "_"): text_or_none((central.role_reports.get(name) or {}).get("sched"))
+        name.replace("-", "_"): text_or_none((reports.get(name) or {}).get("sched"))
         for name in (_child_names(rc, setup) if spawn else [])}
     if rc.schedule.clock != "freerun":  # the plant's own word that it held and braked
-        plant = central.role_reports.get("plant") or {}
+        plant = central.orders.role_reports.get("plant") or {}
         stop = plant.get("safe_stop")
         report["safe_stop"] = stop if isinstance(stop, dict) else None
         report["plant_commands"] = plant.get("commands")  # commands it took

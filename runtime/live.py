@@ -134,7 +134,7 @@ class LiveLine:
         if self.stats is None:
             self.stats = LiveStats(central.cycles)
         self.stats.add(done=central.done, cmd_ns=central.log.cmd_ns[-1],
-                       misses=central.plant_misses, skipped=central.skipped,
+                       misses=central.meters.plant_misses, skipped=central.meters.skipped,
                        p=ctx.get("p"), pc=ctx.get("pc"))
         now = time.monotonic()
         # the bar counts periods covered: intervals fall behind them where samples were

@@ -156,7 +156,7 @@ class Recorder:
         self._drain()
         iv = capture(central, cycle, ctx)
         now = iv.cmd_ns
-        spans = [s for s in central.spans_of(cycle)]
+        spans = [s for s in central.meters.spans_of(cycle)]
         self._add("/timing/spans", now, msgpack.packb({"cycle": cycle, "spans": spans}))
         sch = central.rc.schedule
         sig = state_message(iv, period_s=sch.period,
@@ -167,11 +167,11 @@ class Recorder:
         self._add("/trace/central", now, msgpack.packb(
             {"cycle": cycle, "vals": {n: ctx[n] for n in self.central_outputs
                                       if n in ctx}}, use_single_float=False))
-        misses = central.plant_misses + central.skipped
+        misses = central.meters.plant_misses + central.meters.skipped
         if misses != self.last_misses:
             self._add("/faults/deadline", now, msgpack.packb(
-                {"cycle": cycle, "deadline_misses": central.plant_misses,
-                 "skipped_samples": central.skipped}))
+                {"cycle": cycle, "deadline_misses": central.meters.plant_misses,
+                 "skipped_samples": central.meters.skipped}))
             self.last_misses = misses
         if central.done % 500 == 0:
             self._add("/faults/rejected", now, msgpack.packb(dict(central.node.rejected)))
@@ -187,13 +187,13 @@ class Recorder:
         now = time.monotonic_ns()
         self._add("/faults/rejected", now, msgpack.packb(dict(central.node.rejected)))
         self._add("/faults/deadline", now, msgpack.packb(
-            {"cycle": central.next_cycle, "deadline_misses": central.plant_misses,
-             "skipped_samples": central.skipped}))
-        self.t_end_ns = central.t_end_ns
-        self.t_start_ns = central.t_start_ns
-        self.busy = {"central_wait_ns": central.wait_ns,
-                     "periph_busy_ns": list(central.periph_busy_ns),
-                     "plant_busy_ns": central.plant_busy_ns}
+            {"cycle": central.next_cycle, "deadline_misses": central.meters.plant_misses,
+             "skipped_samples": central.meters.skipped}))
+        self.t_end_ns = central.meters.t_end_ns
+        self.t_start_ns = central.meters.t_start_ns
+        self.busy = {"central_wait_ns": central.meters.wait_ns,
+                     "periph_busy_ns": list(central.meters.periph_busy_ns),
+                     "plant_busy_ns": central.meters.plant_busy_ns}
 
     def write_report(self, report: dict[str, Any]) -> None:
         """Store what only the live run knows (t_1, block costs, wall times), then finish."""

@@ -474,10 +474,10 @@ def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[st
     that program's other threads."""
     done = max(1, central.done)
     per: dict[str, float] = {}
-    if central.cpu_s is not None:
-        per["central"] = central.cpu_s / done
+    if central.meters.cpu_s is not None:
+        per["central"] = central.meters.cpu_s / done
     for role in roles:
-        cpu = (central.role_reports.get(role) or {}).get("cpu_s")
+        cpu = (central.orders.role_reports.get(role) or {}).get("cpu_s")
         if isinstance(cpu, (int, float)) and not isinstance(cpu, bool) and cpu >= 0:
             per[role.replace("-", "_")] = cpu / done
     complete = len(per) == len(roles) + 1
@@ -494,12 +494,12 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
     """The report of a live run, from the central's logs and the roles' final reports
     (``t_1`` is measured here, on the run's recorded inputs)."""
     rc = setup.rc
-    wall = max(1, central.t_end_ns - central.t_start_ns)
-    business = {"central": max(0.0, 1.0 - central.wait_ns / wall)}
+    wall = max(1, central.meters.t_end_ns - central.meters.t_start_ns)
+    business = {"central": max(0.0, 1.0 - central.meters.wait_ns / wall)}
     for k in range(setup.placement.peripherals):
-        business[f"peripheral_{k + 1}"] = central.periph_busy_ns[k] / wall
+        business[f"peripheral_{k + 1}"] = central.meters.periph_busy_ns[k] / wall
     if rc.schedule.clock != "freerun":
-        business["plant"] = central.plant_busy_ns / wall
+        business["plant"] = central.meters.plant_busy_ns / wall
     t1, per_block = math.nan, {}
     t1_engines: list[Engine] = []
 
@@ -507,8 +507,8 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         t1_engines.append(setup.engine(peripherals_plan=False))
         return t1_engines[-1]
 
-    if central.t1_inputs:
-        inputs = central.t1_inputs[: (50 if rc.control.cost_model == "t800" else None)]
+    if central.meters.t1_inputs:
+        inputs = central.meters.t1_inputs[: (50 if rc.control.cost_model == "t800" else None)]
         t1, per_block = measure_t1(t1_engine, inputs)
     cost_err = None
     if rc.control.cost_model == "t800":
@@ -523,7 +523,7 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
                                   "before the T-800 deadline, then spin; "
                                   "one settle per message sent"}
     rejected = dict(central.node.rejected)
-    for role, rep in central.role_reports.items():
+    for role, rep in central.orders.role_reports.items():
         for k, v in (rep.get("rejected") or {}).items():
             rejected[f"{role}:{k}"] = v
     report = build_report(
@@ -531,19 +531,21 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         digest=central.log.digest.hexdigest(),
         torque_max=central.log.torque_max, tracking=central.log.errors.stats(),
         business=business,
-        deadline_misses=central.plant_misses, skipped=central.skipped, rejected=rejected,
+        deadline_misses=central.meters.plant_misses, skipped=central.meters.skipped,
+        rejected=rejected,
         t1_s=t1, per_block_s=per_block, fault=fault,
-        wall_s=(central.t_end_ns - central.t_start_ns) / 1e9, cost_error_s=cost_err,
-        exchanges=central.exchanges if setup.placement.peripherals else None,
-        replies=central.replies_info if setup.placement.peripherals else None,
-        central_costs=central.costs(), gantt=gantt_window(central.spans),
-        silences_excused=central.excuses,
+        wall_s=(central.meters.t_end_ns - central.meters.t_start_ns) / 1e9,
+        cost_error_s=cost_err,
+        exchanges=central.meters.exchanges if setup.placement.peripherals else None,
+        replies=central.warmup.replies_info if setup.placement.peripherals else None,
+        central_costs=central.meters.costs(central.done), gantt=gantt_window(central.meters.spans),
+        silences_excused=central.silence.excuses,
     )
     report["periods"] = max(0, central.next_cycle - central.ctl.first_cycle) \
         if central.done else 0
-    report["overload"] = overload_figures(central.rate_changes, central.halve_on_overload,
+    report["overload"] = overload_figures(central.overload.rate_changes, central.overload.enabled,
                                           central.ctl.grid, end=central.next_cycle)
-    if central.realtime_deadline_ns:
+    if central.settings.deadline_ns:
         log = central.log
         report["late_intervals"] = late_work_figures(log.work_ns.recent, log.late_work_ns,
                                                      log.late)

@@ -76,7 +76,7 @@ def capture(central: Any, cycle: int, ctx: dict) -> Interval:
     return Interval(cycle, cmd[-1], log.traversal_ns[-1], log.true_p.get(cycle),
                     tuple(float(x) for x in ctx["qmeas_i"]),
                     tuple(float(x) for x in ctx["cmd"]),
-                    central.plant_misses, central.skipped,
+                    central.meters.plant_misses, central.meters.skipped,
                     cmd[-2] if len(cmd) > 1 else None)
 
 

@@ -190,8 +190,8 @@ class LiveView:
         log = c.log
         cmd, self._read = log.cmd_ns.since(self._read)
         errors, self._errors_read = log.errors.since(self._errors_read)
-        self.stats.add_many(done=c.done, cmd_ns=cmd, misses=c.plant_misses,
-                            skipped=c.skipped, errors=errors)
+        self.stats.add_many(done=c.done, cmd_ns=cmd, misses=c.meters.plant_misses,
+                            skipped=c.meters.skipped, errors=errors)
 
     def running(self) -> dict[str, Any]:
         """The ``/report/running`` message: the figures so far."""

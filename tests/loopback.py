@@ -225,11 +225,8 @@ class LoopbackUnit:
         raises the central's :class:`~ctrlunit.runtime.central.Fault`."""
         if self.server is not None:
             self.start_plant()
-        c = self.central
-        c.t_start_ns = time.monotonic_ns()
-        c._loop()
-        c.t_end_ns = time.monotonic_ns()
-        return c
+        self.central.run()
+        return self.central
 
     def commands(self) -> list[list[float]]:
         """Every command the central published, in order."""
@@ -262,13 +259,19 @@ def record_lockstep(path: str, unit: str, **kw: Any) -> LoopbackUnit:
     return unit_
 
 
+def supervise(c: Central, **parts: Any) -> None:
+    """Give the central's silence watch what a launcher would know of the roles'
+    processes (:class:`~ctrlunit.runtime.central.Supervision`'s fields)."""
+    c.silence.supervise(c.silence.supervision._replace(**parts))
+
+
 def take_sample(u: LoopbackUnit, k: int) -> None:
     """Realtime by hand: the plant's sample ``k`` (the robot's present state), taken by the
     central."""
     assert u.server is not None
     u.server.sample_no = k
     u.server.publish_sample((0, 0))
-    u.central._handle(u.node.events.get_nowait())
+    u.central.handle(u.node.events.get_nowait())
 
 
 def turn(u: LoopbackUnit) -> None:
@@ -276,10 +279,10 @@ def turn(u: LoopbackUnit) -> None:
     start, send, run the next interval ahead, send; then the peripherals that are not
     muted answer and the central takes their replies."""
     c = u.central
-    c._start_ready()
-    c._flush(0)
-    c._prime()
-    c._flush(0)
+    c.intervals.start_ready()
+    c.intervals.flush(0)
+    c.intervals.prime()
+    c.intervals.flush(0)
     u.pump()
     while u.node.events.pending():
-        c._handle(u.node.events.get_nowait())
+        c.handle(u.node.events.get_nowait())

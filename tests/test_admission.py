@@ -120,7 +120,7 @@ def _admit_with_trials(monkeypatch, verdicts: list[dict], *, period: float = 1e-
     monkeypatch.setattr(admission, "predicted_tracking", lambda central, p: 0.0)
     rc = SimpleNamespace(schedule=SimpleNamespace(period=period, period_auto=False, pipeline=2),
                          control=SimpleNamespace(max_error=0.02))
-    central = SimpleNamespace(rc=rc, warm_rtt_s=[])
+    central = SimpleNamespace(rc=rc, warmup=SimpleNamespace(warm_rtt_s=[]))
     return admission, central, tried
 
 

@@ -22,6 +22,7 @@ from ctrlunit.runtime.admission import (
     rung_verdict,
     trial_intervals,
 )
+from ctrlunit.runtime.central import Supervision
 from ctrlunit.runtime.config import RunConfig
 
 MS = 1e-3
@@ -164,7 +165,7 @@ def scripted(monkeypatch, verdicts: list[dict[str, Any]], tracking: dict[float, 
                         lambda central, period: (tracking or {}).get(period, 1e-5))
     monkeypatch.setattr(sched, "fifo_in_force", lambda: False)
     central = SimpleNamespace(rc=RunConfig.of(clock="realtime", pipeline=2, **rc),
-                              warm_rtt_s=[0.4 * MS, 0.5 * MS, 0.9 * MS])
+                              warmup=SimpleNamespace(warm_rtt_s=[0.4 * MS, 0.5 * MS, 0.9 * MS]))
     return central, calls
 
 
@@ -271,7 +272,7 @@ def test_a_verdict_at_its_exact_edges():
 
 def test_without_a_warm_up_round_trip_the_transit_is_zero(monkeypatch):
     central, _ = scripted(monkeypatch, [rung(1e-3, held=True)])
-    central.warm_rtt_s = []
+    central.warmup.warm_rtt_s = []
     seen = []
     monkeypatch.setattr(admission, "trial", lambda c, period, *, base, transit_s: (
         seen.append((c, transit_s)) or rung(period, held=True)))
@@ -340,21 +341,21 @@ def test_each_law_is_simulated_as_it_runs():
 
 
 class Probe:
-    """Stands for the trial central (runtime/central.py, ``Central(trial=True)``): ``run``
+    """Stands for the trial central (runtime/central/, ``Central(trial=True)``): ``run``
     makes the traversals, skips and fault the test scripts."""
 
     script: ClassVar[dict[str, Any]] = {}
     made: ClassVar[list[Probe]] = []
 
     def __init__(self, node: Any, rc: Any, engine: Any, ctl: Any, n: int, *,
-                 trial: bool) -> None:
+                 trial: bool, supervision: Any, reply_each: bool) -> None:
         assert trial is True
         self.node, self.rc, self.engine, self.ctl, self.n = node, rc, engine, ctl, n
-        self.child_check = self.reply_each = None
+        self.supervision, self.reply_each = supervision, reply_each
         s = self.script
         self.log = SimpleNamespace(traversal_ns=SimpleNamespace(
             recent=[int(t * 1e9) for t in s.get("traversal_s", [])]))
-        self.skipped, self.skip_marks = s.get("skipped", 0), s.get("marks", [])
+        self.meters = SimpleNamespace(skipped=s.get("skipped", 0), skip_marks=s.get("marks", []))
         Probe.made.append(self)
 
     def run(self) -> None:
@@ -376,9 +377,12 @@ def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
     cfg = RunConfig.of(clock="realtime", pipeline=2, **rc)
     ctl = SimpleNamespace(first_cycle=0, q_prev=[1, 2, 3], k_prev=0)
     return SimpleNamespace(
-        rc=cfg, node="node", engine="engine", ctl=ctl, child_check=None, reply_each=True,
-        say=lambda stage, **kw: said.append((stage, kw)),
-        drain_trial=lambda *, seconds: drained.append(seconds), said=said, drained=drained)
+        rc=cfg, node="node", engine="engine", ctl=ctl,
+        silence=SimpleNamespace(supervision=Supervision()),
+        intervals=SimpleNamespace(reply_each=True),
+        orders=SimpleNamespace(say=lambda stage, **kw: said.append((stage, kw)),
+                               drain=lambda *, seconds: drained.append(seconds)),
+        said=said, drained=drained)
 
 
 def test_a_trial_runs_its_intervals_on_a_copy_of_the_controller_and_judges_them(monkeypatch):
@@ -416,7 +420,7 @@ def test_a_trial_whose_child_died_is_the_runs_fault(monkeypatch):
     from ctrlunit.runtime.central import Fault
 
     c = trial_central(monkeypatch, {"fault": "peripheral 1 exited"})
-    c.child_check = lambda: ("peripheral-1", 1)
+    c.silence.supervision = Supervision(child_check=lambda: ("peripheral-1", 1))
     with pytest.raises(Fault, match="peripheral 1 exited"):
         admission.trial(c, 1e-3, base=5, transit_s=0.0)
-    assert Probe.made[0].child_check is c.child_check
+    assert Probe.made[0].supervision.child_check is c.silence.supervision.child_check

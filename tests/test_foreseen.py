@@ -166,7 +166,7 @@ def test_in_freerun_an_interval_starts_before_its_model_round_leaves():
                                      pipeline=2, cycles=40, model_state="foreseen",
                                      central_blocks=sorted(ON_THE_PATH)), on_message=note)
     u.run()
-    assert u.central.done == 40 and u.central.exchanges == 40
+    assert u.central.done == 40 and u.central.meters.exchanges == 40
     for k in range(40):
         assert seen.index(("sample", k)) < seen.index(("request", k)), seen[:12]
 
@@ -223,7 +223,7 @@ def test_a_sample_before_the_model_round_is_back_waits_for_it():
         u.bus.put(u.node.keys.reply(k + 1), reply)
     u.withheld.clear()
     while u.node.events.pending():
-        c._handle(u.node.events.get_nowait())
+        c.handle(u.node.events.get_nowait())
     assert c.done == 1 and ("command", 0) in messages(u)
 
 
@@ -241,7 +241,7 @@ def test_a_skipped_sample_drops_the_interval_run_ahead_and_counts_its_late_reply
     sample(u, 1)
     sample(u, 2)  # both before the central looked: 1 is skipped
     turn(u)
-    assert c.skipped == 1 and 1 not in c.inflight
+    assert c.meters.skipped == 1 and 1 not in c.inflight
     u.muted = set()
     for k, reply in u.withheld:
         u.bus.put(u.node.keys.reply(k + 1), reply)

@@ -164,7 +164,7 @@ def test_two_intervals_model_rounds_leave_in_one_request():
         # after an even interval nothing is sent; after an odd one the next pair leaves
         assert requests(u, mark) == ([] if k % 2 == 0 else [[k + 1, k + 2]])
         assert c.done == k + 1
-    assert c.exchanges == 4 and not u.node.rejected
+    assert c.meters.exchanges == 4 and not u.node.rejected
 
 
 def test_a_skipped_sample_drops_its_interval_and_keeps_the_next_of_the_pair():
@@ -176,7 +176,7 @@ def test_a_skipped_sample_drops_its_interval_and_keeps_the_next_of_the_pair():
     sample(u, 0)
     sample(u, 1)  # both before the central looked: 0 is skipped
     turn(u)
-    assert c.skipped == 1 and 0 not in c.inflight
+    assert c.meters.skipped == 1 and 0 not in c.inflight
     assert c.done == 1 and requests(u)[0] == [0, 1]
     assert c.log.digest is not None and not u.node.rejected
 
@@ -190,32 +190,33 @@ def test_silence_counts_from_the_first_request_after_the_last_reply():
     u = realtime_unit("f2quiet")
     c = u.central
     turn(u)  # the pair's rounds out and back
-    last = list(c.last_reply_ns)
-    assert all(last) and c._silent_since(0) == last[0]
+    last = list(c.silence.last_reply_ns)
+    assert all(last) and c.silence.silent_since(0) == last[0]
     sample(u, 0)
     turn(u)  # nothing sent: interval 1 ran ahead with 0
-    assert c._silent_since(0) == last[0]
+    assert c.silence.silent_since(0) == last[0]
     u.muted = {0}
     sample(u, 1)
-    c._start_ready()
-    assert c._prime() and [f.cycle for f in c.outbox] == [2, 3]
+    c.intervals.start_ready()
+    assert c.intervals.prime() and [f.cycle for f in c.intervals.outbox] == [2, 3]
     asked = time.monotonic_ns()
-    c._flush(asked)
-    assert c._silent_since(0) == asked
+    c.intervals.flush(asked)
+    assert c.silence.silent_since(0) == asked
     u.pump()
     while u.node.events.pending():
-        c._handle(u.node.events.get_nowait())
-    assert c._silent_since(1) == c.last_reply_ns[1] >= asked  # answered: from its reply
+        c.handle(u.node.events.get_nowait())
+    # answered: from its reply
+    assert c.silence.silent_since(1) == c.silence.last_reply_ns[1] >= asked
     for k in (2, 3):  # the central computes peripheral 1's late rounds (compute)
         sample(u, k)
-        c._start_ready()
+        c.intervals.start_ready()
         f = c.inflight[k]
-        c._check_late(f.late_ns)
+        c.check_late(f.late_ns)
         assert not f.waiting and f.dropped == {0}
         turn(u)
     assert c.done == 4 and requests(u)[-1] == [4, 5]  # sent after the first
-    assert c._silent_since(0) == asked  # it still owes the first request
-    assert c._silent_since(1) == c.last_reply_ns[1] > asked
+    assert c.silence.silent_since(0) == asked  # it still owes the first request
+    assert c.silence.silent_since(1) == c.silence.last_reply_ns[1] > asked
 
 
 def test_the_central_notes_its_own_stalls_for_the_silence_rule():
@@ -223,12 +224,12 @@ def test_the_central_notes_its_own_stalls_for_the_silence_rule():
     of a peripheral over that gap is judged as if the gap had not been."""
     ms = 1_000_000
     c = realtime_unit("f2own").central
-    c._woke(10 * ms, 10 * ms + c.period_ns)  # a period late: ordinary
-    assert not c.own_gaps
-    c._woke(10 * ms, 35 * ms)
-    assert list(c.own_gaps) == [(10 * ms, 35 * ms)]
-    limit = 3 * c.period_ns
-    assert c._fault_at(9 * ms, 36 * ms, limit) == 9 * ms + limit + 25 * ms
+    c.silence.woke(10 * ms, 10 * ms + c.settings.period_ns)  # a period late: ordinary
+    assert not c.silence.own_gaps
+    c.silence.woke(10 * ms, 35 * ms)
+    assert list(c.silence.own_gaps) == [(10 * ms, 35 * ms)]
+    limit = 3 * c.settings.period_ns
+    assert c.silence.fault_at(9 * ms, 36 * ms, limit) == 9 * ms + limit + 25 * ms
 
 
 # -- the star over Zenoh -------------------------------------------------------------------

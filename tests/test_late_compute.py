@@ -9,10 +9,10 @@ from typing import Any
 
 import msgpack
 import pytest
-from ctrlunit.runtime.central_guard import Fault
+from ctrlunit.runtime.central import Fault
 from ctrlunit.runtime.codec import decode
 from ctrlunit.runtime.config import EXIT_PERIPHERAL, RunConfig
-from loopback import LoopbackUnit, turn
+from loopback import LoopbackUnit, supervise, turn
 from loopback import take_sample as sample
 from runner import unit_id
 
@@ -57,22 +57,22 @@ def test_a_late_round_run_ahead_is_computed_at_its_sample_with_the_same_commands
         if k >= 2:
             f = c.inflight.get(k)
             assert f is not None and f.waiting == {1} and f.late_ns  # late at its sample
-            c._check_late(f.late_ns - 1)
+            c.check_late(f.late_ns - 1)
             assert f.waiting == {1} and k not in commands(u)
-            c._check_late(f.late_ns)
+            c.check_late(f.late_ns)
             assert not f.waiting and f.dropped == {1}
             turn(u)
     assert commands(u) == commands(ref) and len(commands(u)) == 6
     c = u.central
-    assert c.computed == 4 and c.late_per_axis == [0, 4, 0]
-    assert {(k, 0, 1) for k in range(2, 6)} <= c.held  # their replies: late when they come
+    assert c.late.computed == 4 and c.late.late_per_axis == [0, 4, 0]
+    assert {(k, 0, 1) for k in range(2, 6)} <= c.late.held  # their replies: late when they come
     rec = [a for a in seen if a[0] == "computed"]
     assert [msgpack.unpackb(a[4]) for a in rec] == [
         {"cycle": k, "stage": 0, "peripheral": 1} for k in range(2, 6)]
     assert all(a[1] == f"{u.node.keys.root}/faults/computed" for a in rec)
     # a late reply is counted as such (each of its parts), never merged
     for k, reply in u.withheld[:1]:
-        c._handle(("reply", k, reply, 1))
+        c.handle(("reply", k, reply, 1))
     assert c.node.rejected == {"late_reply": 1 if state == "foreseen" else 2}
 
 
@@ -88,10 +88,10 @@ def test_a_computed_round_reads_the_replies_already_waiting_first():
     for k, reply in u.withheld:  # the reply is in the inbox, not yet read
         u.bus.put(u.node.keys.reply(k + 1), reply)
     u.withheld.clear()
-    c._check_late(f.late_ns)
-    assert f.waiting == {0} and c.computed == 0  # read it first
-    c._handle(u.node.events.get_nowait())
-    assert not f.waiting and c.computed == 0 and 0 in commands(u)
+    c.check_late(f.late_ns)
+    assert f.waiting == {0} and c.late.computed == 0  # read it first
+    c.handle(u.node.events.get_nowait())
+    assert not f.waiting and c.late.computed == 0 and 0 in commands(u)
 
 
 def test_a_round_that_needs_values_the_peripherals_kept_waits():
@@ -106,8 +106,8 @@ def test_a_round_that_needs_values_the_peripherals_kept_waits():
     turn(u)
     f = c.inflight[0]
     assert f.round is not None and f.round.index == 1 and f.waiting == {2}
-    c._check_late(f.late_ns)
-    assert f.waiting == {2} and f.late_ns == 0 and c.computed == 0
+    c.check_late(f.late_ns)
+    assert f.waiting == {2} and f.late_ns == 0 and c.late.computed == 0
 
 
 def test_the_acting_graph_computes_its_late_rounds_at_their_share_of_the_deadline():
@@ -124,11 +124,11 @@ def test_the_acting_graph_computes_its_late_rounds_at_their_share_of_the_deadlin
     c = u.central
     f = c.inflight[0]
     assert f.round is not None and f.round.index == 0 and f.waiting == {0}
-    c._check_late(f.late_ns)
+    c.check_late(f.late_ns)
     turn(u)  # round 1: peripheral 1 still muted
     assert f.round.index == 1 and f.waiting == {0}
-    c._check_late(f.late_ns)
-    assert c.done == 1 and commands(u) == commands(ref) and c.computed == 2
+    c.check_late(f.late_ns)
+    assert c.done == 1 and commands(u) == commands(ref) and c.late.computed == 2
 
 
 def test_a_peripheral_that_stays_silent_is_still_a_fault():
@@ -139,20 +139,20 @@ def test_a_peripheral_that_stays_silent_is_still_a_fault():
     turn(u)
     sample(u, 0)
     turn(u)
-    c.done = 30  # past the start-up's longer limit
+    c.intervals.done = 30  # past the start-up's longer limit
     u.muted = {2}
-    c.last_reply_ns[2] = 1
+    c.silence.last_reply_ns[2] = 1
     for k in range(1, 3):
         sample(u, k)
         turn(u)
         f = c.inflight.get(k)
         if f is not None and f.waiting:
-            c._check_late(f.late_ns)
+            c.check_late(f.late_ns)
             turn(u)
-    limit = c._timeout_ns()
-    c.role_state = None
+    limit = c.limit_ns()
+    supervise(c, role_state=None)
     with pytest.raises(Fault) as info:
-        c._find_silence(limit)  # peripheral 3 last answered at t = 1 ns
+        c.check_silence(limit)  # peripheral 3 last answered at t = 1 ns
     assert info.value.process == "peripheral-3" and info.value.code == EXIT_PERIPHERAL
 
 

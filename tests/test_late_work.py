@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 from ctrlunit.runtime.config import RunConfig
 from ctrlunit.runtime.report import STRETCH_SAME, STRETCH_SLOWER, _late_lines, late_work_figures
@@ -46,21 +48,21 @@ def test_the_central_records_each_intervals_work_and_the_late_ones() -> None:
     u = LoopbackUnit(RunConfig.of(unit=unit_id("latework"), clock="realtime", peripherals=3,
                                   pipeline=1))
     c = u.central
-    assert c.realtime_deadline_ns == c.period_ns  # depth 1
+    assert c.settings.deadline_ns == c.settings.period_ns  # depth 1
     assert u.server is not None
     for k, deadline in ((0, 10**15), (1, 1)):  # on time, then late whatever the machine
-        c.realtime_deadline_ns = deadline
+        c.intervals.settings = replace(c.intervals.settings, deadline_ns=deadline)
         u.server.sample_no = k
         u.server.publish_sample((0, 0))
-        c._handle(u.node.events.get_nowait())
+        c.handle(u.node.events.get_nowait())
         for _ in range(50):
-            c._start_ready()
-            c._flush(0)
+            c.intervals.start_ready()
+            c.intervals.flush(0)
             u.pump()
             if not u.node.events.pending():
                 break
             while u.node.events.pending():
-                c._handle(u.node.events.get_nowait())
+                c.handle(u.node.events.get_nowait())
     assert c.done == 2 and len(c.log.work_ns) == 2
     work = list(c.log.work_ns.recent)
     assert all(w > 0 for w in work)

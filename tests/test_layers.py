@@ -132,5 +132,5 @@ def test_the_runtime_has_no_import_cycle():
 def test_the_checker_sees_a_violation():
     """The rules above are only as good as the import reader: it must find a deferred,
     relative import of another layer."""
-    deps = imports_of(ROOT / "runtime" / "central_guard.py")  # dynamics: in a function
-    assert "ctrlunit.kernels.dynamics" in deps and "ctrlunit.runtime.engine" in deps
+    deps = imports_of(ROOT / "runtime" / "central" / "state_check.py")  # dynamics: deferred
+    assert "ctrlunit.kernels.dynamics" in deps and "ctrlunit.runtime.config" in deps

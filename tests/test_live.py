@@ -149,7 +149,8 @@ def test_the_bar_counts_periods_covered_when_the_control_rate_is_halved():
 
     shown: list[tuple[int, int]] = []
     line = LiveLine(lambda text, done, total: shown.append((done, total)))
-    central = SimpleNamespace(cycles=20, done=0, plant_misses=0, skipped=0,
+    central = SimpleNamespace(cycles=20, done=0,
+                              meters=SimpleNamespace(plant_misses=0, skipped=0),
                               log=SimpleNamespace(cmd_ns=[0]),
                               ctl=SimpleNamespace(first_cycle=0,
                                                   hold_of=lambda k: 2 if k >= 10 else 1))

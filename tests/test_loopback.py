@@ -8,7 +8,7 @@ import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
-from ctrlunit.runtime.central_guard import Fault
+from ctrlunit.runtime.central import Fault
 from ctrlunit.runtime.codec import decode
 from ctrlunit.runtime.config import EXIT_PERIPHERAL
 from ctrlunit.runtime.controller import simulate

@@ -12,6 +12,7 @@ import math
 import time
 from collections import Counter
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 from ctrlunit.runtime.codec import decode, encode
@@ -101,32 +102,32 @@ def test_a_command_with_a_malformed_extrapolation_is_rejected_whole(nxt):
     assert server.node.rejected == Counter({"bad_value": 1})
 
 
-def _central(clock: str = "realtime", *, missed: str = "extrapolate", halved_at: int = 0):
-    """What ``Central._next_command`` reads of a central."""
+def _ahead(clock: str = "realtime", missed: str = "extrapolate",
+           halved_at: int | None = None) -> tuple[Any, Any]:
+    """The central's rule for the command ahead (runtime/central/settings.py,
+    ``CommandAhead``) as a run of ``clock`` and ``--missed-command missed`` sets it,
+    with the control rate's grid (halved from ``halved_at``)."""
+    from ctrlunit.runtime.central.settings import CommandAhead, LoopSettings
     from ctrlunit.runtime.stride import StrideSchedule
 
     grid = StrideSchedule()
     if halved_at:
         grid.change(2, halved_at)
-    ctl = SimpleNamespace(hold_of=grid.hold_of, on_grid=grid.on_grid)
     rc = RunConfig.of(clock=clock, missed_command=missed)
-    return SimpleNamespace(rc=rc, trial=False, ctl=ctl, _last_cmd=None)
+    settings = LoopSettings.of(rc, peripherals=3, cycles=100, first_cycle=0, trial=False)
+    return CommandAhead(settings.extrapolate), grid
 
 
 def test_the_central_extrapolates_only_between_consecutive_commands_at_the_full_rate():
-    from ctrlunit.runtime.central import Central
+    def sent(rule, cycles):
+        ahead, grid = rule
+        return [ahead.after(c, [float(c), 2.0 * c, 1.0], grid=grid) for c in cycles]
 
-    def sent(central, cycles):
-        out = []
-        for c in cycles:
-            out.append(Central._next_command(central, c, [float(c), 2.0 * c, 1.0]))
-        return out
-
-    assert sent(_central(), [3, 4, 5, 7]) == [None, [5.0, 10.0, 1.0], [6.0, 12.0, 1.0], None]
+    assert sent(_ahead(), [3, 4, 5, 7]) == [None, [5.0, 10.0, 1.0], [6.0, 12.0, 1.0], None]
     # halved from 6 on: 4's successor is 5, 5's would be 6 (on the new grid), then none
-    assert sent(_central(halved_at=6), [4, 5, 6, 8]) == [None, [6.0, 12.0, 1.0], None, None]
-    for central in (_central("lockstep"), _central(missed="hold")):
-        assert sent(central, [3, 4, 5]) == [None, None, None]
+    assert sent(_ahead(halved_at=6), [4, 5, 6, 8]) == [None, [6.0, 12.0, 1.0], None, None]
+    for rule in (_ahead("lockstep"), _ahead(missed="hold")):
+        assert sent(rule, [3, 4, 5]) == [None, None, None]
 
 
 def test_missed_command_accepts_extrapolate_or_hold_only():

@@ -196,34 +196,27 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tm
     assert again["overload"] == o and again["periods"] == r["periods"]
 
 
-def _overload_central(period: float):
-    """A central reduced to its overload rule (:meth:`Central._mark_late`,
-    :meth:`Central._check_overload`): a change of rate takes effect at once."""
-    from collections import deque
-    from types import SimpleNamespace
+class OverloadRule:
+    """The central's overload rule (runtime/central/overload.py) alone, after ``done``
+    intervals at divisor ``stride``: a change of rate takes effect at once."""
 
-    from ctrlunit.runtime.central import Central
+    def __init__(self, period: float) -> None:
+        from ctrlunit.runtime.central.overload import Overload
 
-    c = Central.__new__(Central)
-    c.ctl = SimpleNamespace(stride=1)
-    c.rc = SimpleNamespace(schedule=SimpleNamespace(period=period))
-    c.halve_on_overload, c.done, c.rate_changes = True, 0, []
-    c._late_marks, c._calm_since, c._calm_needed, c._trial_until = deque(), 0, 0, 0
+        self.done, self.stride = 0, 1
+        self.overload = Overload(enabled=True, period_s=period, change_rate=self.change)
+        self.rate_changes = self.overload.rate_changes
 
-    def change(stride: int, **why: int) -> None:
-        c.ctl.stride = stride
-        c.rate_changes.append({"stride": stride, "at_interval": c.done, **why})
+    def change(self, stride: int, why: dict) -> dict:
+        self.stride = stride
+        return {"stride": stride, "at_interval": self.done, **why}
 
-    c._change_rate = change
-    return c
-
-
-def _intervals(c, n: int, *, late: bool) -> None:
-    for _ in range(n):
-        c.done += 1
-        if late:
-            c._mark_late()
-        c._check_overload()
+    def intervals(self, n: int, *, late: bool) -> None:
+        for _ in range(n):
+            self.done += 1
+            if late:
+                self.overload.mark_late(self.done, self.stride)
+            self.overload.after_interval(self.done, self.stride)
 
 
 def test_a_return_on_trial_halves_again_after_three_late_intervals_not_ten():
@@ -231,28 +224,28 @@ def test_a_return_on_trial_halves_again_after_three_late_intervals_not_ten():
     intervals halve the rate again; past the trial it takes 10, as the first time. The
     wait before a return doubles each time. (README states 10 of the last 100, 2 s, 3 on
     trial for 0.5 s: written here as literals.)"""
-    c = _overload_central(1e-3)
-    _intervals(c, 100, late=False)
-    _intervals(c, 10, late=True)
+    c = OverloadRule(1e-3)
+    c.intervals(100, late=False)
+    c.intervals(10, late=True)
     first = c.rate_changes[-1]
     assert (first["stride"], first["late"]) == (2, 10)
     assert "after_return" not in first
-    _intervals(c, 999, late=False)
-    assert c.ctl.stride == 2  # 2 s at the halved rate: 1000 intervals
-    _intervals(c, 1, late=False)
-    assert c.ctl.stride == 1 and c.rate_changes[-1]["calm"] == 1000
-    _intervals(c, 200, late=False)
-    _intervals(c, 3, late=True)  # still on trial: halved again
+    c.intervals(999, late=False)
+    assert c.stride == 2  # 2 s at the halved rate: 1000 intervals
+    c.intervals(1, late=False)
+    assert c.stride == 1 and c.rate_changes[-1]["calm"] == 1000
+    c.intervals(200, late=False)
+    c.intervals(3, late=True)  # still on trial: halved again
     again = c.rate_changes[-1]
     assert again["stride"] == 2 and again["late"] == 3
     assert again["after_return"] == 200 + 3
-    _intervals(c, 2000, late=False)  # the wait doubled
-    assert c.ctl.stride == 1 and c.rate_changes[-1]["calm"] == 2000
-    _intervals(c, 600, late=False)  # past the trial (0.5 s and the lead)
-    _intervals(c, 3, late=True)
-    assert c.ctl.stride == 1
-    _intervals(c, 10 - 3, late=True)
-    assert c.ctl.stride == 2 and "after_return" not in c.rate_changes[-1]
+    c.intervals(2000, late=False)  # the wait doubled
+    assert c.stride == 1 and c.rate_changes[-1]["calm"] == 2000
+    c.intervals(600, late=False)  # past the trial (0.5 s and the lead)
+    c.intervals(3, late=True)
+    assert c.stride == 1
+    c.intervals(10 - 3, late=True)
+    assert c.stride == 2 and "after_return" not in c.rate_changes[-1]
     assert [x["stride"] for x in c.rate_changes] == [2, 1, 2, 1, 2]
 
 
@@ -260,12 +253,12 @@ def test_ten_late_intervals_within_the_last_100_halve_the_rate_and_no_fewer():
     """README: halve once 10 of the last 100 intervals came late. One late interval in 12
     puts at most 9 in any 100 (never halves); one in 11 puts 10 in 100 (halves)."""
     for every, halves in ((12, False), (11, True)):
-        c = _overload_central(1e-3)
-        _intervals(c, 100, late=False)
+        c = OverloadRule(1e-3)
+        c.intervals(100, late=False)
         for _ in range(1200 // every):
-            _intervals(c, every - 1, late=False)
-            _intervals(c, 1, late=True)
-        assert (c.ctl.stride == 2) == halves, every
+            c.intervals(every - 1, late=False)
+            c.intervals(1, late=True)
+        assert (c.stride == 2) == halves, every
         if halves:
             assert c.rate_changes[0]["late"] == 10
 
@@ -274,20 +267,20 @@ def test_the_rate_goes_back_at_most_three_times_after_2_4_and_8_s():
     """README: back to every sample after 2 s without a late interval, 4 s after a second
     halving, 8 s after a third, at most three returns: after the fourth halving the rate
     stays halved however long it is calm (1 ms period: a halved interval covers 2 ms)."""
-    c = _overload_central(1e-3)
-    _intervals(c, 100, late=False)
+    c = OverloadRule(1e-3)
+    c.intervals(100, late=False)
     for calm in (1000, 2000, 4000):  # 2 s, 4 s, 8 s at the halved rate
-        _intervals(c, 10, late=True)
-        assert c.ctl.stride == 2
-        _intervals(c, calm - 1, late=False)
-        assert c.ctl.stride == 2, calm
-        _intervals(c, 1, late=False)
-        assert c.ctl.stride == 1 and c.rate_changes[-1]["calm"] == calm
-        _intervals(c, 600, late=False)  # past the return's trial
-    _intervals(c, 10, late=True)
-    assert c.ctl.stride == 2
-    _intervals(c, 20_000, late=False)  # 40 s
-    assert c.ctl.stride == 2
+        c.intervals(10, late=True)
+        assert c.stride == 2
+        c.intervals(calm - 1, late=False)
+        assert c.stride == 2, calm
+        c.intervals(1, late=False)
+        assert c.stride == 1 and c.rate_changes[-1]["calm"] == calm
+        c.intervals(600, late=False)  # past the return's trial
+    c.intervals(10, late=True)
+    assert c.stride == 2
+    c.intervals(20_000, late=False)  # 40 s
+    assert c.stride == 2
     assert [x["stride"] for x in c.rate_changes] == [2, 1, 2, 1, 2, 1, 2]
 
 

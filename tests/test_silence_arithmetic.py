@@ -1,11 +1,11 @@
-"""The silence rule's arithmetic (runtime/silence_rule.py), each edge with its figures:
+"""The silence rule's arithmetic (runtime/central/silence_rule.py), each edge with its figures:
 what the central's own stalls and the plant's shared silence add to a limit, and when an
 excused silence gets one more limit. The rule's behaviour in a unit is
 tests/test_guard.py's and tests/test_silence_rule.py's."""
 
 from __future__ import annotations
 
-from ctrlunit.runtime.silence_rule import (
+from ctrlunit.runtime.central.silence_rule import (
     fault_at,
     overlap,
     plant_shared,

@@ -14,7 +14,7 @@ from ctrlunit.kernels.kinematics import inverse_kinematics
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import Task, pick_place_task
-from ctrlunit.runtime.central_guard import role_report
+from ctrlunit.runtime.central.fault import role_report
 from ctrlunit.runtime.codec import MAX_ABS, SCHEMA_VERSION, BadMessage, check_vals, decode, encode
 from ctrlunit.runtime.config import ConfigError, RunConfig
 from ctrlunit.runtime.controller import Controller, build_engine

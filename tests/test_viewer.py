@@ -183,12 +183,13 @@ def fake_central(cycle: int, t_ns: int) -> tuple[Any, dict]:
     ``cycle``."""
     from types import SimpleNamespace
 
-    from ctrlunit.runtime.central_state import CycleLog
+    from ctrlunit.runtime.central.records import CycleLog
 
     log = CycleLog(true_p={cycle: (0.1, 0.0, -0.35)})
     log.times.append(t_ns, 400_000)
     log.errors.append(1e-4)
-    central = SimpleNamespace(log=log, plant_misses=0, skipped=0, done=cycle + 1)
+    central = SimpleNamespace(log=log, meters=SimpleNamespace(plant_misses=0, skipped=0),
+                              done=cycle + 1)
     return central, {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
 
 
@@ -273,19 +274,20 @@ def test_the_rate_limits_states_and_the_running_figures_count_every_interval():
     from every interval of the central's logs (period, misses, tracking error)."""
     from types import SimpleNamespace
 
-    from ctrlunit.runtime.central_state import CycleLog
+    from ctrlunit.runtime.central.records import CycleLog
     from ctrlunit.runtime.viewer import LiveView
 
     n, t0 = 2000, 10**12
     log = CycleLog()
-    central = SimpleNamespace(log=log, plant_misses=0, skipped=0, done=0)
+    central = SimpleNamespace(log=log, meters=SimpleNamespace(plant_misses=0, skipped=0),
+                              done=0)
     ctx = {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
     with LiveView(host="127.0.0.1", port=0, task=None, period_s=1e-3, cycles=n,
                   rate_hz=100) as view:
         for k in range(n):
             log.times.append(t0 + k * 1_000_000 + (700_000 if k == 1234 else 0), 300_000)
             log.errors.append(2e-4 if k == 777 else 1e-4)
-            central.done, central.plant_misses = k + 1, k // 500
+            central.done, central.meters.plant_misses = k + 1, k // 500
             view(central, k, ctx)
         assert view.appended == n // 10  # k = 0, 10, 20, ...
         end = time.monotonic() + 10

@@ -1,6 +1,6 @@
 """When a silent process becomes a fault (realtime): the silence rule's arithmetic, as
 pure functions of the times the central keeps (docs/faults-and-errors.md, the silence
-rule in three steps). :class:`~.central_guard.CentralGuard` decides with them; the
+rule in three steps). :class:`~.silence.SilenceWatch` decides with them; the
 scheduler's accounting (who was kept from a CPU) is its own.
 
 All times are ``time.monotonic_ns()`` values; a gap ``(a, b)`` is a span in which

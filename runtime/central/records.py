@@ -4,12 +4,13 @@ every finished interval."""
 from __future__ import annotations
 
 import hashlib
+import struct
 from collections.abc import Generator
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..topology.plan import Round
-from .timing import BoundedSeries, ErrorSeries, IntervalTimes
+from ...topology.plan import Round
+from ..timing import BoundedSeries, ErrorSeries, IntervalTimes
 
 
 @dataclass
@@ -62,6 +63,23 @@ class CycleLog:
     the sample)."""
     late_work_ns: list[int] = field(default_factory=list)
     """Their work as in :attr:`work_ns`, the first :data:`LATE_KEPT` of them."""
+
+    def record(self, f: InFlight, cmd: Any, now: int, *, deadline_ns: int) -> bool:
+        """Log interval ``f``, whose command ``cmd`` left at ``now``: its times, where
+        ``deadline_ns`` is set (realtime with peripherals) its work and whether it was
+        late, the command into the digest and the peak. Returns whether it was late."""
+        self.times.append(now, now - f.sample_ns)
+        late = False
+        if deadline_ns:  # only realtime reports where late intervals went
+            self.work_ns.append(f.work_ns)
+            if now - f.sample_ns > deadline_ns:
+                late = True
+                self.late += 1
+                if len(self.late_work_ns) < LATE_KEPT:
+                    self.late_work_ns.append(f.work_ns)
+        self.digest.update(struct.pack("<3d", *cmd))
+        self.torque_max = max(self.torque_max, abs(cmd[0]), abs(cmd[1]), abs(cmd[2]))
+        return late
 
     @property
     def cmd_ns(self) -> BoundedSeries:

@@ -1,0 +1,395 @@
+"""The central's intervals in flight through the pipeline (§ IV.7.2, Fig. 24): when one
+starts (from its sample, or ahead of it), when its sample-free steps run, how its rounds
+go out (fused into one request, or held for the next interval's first round), and how it
+finishes (the command, its logs). The rules are the pure functions of
+:mod:`ctrlunit.topology.pipeline`; :class:`Intervals` applies them to its state."""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import Any
+
+from ...topology.pipeline import holds_lone_round, may_prime, may_start
+from ...topology.plan import Round
+from ..blocks import ObserverDiverged
+from ..codec import encode
+from ..config import EXIT_OBSERVER
+from ..controller import Controller
+from ..engine import AWAIT_SAMPLE, Engine
+from ..node import WARM_RSS_AT, Node, rss_kb
+from .fault import Fault
+from .intake import Intake, synthetic_counts
+from .meters import Meters
+from .overload import Overload
+from .records import CycleLog, InFlight
+from .settings import CommandAhead, LoopSettings, PlanShape, t1_input
+from .silence import SilenceWatch
+from .state_check import check_state
+
+
+class Intervals:
+    """The intervals of one central between their samples and their commands.
+
+    Parameters
+    ----------
+    node, settings : the central's node (its publishers are made here) and settings.
+    engine, controller : the plan and its sources (:meth:`use` when they change).
+    intake : the samples taken (each interval starts from one).
+    silence : told when requests go out; gives the silence limit.
+    overload : told of late intervals and of each finished one.
+    expect_late : ``expect_late(cycle, stage, peripheral)``: a reply will come late.
+    meters, log : the central's accounting and its log of finished intervals.
+    hint : ends a fault's message.
+    on_cycle, on_message : after each interval ``on_cycle(cycle, ctx)``; the recording's
+        hook (None: none).
+    """
+
+    def __init__(self, node: Node, settings: LoopSettings, engine: Engine,
+                 controller: Controller, *, intake: Intake, silence: SilenceWatch,
+                 overload: Overload, expect_late: Callable[[int, int, int], None],
+                 meters: Meters, log: CycleLog, hint: Callable[[], str],
+                 on_cycle: Callable[[int, dict], None] | None = None,
+                 on_message: Callable[..., None] | None = None) -> None:
+        self.node = node
+        self.settings = settings
+        self.intake = intake
+        self.silence = silence
+        self.overload = overload
+        self.expect_late = expect_late
+        self.meters = meters
+        self.log = log
+        self.hint = hint
+        self.on_cycle = on_cycle
+        self.on_message = on_message
+        self.pub_req = node.publisher(node.keys.request) if settings.peripherals else None
+        self.pub_cmd = node.publisher(node.keys.command)
+        self.inflight: OrderedDict[int, InFlight] = OrderedDict()
+        self.outbox: list[InFlight] = []
+        """Intervals whose next round waits to be sent."""
+        self.primed: list[tuple[int, dict]] = []
+        """Next intervals whose sample-free steps ran."""
+        self.next_cycle = controller.first_cycle
+        self.done = 0
+        self.reply_each = False
+        """Peripherals answer each part of a fused request as soon as it is computed."""
+        self.ahead = CommandAhead(settings.extrapolate)
+        self.use(engine, controller)
+
+    def use(self, engine: Engine, controller: Controller) -> None:
+        """Run ``engine``'s plan with ``controller``."""
+        self.engine = engine
+        self.ctl = controller
+        self.shape = PlanShape.of(engine.plan, self.settings.peripherals)
+
+    def _newest_handed_off(self) -> bool | None:
+        """Whether the newest interval started from its sample has handed off (None: none
+        in flight); an interval run ahead of its sample does not count yet."""
+        for f in reversed(self.inflight.values()):
+            if not f.awaiting_sample:
+                return f.handed_off
+        return None
+
+    def _may_start(self) -> bool:
+        live = sum(1 for f in self.inflight.values()
+                   if not f.finishing and not f.awaiting_sample)
+        return may_start(depth=self.settings.depth, live=live, next_cycle=self.next_cycle,
+                         cycles=self.settings.end, newest_handed_off=self._newest_handed_off())
+
+    def start_ready(self) -> None:
+        """Start every interval that may start (:func:`~ctrlunit.topology.pipeline.may_start`)
+        and has its sample (freerun: a synthetic one), up to its first round."""
+        while self._may_start():
+            t_in = time.perf_counter_ns()
+            k = self.next_cycle
+            taken = self._sample_for(k)
+            if taken is None:
+                return
+            counts, t_ns = taken
+            k = self.next_cycle  # realtime and behind: the newest sample's
+            self.next_cycle = k + self.ctl.hold_of(k)
+            t0 = time.monotonic_ns()
+            primed = self._take_primed(k)
+            ahead = self.inflight.get(k) if primed is not None else None
+            if ahead is not None and ahead.awaiting_sample:  # its rounds ran ahead
+                self._sample_came(ahead, k, counts, t_ns, t0, t_in)
+                continue
+            if primed is not None:  # its sample-free steps are done
+                ctx = primed
+                self.ctl.measure(ctx, k, counts)
+                gen = self.engine.cycle(ctx, skip_prefix=True)
+            else:
+                ctx = self.ctl.sources(k, counts)
+                gen = self.engine.cycle(ctx)
+            if len(self.meters.t1_inputs) < self.settings.t1_cycles:
+                self.meters.t1_inputs.append(t1_input(ctx))
+            f = InFlight(k, gen, ctx, t_ns, t0)
+            self.inflight[k] = f
+            self.meters.admit_ns += time.perf_counter_ns() - t_in
+            self.advance(f)
+
+    def _sample_for(self, k: int) -> tuple[list[int], int] | None:
+        """The sample interval ``k`` starts from (counts, time), or None while it has not
+        come. Freerun: a synthetic one. Realtime and behind the plant's clock: the newest
+        sample, never a queue (``next_cycle`` moves to it; the skipped ones are counted).
+        In the admission's trial the robot rests, and the trial follows the reference."""
+        sch = self.settings
+        if sch.clock == "freerun":
+            counts, t_ns = self._synthetic_sample(k), time.monotonic_ns()
+            if self.on_message is not None:
+                self.on_message("in", self.node.keys.sample, k, "sample", encode(
+                    self.node.unit, k, "sample", counts=counts, t_ns=t_ns, synthetic=True),
+                    t_ns)
+            return counts, t_ns
+        newest = self.intake.newest_waiting()
+        if sch.clock == "realtime" and newest is not None and newest > k:
+            if self.ctl.stride > 1:  # the rate is halved: the grid's samples only
+                skipped = sum(1 for c in range(k, newest) if self.ctl.on_grid(c))
+            else:
+                skipped = newest - k
+            self.meters.skipped += skipped
+            self.overload.mark_late(self.done, self.ctl.stride)  # one, however long the stall
+            if sch.trial:
+                self.meters.skip_marks.append((len(self.log.traversal_ns), skipped))
+            self.intake.keep_only(newest)
+            self.next_cycle = k = newest
+        taken = self.intake.take(k)
+        if taken is None:
+            return None
+        counts, t_ns = taken
+        if sch.trial:
+            counts = self._synthetic_sample(k)
+        return counts, t_ns
+
+    def _sample_came(self, f: InFlight, k: int, counts: list[int], t_ns: int, t0: int,
+                     t_in: int) -> None:
+        """The sample of ``f``, an interval whose rounds ran ahead of it: measure, and go
+        on from the sample's steps if its rounds are back."""
+        self.ctl.measure(f.ctx, k, counts)
+        if len(self.meters.t1_inputs) < self.settings.t1_cycles:
+            self.meters.t1_inputs.append(t1_input(f.ctx))
+        f.sample_ns, f.start_ns = t_ns, t0
+        f.awaiting_sample = False
+        if f.waiting and self.settings.clock == "realtime":
+            f.late_ns = t_ns  # a round run ahead is late once its sample is here
+        self.meters.admit_ns += time.perf_counter_ns() - t_in
+        if f.gated:  # its rounds are back: on from the sample's steps
+            f.gated = False
+            self.advance(f)
+
+    def _take_primed(self, k: int) -> dict | None:
+        """The context of interval ``k`` if its sample-free steps ran (it was primed),
+        else None, with the previous interval's estimate, final now (with foresight 2 it
+        was not when ``k`` was primed). Intervals primed before ``k`` are dropped (their
+        samples were skipped); those after it stay (foresight 2: primed with ``k``)."""
+        ctx = None
+        while self.primed and self.primed[0][0] <= k:
+            cycle, c = self.primed.pop(0)
+            if cycle == k:
+                ctx = c
+                ctx["est"] = self.ctl.est
+                continue
+            self._drop_ahead(cycle)
+            if self.on_message is not None:  # its primed steps ran, its interval did not:
+                # the reference they computed stays in the task's cache, which a later
+                # loop of the task reads, so replay runs them too (runtime/replay.py)
+                self.on_message("in", self.node.keys.inbox("central") + "/primed", cycle,
+                                "primed", encode(self.node.unit, cycle, "primed"),
+                                time.monotonic_ns())
+        return ctx
+
+    def _drop_ahead(self, cycle: int) -> None:
+        """Forget an interval started ahead of a sample that was skipped: its replies, if
+        any come, are late ones (counted, never merged)."""
+        f = self.inflight.get(cycle)
+        if f is None or not f.awaiting_sample:
+            return
+        del self.inflight[cycle]
+        if f in self.outbox:
+            self.outbox.remove(f)
+        elif f.round is not None:
+            for k in f.waiting:
+                self.expect_late(cycle, f.round.index, k)
+
+    def prime(self) -> bool:
+        """Depth 2: run the next interval's sample-free leading steps (the plan's
+        ``presample_steps``: for resolved acceleration the reference and the observer's
+        prediction) as soon as the newest interval has handed off its estimate, before
+        the next interval has a slot or its sample. They would otherwise sit between one
+        interval's last reply and the next request, with the peripherals idle. Same
+        arithmetic: the estimate they use is final at the hand-off. Returns whether it
+        ran them."""
+        if not may_prime(depth=self.settings.depth, primed=bool(self.primed),
+                         next_cycle=self.next_cycle, cycles=self.settings.end,
+                         newest_handed_off=self._newest_handed_off()):
+            return False
+        for k in self._prime_cycles():
+            t0 = time.monotonic_ns()
+            ctx = self.ctl.context(k)
+            if self.shape.ahead_rounds:  # its rounds run ahead of the sample too
+                f = InFlight(k, self.engine.cycle(ctx, gate=True), ctx, 0, t0,
+                             awaiting_sample=True)
+                self.inflight[k] = f
+                self.primed.append((k, ctx))
+                self.advance(f)
+                continue
+            try:
+                self.engine.prefix(ctx)
+            except ObserverDiverged as exc:
+                raise Fault(f"cycle {k}: {exc}", process="central",
+                            code=EXIT_OBSERVER) from None
+            self.primed.append((k, ctx))
+            self.meters.span("central", k, t0, time.monotonic_ns())
+        return True
+
+    def _prime_cycles(self) -> list[int]:
+        """The intervals :meth:`prime` starts: the next one, and where the graph's
+        sample-free steps read the estimate of two intervals back (foresight 2) and the
+        next interval comes a period after it, that one too: its ``est2`` is final
+        already, and the two intervals' rounds go in one request (one exchange per two
+        intervals)."""
+        k = self.next_cycle
+        if (self.engine.plan.graph.foresight > 1 and self.ctl.hold_of(k) == 1
+                and k + 1 < self.settings.end and self.ctl.on_grid(k + 1)):
+            return [k, k + 1]
+        return [k]
+
+    def _synthetic_sample(self, k: int) -> list[int]:
+        task = self.engine.cfg.task
+        assert task is not None
+        return synthetic_counts(self.engine.cfg.params, task.sample(self.ctl.time_of(k))[0])
+
+    def advance(self, f: InFlight) -> None:
+        """Run the interval's central steps up to its next round (or its end)."""
+        f.start_ns = time.monotonic_ns()  # the central's span starts here, not at a send
+        rnd = self._step(f)
+        while rnd is AWAIT_SAMPLE:  # run ahead: its sample-free steps and rounds are done
+            if f.awaiting_sample:
+                f.gated, f.round = True, None
+                self.meters.span("central", f.cycle, f.start_ns, time.monotonic_ns())
+                return
+            rnd = self._step(f)  # the sample came while its rounds were out
+        if not f.handed_off and (rnd is None or self.shape.round_step[rnd.index]
+                                 > self.shape.handoff):
+            self.ctl.handoff(f.ctx)
+            f.handed_off = True
+        if rnd is None:
+            self._finish(f)
+            return
+        f.round = rnd
+        self.outbox.append(f)
+        self.meters.span("central", f.cycle, f.start_ns, time.monotonic_ns())
+
+    @staticmethod
+    def _step(f: InFlight) -> Round | None:
+        """Run the steps of ``f`` up to its next round (None: to its end)."""
+        try:
+            rnd = f.gen.send(None) if f.started else next(f.gen)
+        except StopIteration:
+            rnd = None
+        except ObserverDiverged as exc:
+            raise Fault(f"cycle {f.cycle}: {exc}", process="central",
+                        code=EXIT_OBSERVER) from None
+        f.started = True
+        return rnd
+
+    # -- messages out -----------------------------------------------------------------
+
+    def publish_request(self, payload: bytes) -> None:
+        """Put ``payload`` on the request key."""
+        assert self.pub_req is not None
+        self.pub_req.put(payload)
+
+    def flush(self, now: int) -> int:
+        """Send every queued round as the parts of one request; returns, when a round is
+        held back to be fused with the next interval's first round (realtime, depth 2),
+        the time until which it is held, else 0."""
+        if not self.outbox:
+            return 0
+        hold_until = self._hold_until()
+        if hold_until and now < hold_until:
+            return hold_until
+        t_in = time.perf_counter_ns()
+        limit_ns = self.silence.limit_ns(self.done)
+        sch = self.settings
+        round_trips = self.engine.plan.round_trips
+        parts = []
+        for f in self.outbox:
+            rnd = f.round
+            assert rnd is not None
+            f.waiting = set(range(sch.peripherals))
+            f.deadline_ns = now + limit_ns
+            if sch.clock == "realtime" and round_trips and not f.awaiting_sample:
+                share = (rnd.index + 1) / round_trips
+                f.late_ns = f.sample_ns + int(sch.depth * sch.period_ns * share)
+            parts.append({"cycle": f.cycle, "stage": rnd.index,
+                          "vals": Engine.request_vals(rnd, f.ctx, (0, 1, 2))})
+        self.outbox.clear()
+        self.silence.asked(now)
+        extra = {"each": True} if self.reply_each and len(parts) > 1 else {}
+        payload = encode(self.node.unit, parts[0]["cycle"], parts[0]["stage"], parts=parts,
+                         **extra)
+        self.publish_request(payload)
+        self.meters.exchanges += 1
+        self.meters.send_ns += time.perf_counter_ns() - t_in
+        if self.on_message is not None:
+            self.on_message("out", self.node.keys.request, parts[0]["cycle"],
+                            parts[0]["stage"], payload, time.monotonic_ns())
+        return 0
+
+    def _hold_until(self) -> int:
+        """Depth 2 with a plant: a lone round of an interval past its hand-off waits for
+        the next interval's first round, so that both go in one exchange. In realtime the
+        next sample is due one period after this interval's; the round waits at most a
+        quarter period past that (a late or lost sample). In lockstep the next sample
+        follows the command just sent; the plant's silence is a fault after
+        ``--timeout``."""
+        f = self.outbox[0]
+        sch = self.settings
+        if not holds_lone_round(depth=sch.depth, ready=len(self.outbox),
+                                handed_off=f.handed_off, cycle=f.cycle,
+                                next_cycle=self.next_cycle, cycles=sch.end, hold=sch.hold):
+            return 0
+        if sch.clock == "realtime":
+            return f.sample_ns + sch.period_ns + sch.period_ns // 4
+        return time.monotonic_ns() + self.silence.limit_ns(self.done)
+
+    def _finish(self, f: InFlight) -> None:
+        t_in = time.perf_counter_ns()
+        sch = self.settings
+        # here, after the next request is out: off the critical path
+        check_state(f.cycle, f.ctx.get("p"), f.ctx.get("pc"), params=self.engine.cfg.params,
+                    max_error=sch.max_error, hint=self.hint)
+        cmd = f.ctx["cmd"]
+        tau = [float(x) for x in cmd]
+        nxt = self.ahead.after(f.cycle, tau, grid=self.ctl)
+        payload = (encode(self.node.unit, f.cycle, "command", tau=tau) if nxt is None else
+                   encode(self.node.unit, f.cycle, "command", tau=tau, next=nxt))
+        if not sch.trial:
+            self.pub_cmd.put(payload)
+        now = time.monotonic_ns()
+        self.meters.span("central", f.cycle, f.start_ns, now)
+        if self.on_message is not None:
+            self.on_message("out", self.node.keys.command, f.cycle, "command", payload, now)
+        del self.inflight[f.cycle]
+        self._log(f, cmd, now)
+        if self.on_cycle is not None:
+            self.on_cycle(f.cycle, f.ctx)
+            self.meters.finished(f.cycle)
+        self.meters.finish_ns += time.perf_counter_ns() - t_in
+
+    def _log(self, f: InFlight, cmd: Any, now: int) -> None:
+        """Log a finished interval (:meth:`CycleLog.record`), tell the overload rule, and
+        sample the memory at its marks."""
+        if self.log.record(f, cmd, now, deadline_ns=self.settings.deadline_ns):
+            self.overload.mark_late(self.done, self.ctl.stride)
+        self.overload.after_interval(self.done, self.ctl.stride)
+        self.done += 1
+        if self.done == WARM_RSS_AT:
+            self.meters.rss_warm = rss_kb()
+        if self.done % 10_000 == 0:
+            self.meters.rss_series.append((self.done, rss_kb()))
+
+
+__all__ = ["Intervals"]

@@ -1,0 +1,193 @@
+"""The central's orders to the other roles and what it hears back outside the cycle: the
+handshake (every role's ``hello``, then ``go``), the orders (``place``, ``start``,
+``stop``, ...) and the roles' final reports (``bye``)."""
+
+from __future__ import annotations
+
+import queue
+import time
+from collections.abc import Callable
+from typing import Any
+
+from ..codec import encode, short_text
+from ..config import EXIT_LINK
+from ..node import Event, Node
+from .fault import Fault, role_report
+
+REPEAT_S = 0.1
+"""An order not yet acknowledged (place, stop) is given again this often: a role may
+have missed it (an order may race a route, or a signal of the role's own)."""
+
+
+class Orders:
+    """Orders and acknowledgements of one central.
+
+    Parameters
+    ----------
+    node : the central's node.
+    peripherals : how many peripherals the unit has.
+    plant : whether the unit has a plant (not in freerun).
+    startup_timeout_s : how long the roles may take to say hello or confirm an order.
+    check_children : raises the fault of a role process that has exited.
+    take_sample : takes a sample that arrives while an order waits (``place``).
+    """
+
+    def __init__(self, node: Node, *, peripherals: int, plant: bool,
+                 startup_timeout_s: float, check_children: Callable[[], None],
+                 take_sample: Callable[[bytes, int], None]) -> None:
+        self.node = node
+        self.peripherals = peripherals
+        self.plant = plant
+        self.startup_timeout_s = startup_timeout_s
+        self.check_children = check_children
+        self.take_sample = take_sample
+        self.pubs = [node.publisher(node.keys.control(r)) for r in ("peripheral", "plant")]
+        self.role_reports: dict[str, dict] = {}
+        """Each role's final report (:func:`~.fault.role_report`), by role name."""
+        self.peers_seen: set[str] = set()
+
+    def expected_roles(self) -> set[str]:
+        """The names of the roles of this unit, the central's aside."""
+        roles = {f"peripheral-{k + 1}" for k in range(self.peripherals)}
+        if self.plant:
+            roles.add("plant")
+        return roles
+
+    def say(self, stage: str, *, peripherals_only: bool = False, plant_only: bool = False,
+            **extra: Any) -> bytes:
+        """Publish a control order (go, place, start, stop, ...) to every other role (or
+        only to the peripherals, or only to the plant); returns its payload."""
+        payload = encode(self.node.unit, 0, stage, **extra)
+        pubs = self.pubs[:1] if peripherals_only else self.pubs[1:] if plant_only \
+            else self.pubs
+        for pub in pubs:
+            pub.put(payload)
+        return payload
+
+    def on_hello(self, data: bytes) -> None:
+        """A message on the hello key outside the handshake: a role that missed ``go``
+        asks again; a ``bye`` carries a role's final report; a late ``placed`` is no
+        fault; anything else is rejected."""
+        msg = self.node.decode(data)
+        if msg is None:
+            return
+        stage = msg.get("stage")
+        if stage == "hello":
+            self.say("go")  # a role that missed go asks again
+        elif stage == "bye":
+            report = msg.get("report")
+            if msg.get("role") not in self.expected_roles() or type(report) is not dict:
+                self.node.reject("bad_value")
+                return
+            self.role_reports[msg["role"]] = role_report(report)
+        elif stage != "placed":  # a late acknowledgement of a place order is no fault
+            self.node.reject("bad_stage")
+
+    def handshake(self) -> None:
+        """Wait for every role's hello, then say go.
+
+        Raises
+        ------
+        Fault
+            If a role has not said hello within the start-up timeout.
+        """
+        expected = self.expected_roles()
+        seen: set[str] = set()
+        deadline = time.monotonic() + self.startup_timeout_s
+        while seen != expected:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                missing = ", ".join(sorted(expected - seen))
+                raise Fault(f"no hello from {missing} within {self.startup_timeout_s} s",
+                            process=missing, code=EXIT_LINK)
+            self.check_children()
+            try:
+                ev = self.node.events.get(timeout=min(left, 0.1))
+            except queue.Empty:
+                continue
+            if ev.kind == "hello":
+                msg = self.node.decode(ev.data)
+                if msg is not None and msg.get("role") in expected:
+                    seen.add(msg["role"])
+            # a sample now is no fault: the plant's first sample may only follow go
+        self.say("go")
+
+    def place(self, central_blocks: list[str]) -> None:
+        """Tell every peripheral the blocks the central now runs (``--placement auto``'s
+        choice at warm-up) until each has rebuilt its plan and said ``placed``.
+
+        Raises
+        ------
+        Fault
+            If a peripheral does not confirm within the start-up timeout.
+        """
+        waiting = {f"peripheral-{k + 1}" for k in range(self.peripherals)}
+        deadline = time.monotonic() + self.startup_timeout_s
+        next_say = 0.0
+        while waiting:
+            now = time.monotonic()
+            if now > deadline:
+                missing = ", ".join(sorted(waiting))
+                raise Fault(f"{missing} did not take the placement chosen at warm-up within "
+                            f"{self.startup_timeout_s} s", process=missing, code=EXIT_LINK)
+            if now >= next_say:  # again until each has it
+                self.say("place", peripherals_only=True, central_blocks=central_blocks)
+                next_say = now + REPEAT_S
+            self.check_children()
+            try:
+                ev = self.node.events.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            if ev.kind == "hello":
+                msg = self.node.decode(ev.data)
+                if (msg is not None and msg.get("stage") == "placed"
+                        and msg.get("central_blocks") == central_blocks):
+                    waiting.discard(msg.get("role"))
+                elif msg is not None:
+                    self.on_hello(ev.data)
+            elif ev.kind == "sample":
+                self.take_sample(ev.data, ev.rx_ns)
+            # a reply now is the warm-up's, of the old plan: dropped
+
+    def drain(self, *, seconds: float) -> None:
+        """For ``seconds``, drop what arrives (after an admission trial that stopped
+        early: its stragglers, so that the run does not count them as rejected); a
+        ``bye`` is still taken."""
+        deadline = time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                ev = self.node.events.get(timeout=left)
+            except queue.Empty:
+                break
+            if ev.kind == "hello":
+                self.on_hello(ev.data)
+
+    def stop(self, *, reason: str, hold: list[float], wait: float) -> None:
+        """Tell every role to stop, the plant to hold ``hold`` while it makes its safe
+        stop, and collect their reports for up to ``wait`` seconds."""
+        expected = self.expected_roles()
+        deadline = time.monotonic() + wait
+        # a fault's message is long; whole, it made the order undecodable (the roles then
+        # ran on, and the plant made no safe stop, until the launcher ended them)
+        reason = short_text(reason)
+        self.say("stop", reason=reason, hold=hold)
+        next_say = time.monotonic() + REPEAT_S
+        while set(self.role_reports) < expected and time.monotonic() < deadline:
+            try:
+                ev: Event | None = self.node.events.get(timeout=0.05)
+            except queue.Empty:
+                ev = None
+            if ev is not None and ev.kind == "hello":
+                self.on_hello(ev.data)
+            if time.monotonic() > next_say:
+                self.say("stop", reason=reason, hold=hold)
+                next_say = time.monotonic() + REPEAT_S
+
+    def zenoh_identity(self) -> dict[str, Any]:
+        """This central's Zenoh id and the ids of the peers it has been connected to."""
+        info = self.node.session.info
+        self.peers_seen.update(str(z) for z in info.peers_zid())
+        return {"zid": str(info.zid()), "peers": sorted(self.peers_seen)}
+
+
+__all__ = ["Orders"]

@@ -1,0 +1,399 @@
+"""The central role: the pipeline scheduler of § IV.7.2 (Fig. 24) and its loop.
+
+Up to ``depth`` intervals are in flight; the rules that decide when an interval starts,
+when its sample-free steps run ahead, when a ready round waits to be fused with the next
+interval's first round, and when an interval finishes are the pure functions of
+:mod:`ctrlunit.topology.pipeline`, shared with the schedule model that ``ctrlunit
+balance`` calibrates (docs/architecture.md explains them, with a diagram). Every wait
+is bounded: a missing reply or sample is a detected fault, never a hang.
+
+:class:`Central` runs the loop and routes what it receives to the parts it holds, each
+given what it needs at construction (docs/architecture.md, the central's parts).
+
+Clocks: in ``lockstep`` and ``realtime`` interval k starts from plant sample k
+(``realtime`` skips to the newest sample when the unit falls behind, and counts the
+skipped ones); in ``freerun`` there is no plant, and each interval starts as soon as a
+slot is free from a synthetic sample (the reference's inverse kinematics, quantised).
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import Any
+
+from ...topology.pipeline import finishes_after_next_request
+from ..config import RunConfig
+from ..controller import Controller
+from ..engine import Engine
+from ..node import Event, Node, rss_kb
+from .excuse import UNSUPERVISED, Supervision
+from .intake import Intake
+from .intervals import Intervals
+from .late import LateData
+from .meters import Meters
+from .orders import Orders
+from .overload import OVERLOAD_LEAD, Overload
+from .records import CycleLog, InFlight
+from .settings import LoopSettings
+from .silence import SilenceWatch
+from .state_check import hold_torques, overload_hint
+from .warmup import WarmUp
+
+
+class Central:
+    """The central process of a unit.
+
+    Parameters
+    ----------
+    node : the central's Zenoh node.
+    rc : run configuration.
+    engine : engine built from the run's plan (placement included).
+    controller : sources and observer state.
+    cycles : number of intervals to run.
+    on_cycle : ``on_cycle(central, cycle, ctx)`` after each interval (recording, progress).
+    on_message : ``on_message(direction, key, cycle, stage, payload, t_ns)`` for every
+        exchange (recording).
+    supervision : what this central can learn of the role processes it started.
+    trial : the admission's trial (:mod:`..admission`): intervals from the plant's trial
+        samples (flagged ``probe``, numbered from ``controller.first_cycle``) at the
+        reference's own synthetic position, commands computed but never sent.
+    reply_each : peripherals answer each part of a fused request at once (a trial takes
+        the run's choice; otherwise :meth:`WarmUp.choose_replies` makes it).
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        rc: RunConfig,
+        engine: Engine,
+        controller: Controller,
+        cycles: int,
+        *,
+        on_cycle: Callable[[Central, int, dict], None] | None = None,
+        on_message: Callable[[str, str, int, Any, bytes, int], None] | None = None,
+        supervision: Supervision = UNSUPERVISED,
+        trial: bool = False,
+        reply_each: bool = False,
+    ) -> None:
+        sch = rc.schedule
+        n = engine.plan.placement.peripherals
+        self.node = node
+        self.rc = rc
+        self.settings = LoopSettings.of(rc, peripherals=n, cycles=cycles,
+                                        first_cycle=controller.first_cycle, trial=trial)
+        self.on_cycle = on_cycle
+        self.on_message = on_message
+        keys = node.keys
+        for k in range(n):
+            node.route(keys.reply(k + 1), "reply", k)
+        node.route(keys.hello, "hello")
+        if sch.clock != "freerun":
+            node.route(keys.sample, "sample")
+        self.log = CycleLog()
+        self.meters = Meters(n, keep_cycle_spans=on_cycle is not None)
+        self.intake = Intake(node, trial=trial)
+        realtime = sch.clock == "realtime"
+        self.silence = SilenceWatch(
+            peripherals=n, realtime=realtime, period_s=sch.period,
+            fault_periods=sch.fault_periods, timeout_s=rc.transport.timeout,
+            stride=lambda: self.ctl.stride, supervision=supervision, hint=self.overload_hint)
+        self.late = LateData(engine, realtime=realtime, late=sch.late,
+                             late_policy=sch.late_policy, faults_key=f"{keys.root}/faults",
+                             pending=node.events.pending,
+                             advance=lambda f: self.intervals.advance(f),
+                             span=self.meters.span, on_message=on_message)
+        self.overload = Overload(enabled=not trial and rc.halves_on_overload,
+                                 period_s=sch.period, change_rate=self._change_rate)
+        self.intervals = Intervals(
+            node, self.settings, engine, controller, intake=self.intake,
+            silence=self.silence, overload=self.overload, expect_late=self.late.expect_late,
+            meters=self.meters, log=self.log, hint=self.overload_hint,
+            on_cycle=None if on_cycle is None else (lambda k, ctx: on_cycle(self, k, ctx)),
+            on_message=on_message)
+        self.intervals.reply_each = reply_each
+        self.orders = Orders(node, peripherals=n, plant=sch.clock != "freerun",
+                             startup_timeout_s=rc.transport.startup_timeout,
+                             check_children=self.silence.check_children,
+                             take_sample=self._on_sample)
+        self.warmup = WarmUp(node, engine, controller,
+                             publish=self.intervals.publish_request, depth=sch.pipeline,
+                             asked=sch.replies, startup_timeout_s=rc.transport.startup_timeout,
+                             check_children=self.silence.check_children, other=self.handle)
+
+    def use(self, engine: Engine, controller: Controller) -> None:
+        """Run ``engine``'s plan with ``controller`` (when the placement changes before
+        the run: :meth:`place`); the warm-up's round trips, which were of the old plan,
+        are dropped."""
+        for part in (self.intervals, self.warmup):
+            part.use(engine, controller)
+        self.late.use(engine)
+
+    @property
+    def engine(self) -> Engine:
+        return self.intervals.engine
+
+    @property
+    def ctl(self) -> Controller:
+        """The controller: the interval's sources and the observer's state."""
+        return self.intervals.ctl
+
+    @property
+    def cycles(self) -> int:
+        """The cycle number after the run's last."""
+        return self.settings.end
+
+    @property
+    def done(self) -> int:
+        """Intervals finished."""
+        return self.intervals.done
+
+    @property
+    def next_cycle(self) -> int:
+        """The cycle of the next interval to start."""
+        return self.intervals.next_cycle
+
+    @property
+    def inflight(self) -> OrderedDict[int, InFlight]:
+        """The intervals in flight, by cycle."""
+        return self.intervals.inflight
+
+    def choose_replies(self) -> dict[str, Any]:
+        """Decide how peripherals answer fused requests (:meth:`WarmUp.choose_replies`)
+        and follow the decision; returns it (for the report)."""
+        info = self.warmup.choose_replies()
+        self.intervals.reply_each = info["mode"] == "each"
+        return info
+
+    def place(self, rc: RunConfig, engine: Engine, controller: Controller) -> None:
+        """Switch the unit to ``engine``'s placement before the run (``--placement auto``'s
+        choice at warm-up), without starting it again: every peripheral is told the
+        blocks the central now runs, rebuilds its plan and says ``placed``; this returns
+        once each has, and then runs the new plan itself. Warm up again before measuring.
+
+        Raises
+        ------
+        Fault
+            If a peripheral does not confirm within the start-up timeout.
+        """
+        self.orders.place(sorted(engine.plan.placement.central_blocks))
+        self.rc = rc
+        self.use(engine, controller)
+
+    def hold_torques(self) -> list[float]:
+        """Gravity-holding torques at the last estimated position (the first stage of the
+        safe stop); zeros if that position is not usable."""
+        return hold_torques(self.engine.cfg.params, self.ctl.est[0])
+
+    def stop(self, *, reason: str = "done", wait: float = 1.0) -> None:
+        """Tell every role to stop (the plant runs its safe stop, holding
+        :meth:`hold_torques`) and collect their reports for up to ``wait`` seconds."""
+        self.orders.stop(reason=reason, hold=self.hold_torques(), wait=wait)
+
+    def overload_hint(self) -> str:
+        """For a fault's message: in realtime, when most deadlines were missed, that the
+        machine, not a process, is the likely cause."""
+        return overload_hint(realtime=self.settings.clock == "realtime",
+                             misses=self.meters.plant_misses, skipped=self.meters.skipped,
+                             periods=self.next_cycle, period_s=self.rc.schedule.period,
+                             peripherals=self.settings.peripherals)
+
+    # -- the loop ---------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Run ``cycles`` intervals. Raises :class:`~.fault.Fault` on a detected fault."""
+        m = self.meters
+        m.t_start_ns = time.monotonic_ns()
+        cpu0 = time.process_time()
+        try:
+            self._loop()
+        finally:  # a fault too: where the CPU went is part of its diagnosis
+            m.cpu_s = time.process_time() - cpu0
+        m.t_end_ns = time.monotonic_ns()
+        m.rss_end = rss_kb()
+
+    def _loop(self) -> None:
+        """The event loop of :meth:`run`: each turn starts what may start, sends what is
+        ready, waits for one event until the next time something is due, handles it and
+        applies the checks."""
+        end = self.settings.end
+        iv = self.intervals
+        while iv.done < end and not (iv.next_cycle >= end and not iv.inflight):
+            limit_ns = self.limit_ns()
+            iv.start_ready()
+            now = time.monotonic_ns()
+            hold_until = iv.flush(now)
+            if iv.prime():
+                continue  # the primed interval may have its slot and sample already
+            wait_until = self.next_check(now, limit_ns, hold_until)
+            t0 = time.monotonic_ns()
+            try:
+                ev = self.node.events.get(timeout=max(0.0, (wait_until - now) / 1e9))
+            except queue.Empty:
+                ev = None
+            t1 = time.monotonic_ns()
+            self.meters.wait_ns += t1 - t0
+            self.silence.woke(wait_until, t1)
+            if ev is not None:
+                self.handle(ev)
+            self.check_late(time.monotonic_ns())
+            self.check_silence(limit_ns)
+            self.silence.check_children()
+
+    def limit_ns(self) -> int:
+        """How long a reply or a sample may be missing now before it is a fault
+        (:meth:`SilenceWatch.limit_ns`)."""
+        return self.silence.limit_ns(self.done)
+
+    def next_check(self, now: int, limit_ns: int, hold_until: int) -> int:
+        """When the loop must look at the clock again, however quiet the inbox: a held
+        round's release, a round's deadline, its late-data time where its policy acts on
+        it, and in realtime the moment a silent peripheral or plant would become a
+        fault."""
+        wake = self.silence.wake_at(now, limit_ns, self.inflight.values())
+        if hold_until:
+            wake = min(wake, hold_until)
+        late = self.late.wake_at(self.inflight.values())
+        return wake if late is None else min(wake, late)
+
+    def check_late(self, now: int) -> None:
+        """Apply the late-data policy of each round late at ``now`` (realtime)."""
+        self.late.check(now, self.inflight.values())
+
+    def check_silence(self, limit_ns: int) -> None:
+        """Raise the fault of a silent peripheral or plant, unless messages are still
+        waiting in the inbox (the central may have been the slow one: a reply it has not
+        read yet is not silence). Those are read first, and the silence is looked at only
+        once none waits: looking costs a late central most (an excuse reads ``/proc``,
+        0.25-0.3 ms a process on the reference machine, and the fault's message again)."""
+        if self.node.events.pending():
+            return  # the check runs again after each event
+        plant_awaited = self.next_cycle if (
+            self.settings.clock != "freerun" and not self.intake.samples
+            and self.next_cycle < self.settings.end) else None
+        self.silence.check(time.monotonic_ns(), limit_ns, self.inflight.values(),
+                           done=self.done, plant_awaited=plant_awaited,
+                           newest_sample=self.intake.newest_sample,
+                           started_ns=self.meters.t_start_ns)
+
+    # -- messages in ------------------------------------------------------------------
+
+    def handle(self, ev: Event) -> None:
+        """Take one event of the inbox: a reply, a sample, or a message on the hello key
+        (:meth:`Orders.on_hello`)."""
+        kind, index, data, rx = ev
+        if kind == "reply":
+            self._on_reply(index, data, rx)
+        elif kind == "sample":
+            self._on_sample(data, rx)
+        elif kind == "hello":
+            self.orders.on_hello(data)
+        else:
+            self.intake.reject("unexpected_key")
+
+    def _on_sample(self, data: bytes, rx: int) -> None:
+        s = self.intake.sample(data, first=self.next_cycle,
+                               end=self.settings.end + self.settings.depth + 1,
+                               on_grid=self.ctl.on_grid)
+        if s is None:
+            return
+        self.silence.heard_sample(rx)
+        true_p = self.log.true_p
+        true_p[s.cycle] = s.p
+        if len(true_p) > 64:  # the oldest goes, even the one just taken (samples ahead)
+            del true_p[min(true_p)]
+        if s.cycle < self.settings.end:  # the run's samples only: the plant may send one more
+            ref = self.engine.cfg.task.position(self.ctl.time_of(s.cycle))  # type: ignore[union-attr]
+            self.log.errors.append(math.dist(s.p, ref))
+        self.meters.plant_busy_ns += s.span[1] - s.span[0]
+        if s.misses is not None:
+            self.meters.plant_misses = s.misses
+        self.meters.span("plant", s.cycle, s.span[0], s.span[1])
+        if self.on_message is not None:
+            self.on_message("in", self.node.keys.sample, s.cycle, "sample", data, rx)
+
+    def _on_reply(self, k: int, data: bytes, rx: int) -> None:
+        t_in = time.perf_counter_ns()
+        got = self.intake.reply(data)
+        if got is None:
+            return
+        msg, parts = got
+        axes = self.engine.plan.placement.axes[k]
+        complete = []
+        accepted = False
+        for part in parts:
+            f = self.inflight.get(part["cycle"])
+            if (f is None or f.round is None or part["stage"] != f.round.index
+                    or k not in f.waiting):
+                if self.late.came_late(part["cycle"], part["stage"], k):
+                    self.silence.heard_reply(k, rx)  # its values were held: alive, late
+                    self.intake.reject("late_reply")
+                else:
+                    self.intake.reject("unexpected_reply")
+                continue
+            checked = self.intake.reply_part(part, f.round.recv, len(axes))
+            if checked is None:
+                continue
+            vals, span = checked
+            accepted = True
+            Engine.merge(f.ctx, vals, axes)
+            self.late.remember(vals, axes)  # replies hold per-axis values only
+            self.meters.periph_busy_ns[k] += span[1] - span[0]
+            f.work_ns = max(f.work_ns, min(span[1] - span[0], 2**31 - 1))
+            self.meters.span(f"peripheral_{k + 1}", f.cycle, span[0], span[1])
+            f.waiting.discard(k)
+            if not f.waiting:
+                complete.append(f)
+        if not accepted:
+            return
+        self.meters.reply_ns += time.perf_counter_ns() - t_in
+        self.meters.reply_msgs += 1
+        self.silence.heard_reply(k, rx)
+        if self.on_message is not None:
+            self.on_message("in", self.node.keys.reply(k + 1), msg["cycle"], msg["stage"],
+                            data, rx)
+        self._complete(complete)
+
+    def _complete(self, complete: list[InFlight]) -> None:
+        """Go on with the intervals whose round is complete. Depth 2: intervals with more
+        rounds first; those whose last round this was finish after the next request is
+        out (their last central blocks, command, recording and progress overlap the
+        peripherals' work)."""
+        finishing = [f for f in complete if f.round is not None
+                     and f.round.index >= self.intervals.shape.ahead_rounds
+                     and finishes_after_next_request(depth=self.settings.depth,
+                                                     round_index=f.round.index,
+                                                     last_round=self.intervals.shape.last_round)]
+        for f in complete:
+            if f not in finishing:
+                self.intervals.advance(f)
+        if finishing:
+            for f in finishing:
+                f.finishing = True
+            self.intervals.start_ready()
+            self.intervals.flush(time.monotonic_ns())
+            for f in finishing:
+                self.intervals.advance(f)
+
+    def _change_rate(self, stride: int, why: dict[str, int]) -> dict[str, Any]:
+        """Change the control rate from the first sample of the current grid at least
+        :data:`~.overload.OVERLOAD_LEAD` periods past the newest one, and order the plant
+        to; returns the change's record."""
+        grid = self.ctl.grid
+        k = grid.next_on_grid(max(self.next_cycle, self.intake.newest_sample + 1)
+                              + OVERLOAD_LEAD)
+        grid.change(stride, k)
+        change = {"stride": stride, "from_cycle": k - self.ctl.first_cycle,
+                  "at_interval": self.done, **why}
+        # the plant reads stride and start; the rest is for the recording's report
+        payload = self.orders.say("stride", plant_only=True, start=k, **change)
+        if self.on_message is not None:  # the recording: replay changes where the run did
+            self.on_message("out", self.node.keys.control("plant"), k, "stride", payload,
+                            time.monotonic_ns())
+        return change
+
+
+__all__ = ["Central"]

@@ -1,0 +1,311 @@
+"""The central's silence watch: when a silent peripheral or plant is a fault.
+
+Every wait of the scheduler is bounded: a peripheral or the plant silent beyond its limit
+is a :class:`~.fault.Fault` naming the process. In realtime the limit is
+``--fault-periods`` periods, lengthened by the central's own stalls, by a silence the
+plant shared (a stall of the whole machine) and, for a role this central started, while
+the kernel's accounting shows that the machine, not the process, is slow
+(docs/faults-and-errors.md, the silence rule in three steps; its arithmetic is
+:mod:`.silence_rule`). A role process that exits is a fault at once.
+
+:class:`SilenceWatch` keeps when each role last spoke and was asked; the scheduler tells
+it (:meth:`SilenceWatch.heard_sample`, :meth:`~SilenceWatch.heard_reply`,
+:meth:`~SilenceWatch.asked`, :meth:`~SilenceWatch.woke`) and asks it
+(:meth:`~SilenceWatch.check`, :meth:`~SilenceWatch.wake_at`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable, Collection
+
+from ..config import EXIT_PERIPHERAL, EXIT_PLANT
+from . import silence_rule
+from .excuse import UNSUPERVISED, Excuse, Excuses, Supervision
+from .fault import Fault
+from .records import InFlight
+
+STARTUP_INTERVALS = 20
+STARTUP_LIMIT_S = 0.020
+"""Realtime: until :data:`STARTUP_INTERVALS` intervals are done the silence limit is at
+least this (first samples, first real values through every process)."""
+
+CHILD_CHECK_S = 0.05
+"""How often the watch asks whether a role process has exited."""
+
+
+def role_of(k: int) -> str:
+    """The role name of peripheral index ``k`` (0-based)."""
+    return f"peripheral-{k + 1}"
+
+
+class SilenceWatch:
+    """When each role last spoke, and whether its silence is a fault.
+
+    Parameters
+    ----------
+    peripherals : how many peripherals the unit has.
+    realtime : the clock is ``realtime`` (else the limit is ``timeout_s``, and no excuse).
+    period_s : the sampling period.
+    fault_periods : realtime: the limit in periods (at the current control rate).
+    timeout_s : the limit in the other clocks.
+    stride : the control-rate divisor now: samples come every ``stride()`` periods.
+    supervision : what the central can learn of the roles' processes.
+    hint : appended to a fault's message (the overload hint of the scheduler).
+    """
+
+    def __init__(self, *, peripherals: int, realtime: bool, period_s: float,
+                 fault_periods: float, timeout_s: float, stride: Callable[[], int],
+                 supervision: Supervision = UNSUPERVISED,
+                 hint: Callable[[], str] = str) -> None:
+        self.realtime = realtime
+        self.period_s = period_s
+        self.period_ns = int(period_s * 1e9)
+        self.fault_periods = fault_periods
+        self.timeout_s = timeout_s
+        self.supervision = supervision
+        self.excuse = Excuses(supervision, own_stall=self._own_stall)
+        self.hint = hint
+        self.stride = stride
+        self.last_sample_ns = 0
+        self.last_reply_ns = [0] * peripherals
+        self.asked_ns = [0] * peripherals
+        """The first request sent to each peripheral after its last reply."""
+        self.plant_gaps: deque[tuple[int, int]] = deque(maxlen=8)
+        """The plant's silences over two sample intervals (from, to), the newest."""
+        self.own_gaps: deque[tuple[int, int]] = deque(maxlen=8)
+        """The central's own stalls (from, to): it woke more than a period late."""
+        self._next_child_check = 0.0
+
+    # -- what the scheduler tells it ------------------------------------------------------
+
+    def heard_sample(self, rx: int) -> None:
+        """A sample arrived at ``rx``."""
+        if self.last_sample_ns and rx - self.last_sample_ns > 2 * self.period_ns * self.stride():
+            self.plant_gaps.append((self.last_sample_ns, rx))  # the plant silent too
+        self.last_sample_ns = rx
+
+    def heard_reply(self, k: int, rx: int) -> None:
+        """Peripheral ``k`` answered at ``rx`` (a late reply too: it is alive)."""
+        self.last_reply_ns[k] = rx
+
+    def asked(self, now: int) -> None:
+        """A request went to every peripheral at ``now``."""
+        for k in range(len(self.asked_ns)):
+            if self.asked_ns[k] <= self.last_reply_ns[k]:
+                self.asked_ns[k] = now
+
+    def woke(self, meant_ns: int, now: int) -> None:
+        """The central meant to be awake again by ``meant_ns`` and woke at ``now``: more
+        than a period later is a stall of its own (the machine did not run it), which the
+        silence rule does not count (:meth:`_own_stall`)."""
+        if now - meant_ns > self.period_ns:
+            self.own_gaps.append((meant_ns, now))
+
+    # -- the limit --------------------------------------------------------------------
+
+    def limit_ns(self, done: int) -> int:
+        """How long a reply or a sample may be missing before it is a fault, after
+        ``done`` intervals: ``timeout_s`` in lockstep and freerun; in realtime
+        ``fault_periods`` periods at the current rate (during the first
+        :data:`STARTUP_INTERVALS` intervals at least :data:`STARTUP_LIMIT_S`). A reply
+        later than its deadline but within that is lateness (a miss at the plant, or the
+        late-data policy); silence for that long is a failed process or link."""
+        if self.realtime:  # samples every stride periods
+            limit = self.fault_periods * self.period_s * self.stride()
+            if done < STARTUP_INTERVALS:  # first real intervals: start-up
+                limit = max(limit, STARTUP_LIMIT_S)
+            return int(limit * 1e9)
+        return int(self.timeout_s * 1e9)
+
+    def silent_since(self, k: int) -> int:
+        """Since when peripheral ``k`` has been silent: its last reply, or the first
+        request sent to it after that reply if one was. Time in which nothing was asked
+        of it is not silence: with two intervals' rounds in one request (foresight 2) a
+        peripheral is asked every second period, and counted from its last reply the
+        silence limit would lose a period of its margin. A peripheral whose rounds the
+        central computes is still asked, so a hung one is caught within the limit of the
+        first request it did not answer (one that exits, within
+        :data:`CHILD_CHECK_S`: :meth:`check_children`)."""
+        return max(self.last_reply_ns[k], self.asked_ns[k])
+
+    def _own_stall(self, since: int, now: int) -> int:
+        """Realtime: how much of ``[since, now]`` the central itself did not run
+        (``own_gaps``). No silence can be judged while the judge is stopped; a process
+        that failed in that time is named within the limit after the central runs
+        again."""
+        if not self.realtime:
+            return 0
+        return silence_rule.overlap(self.own_gaps, since, now)
+
+    def _plant_shared(self, since: int, now: int, limit_ns: int) -> int:
+        """The part of a silence since ``since`` that the plant's samples shared (gaps in
+        them longer than two sample intervals, less the interval a sample takes anyway)
+        beyond the central's own stalls, up to one limit."""
+        return silence_rule.plant_shared(
+            self.plant_gaps, self.last_sample_ns, since, now,
+            every_ns=self.period_ns * self.stride(),  # how often the plant samples
+            own_ns=self._own_stall(since, now), limit_ns=limit_ns)
+
+    def fault_at(self, since: int, now: int, limit_ns: int) -> int:
+        """When a peripheral silent since ``since`` becomes a fault: ``since +
+        limit_ns``; in realtime, later by the part of the silence in which the central
+        itself did not run, and once that has passed, by the part the plant's samples
+        shared, up to one more limit. A silence the whole unit shares is a stall of the
+        machine, not a failed process; a frozen process is still named while the plant
+        goes on talking."""
+        end = silence_rule.fault_at(since, now, limit_ns,
+                                    own_ns=self._own_stall(since, now), realtime=self.realtime)
+        if end >= now or not self.realtime:
+            return end
+        return end + self._plant_shared(since, now, limit_ns)
+
+    def _limit_end(self, role: str, since: int, now: int, limit_ns: int) -> int:
+        if role == "plant":  # its silence is the one the others' may share
+            return since + limit_ns + self._own_stall(since, now)
+        return self.fault_at(since, now, limit_ns)
+
+    def silence_ends(self, role: str, since: int, now: int, limit_ns: int) -> int:
+        """When the silence of ``role`` (silent since ``since``) becomes a fault: after
+        ``limit_ns`` for the plant, :meth:`fault_at` for a peripheral, or later while it
+        is excused (:meth:`Excuses.ask`)."""
+        return self._excused_end(role, self._limit_end(role, since, now, limit_ns))
+
+    def _excused_end(self, role: str, end: int) -> int:
+        """``end`` (the limit's end of a silence of ``role``), or later while excused."""
+        excused = self.excuse_of(role)
+        return max(end, excused.until) if excused is not None else end
+
+    def supervise(self, supervision: Supervision) -> None:
+        """Learn the roles' processes from ``supervision`` from now on."""
+        self.supervision = self.excuse.supervision = supervision
+
+    @property
+    def excuses(self) -> int:
+        """Silences past their limit excused (:meth:`Excuses.ask`)."""
+        return self.excuse.count
+
+    def _answered(self, role: str) -> int:
+        """When ``role`` last answered: its last sample or reply."""
+        return self.last_sample_ns if role == "plant" \
+            else self.last_reply_ns[int(role.rsplit("-", 1)[1]) - 1]
+
+    def excuse_of(self, role: str) -> Excuse | None:
+        """The excuse of the silence ``role`` is in (:meth:`Excuses.of`)."""
+        return self.excuse.of(role, self._answered(role))
+
+    def _silent(self, role: str, since: int, now: int, limit_ns: int,
+                end: int | None = None) -> bool:
+        """Whether the silence of ``role`` since ``since`` is a fault now (``end``: its
+        limit's end, when the caller has it)."""
+        if end is None:
+            end = self._limit_end(role, since, now, limit_ns)
+        return now > self._excused_end(role, end) and not (self.realtime and self.excuse.ask(
+            role, since, now, limit_ns, answered=self._answered(role),
+            limit_end=lambda: self._limit_end(role, since, now, limit_ns)))
+
+    # -- the faults' messages -----------------------------------------------------------
+
+    def _state_note(self, role: str) -> str:
+        """For a silence fault's message: what the silent process was doing, and its
+        excuse (:meth:`Excuses.note`)."""
+        return self.excuse.note(role, self._answered(role))
+
+    def shared_note(self, since: int, now: int, limit_ns: int, *,
+                    plant: bool = False) -> str:
+        """For a fault's message: how much of a silence was not counted (:meth:`fault_at`;
+        ``plant``: the plant's own silence, where only the central's stalls count)."""
+        own = self._own_stall(since, now)
+        shared = 0 if plant else self.fault_at(since, now, limit_ns) - since - limit_ns - own
+        return (f", plus {own / 1e6:.1f} ms the central itself did not run" if own > 0
+                else "") + (f", plus {shared / 1e6:.1f} ms the plant was silent too"
+                            if shared > 0 else "")
+
+    # -- what the scheduler asks --------------------------------------------------------
+
+    def wake_at(self, now: int, limit_ns: int, intervals: Collection[InFlight]) -> int:
+        """When the loop must look again for a silence, however quiet its inbox: a
+        round's deadline, and in realtime the moment a silent peripheral or the plant
+        would become a fault."""
+        wake = now + limit_ns
+        for f in intervals:
+            if f.waiting:
+                since = f.deadline_ns - limit_ns
+                end = self.fault_at(since, now, limit_ns)  # the same for each peripheral
+                for k in f.waiting:
+                    wake = min(wake, self._excused_end(role_of(k), end))
+                if self.realtime:  # liveness: wake when it would fail
+                    for k in f.waiting:
+                        if self.last_reply_ns[k]:
+                            wake = min(wake, self.silence_ends(
+                                role_of(k), self.silent_since(k), now, limit_ns))
+        if self.realtime and self.last_sample_ns:
+            wake = min(wake, self.silence_ends("plant", self.last_sample_ns, now, limit_ns))
+        return wake
+
+    def check(self, now: int, limit_ns: int, intervals: Collection[InFlight], *,
+              done: int, plant_awaited: int | None, newest_sample: int,
+              started_ns: int) -> None:
+        """Raise the fault of a silent peripheral or plant at ``now``: in realtime (once
+        an interval is ``done``) a peripheral silent past its limit while an interval
+        waits for it or holds its values; a peripheral that has not answered a round past
+        the round's limit; the plant silent past its limit while interval
+        ``plant_awaited`` waits for its sample and no round waits for a reply (silent
+        since its last sample, or since ``started_ns``)."""
+        if self.realtime and done:
+            for k, last in enumerate(self.last_reply_ns):  # alive, even when its data is held
+                t = self.silent_since(k) if last else 0
+                role = role_of(k)
+                if t and any(k in f.dropped or k in f.waiting for f in intervals) \
+                        and self._silent(role, t, now, limit_ns):
+                    raise Fault(f"peripheral {k + 1} has not answered for "
+                                f"{(now - t) / 1e6:.1f} ms (limit {limit_ns / 1e6:.1f} ms"
+                                f"{self.shared_note(t, now, limit_ns)})"
+                                f"{self._state_note(role)}{self.hint()}",
+                                process=role, code=EXIT_PERIPHERAL)
+        for f in intervals:
+            since = f.deadline_ns - limit_ns
+            if not f.waiting:
+                continue
+            end = self.fault_at(since, now, limit_ns)
+            if now <= end:
+                continue  # within the limit: no excuse can make it a fault sooner
+            for k in sorted(f.waiting):
+                role = role_of(k)
+                if not self._silent(role, since, now, limit_ns, end):
+                    continue
+                raise Fault(
+                    f"peripheral {k + 1} did not answer round {f.round.index if f.round else '?'}"
+                    f" of cycle {f.cycle}: silent for {(now - since) / 1e6:.1f} ms (limit "
+                    f"{limit_ns / 1e6:.1f} ms{self.shared_note(since, now, limit_ns)})"
+                    f"{self._state_note(role)}{self.hint()}",
+                    process=role, code=EXIT_PERIPHERAL)
+        if plant_awaited is not None and not any(f.waiting for f in intervals):
+            last = self.last_sample_ns or started_ns
+            if self._silent("plant", last, now, limit_ns):
+                raise Fault(f"no sample from the plant for {(now - last) / 1e6:.1f} ms "
+                            f"(cycle {plant_awaited} awaited, newest seen "
+                            f"{newest_sample}"
+                            f"{self.shared_note(last, now, limit_ns, plant=True)})"
+                            f"{self._state_note('plant')}"
+                            f"{self.hint()}", process="plant", code=EXIT_PLANT)
+
+    def check_children(self) -> None:
+        """Fault at once when a role process this central started has exited (looked at
+        every :data:`CHILD_CHECK_S` at most)."""
+        child_check = self.supervision.child_check
+        if child_check is None:
+            return
+        now = time.monotonic()
+        if now < self._next_child_check:
+            return
+        self._next_child_check = now + CHILD_CHECK_S
+        dead = child_check()
+        if dead is not None:
+            name, rc = dead
+            code = EXIT_PLANT if name == "plant" else EXIT_PERIPHERAL
+            raise Fault(f"{name} exited (status {rc})", process=name, code=code)
+
+
+__all__ = ["STARTUP_INTERVALS", "STARTUP_LIMIT_S", "SilenceWatch", "role_of"]

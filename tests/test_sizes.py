@@ -1,0 +1,148 @@
+"""The house stays readable (docs/architecture.md): no module over 400 lines, no function
+over 80, no class with more than 25 attributes, the central composed of its parts rather
+than inheriting them, and tests that drive runtime objects through what they expose.
+
+Each limit is read from the source with ``ast``. The modules and functions that are over
+a limit today are listed in :data:`OVER` with their size now: such an entry may shrink,
+must not grow, and must leave the list once it is within the limit (so that the list
+only ever gets shorter); anything over a limit that is not listed fails."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("kernels", "plant", "topology", "runtime", "bench")
+MODULE_LINES, FUNCTION_LINES, CLASS_ATTRIBUTES = 400, 80, 25
+PRIVATE_CALLS = 20
+
+OVER: dict[str, int] = {
+    # modules (lines) and functions (module:function, lines) still over their limit
+    "topology/balance.py": 486,
+    "runtime/blocks.py": 414,
+    "runtime/cli/run.py": 586,
+    "runtime/config.py": 423,
+    "runtime/plant_node.py": 456,
+    "runtime/plots.py": 439,
+    "runtime/replay.py": 428,
+    "runtime/report.py": 552,
+    "runtime/sched.py": 454,
+    "bench/sweep.py": 491,
+    "plant/mechanics.py:accelerations": 103,
+    "topology/balance.py:read_report": 122,
+    "topology/graph.py:stage_graph": 130,
+    "runtime/cli/run.py:run_options": 190,
+    "runtime/cli/tools.py:balance": 82,
+    "runtime/config.py:validate": 102,
+    "runtime/launcher.py:_start": 187,
+    "runtime/replay.py:verify": 100,
+    "runtime/report.py:build_report": 100,
+    "bench/sweep.py:bench": 90,
+    "runtime/mcap_writer.py:LeanWriter": 27,  # attributes
+}
+
+
+def sources() -> list[Path]:
+    return sorted(p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py"))
+
+
+def class_attributes(node: ast.ClassDef) -> set[str]:
+    """The names a class assigns on ``self`` in its methods, and its annotated fields
+    (a dataclass's or a NamedTuple's)."""
+    names = {st.target.id for st in node.body
+             if isinstance(st, ast.AnnAssign) and isinstance(st.target, ast.Name)}
+    for sub in ast.walk(node):
+        if (isinstance(sub, ast.Attribute) and isinstance(sub.ctx, ast.Store)
+                and isinstance(sub.value, ast.Name) and sub.value.id == "self"):
+            names.add(sub.attr)
+    return names
+
+
+def sizes() -> dict[str, tuple[int, int]]:
+    """Everything measured: name -> (size, limit)."""
+    out: dict[str, tuple[int, int]] = {}
+    for path in sources():
+        rel = path.relative_to(ROOT).as_posix()
+        text = path.read_text()
+        out[rel] = (len(text.splitlines()), MODULE_LINES)
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                assert node.end_lineno is not None
+                out[f"{rel}:{node.name}"] = (node.end_lineno - node.lineno + 1,
+                                             FUNCTION_LINES)
+            elif isinstance(node, ast.ClassDef):
+                out[f"{rel}:{node.name}"] = (len(class_attributes(node)), CLASS_ATTRIBUTES)
+    return out
+
+
+def test_nothing_new_is_over_a_limit_and_nothing_listed_grew():
+    measured = sizes()
+    new = [f"{k}: {n} (limit {lim})" for k, (n, lim) in measured.items()
+           if n > lim and k not in OVER]
+    grew = [f"{k}: {measured[k][0]}, listed at {n}" for k, n in OVER.items()
+            if k in measured and measured[k][0] > n]
+    assert not new and not grew, "\n".join(new + grew)
+
+
+def test_the_list_of_what_is_over_only_shrinks():
+    """An entry within its limit now, or gone, leaves :data:`OVER`."""
+    measured = sizes()
+    stale = [k for k in OVER if k not in measured or measured[k][0] <= measured[k][1]]
+    assert not stale, f"within the limit now, take off OVER: {stale}"
+
+
+def test_the_central_package_is_within_every_limit():
+    over = {k: v for k, v in sizes().items()
+            if k.startswith("runtime/central/") and v[0] > v[1]}
+    assert not over, over
+
+
+def test_the_central_inherits_from_no_part_of_itself():
+    tree = ast.parse((ROOT / "runtime" / "central" / "scheduler.py").read_text())
+    central = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Central")
+    assert central.bases == [] and len(class_attributes(central)) <= CLASS_ATTRIBUTES
+
+
+def private_method_calls() -> list[str]:
+    """Calls in tests of a ``_name`` method on an object that is neither the caller's own
+    (``self``) nor a module the test imported (a module's private helper is a unit of
+    its own), ``_replace`` (a named tuple's public API) aside."""
+    found = []
+    for path in sorted((ROOT / "tests").glob("*.py")):
+        tree = ast.parse(path.read_text())
+        modules = {a.asname or a.name.split(".")[0] for n in ast.walk(tree)
+                   if isinstance(n, ast.Import) for a in n.names}
+        modules |= {a.asname or a.name for n in ast.walk(tree)
+                    if isinstance(n, ast.ImportFrom) for a in n.names
+                    if a.name.islower() and (n.module or "").startswith("ctrlunit")}
+        for n in ast.walk(tree):
+            if not (isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute)):
+                continue
+            attr, recv = n.func.attr, n.func.value
+            if not attr.startswith("_") or attr.startswith("__") or attr == "_replace":
+                continue
+            if isinstance(recv, ast.Name) and (recv.id == "self" or recv.id in modules):
+                continue
+            found.append(f"{path.name}:{n.lineno} {attr}")
+    return found
+
+
+def test_tests_seldom_call_private_methods():
+    calls = private_method_calls()
+    assert len(calls) <= PRIVATE_CALLS, "\n".join(calls)
+
+
+@pytest.mark.parametrize("text, calls", [
+    ("c._check_late(1)\n", 1),
+    ("self._next()\n", 0),
+    ("from ctrlunit.runtime import replay\nreplay._nudge(1)\n", 0),
+    ("t._replace(a=1)\n", 0),
+])
+def test_the_private_call_counter_counts_what_it_should(tmp_path, monkeypatch, text, calls):
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_x.py").write_text(text)
+    monkeypatch.setitem(globals(), "ROOT", tmp_path)
+    assert len(private_method_calls()) == calls
