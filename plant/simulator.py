@@ -21,11 +21,11 @@ Measured against sub-steps 40 times shorter: in closed loop (pick & place, resol
 acceleration, depth 2, at 1 and 2 ms) the platform paths differ by 0.26 nm at 0.5 ms and
 0.016 nm at 0.25 ms, both far below one encoder increment; in free fall (the harshest
 case, arms swinging at full speed) the energy drifts by 1e-4 of |E| over 2 s at 0.5 ms,
-6e-6 at 0.25 ms, 1.6e-7 at 0.1 ms. A 1 ms period takes 2 sub-steps. It took 4 (0.25 ms)
-until 2026-11-23 and a fixed 10 (0.1 ms) before that: the plant is the costliest process
-of a realtime run, and with 0.5 ms the main job at 2 ms missed 0-6 deadlines in 199
-periods instead of 20-61, spending 2.7-3.0 ms of CPU per interval instead of 3.3-3.5
-(docs/measurements/2026-11-23-realtime.md). ``--plant-substeps`` asks for more."""
+6e-6 at 0.25 ms, 1.6e-7 at 0.1 ms. A 1 ms period takes 2 sub-steps: the plant is the
+costliest process of a realtime run, and with sub-steps of 0.5 ms instead of 0.25 ms the
+main job at 2 ms missed 0-6 deadlines in 199 periods instead of 20-61, spending 2.7-3.0 ms
+of CPU per interval instead of 3.3-3.5 (docs/measurements/2026-11-23-realtime.md).
+``--plant-substeps`` asks for more."""
 
 MAX_SUBSTEP_BELT_S = 1e-4
 """Longest sub-step (s) with the elastic belt: its resonance (about 180 Hz, k_e = 8080

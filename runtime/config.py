@@ -44,8 +44,8 @@ keep their margin at twice the period (``RunConfig.halves_on_overload``), contin
 COMMAND_DELAYS = ("full", "short")
 """When the plant applies the command of sample k (docs/architecture.md, Clocks): ``full``
 (causal): at depth d, to the period that begins at tick k + d, d periods after the sample;
-``short``: the convention of the code before 2026-11-22, d - 1 periods (the realtime plant
-integrated the period that *ended* at tick k + d with the command due at that tick)."""
+``short``: d - 1 periods (the realtime plant integrates the period that *ends* at tick
+k + d with the command due at that tick; kept for recordings made that way)."""
 """Realtime, a peripheral's reply past its round's share of the deadline: ``wait`` for it
 (the plant counts the miss), ``hold`` the peripheral's last values for its axes, or treat
 it as a ``fault``."""
@@ -400,9 +400,8 @@ class RunConfig:
     def from_recording(cls, data: Any) -> RunConfig:
         """The configuration a recording was made with (:meth:`from_dict`), its model state
         as it ran. The recorder writes ``--model-state auto`` resolved; a recording that
-        says ``auto`` is older, from when ``auto`` meant ``foreseen`` where it now means
-        ``foreseen2`` (:attr:`resolved_model_state`, 2026-11-25), and replays as it
-        ran."""
+        says ``auto`` was made when ``auto`` meant ``foreseen`` where it now means
+        ``foreseen2`` (:attr:`resolved_model_state`), and replays as it ran."""
         rc = cls.from_dict(data, source="recording")
         if rc.control.model_state != "auto":
             return rc

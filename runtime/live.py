@@ -27,8 +27,8 @@ REFRESH_S = 0.25
 """The line is rebuilt at most this often."""
 COARSE = 1000
 """Fine bins per coarse bin: a percentile reads the coarse counts (101) and then one
-coarse bin's fine counts, not all 100 001 of them (1.3 ms per line, in the central's
-thread, until 2026-11-23)."""
+coarse bin's fine counts, not all 100 001 of them (reading them all took 1.3 ms per line
+in the central's thread)."""
 
 
 class LiveStats:

@@ -9,7 +9,7 @@ Clocks
 ------
 ``delay`` is the number of periods from sample k to the start of the period in which the
 command of interval k acts: the pipeline depth d with ``--command-delay full`` (causal,
-the default), d - 1 with ``short`` (the convention before 2026-11-22).
+the default), d - 1 with ``short``.
 
 ``lockstep``: after sample k the plant waits for the command of cycle ``k - delay``
 (before the first one it holds the initial command), applies it, advances one period and

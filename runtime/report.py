@@ -58,8 +58,8 @@ STRETCH_SLOWER = 2.0
 median over them): the machine itself ran slower. Under one SCHED_FIFO priority a role's
 work is not preempted by the unit's other roles, so waiting (for a CPU the unit's other
 roles or the host hold, or for a message) makes intervals late without stretching the
-work. On 2026-11-24 the late intervals at 1 ms stretched it 1.0-1.8 times at the median
-(docs/measurements/2026-11-24-realtime.md)."""
+work. On the reference machine the late intervals at 1 ms stretched it 1.0-1.8 times at
+the median (docs/measurements/2026-11-24-realtime.md)."""
 
 STRETCH_SAME = 1.2
 """At most this stretch (the median over the late intervals): their time went to waiting,

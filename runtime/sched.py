@@ -290,8 +290,8 @@ class BusyGuard:
     of the real-time budget over the newest ``sustain`` windows together (a sustained
     load near the budget), or busier than the budget itself in the newest window alone (a
     load that throttles within the second if it lasts). Under the default policy a period
-    that needed FIFO does not hold (on 2026-11-24 a 60 s run at 1 ms fell back at
-    interval 47 000 and lost the robot's tracking within 0.2 s), so once
+    that needed FIFO does not hold (a 60 s run at 1 ms that fell back at interval 47 000
+    lost the robot's tracking within 0.2 s), so once
     ``restore_windows`` windows in a row kept every CPU at most ``restore_share`` of the
     budget busy, the processes go back under FIFO at ``priority``; at most
     ``max_restores`` times a run, every change listed in :attr:`changes`.

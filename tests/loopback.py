@@ -29,6 +29,7 @@ from ctrlunit.runtime.peripheral import Peripheral
 from ctrlunit.runtime.plant_node import PlantServer
 from ctrlunit.runtime.setup import make_setup
 from ctrlunit.runtime.zsession import Keys
+from runner import unit_id
 
 PUMP_ROUNDS = 1000
 """Bound on the hand-offs between roles in one pump (each moves at least one message)."""
@@ -263,6 +264,15 @@ def supervise(c: Central, **parts: Any) -> None:
     """Give the central's silence watch what a launcher would know of the roles'
     processes (:class:`~ctrlunit.runtime.central.Supervision`'s fields)."""
     c.silence.supervise(c.silence.supervision._replace(**parts))
+
+
+def realtime_unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUnit:
+    """A realtime loopback unit (3 peripherals, depth 1 unless ``kw`` says otherwise)
+    with a unit id of its own, for a test that drives its central by hand."""
+    kw.setdefault("peripherals", 3)
+    kw.setdefault("pipeline", 1)
+    return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", **kw),
+                        on_message=on_message)
 
 
 def take_sample(u: LoopbackUnit, k: int) -> None:

@@ -14,13 +14,12 @@ from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
 from ctrlunit.runtime.blocks import BlockConfig, k_foresee, k_inflight, names_for
 from ctrlunit.runtime.codec import decode
-from ctrlunit.runtime.config import RunConfig
 from ctrlunit.runtime.controller import Estimate, simulate
 from ctrlunit.topology.balance import auto_central_blocks
 from ctrlunit.topology.graph import KINEMATICS, LAWS, OBSERVERS, stage_graph
 from ctrlunit.topology.placement import Placement, default_placement
 from ctrlunit.topology.plan import exchange_plan, needs_sample
-from loopback import LoopbackUnit, lockstep_config, turn
+from loopback import LoopbackUnit, lockstep_config, realtime_unit, turn
 from loopback import take_sample as sample
 from runner import unit_id
 
@@ -174,10 +173,11 @@ def test_in_freerun_an_interval_starts_before_its_model_round_leaves():
 # -- the star in realtime, step by step ----------------------------------------------------
 
 
-def realtime_unit(tag: str) -> LoopbackUnit:
-    return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", peripherals=3,
-                                     pipeline=2, model_state="foreseen",
-                                     central_blocks=sorted(ON_THE_PATH)))
+def foreseen_unit(tag: str) -> LoopbackUnit:
+    """A realtime unit at depth 2 with ``--model-state foreseen``, the blocks on the
+    path on the central."""
+    return realtime_unit(tag, pipeline=2, model_state="foreseen",
+                         central_blocks=sorted(ON_THE_PATH))
 
 
 def messages(u: LoopbackUnit, start: int = 0) -> list[tuple[str, int]]:
@@ -191,7 +191,7 @@ def messages(u: LoopbackUnit, start: int = 0) -> list[tuple[str, int]]:
 
 
 def test_the_model_round_leaves_before_the_sample_and_the_command_follows_it_alone():
-    u = realtime_unit("fsrt")
+    u = foreseen_unit("fsrt")
     c = u.central
     turn(u)  # interval 0 runs ahead: its round out and back before any sample
     assert messages(u) == [("request", 0)]
@@ -210,7 +210,7 @@ def test_the_model_round_leaves_before_the_sample_and_the_command_follows_it_alo
 
 
 def test_a_sample_before_the_model_round_is_back_waits_for_it():
-    u = realtime_unit("fswait")
+    u = foreseen_unit("fswait")
     c = u.central
     u.muted = {1}  # peripheral 2's answer is held back
     turn(u)
@@ -231,7 +231,7 @@ def test_a_skipped_sample_drops_the_interval_run_ahead_and_counts_its_late_reply
     """Behind the plant's clock the central starts from the newest sample: the interval
     run ahead for the skipped one is dropped, its reply (if it comes) counted as late, and
     the newest interval runs its round after its sample."""
-    u = realtime_unit("fsskip")
+    u = foreseen_unit("fsskip")
     c = u.central
     turn(u)
     sample(u, 0)

@@ -12,14 +12,12 @@ from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
 from ctrlunit.runtime.blocks import BlockConfig, k_predict, k_predict_span, names_for
 from ctrlunit.runtime.codec import decode
-from ctrlunit.runtime.config import RunConfig
 from ctrlunit.runtime.controller import Estimate, simulate
 from ctrlunit.topology.graph import EST2, stage_graph
 from ctrlunit.topology.placement import Placement, default_placement
 from ctrlunit.topology.plan import exchange_plan, needs_sample
-from loopback import LoopbackUnit, turn
+from loopback import LoopbackUnit, realtime_unit, turn
 from loopback import take_sample as sample
-from runner import unit_id
 
 GRAPH = stage_graph(model_state="foreseen2")
 ON_THE_PATH = frozenset({"residual0", "accel", "dyn_axis"})
@@ -135,10 +133,11 @@ def test_foreseen2_tracks_pick_place_as_foreseen(period):
 # -- the star in realtime, step by step ------------------------------------------------------
 
 
-def realtime_unit(tag: str) -> LoopbackUnit:
-    return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", peripherals=3,
-                                     pipeline=2, model_state="foreseen2",
-                                     central_blocks=sorted(ON_THE_PATH)))
+def foreseen2_unit(tag: str) -> LoopbackUnit:
+    """A realtime unit at depth 2 with ``--model-state foreseen2``, the blocks on the
+    path on the central."""
+    return realtime_unit(tag, pipeline=2, model_state="foreseen2",
+                         central_blocks=sorted(ON_THE_PATH))
 
 
 def requests(u: LoopbackUnit, start: int = 0) -> list[list[int]]:
@@ -152,7 +151,7 @@ def requests(u: LoopbackUnit, start: int = 0) -> list[list[int]]:
 
 
 def test_two_intervals_model_rounds_leave_in_one_request():
-    u = realtime_unit("f2rt")
+    u = foreseen2_unit("f2rt")
     c = u.central
     turn(u)
     assert requests(u) == [[0, 1]]  # both ahead of any sample, one exchange
@@ -170,7 +169,7 @@ def test_two_intervals_model_rounds_leave_in_one_request():
 def test_a_skipped_sample_drops_its_interval_and_keeps_the_next_of_the_pair():
     """Behind the plant's clock: interval 0 is skipped, its partner 1 runs from its sample
     with the rounds it ran ahead; replay starts 1 from the same estimates."""
-    u = realtime_unit("f2skip")
+    u = foreseen2_unit("f2skip")
     c = u.central
     turn(u)
     sample(u, 0)
@@ -187,7 +186,7 @@ def test_silence_counts_from_the_first_request_after_the_last_reply():
     from that request (a later request does not move it)."""
     import time
 
-    u = realtime_unit("f2quiet")
+    u = foreseen2_unit("f2quiet")
     c = u.central
     turn(u)  # the pair's rounds out and back
     last = list(c.silence.last_reply_ns)
@@ -223,7 +222,7 @@ def test_the_central_notes_its_own_stalls_for_the_silence_rule():
     """Woken more than a period after it meant to, the central notes the gap; the silence
     of a peripheral over that gap is judged as if the gap had not been."""
     ms = 1_000_000
-    c = realtime_unit("f2own").central
+    c = foreseen2_unit("f2own").central
     c.silence.woke(10 * ms, 10 * ms + c.settings.period_ns)  # a period late: ordinary
     assert not c.silence.own_gaps
     c.silence.woke(10 * ms, 35 * ms)

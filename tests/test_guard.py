@@ -23,7 +23,8 @@ from ctrlunit.runtime.config import (
 )
 from ctrlunit.runtime.controller import Estimate
 from ctrlunit.runtime.supervise import MachineLoad
-from loopback import LoopbackUnit, supervise
+from loopback import LoopbackUnit, realtime_unit, supervise
+from loopback import take_sample as sample
 from runner import unit_id
 
 MS = 1_000_000
@@ -59,21 +60,6 @@ def fault_just_past(c: Any, clock: Clock, limit: int) -> Fault:
     with pytest.raises(Fault) as info:
         c.check_silence(limit)
     return info.value
-
-
-def realtime_unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUnit:
-    kw.setdefault("peripherals", 3)
-    kw.setdefault("pipeline", 1)
-    return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", **kw),
-                        on_message=on_message)
-
-
-def sample(u: LoopbackUnit, k: int) -> None:
-    """The plant's sample ``k`` (the robot's present state), taken by the central."""
-    assert u.server is not None
-    u.server.sample_no = k
-    u.server.publish_sample((0, 0))
-    u.central.handle(u.node.events.get_nowait())
 
 
 def settle(u: LoopbackUnit, *, muted: frozenset[int] = frozenset()) -> None:

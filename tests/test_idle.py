@@ -180,12 +180,12 @@ def test_a_role_started_on_its_own_holds_the_request_for_its_host_while_it_runs(
 def test_start_with_poll_where_the_request_cannot_be_made_refuses_before_any_role(
         tmp_path, monkeypatch):
     """The launcher's error is a configuration error naming the file; no role started."""
-    from ctrlunit.runtime import launcher
+    from ctrlunit.runtime import launcher, unit_start
     from ctrlunit.runtime.config import EXIT_CONFIG
 
     monkeypatch.setattr(idle, "CPU_LATENCY_DEV", tmp_path / "no" / "cpu_dma_latency")
     spawned: list[str] = []
-    monkeypatch.setattr(launcher, "spawn_role", lambda *a, **k: spawned.append(a[1]))
+    monkeypatch.setattr(unit_start, "spawn_role", lambda *a, **k: spawned.append(a[1]))
     code, rep = launcher.start(RunConfig.of(peripherals=1, clock="lockstep", cycles=10,
                                             idle="poll").validate(), echo=lambda m: None)
     assert code == EXIT_CONFIG and spawned == []

@@ -289,7 +289,7 @@ def fitted_dynamics(e: np.ndarray, period: float) -> tuple[float, float]:
 @pytest.mark.parametrize("hz,zeta,delay", [(5.0, 1.0, 0), (5.0, 0.3, 1), (8.0, 0.6, 0)])
 def test_resolved_acceleration_error_has_the_designed_frequency_and_damping(hz, zeta, delay):
     """The fitted natural frequency within 5 % of the design and the damping within 0.03,
-    the command acting 0 or 1 period after its sample (measured 2026-11-23: +1.4 to +2.2 %
+    the command acting 0 or 1 period after its sample (measured: +1.4 to +2.2 %
     and -0.020 to +0.013). A longer delay is outside the promise: at two periods the
     fitted frequency is 5 % (5 Hz, zeta 0.6) to 10 % (5 Hz, zeta 1) above the design
     (docs/thesis-notes.md)."""
@@ -306,7 +306,7 @@ def test_resolved_acceleration_error_has_the_designed_frequency_and_damping(hz, 
 def test_the_model_at_the_acting_state_tracks_closer_than_at_the_sample():
     """Depth 2 at 2.5 ms, default gains: the command acts 2.5 periods after its sample, and
     resolved acceleration's model evaluated there tracks pick & place with well under half
-    the sample-state model's error (measured 2026-11-23: 1.46 mm against 4.34 mm; 0.32 mm
+    the sample-state model's error (measured: 1.46 mm against 4.34 mm; 0.32 mm
     once the acting graph servoes the state its command meets)."""
     period = 2.5e-3
     cycles = round(pick_place_task().period / period) + 1
@@ -326,7 +326,7 @@ def test_the_velocity_from_the_observed_positions_removes_the_half_period_lag(mo
     sample graph) is the rate of half a period earlier mapped with this sample's Jacobian:
     off by ``T/2 Jdot qdot``, a velocity-squared error the feedback then rejects. Side by
     side on the same graph, the kernel swapped: pick & place, depth 2 (2 periods of
-    delay), bandwidth at most 1 / (50 T) (measured 2026-11-23 with the commands in flight
+    delay), bandwidth at most 1 / (50 T) (measured with the commands in flight
     carried forward: at 1 ms 0.019 mm against 0.333 mm; at 2 ms 0.162 mm against 1.146
     mm)."""
     import ctrlunit.runtime.blocks as blocks
@@ -351,7 +351,7 @@ def test_the_commands_in_flight_keep_the_loop_at_20_hz_where_the_command_acts_la
     its loop then keeps a 20 Hz bandwidth at 2 and 4 ms (the default up to 1 / (12.5 T))
     and tracks pick & place within 0.5 mm. Side by side, the same graph told that the
     last command computed is the one acting (the acceleration a period or two off) loses
-    the robot or misses by ten times as much (measured 2026-11-23: 0.089 and 0.451 mm
+    the robot or misses by ten times as much (measured: 0.089 and 0.451 mm
     against the observer diverging at both)."""
     import ctrlunit.runtime.blocks as blocks
 

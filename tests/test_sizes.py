@@ -37,7 +37,6 @@ OVER: dict[str, int] = {
     "runtime/cli/run.py:run_options": 190,
     "runtime/cli/tools.py:balance": 82,
     "runtime/config.py:validate": 102,
-    "runtime/launcher.py:_start": 187,
     "runtime/replay.py:verify": 100,
     "runtime/report.py:build_report": 100,
     "bench/sweep.py:bench": 90,

@@ -82,9 +82,9 @@ def hold_rule(asked: str, *, clock: str) -> bool:
     once its sample has come, a period later, so a held round puts up to a period into
     its interval's traversal, whose budget is the command delay (``depth`` periods). In
     freerun the next interval is ready at once and holding only saves; in lockstep the
-    commands are the same either way. Side by side on 2026-11-23 (2-core machine, n = 3,
-    depth 2, admission trials from 1 ms up, docs/measurements/2026-11-23-realtime.md),
-    holding held no period up to 3.2 ms, not holding held 2-3.2 ms."""
+    commands are the same either way. Side by side (2-core machine, n = 3, depth 2,
+    admission trials from 1 ms up, docs/measurements/2026-11-23-realtime.md), holding
+    held no period up to 3.2 ms, not holding held 2-3.2 ms."""
     if asked not in HOLD_RULES:
         raise ValueError(f"hold rule {asked!r}: expected one of {', '.join(HOLD_RULES)}")
     if asked == "auto":
