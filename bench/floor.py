@@ -26,6 +26,7 @@ import shutil
 import statistics
 import tempfile
 import time
+from multiprocessing.process import BaseProcess
 from typing import Any
 
 PAYLOAD = b"x" * 64
@@ -42,9 +43,9 @@ def _cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _echo(data: bytes, c0: float) -> tuple[bytes | None, float]:
-    """What an echoing child answers to ``data`` (``None``: exit after the answer), and
-    its CPU counter's new start."""
+def _echo(data: bytes, c0: float) -> tuple[bytes, float]:
+    """What an echoing child answers to ``data`` (to ``QUIT``, its CPU time, after which
+    it exits), and its CPU counter's new start."""
     if data == RESET:
         return RESET, _cpu_s()
     if data == QUIT:
@@ -185,8 +186,8 @@ class _Link:
         if kind == "pipe":
             a_r, a_w = os.pipe()  # caller -> child
             b_r, b_w = os.pipe()  # child -> caller
-            self.proc = mp.get_context("fork").Process(target=_pipe_child, args=(a_r, b_w),
-                                                        daemon=True)
+            self.proc: BaseProcess = mp.get_context("fork").Process(
+                target=_pipe_child, args=(a_r, b_w), daemon=True)
             self.proc.start()
             self._w, self._r = a_w, b_r
             return

@@ -224,8 +224,9 @@ def _late_words(r: dict[str, Any]) -> str:
     stretch = r.get("late_work_stretch")
     if stretch is None:
         return ""
-    verdict = {True: "the machine ran slower", False: "time lost waiting"}.get(
-        r.get("machine_slower"), "in between")
+    slower = r.get("machine_slower")
+    verdict = "in between" if slower is None else (
+        "the machine ran slower" if slower else "time lost waiting")
     return f"; the late intervals' work took {stretch:.1f}x its median ({verdict})"
 
 

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-THESIS = {
+THESIS: dict[str, Any] = {
     "inverse_kinematics_3": {"t1_us": 240, "tp_us": 88, "n": 3, "efficiency": 0.91},
     "ik_and_jacobian_3": {"t1_us": 380, "tp_us": 128, "n": 3, "efficiency": 0.96},
     "all_kinematics_4": {"t1_us": 1320, "tp_us": 582, "n": 4, "efficiency": 0.57},
@@ -111,8 +111,8 @@ def thesis_stage(*, scale: float, repeats: int, cycles: int,
     scale : the T-800 cost scale.
     repeats : pairs to run (two or more for a median that one slow run cannot move).
     cycles : intervals per run.
-    run : ``run(config, cycles) -> (report, central)`` (:func:`.sweep.run_one`).
-    config : the bench's configuration class (:class:`.sweep.Config`).
+    run : ``run(config, cycles) -> (report, central)`` (:func:`.runs.run_one`).
+    config : the bench's configuration class (:class:`.runs.Config`).
 
     Returns the runs' reports by configuration key, each pair's figures, their medians
     and :data:`GUARDS` checked on the medians (``ok`` on each).

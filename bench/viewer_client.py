@@ -33,11 +33,12 @@ class ViewerClient:
     def _run(self) -> None:
         from websockets.exceptions import ConnectionClosed
         from websockets.sync.client import connect
+        from websockets.typing import Subprotocol
 
         end = time.monotonic() + self.wait_s
         while not self._stop.is_set():
             try:
-                ws = connect(f"ws://127.0.0.1:{self.port}", subprotocols=[SUBPROTOCOL],
+                ws = connect(f"ws://127.0.0.1:{self.port}", subprotocols=[Subprotocol(SUBPROTOCOL)],
                              open_timeout=2)
                 break
             except OSError as exc:

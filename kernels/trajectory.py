@@ -15,7 +15,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
-from typing import Protocol
+from typing import Protocol, TypeGuard
 
 import numpy as np
 
@@ -313,9 +313,9 @@ MAX_NAME_CHARS = 200
 """Longest task name a task file may give; reports quote it whole."""
 
 
-def _is_number(x: object) -> bool:
+def _is_number(x: object) -> TypeGuard[float]:
     """A finite int or float from JSON (``true`` is not a number)."""
-    return type(x) in (int, float) and math.isfinite(x)
+    return (type(x) is int or type(x) is float) and math.isfinite(x)
 
 
 def task_from_json(path: str | FsPath) -> Task:

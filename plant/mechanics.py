@@ -150,6 +150,52 @@ def _inv_sym3(a00, a01, a02, a11, a12, a22):
     return c00 * inv, c01 * inv, c02 * inv, c11 * inv, c12 * inv, c22 * inv
 
 
+def _multipliers(a: float, a0: tuple[float, float, float, float, float, float],
+                 r1: tuple[float, float, float],
+                 es: list[tuple[float, float, float]], gqs: list[float], r2s: list[float]
+                 ) -> tuple[float, float, float, float, float, float]:
+    """The platform's acceleration and the multipliers of :func:`accelerations`' reduced
+    system: ``lam = (E^T A0^-1 E + D)^-1 (E^T A0^-1 r1 - r2)``, ``pdd = A0^-1 (r1 - E
+    lam)``, with ``A0`` given by its upper triangle and ``D = diag(Gq_i^2 / a)``. Returns
+    ``(pdd_x, pdd_y, pdd_z, lam_0, lam_1, lam_2)``."""
+    a00, a01, a02, a11, a12, a22 = a0
+    b0, b1, b2 = r1
+    i00, i01, i02, i11, i12, i22 = _inv_sym3(a00, a01, a02, a11, a12, a22)
+    (e00, e01, e02), (e10, e11, e12), (e20, e21, e22) = es
+    # y = A0^-1 r1 and A0^-1 e_i
+    yr0 = i00 * b0 + i01 * b1 + i02 * b2
+    yr1 = i01 * b0 + i11 * b1 + i12 * b2
+    yr2 = i02 * b0 + i12 * b1 + i22 * b2
+    y00 = i00 * e00 + i01 * e01 + i02 * e02
+    y01 = i01 * e00 + i11 * e01 + i12 * e02
+    y02 = i02 * e00 + i12 * e01 + i22 * e02
+    y10 = i00 * e10 + i01 * e11 + i02 * e12
+    y11 = i01 * e10 + i11 * e11 + i12 * e12
+    y12 = i02 * e10 + i12 * e11 + i22 * e12
+    y20 = i00 * e20 + i01 * e21 + i02 * e22
+    y21 = i01 * e20 + i11 * e21 + i12 * e22
+    y22 = i02 * e20 + i12 * e21 + i22 * e22
+    # S = E^T A0^-1 E + D (symmetric), rhs = E^T A0^-1 r1 - r2
+    g0, g1, g2 = gqs
+    s00 = e00 * y00 + e01 * y01 + e02 * y02 + g0 * g0 / a
+    s11 = e10 * y10 + e11 * y11 + e12 * y12 + g1 * g1 / a
+    s22 = e20 * y20 + e21 * y21 + e22 * y22 + g2 * g2 / a
+    s01 = e00 * y10 + e01 * y11 + e02 * y12
+    s02 = e00 * y20 + e01 * y21 + e02 * y22
+    s12 = e10 * y20 + e11 * y21 + e12 * y22
+    h0 = e00 * yr0 + e01 * yr1 + e02 * yr2 - r2s[0]
+    h1 = e10 * yr0 + e11 * yr1 + e12 * yr2 - r2s[1]
+    h2 = e20 * yr0 + e21 * yr1 + e22 * yr2 - r2s[2]
+    j00, j01, j02, j11, j12, j22 = _inv_sym3(s00, s01, s02, s11, s12, s22)
+    l0 = j00 * h0 + j01 * h1 + j02 * h2
+    l1 = j01 * h0 + j11 * h1 + j12 * h2
+    l2 = j02 * h0 + j12 * h1 + j22 * h2
+    x0 = yr0 - l0 * y00 - l1 * y10 - l2 * y20
+    x1 = yr1 - l0 * y01 - l1 * y11 - l2 * y21
+    x2 = yr2 - l0 * y02 - l1 * y12 - l2 * y22
+    return x0, x1, x2, l0, l1, l2
+
+
 def accelerations(
     params: DeltaParams,
     bc: BodyConstants,
@@ -213,39 +259,9 @@ def accelerations(
         Qqs.append(Qq)
         Gqs.append(Gq)
         r2s.append(-gam - Gq * Qq / a)
-    i00, i01, i02, i11, i12, i22 = _inv_sym3(a00, a01, a02, a11, a12, a22)
-    (e00, e01, e02), (e10, e11, e12), (e20, e21, e22) = es
-    # y = A0^-1 r1 and A0^-1 e_i
-    yr0 = i00 * b0 + i01 * b1 + i02 * b2
-    yr1 = i01 * b0 + i11 * b1 + i12 * b2
-    yr2 = i02 * b0 + i12 * b1 + i22 * b2
-    y00 = i00 * e00 + i01 * e01 + i02 * e02
-    y01 = i01 * e00 + i11 * e01 + i12 * e02
-    y02 = i02 * e00 + i12 * e01 + i22 * e02
-    y10 = i00 * e10 + i01 * e11 + i02 * e12
-    y11 = i01 * e10 + i11 * e11 + i12 * e12
-    y12 = i02 * e10 + i12 * e11 + i22 * e12
-    y20 = i00 * e20 + i01 * e21 + i02 * e22
-    y21 = i01 * e20 + i11 * e21 + i12 * e22
-    y22 = i02 * e20 + i12 * e21 + i22 * e22
-    # S = E^T A0^-1 E + D (symmetric), rhs = E^T A0^-1 r1 - r2
+    x0, x1, x2, l0, l1, l2 = _multipliers(a, (a00, a01, a02, a11, a12, a22), (b0, b1, b2),
+                                          es, Gqs, r2s)
     g0, g1, g2 = Gqs
-    s00 = e00 * y00 + e01 * y01 + e02 * y02 + g0 * g0 / a
-    s11 = e10 * y10 + e11 * y11 + e12 * y12 + g1 * g1 / a
-    s22 = e20 * y20 + e21 * y21 + e22 * y22 + g2 * g2 / a
-    s01 = e00 * y10 + e01 * y11 + e02 * y12
-    s02 = e00 * y20 + e01 * y21 + e02 * y22
-    s12 = e10 * y20 + e11 * y21 + e12 * y22
-    h0 = e00 * yr0 + e01 * yr1 + e02 * yr2 - r2s[0]
-    h1 = e10 * yr0 + e11 * yr1 + e12 * yr2 - r2s[1]
-    h2 = e20 * yr0 + e21 * yr1 + e22 * yr2 - r2s[2]
-    j00, j01, j02, j11, j12, j22 = _inv_sym3(s00, s01, s02, s11, s12, s22)
-    l0 = j00 * h0 + j01 * h1 + j02 * h2
-    l1 = j01 * h0 + j11 * h1 + j12 * h2
-    l2 = j02 * h0 + j12 * h1 + j22 * h2
-    x0 = yr0 - l0 * y00 - l1 * y10 - l2 * y20
-    x1 = yr1 - l0 * y01 - l1 * y11 - l2 * y21
-    x2 = yr2 - l0 * y02 - l1 * y12 - l2 * y22
     (u00, u01, u02), (u10, u11, u12), (u20, u21, u22) = us
     q0, q1, q2 = Qqs
     return [

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import sched
+from .busy_guard import ADMIT_BUSY_SHARE
 from .config import EXIT_UNSUSTAINABLE
 
 if TYPE_CHECKING:
@@ -257,7 +258,7 @@ def fifo_busy_limit() -> float | None:
     budget = sched.rt_budget()
     if budget is None or not sched.fifo_in_force():
         return None
-    return sched.ADMIT_BUSY_SHARE * budget
+    return ADMIT_BUSY_SHARE * budget
 
 
 def trial(central: Central, period: float, *, base: int, transit_s: float) -> dict[str, Any]:
@@ -290,7 +291,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
     busy = sched.busy_share(busy0, sched.cpu_times())
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
     trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
-    out = {"period_s": period}
+    out: dict[str, Any] = {"period_s": period}
     out |= rung_verdict(trav, skipped=probe.meters.skipped, budget_s=budget, transit_s=transit_s,
                         busy_share=busy, busy_limit=fifo_busy_limit(),
                         skip_marks=probe.meters.skip_marks)

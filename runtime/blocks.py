@@ -13,11 +13,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from ..kernels import kinematics as kin
-from ..kernels.dynamics import ModelCoefficients, axis_dynamics, coefficients, operational_force
+from ..kernels.dynamics import ModelCoefficients, coefficients, operational_force
 from ..kernels.laws import (
     Gains,
-    joint_command,
-    joint_pd,
     nominal_joint_inertia,
     operational_command,
     saturate,
@@ -69,71 +67,6 @@ class BlockConfig:
 
 class ObserverDiverged(RuntimeError):
     """The Newton-Raphson observer left the reachable space or did not converge."""
-
-
-# --- axis kernels: f(ctx, i, cfg, names) ----------------------------------------------
-
-
-def k_ik(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    p = c[n["p"]]
-    try:
-        ax = kin.ik_axis(cfg.params, i, p[0], p[1], p[2])
-    except kin.UnreachableError as exc:
-        raise ObserverDiverged(str(exc)) from None
-    c[n["ax_i"]][i] = ax
-    c[n["q_i"]][i] = ax.q
-
-
-def k_jinv(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    c[n["row_i"]][i] = kin.jinv_row(cfg.params, i, _ax(c[n["ax_i"]][i]))
-
-
-def k_residual(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    c[n["r_i"]][i] = c[n["q_i"]][i] - c[n["qmeas_i"]][i]
-
-
-def k_jdot(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    row = c[n["row_i"]][i]
-    pd = c[n["pd"]]
-    qd = kin.dot_row(row, pd)
-    c[n["qd_i"]][i] = qd
-    c[n["jdp_i"]][i] = kin.jinvdot_pdot_row(cfg.params, i, _ax(c[n["ax_i"]][i]), pd, qd)
-
-
-def k_accel(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    c[n["qdd_i"]][i] = kin.accel_row(c[n["row_i"]][i], c[n["pdd"]], c[n["jdp_i"]][i])
-
-
-def k_dyn_axis(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    d = axis_dynamics(cfg.coef, i, _ax(c[n["ax_i"]][i]), c[n["qd_i"]][i], c[n["qdd_i"]][i],
-                      c[n["pdd"]])
-    c[n["tauq_i"]][i] = d.tau_q
-    c[n["f_i"]][i] = d.force
-
-
-def k_ref_rates(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    ax = _ax(c[n["axr_i"]][i])
-    row = c[n["rowr_i"]][i]
-    vc, ac = c[n["vc"]], c[n["ac"]]
-    qd = kin.dot_row(row, vc)
-    c[n["qdc_i"]][i] = qd
-    c[n["qddc_i"]][i] = kin.accel_row(row, ac, kin.jinvdot_pdot_row(cfg.params, i, ax, vc, qd))
-
-
-def k_joint_law(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    c[n["qddcmd_i"]][i] = joint_command(cfg.gains, c[n["qc_i"]][i], c[n["qdc_i"]][i],
-                                        c[n["qddc_i"]][i], c[n["qmeas_i"]][i],
-                                        c[n["qdmeas_i"]][i])
-
-
-def k_joint_pd(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    c[n["taufb_i"]][i] = joint_pd(cfg.gains, cfg.a0, c[n["qc_i"]][i], c[n["qdc_i"]][i],
-                                  c[n["qmeas_i"]][i], c[n["qdmeas_i"]][i])
-
-
-def k_joint_pd_static(c: Ctx, i: int, cfg: BlockConfig, n: dict[str, str]) -> None:
-    c[n["taufb_i"]][i] = joint_pd(cfg.gains, cfg.a0, c[n["qc_i"]][i], 0.0,
-                                  c[n["qmeas_i"]][i], c[n["qdmeas_i"]][i])
 
 
 # --- central kernels: f(ctx, cfg, names) -------------------------------------------------
@@ -381,15 +314,6 @@ def k_output(c: Ctx, cfg: BlockConfig, n: dict[str, str]) -> None:
     c[n["cmd"]] = list(saturate((tau[0], tau[1], tau[2]), cfg.params.tau_max))
 
 
-def _ax(v: object) -> kin.AxisIK:
-    return v if isinstance(v, kin.AxisIK) else kin.AxisIK(*v)  # type: ignore[misc]
-
-
-AXIS_KERNELS: dict[str, Callable[[Ctx, int, BlockConfig, dict[str, str]], None]] = {
-    "ik": k_ik, "jinv": k_jinv, "residual": k_residual, "jdot": k_jdot, "accel": k_accel,
-    "dyn_axis": k_dyn_axis, "ref_rates": k_ref_rates, "joint_law": k_joint_law,
-    "joint_pd": k_joint_pd, "joint_pd_static": k_joint_pd_static,
-}
 CENTRAL_KERNELS: dict[str, Callable[[Ctx, BlockConfig, dict[str, str]], None]] = {
     "reference": k_reference, "reference_acting": k_reference_acting, "predict": k_predict,
     "observer": k_observer, "velocity": k_velocity, "velocity_diff": k_velocity_diff,

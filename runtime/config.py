@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import math
 import re
-import types
 import typing
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -21,6 +19,7 @@ from .sections import (
     ScheduleConfig,
     TransportConfig,
 )
+from .value_types import has_type, type_name
 
 CLOCKS = ("lockstep", "realtime", "freerun")
 REPLY_MODES = ("auto", "fused", "each")
@@ -69,47 +68,6 @@ _UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0
 
 class ConfigError(ValueError):
     """An option is out of range; the message names it and the allowed range."""
-
-
-def _has_type(value: Any, tp: Any) -> bool:
-    """``value`` (decoded JSON) is of the annotated type: ``int``, ``float`` (an int is
-    one), ``str``, ``bool``, ``X | None``, ``list[str]``, ``dict[str, str]``; bool is no
-    number; a float must be finite."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        return any(_has_type(value, a) for a in args)
-    if tp is type(None):
-        return value is None
-    if tp is bool:
-        return isinstance(value, bool)
-    if tp is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if tp is float:
-        return (isinstance(value, (int, float)) and not isinstance(value, bool)
-                and math.isfinite(value))
-    if tp is str:
-        return isinstance(value, str)
-    if origin is list:
-        return isinstance(value, list) and all(_has_type(x, args[0]) for x in value)
-    if origin is dict:
-        return isinstance(value, dict) and all(
-            _has_type(k, args[0]) and _has_type(x, args[1]) for k, x in value.items())
-    return False
-
-
-def _type_name(tp: Any) -> str:
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        return " or ".join(_type_name(a) for a in args)
-    names = {type(None): "null", bool: "true or false", int: "an integer",
-             float: "a finite number", str: "a string"}
-    if tp in names:
-        return names[tp]
-    if origin is list:
-        return f"a list of {_type_name(args[0]).removeprefix('a ')}s"
-    if origin is dict:
-        return "an object of strings"
-    return str(tp)
 
 
 def parse_duration(text: str | float, *, field_name: str = "duration") -> float:
@@ -188,66 +146,83 @@ class RunConfig:
         return getattr(getattr(self, section), name)
 
     def validate(self) -> RunConfig:
+        """Check every option's value; returns ``self``.
+
+        Raises
+        ------
+        ConfigError
+            Naming the first option out of its range and the range allowed.
+        """
+        self._check_values()
+        self._check_outputs()
+        self._check_host()
+        return self
+
+    def _bad(self, name: str, allowed: str) -> ConfigError:
+        """Names the option (``--max-error``) and the value as the user would write it."""
+        value = self.option(name)
+        unit = {"period": " s", "timeout": " s", "max_error": " m", "bandwidth_hz": " Hz",
+                "foxglove_rate": " Hz"}.get(name, "")
+        shown = f"{value:g}{unit}" if isinstance(value, float) else repr(value)
+        option = "--" + name.removesuffix("_hz").replace("_", "-")
+        return ConfigError(f"{option} = {shown}: allowed {allowed}")
+
+    def _check_values(self) -> None:
+        """What the unit computes and how it is scheduled."""
         from ..topology.graph import LAWS
 
-        def bad(name: str, allowed: str) -> ConfigError:
-            """Names the option (``--max-error``) and the value as the user would write it."""
-            value = self.option(name)
-            unit = {"period": " s", "timeout": " s", "max_error": " m", "bandwidth_hz": " Hz",
-                    "foxglove_rate": " Hz"}.get(name, "")
-            shown = f"{value:g}{unit}" if isinstance(value, float) else repr(value)
-            option = "--" + name.removesuffix("_hz").replace("_", "-")
-            return ConfigError(f"{option} = {shown}: allowed {allowed}")
-
         if self.schedule.peripherals not in (0, 1, 2, 3):
-            raise bad("peripherals", "0, 1, 2 or 3")
+            raise self._bad("peripherals", "0, 1, 2 or 3")
         if self.schedule.pipeline not in (1, 2):
-            raise bad("pipeline", "1 or 2")
+            raise self._bad("pipeline", "1 or 2")
         if self.schedule.clock not in CLOCKS:
-            raise bad("clock", ", ".join(CLOCKS))
+            raise self._bad("clock", ", ".join(CLOCKS))
         if not 20e-6 <= self.schedule.period <= 1.0:
-            raise bad("period", "20us to 1s")
+            raise self._bad("period", "20us to 1s")
         if self.control.law not in (*LAWS, "kinematics"):
-            raise bad("law", ", ".join(LAWS))
+            raise self._bad("law", ", ".join(LAWS))
         if self.control.model not in ("complete", "simplified"):
-            raise bad("model", "complete or simplified")
+            raise self._bad("model", "complete or simplified")
         if self.run.cycles is not None and not 1 <= self.run.cycles <= 10**9:
-            raise bad("cycles", "1 to 1e9")
+            raise self._bad("cycles", "1 to 1e9")
         if self.control.cost_model not in ("native", "t800"):
-            raise bad("cost_model", "native or t800")
+            raise self._bad("cost_model", "native or t800")
         if self.control.observer not in ("predict", "previous"):
-            raise bad("observer", "predict or previous")
+            raise self._bad("observer", "predict or previous")
         if self.control.model_state not in ("auto", *MODEL_STATES):
-            raise bad("model_state", ", ".join(("auto", *MODEL_STATES)))
+            raise self._bad("model_state", ", ".join(("auto", *MODEL_STATES)))
         if self.control.bandwidth_hz is not None and not 0.1 <= self.control.bandwidth_hz <= 200.0:
-            raise bad("bandwidth_hz", "0.1 to 200 Hz")
+            raise self._bad("bandwidth_hz", "0.1 to 200 Hz")
         if not 0.01 <= self.transport.timeout <= 600.0:
-            raise bad("timeout", "0.01 to 600 s")
+            raise self._bad("timeout", "0.01 to 600 s")
         if self.schedule.cpus not in (None, "same", "split"):
-            raise bad("cpus", "same (every role on CPU 0) or split (central on 0, the rest "
+            raise self._bad("cpus", "same (every role on CPU 0) or split (central on 0, the rest "
                       "on 1)")
         if self.schedule.late_policy not in LATE_POLICIES:
-            raise bad("late_policy", ", ".join(LATE_POLICIES))
+            raise self._bad("late_policy", ", ".join(LATE_POLICIES))
         if self.schedule.missed_command not in MISSED_COMMANDS:
-            raise bad("missed_command", ", ".join(MISSED_COMMANDS))
+            raise self._bad("missed_command", ", ".join(MISSED_COMMANDS))
         for block, pol in self.schedule.late.items():
             if pol not in LATE_POLICIES:
                 raise ConfigError(f"--late {block}={pol}: the policy must be one of "
                                   f"{', '.join(LATE_POLICIES)}")
         if not 0.01 <= self.control.cost_scale <= 1000.0:
-            raise bad("cost_scale", "0.01 to 1000")
+            raise self._bad("cost_scale", "0.01 to 1000")
         if not 1.0 <= self.schedule.fault_periods <= 1000.0:
-            raise bad("fault_periods", "1 to 1000 periods")
+            raise self._bad("fault_periods", "1 to 1000 periods")
+
+    def _check_outputs(self) -> None:
+        """The run's outputs, the overload rule and the plant's options."""
         from .mcap_writer import COMPRESSIONS
 
         if self.run.record_compression not in COMPRESSIONS:
-            raise bad("record_compression", ", ".join(COMPRESSIONS))
+            raise self._bad("record_compression", ", ".join(COMPRESSIONS))
         if self.run.foxglove is not None:
             parse_host_port(self.run.foxglove, field_name="--foxglove")
         if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
-            raise bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
+            raise self._bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
         if self.schedule.overload not in OVERLOAD_ACTIONS:
-            raise bad("overload", ", ".join(OVERLOAD_ACTIONS))
+            raise self._bad("overload", ", ".join(OVERLOAD_ACTIONS))
         if self.schedule.overload == "halve" and not self.gains_hold_halved:
             limit = self.bandwidth_limit(2.0 * self.schedule.period)
             raise ConfigError(
@@ -255,15 +230,18 @@ class RunConfig:
                 f"its phase margin at twice the period ({2e3 * self.schedule.period:g} ms); "
                 f"allowed with --bandwidth at most {limit:.3g} Hz, or --overload continue")
         if self.schedule.hold_rounds not in HOLD_RULES:
-            raise bad("hold_rounds", ", ".join(HOLD_RULES))
+            raise self._bad("hold_rounds", ", ".join(HOLD_RULES))
         if self.schedule.command_delay not in COMMAND_DELAYS:
-            raise bad("command_delay", ", ".join(COMMAND_DELAYS))
+            raise self._bad("command_delay", ", ".join(COMMAND_DELAYS))
         if self.schedule.replies not in REPLY_MODES:
-            raise bad("replies", ", ".join(REPLY_MODES))
+            raise self._bad("replies", ", ".join(REPLY_MODES))
         if not 1e-5 <= self.control.max_error <= 1.0:
-            raise bad("max_error", "10 um to 1 m")
+            raise self._bad("max_error", "10 um to 1 m")
         if self.plant.substeps is not None and not 1 <= self.plant.substeps <= 1000:
-            raise bad("plant_substeps", "1 to 1000")
+            raise self._bad("plant_substeps", "1 to 1000")
+
+    def _check_host(self) -> None:
+        """The host's scheduling, the unit id, the endpoints and the links' keys."""
         from .idle import check_idle
         from .sched import check_priority
 
@@ -288,7 +266,7 @@ class RunConfig:
             self.link_security()
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        return self
+
 
     def link_security(self, *, check_files: bool = True) -> str:
         """How this run's links are protected (runtime/security.py, ``link_security``):
@@ -390,10 +368,10 @@ class RunConfig:
         for k, v in data.items():
             if k not in _FLAT_TYPES:
                 raise ConfigError(f"{source}: unknown run option {k!r}")
-            if not _has_type(v, _FLAT_TYPES[k]):
+            if not has_type(v, _FLAT_TYPES[k]):
                 shown = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
                 raise ConfigError(f"{source}: {k} = {shown}: allowed "
-                                  f"{_type_name(_FLAT_TYPES[k])}")
+                                  f"{type_name(_FLAT_TYPES[k])}")
         return cls.of(**data)
 
     @classmethod

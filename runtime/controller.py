@@ -84,7 +84,9 @@ class Controller:
     def __post_init__(self) -> None:
         # plain floats: a numpy scalar here would make every value computed from the
         # estimate a numpy scalar too, and the kernels several times slower (docs/message-costs.md)
-        self.est = Estimate(tuple(float(x) for x in self.p0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        p0 = self.p0
+        self.est = Estimate((float(p0[0]), float(p0[1]), float(p0[2])), (0.0, 0.0, 0.0),
+                            (0.0, 0.0, 0.0))
 
     def sources(self, cycle: int, counts: list[int]) -> dict:
         """Context of interval ``cycle`` from its encoder counts."""

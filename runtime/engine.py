@@ -18,7 +18,8 @@ from typing import Any
 
 from ..topology.graph import EST2
 from ..topology.plan import ExchangePlan, Round
-from .blocks import AXIS_KERNELS, CENTRAL_KERNELS, BlockConfig, Ctx, ObserverDiverged, names_for
+from .axis_blocks import AXIS_KERNELS
+from .blocks import CENTRAL_KERNELS, BlockConfig, Ctx, ObserverDiverged, names_for
 
 
 class CostModel:

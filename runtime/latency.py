@@ -71,7 +71,7 @@ def histogram_png(lat_s: np.ndarray, path: str, *, period_s: float, title: str) 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     us = lat_s * 1e6
     top = max(float(us.max()) if us.size else 1.0, period_s * 1e6) * 1.05
-    ax.hist(us, bins=np.linspace(0.0, top, 120), color="#3465a4")
+    ax.hist(us, bins=np.linspace(0.0, top, 120).tolist(), color="#3465a4")
     ax.set_yscale("log")
     ax.axvline(period_s * 1e6, color="#cc0000", lw=1, label=f"period {period_s * 1e3:g} ms")
     for q, ls in (("p99", "--"), ("p999", ":")):

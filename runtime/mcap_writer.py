@@ -68,7 +68,7 @@ with their message indexes, for 15 us of the writer thread's time per interval; 
 1.5 % for 2.4 times the time (docs/measurements/2026-11-23-recording.md)."""
 
 
-def compressor(name: str) -> Callable[[bytes], bytes] | None:
+def compressor(name: str) -> Callable[[bytes | bytearray], bytes] | None:
     """The function that compresses one chunk's records for ``name`` (None for ``none``).
 
     Raises
@@ -87,6 +87,48 @@ def compressor(name: str) -> Callable[[bytes], bytes] | None:
 
         return lz4.frame.compress
     raise ValueError(f"compression must be one of {', '.join(COMPRESSIONS)}, got {name!r}")
+
+
+class _Worker:
+    """A writer thread that runs jobs in the order submitted; an error in one is raised
+    to the caller at its next call (no later job runs)."""
+
+    def __init__(self, before_job: Callable[[], None] | None) -> None:
+        self._before_job = before_job
+        # bounded: a disk slower than the run holds the caller back, never eats memory
+        self._jobs: queue.Queue[Callable[[], None] | None] = queue.Queue(maxsize=64)
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._work, name="mcap-writer", daemon=True)
+        self._thread.start()
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise RuntimeError(f"the MCAP writer thread failed: {self._error!r}") \
+                from self._error
+
+    def submit(self, job: Callable[[], None]) -> None:
+        """Run ``job`` after those submitted before it."""
+        self._raise()
+        self._jobs.put(job)
+
+    def finish(self) -> None:
+        """Wait for every job submitted, then end the thread."""
+        self._jobs.put(None)
+        self._thread.join()
+        self._raise()
+
+    def _work(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            if self._error is None:
+                try:
+                    if self._before_job is not None:
+                        self._before_job()
+                    job()
+                except BaseException as exc:  # reported to the caller at its next call
+                    self._error = exc
 
 
 class LeanWriter:
@@ -136,16 +178,7 @@ class LeanWriter:
         self._chunks = 0
         self._started = False
         self._finished = False
-        self._jobs: queue.Queue[Callable[[], None] | None] | None = None
-        self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
-        self._before_job = before_job
-        if background:
-            # bounded: a disk slower than the run holds the caller back, never eats memory
-            self._jobs = queue.Queue(maxsize=64)
-            self._thread = threading.Thread(target=self._work, name="mcap-writer",
-                                            daemon=True)
-            self._thread.start()
+        self._worker = _Worker(before_job) if background else None
 
     # -- low level ----------------------------------------------------------------------
 
@@ -156,27 +189,10 @@ class LeanWriter:
 
     def _submit(self, job: Callable[[], None]) -> None:
         """Run ``job`` (a write to the stream) now, or in order on the writer thread."""
-        if self._error is not None:
-            raise RuntimeError(f"the MCAP writer thread failed: {self._error!r}") \
-                from self._error
-        if self._jobs is None:
+        if self._worker is None:
             job()
         else:
-            self._jobs.put(job)
-
-    def _work(self) -> None:
-        assert self._jobs is not None
-        while True:
-            job = self._jobs.get()
-            if job is None:
-                return
-            if self._error is None:
-                try:
-                    if self._before_job is not None:
-                        self._before_job()
-                    job()
-                except BaseException as exc:  # reported to the caller at its next call
-                    self._error = exc
+            self._worker.submit(job)
 
     def flush(self) -> None:
         """Flush the stream once the writes asked for so far are done."""
@@ -263,14 +279,9 @@ class LeanWriter:
             return
         self._finished = True
         self._close_chunk()
-        if self._thread is not None:
-            assert self._jobs is not None
-            self._jobs.put(None)
-            self._thread.join()
-            self._jobs = None
-            if self._error is not None:
-                raise RuntimeError(f"the MCAP writer thread failed: {self._error!r}") \
-                    from self._error
+        if self._worker is not None:
+            self._worker.finish()
+            self._worker = None
         self._write(self._record(DataEnd(data_section_crc=self._crc)))
         summary_start = self._pos
         groups: list[tuple[int, list[bytes]]] = [

@@ -36,7 +36,7 @@ class Event(NamedTuple):
 
     kind: str
     """The kind its key was routed as (``reply``, ``sample``, ``request``, ...)."""
-    index: int
+    index: int  # type: ignore[assignment]  # a field named as tuple's method, by design
     """The index routed with the key (the peripheral of a reply, 0 otherwise)."""
     data: bytes
     """The payload, not yet decoded."""

@@ -39,25 +39,14 @@ from .codec import BadMessage, check_vector, encode
 from .config import EXIT_LINK, EXIT_OK
 from .controller import initial_angles, initial_command
 from .node import WARM_RSS_AT, Node, control_order, cpu_used, is_stop, rss_kb, say_bye
+from .plant_orders import STOP_ORDER_WAIT_S, safe_stop, trial_order, wait_for_stop
 from .setup import Setup
 from .stopping import stop_of, stop_signals
 from .stride import StrideSchedule
 
-TRIAL_MAX_S = 60.0
-"""Longest admission trial the plant runs on one order (a forged order cannot hold it)."""
-
 SLEEP_SLICE_S = 0.02
 """Longest the realtime plant sleeps before it reads its inbox (a stop order waits at most
 this long)."""
-
-STOP_ORDER_WAIT_S = 0.5
-"""How long a plant stopped by a signal of its own waits for the central's stop order
-before it brakes (the simulated robot does not move meanwhile). The order carries the
-torques to hold (gravity compensation at the central's estimate); the last command also
-carries the path's inertial torques, and braking on it left the platform at 0.47 m/s
-instead of under 2 mm/s. A signal to the whole job reaches the central too, whose order
-follows within milliseconds; a plant run by hand and stopped alone waits it out."""
-
 
 class PlantServer:
     """State of the plant role between messages. ``trial_plant(period)`` builds the
@@ -293,8 +282,8 @@ def sleep_to_tick(node: Node, server: PlantServer, tick_ns: int, *,
                     server.take_stride(order)
             elif is_stop(node, ev):
                 return False
-            elif (order := trial_order(node, ev)) is not None:
-                server.next_trial = order
+            elif (trial := trial_order(node, ev)) is not None:
+                server.next_trial = trial
         if time.monotonic_ns() >= tick_ns:
             return True
 
@@ -305,24 +294,6 @@ def tick_after(tick_ns: int, period_ns: int) -> int:
     nxt = tick_ns + period_ns
     now = time.monotonic_ns()
     return now + period_ns if now > nxt else nxt
-
-
-def trial_order(node: Node, ev: Any) -> tuple[float, int, int] | None:
-    """``(period, ticks, base)`` of an admission trial order, else None (a malformed one is
-    counted and dropped)."""
-    if ev.kind != "control":
-        return None
-    msg = node.decode(ev.data)
-    if msg is None or msg["stage"] != "probe":
-        return None
-    period, ticks, base = msg.get("period"), msg.get("ticks"), msg.get("base")
-    if not (isinstance(period, float) and 20e-6 <= period <= 1.0
-            and type(ticks) is int and 1 <= ticks <= 100_000
-            and ticks * period <= TRIAL_MAX_S
-            and type(base) is int and 0 <= base < 1 << 62):
-        node.reject("bad_value")
-        return None
-    return period, ticks, base
 
 
 def trial_ticks(node: Node, server: PlantServer, period: float, ticks: int, base: int, *,
@@ -413,44 +384,3 @@ def run_plant(setup: Setup, conf: Any) -> int:
         if code != EXIT_OK:
             return code
         return EXIT_OK if res["exit"] in ("stop", "done") else EXIT_LINK
-
-
-def wait_for_stop(node: Node, timeout: float) -> bool:
-    """Read the inbox for up to ``timeout`` seconds until the central's stop order comes
-    (:attr:`Node.stop_msg` then holds it); whether it came."""
-    end = time.monotonic() + timeout
-    while node.stop_msg is None and (left := end - time.monotonic()) > 0:
-        try:
-            ev = node.events.get(timeout=left)
-        except queue.Empty:
-            break
-        is_stop(node, ev)
-    return node.stop_msg is not None
-
-
-def safe_stop(plant: Plant, *, hold_s: float = 0.05, damping: float = 5.0,
-              drive_period: float = 2.5e-4) -> dict[str, Any]:
-    """The documented stop: for ``hold_s``, gravity compensation (the torques the central
-    sent with its stop order, computed at its last estimate; the last command if the
-    central is gone) plus drive-level damping ``-damping * qdot`` (N m s/rad, updated
-    every ``drive_period`` as a drive's own loop would, whatever the control period) so
-    that a moving robot brakes instead of coasting; then zero torque.
-
-    At the fastest point of pick & place (3.75 m/s) the platform travels 34 mm and is
-    left at under 2 mm/s; the damping of 1 N m s/rad used before left it at 0.39 m/s.
-    Returns the hold time, the distance moved and the platform speed at the end of it."""
-    p0 = list(plant.state.p)
-    hold = list(plant.command)
-    # integrated with sub-steps no longer than the plant's own (the belt needs 0.1 ms)
-    inner = max(1, math.ceil(drive_period * plant.config.n_substeps / plant.config.period
-                             - 1e-9))
-    for _ in range(max(1, round(hold_s / drive_period))):
-        # a drive damps what its encoder sees: the motor, behind a belt
-        qd = plant.state.motor_d if plant.config.belt else plant.state.qd
-        plant.set_command([hold[i] - damping * qd[i] for i in range(3)])
-        for _ in range(inner):
-            plant.substep(drive_period / inner)
-        plant.project()
-    plant.set_command([0.0, 0.0, 0.0])
-    return {"hold_s": hold_s, "drift_m": math.dist(p0, plant.state.p),
-            "speed_m_s": math.hypot(*plant.state.pd)}

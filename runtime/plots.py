@@ -28,8 +28,6 @@ account independent of the report's (rebuilt from the samples).
 from __future__ import annotations
 
 import html
-import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +39,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from .config import RunConfig
+from .plot_data import events, gantt_spans, halved_spans, signals
 from .recording import Recording
 
 COLORS = {"central": "#1f77b4", "peripheral_1": "#ff7f0e", "peripheral_2": "#2ca02c",
@@ -71,94 +70,6 @@ class Plots:
     index: Path | None = None
     series: dict[str, np.ndarray] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
-
-
-def _num(x: Any) -> float:
-    return math.nan if x is None else float(x)
-
-
-def _vec(v: Any) -> list[float]:
-    if v is None:
-        return [math.nan] * 3
-    return [_num(v.get("x")), _num(v.get("y")), _num(v.get("z"))]
-
-
-def signals(rec: Recording, *, cycles: tuple[int, int] | None = None
-            ) -> dict[str, np.ndarray]:
-    """The ``/signals/state`` messages as arrays, in cycle order (see :class:`Plots`).
-
-    Parameters
-    ----------
-    rec : a recording.
-    cycles : keep intervals ``A <= cycle < B`` only.
-
-    Raises
-    ------
-    ValueError
-        If the recording (or the range) holds no interval.
-    """
-    rows: dict[int, dict[str, Any]] = {}
-    for _, data in rec.topics.get("/signals/state", []):
-        try:
-            m = json.loads(data)
-            k = int(m["cycle"])
-        except (ValueError, KeyError, TypeError):
-            continue
-        if cycles is None or cycles[0] <= k < cycles[1]:
-            rows[k] = m
-    if not rows:
-        where = f" in cycles {cycles[0]}:{cycles[1]}" if cycles else ""
-        raise ValueError(f"{rec.path}: no interval to plot{where}")
-    ks = sorted(rows)
-    ms = [rows[k] for k in ks]
-    return {
-        "cycle": np.array(ks, dtype=np.int64),
-        "t_s": np.array([_num(m.get("t")) for m in ms]),
-        "p_m": np.array([_vec(m.get("p")) for m in ms]).reshape(-1, 3),
-        "reference_m": np.array([_vec(m.get("reference")) for m in ms]).reshape(-1, 3),
-        "tracking_error_m": np.array([_num(m.get("tracking_error")) for m in ms]),
-        "torque_nm": np.array([[_num(x) for x in (m.get("torque") or [None] * 3)]
-                               for m in ms]).reshape(-1, 3),
-        "period_s": np.array([_num(m.get("period")) for m in ms]),
-        "traversal_s": np.array([_num(m.get("traversal")) for m in ms]),
-    }
-
-
-def _events(rec: Recording, cycles: tuple[int, int] | None
-            ) -> tuple[list[tuple[int, int, int]], dict[str, Any] | None]:
-    """``(cycle, deadline misses so far, skipped samples so far)`` as recorded, and the
-    fault of the run (None if it ended well)."""
-    ev = []
-    for _, m in rec.decoded("/faults/deadline"):
-        try:
-            ev.append((int(m["cycle"]), int(m["deadline_misses"]), int(m["skipped_samples"])))
-        except (KeyError, TypeError, ValueError):
-            continue
-    if cycles is not None:
-        ev = [e for e in ev if cycles[0] <= e[0] < cycles[1]]
-    result = rec.metadata.get("ctrlunit.result", {})
-    try:
-        fault = json.loads(result.get("fault", "null") or "null")
-    except ValueError:
-        fault = None
-    if rec.salvaged and not fault:
-        fault = {"process": "recording", "message": rec.note}
-    return ev, fault
-
-
-def gantt_spans(rec: Recording, cycles: tuple[int, int] | None = None
-                ) -> list[tuple[str, int, int, int]]:
-    """Compute spans ``(process, cycle, t0_ns, t1_ns)`` from ``/timing/spans``."""
-    out = []
-    for _, m in rec.decoded("/timing/spans"):
-        try:
-            k = int(m["cycle"])
-            if cycles is not None and not cycles[0] <= k < cycles[1]:
-                continue
-            out.extend((str(p), k, int(a), int(b)) for p, a, b in m["spans"])
-        except (KeyError, TypeError, ValueError):
-            continue
-    return out
 
 
 def gantt_figure(path: Path, panels: dict[str, list]) -> None:
@@ -295,15 +206,6 @@ def _timing(path: Path, s: dict[str, np.ndarray], rc: RunConfig) -> None:
     plt.close(fig)
 
 
-def halved_spans(rec: Recording, period: float, end_cycle: int) -> np.ndarray:
-    """``[[t0, t1], ...]`` (s): the spans the recorded run spent at the halved control
-    rate (its ``stride`` orders), the last one open to ``end_cycle``."""
-    from .replay import stride_grid
-
-    spans = stride_grid(rec).halved_spans(end_cycle)
-    return np.array(spans, dtype=float).reshape(-1, 2) * period
-
-
 def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int, int]],
                    fault: dict[str, Any] | None, rc: RunConfig) -> None:
     fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
@@ -396,7 +298,7 @@ def plot_recording(rec: Recording, out: str | Path, *,
     s = signals(rec, cycles=cycles)
     s["halved_spans_s"] = halved_spans(rec, rc.schedule.period,
                                        int(s["cycle"][-1]) + 1 if s["cycle"].size else 0)
-    ev, fault = _events(rec, cycles)
+    ev, fault = events(rec, cycles)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     plots = Plots(series=s)
@@ -428,7 +330,7 @@ def plot_recording(rec: Recording, out: str | Path, *,
         plots.notes.append("gantt: no compute spans in the recording")
     if summary is None:
         from .recorded_report import report_from_recording
-        from .report import summary as summary_text
+        from .summary import summary as summary_text
 
         try:
             summary = summary_text(report_from_recording(rec))

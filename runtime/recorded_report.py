@@ -33,7 +33,9 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     rc = RunConfig.from_recording(cfg).replace(record=None, report=None)
     setup = make_setup(rc)
     samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
-    cmd_ns, sample_ns, commands = [], [], []
+    cmd_ns: list[int] = []
+    sample_ns: list[int] = []
+    commands: list[float] = []  # the torques of every command, one after the other
     true_p: dict[int, tuple[float, float, float]] = {}
     for t, m in rec.decoded("/plant/command"):
         k = m["cycle"]
@@ -45,7 +47,8 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
         commands.extend(float(x) for x in m["tau"])
     for k, s in samples.items():
         if "p" in s and k < setup.cycles:  # as live: the run's samples only
-            true_p[k] = tuple(s["p"])  # type: ignore[assignment]
+            p = s["p"]
+            true_p[k] = (p[0], p[1], p[2])
     result = rec.metadata.get("ctrlunit.result", {})
     busy = json.loads(result.get("busy", "{}") or "{}")
     t0, t1_ns = int(result.get("t_start_ns", "0") or 0), int(result.get("t_end_ns", "0") or 0)

@@ -1,4 +1,5 @@
-"""``ctrlunit replay``: verify a recording bit for bit, republish it, export it.
+"""``ctrlunit replay --verify``: verify a recording bit for bit (republishing it and
+exporting it: :mod:`.republish`).
 
 ``verify`` re-executes every block in one process on the recorded samples, round by round
 in the recorded plan: each recorded request must equal the central's recomputed values,
@@ -16,15 +17,9 @@ uses them, as the central did.
 
 from __future__ import annotations
 
-import csv
-import math
-import time
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
-
-import msgpack
 
 from .recording import Recording
 from .stride import StrideSchedule
@@ -166,32 +161,12 @@ def verify(
     ctl = _controller(rec, setup, engine)
     requests, replies = _index(rec, "request"), _index(rec, "reply")
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
-    held = {(m["peripheral"], m["cycle"], m["stage"]): m["vals"]
-            for _, m in rec.decoded("/faults/held")}
-    # rounds the central computed itself for a late peripheral: no reply to compare
-    computed = {(m["peripheral"], m["cycle"], m["stage"])
-                for _, m in rec.decoded("/faults/computed")}
+    held, computed = _late_rounds(rec)
     last: dict[str, list[Any]] = {}  # the last accepted values, by name and axis
     central_trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
     current: dict[str, int] = {}  # the interval being re-executed (for ``alter``)
     if alter is not None:
-        name, at = alter
-        fn, names, cost, per_axis = engine._bound[name]
-        block = plan.graph.block(name)
-
-        def altered(c: dict, *args: Any) -> None:
-            fn(c, *args)
-            if current["cycle"] != at:
-                return
-            out = names[block.outputs[0]]
-            if per_axis:
-                i = args[0]
-                v = c[out][i]
-                c[out][i] = _nudge(v)
-            else:
-                c[out] = _nudge(c[out])
-
-        engine._bound[name] = (altered, names, cost, per_axis)
+        _alter(engine, *alter, current)
     done = 0
     seq = cycles_in_order(rec)
     primes = discarded_primes(rec)
@@ -239,6 +214,38 @@ def verify(
     return done, None
 
 
+def _late_rounds(rec: Recording) -> tuple[dict[tuple[int, int, int], Vals],
+                                          set[tuple[int, int, int]]]:
+    """The rounds of late peripherals, by (peripheral, cycle, stage): the values the
+    central held for them (``--late-policy hold``), and those it computed itself
+    (``compute``: no reply to compare)."""
+    held = {(m["peripheral"], m["cycle"], m["stage"]): m["vals"]
+            for _, m in rec.decoded("/faults/held")}
+    computed = {(m["peripheral"], m["cycle"], m["stage"])
+                for _, m in rec.decoded("/faults/computed")}
+    return held, computed
+
+
+def _alter(engine: Any, name: str, at: int, current: dict[str, int]) -> None:
+    """Make ``engine``'s block ``name`` perturb its first output at cycle ``at``
+    (``current["cycle"]``: the interval being re-executed)."""
+    fn, names, cost, per_axis = engine._bound[name]
+    block = engine.plan.graph.block(name)
+
+    def altered(c: dict, *args: Any) -> None:
+        fn(c, *args)
+        if current["cycle"] != at:
+            return
+        out = names[block.outputs[0]]
+        if per_axis:
+            i = args[0]
+            c[out][i] = _nudge(c[out][i])
+        else:
+            c[out] = _nudge(c[out])
+
+    engine._bound[name] = (altered, names, cost, per_axis)
+
+
 def _apply_held(plan: Any, stage: int, ctx: dict, k: int, held: dict, replies: dict,
                 last: dict[str, list[Any]], computed: Collection[tuple[int, int, int]] = ()
                 ) -> Divergence | None:
@@ -269,7 +276,7 @@ def _apply_held(plan: Any, stage: int, ctx: dict, k: int, held: dict, replies: d
 
 
 def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
-                    replies: dict[tuple[int, int, Any], dict],
+                    replies: dict[tuple[int, ...], dict],
                     held: Collection[tuple[int, int, int]]) -> Divergence | None:
     """Compare every block's outputs, in plan order, with what the recording holds: the
     central's trace for central blocks, the replies (values and trace) for per-axis blocks
@@ -331,98 +338,3 @@ def _diff(got: Vals, recorded: Vals, axes: tuple[int, ...], producer: dict[str, 
         elif gv != rv:
             return Divergence(cycle, producer.get(name, "?"), None, name, rv, gv)
     return None
-
-
-def export_csv(rec: Recording, out_dir: str | Path, *, cycles: tuple[int, int] | None = None
-               ) -> list[Path]:
-    """Write the plottable signals (and commands) as CSV files in ``out_dir``."""
-    import json
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "signals.csv"
-    cols = ["cycle", "t", "p_x", "p_y", "p_z", "ref_x", "ref_y", "ref_z", "q1", "q2", "q3",
-            "tau1", "tau2", "tau3", "tracking_error", "period", "traversal"]
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(cols)
-        for _, data in rec.topics.get("/signals/state", []):
-            s = json.loads(data)
-            if cycles and not cycles[0] <= s["cycle"] < cycles[1]:
-                continue
-            p = s.get("p") or {}
-            r = s.get("reference") or {}
-            w.writerow([s["cycle"], s["t"], p.get("x"), p.get("y"), p.get("z"), r.get("x"),
-                        r.get("y"), r.get("z"), *s["q"], *s["torque"], s["tracking_error"],
-                        s["period"], s["traversal"]])
-    return [path]
-
-
-def republish(rec: Recording, *, unit: str, rate: float = 1.0, loop: bool = False,
-              start_offset: float = 0.0, topics: list[str] | None = None,
-              cycles: tuple[int, int] | None = None, conf: Any = None,
-              max_seconds: float | None = None, wait_subscribers: float = 1.0) -> int:
-    """Publish the recorded messages on ``ctrlunit/<unit>/<topic>`` at their recorded pace
-    scaled by ``rate`` (rosbag2's ``--rate``, ``--loop``, ``--start-offset``,
-    ``--topics``). Returns the number of messages published.
-
-    Before the first message, wait up to ``wait_subscribers`` seconds until every topic
-    to be sent has a matching subscriber (Zenoh's matching status), so that a viewer
-    connected when replay starts receives the first interval too; after that time the
-    replay starts whether or not anyone listens."""
-    import zenoh
-
-    from .zsession import make_config
-
-    msgs = []
-    for topic, items in rec.topics.items():
-        if topics and topic not in topics:
-            continue
-        for t, data in items:
-            if cycles is not None:
-                try:
-                    c = msgpack.unpackb(data, raw=False).get("cycle")
-                except Exception:
-                    c = None
-                if c is None or not cycles[0] <= c < cycles[1]:
-                    continue
-            msgs.append((t, topic, data))
-    msgs.sort(key=lambda x: x[0])
-    if not msgs:
-        return 0
-    t0 = msgs[0][0] + int(start_offset * 1e9)
-    msgs = [m for m in msgs if m[0] >= t0]
-    sent = 0
-    with zenoh.open(conf or make_config()) as session:
-        pubs: dict[str, Any] = {topic: session.declare_publisher(f"ctrlunit/{unit}{topic}")
-                                for topic in sorted({m[1] for m in msgs})}
-        _wait_for_subscribers(list(pubs.values()), wait_subscribers)
-        deadline = None if max_seconds is None else time.monotonic() + max_seconds
-        while True:
-            wall0 = time.monotonic()
-            for t, topic, data in msgs:
-                due = wall0 + (t - t0) / 1e9 / rate
-                delay = due - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-                pubs[topic].put(data)
-                sent += 1
-                if deadline is not None and time.monotonic() > deadline:
-                    return sent
-            if not loop:
-                return sent
-
-
-def _wait_for_subscribers(pubs: list[Any], seconds: float) -> bool:
-    """Poll the publishers' matching status until each has a subscriber or ``seconds``
-    pass (bounded: at most ``seconds`` + one 5 ms poll). True when all matched."""
-    deadline = time.monotonic() + max(0.0, seconds)
-    while True:
-        if all(p.matching_status.matching for p in pubs):
-            return True
-        if time.monotonic() >= deadline:
-            return False
-        time.sleep(0.005)
-
-
-_ = math

@@ -13,8 +13,9 @@ import json
 import tomllib
 from typing import Any
 
-from .config import FLAT, ConfigError, _has_type, _type_name
+from .config import FLAT, ConfigError
 from .sections import SECTIONS
+from .value_types import has_type, type_name
 
 PROFILES: dict[str, dict[str, Any]] = {
     "main-job": {},
@@ -43,8 +44,8 @@ def _checked(flat: str, value: Any, where: str) -> Any:
     from .config import _FLAT_TYPES
 
     tp = _FLAT_TYPES[flat]
-    if not _has_type(value, tp):
-        raise ConfigError(f"{where}: {value!r}: allowed {_type_name(tp)}")
+    if not has_type(value, tp):
+        raise ConfigError(f"{where}: {value!r}: allowed {type_name(tp)}")
     return value
 
 

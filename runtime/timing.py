@@ -256,7 +256,8 @@ class IntervalTimes:
         t = np.asarray(self.traversal_ns.recent, dtype=np.int64)
         if not self.cmd_ns.folded:
             return timing_figures(c, c - t)
-        p = np.diff(np.concatenate(([self._last_cmd], c))) if c.size else c
+        p = np.diff(np.concatenate((np.asarray([self._last_cmd], dtype=np.int64), c))) \
+            if c.size else c
         ph, pm = self.period_hist.merged(p), self.period_moments.merged(p)
         th = self.traversal_hist.merged(t)
 

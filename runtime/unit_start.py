@@ -25,6 +25,7 @@ from typing import Any
 
 from . import sched
 from .admission import Unsustainable, admit
+from .busy_guard import BusyGuard
 from .central import Central, Fault, Supervision
 from .config import EXIT_CONFIG, EXIT_OK, EXIT_UNSUSTAINABLE, ConfigError, RunConfig
 from .node import Node, freeze_heap
@@ -66,7 +67,8 @@ class UnitStart:
         self.view, self.idle = view, idle
         self.children: list[subprocess.Popen] = []
         self.pids: dict[str, int] = {}  # the roles' processes, once started
-        self.code, self.fault = EXIT_OK, None
+        self.code = EXIT_OK
+        self.fault: dict[str, Any] | None = None
         self.decided: dict[str, Any] = {}
         """What the start decided on the way: admission, placement choice, Zenoh ids."""
 
@@ -156,13 +158,13 @@ class UnitStart:
             supervision=supervision(self.children, self.pids, child_names(rc, setup))
             if self.spawn else Supervision())
 
-    def _busy_guard(self) -> sched.BusyGuard | None:
+    def _busy_guard(self) -> BusyGuard | None:
         """Under FIFO: back to the default policy before the kernel throttles."""
         choice = self.sched_choice
         if not (sched.fifo_in_force() and choice["budget"] is not None):
             return None
         children = self.children
-        return sched.BusyGuard(
+        return BusyGuard(
             lambda: [os.getpid()] + [p.pid for p in children if p.poll() is None],
             choice["budget"], priority=choice["priority"], say=self.echo)
 

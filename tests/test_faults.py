@@ -87,7 +87,7 @@ def test_safe_stop_brings_a_fast_robot_to_rest(period, belt):
     from ctrlunit.kernels.trajectory import pick_place_task
     from ctrlunit.plant.simulator import Plant, PlantConfig
     from ctrlunit.runtime import controller as ctl_mod
-    from ctrlunit.runtime.plant_node import safe_stop
+    from ctrlunit.runtime.plant_orders import safe_stop
 
     task = pick_place_task()
     task.align(0.0005)

@@ -158,7 +158,8 @@ def test_a_peripheral_that_stays_silent_is_still_a_fault():
 
 def test_the_summary_tells_late_replies_from_rejected_messages():
     """A late reply is no malformed message: the summary says so on a line of its own."""
-    from ctrlunit.runtime.report import finish_report, summary
+    from ctrlunit.runtime.report import finish_report
+    from ctrlunit.runtime.summary import summary
     from loopback import lockstep_config
 
     u = LoopbackUnit(lockstep_config(unit_id("cmpsum"), peripherals=3, pipeline=2,

@@ -7,7 +7,8 @@ from dataclasses import replace
 
 import pytest
 from ctrlunit.runtime.config import RunConfig
-from ctrlunit.runtime.report import STRETCH_SAME, STRETCH_SLOWER, _late_lines, late_work_figures
+from ctrlunit.runtime.report import STRETCH_SAME, STRETCH_SLOWER, late_work_figures
+from ctrlunit.runtime.summary import _late_lines
 from loopback import LoopbackUnit
 from runner import unit_id
 

@@ -147,7 +147,7 @@ def test_the_spans_at_the_halved_rate_come_from_the_recorded_orders():
     """Halved at 100, back at 300, halved again at 501 and still at the end (600): two
     spans in seconds, the last one open to the end; none without orders."""
     import msgpack
-    from ctrlunit.runtime.plots import halved_spans
+    from ctrlunit.runtime.plot_data import halved_spans
     from ctrlunit.runtime.recording import Recording
 
     orders = [(100, 2), (300, 1), (501, 2)]

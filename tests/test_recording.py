@@ -234,7 +234,7 @@ def test_replay_waits_for_subscribers_at_most_the_time_asked(short, monkeypatch)
     test moves (each 5 ms poll advances it), so the bound is exact, not a wall-time
     window."""
     from click.testing import CliRunner
-    from ctrlunit.runtime import replay
+    from ctrlunit.runtime import republish
     from ctrlunit.runtime.cli import cli
 
     class Clock:
@@ -252,7 +252,7 @@ def test_replay_waits_for_subscribers_at_most_the_time_asked(short, monkeypatch)
     waited = {}
     for wait in ("0", "1.5"):
         clock = Clock()
-        monkeypatch.setattr(replay, "time", clock)
+        monkeypatch.setattr(republish, "time", clock)
         res = CliRunner().invoke(cli, ["replay", str(path), "--unit", unit_id("nobody"),
                                        "--topics", "/plant/command", "--cycles", "0:5",
                                        "--rate", "100", "--wait-subscribers", wait])

@@ -14,7 +14,7 @@ from typing import Any
 
 import msgpack
 import pytest
-from ctrlunit.runtime import recording, replay
+from ctrlunit.runtime import recording, replay, republish
 from ctrlunit.runtime.replay import Divergence
 from loopback import record_lockstep
 from runner import unit_id
@@ -346,7 +346,7 @@ def test_diff_names_the_first_differing_value_and_its_producer():
 
 def test_csv_holds_every_recorded_signal_row_and_the_window_asked(rec, tmp_path):
     out = tmp_path / "a" / "b"  # made with its parents
-    [path] = replay.export_csv(rec, out)
+    [path] = republish.export_csv(rec, out)
     assert path == out / "signals.csv"
     with open(path, newline="") as fh:
         rows = list(csv.reader(fh))
@@ -362,10 +362,10 @@ def test_csv_holds_every_recorded_signal_row_and_the_window_asked(rec, tmp_path)
         assert row == ["" if v is None else str(v) for v in want]
     assert len({row[3] for row in rows[1:]}) > 100  # y moves on the circle
     del rec.topics["/signals/state"]  # nothing to export: the header alone
-    [path] = replay.export_csv(rec, tmp_path / "none")
+    [path] = republish.export_csv(rec, tmp_path / "none")
     assert path.read_text().splitlines() == [",".join(rows[0])]
     rec = recording.read(rec.path)
-    [path] = replay.export_csv(rec, out, cycles=(100, 150))  # into the same folder again
+    [path] = republish.export_csv(rec, out, cycles=(100, 150))  # into the same folder again
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [int(r["cycle"]) for r in rows] == list(range(100, 150))
@@ -418,7 +418,7 @@ def fake(monkeypatch) -> tuple[FakeClock, FakeSession]:
 
     clock = FakeClock()
     session = FakeSession(clock)
-    monkeypatch.setattr(replay, "time", clock)
+    monkeypatch.setattr(republish, "time", clock)
     def open_(conf: Any) -> FakeSession:
         session.conf = conf
         return session
@@ -444,7 +444,7 @@ def test_republish_keeps_the_recorded_order_and_pace_scaled_by_rate(rec, fake):
     clock, session = fake
     r = small(rec)
     conf = object()
-    n = replay.republish(r, unit="u1", rate=2.0, conf=conf)
+    n = republish.republish(r, unit="u1", rate=2.0, conf=conf)
     assert session.conf is conf
     assert n == 15 == len(session.puts)
     assert all(s > 0 for s in clock.sleeps)  # no sleep for a message already due
@@ -458,31 +458,31 @@ def test_republish_keeps_the_recorded_order_and_pace_scaled_by_rate(rec, fake):
 def test_republish_starts_at_the_offset_and_keeps_topics_and_cycles_asked(rec, fake):
     _clock, session = fake
     r = small(rec)
-    n = replay.republish(r, unit="u2", start_offset=0.003, conf=object())
+    n = republish.republish(r, unit="u2", start_offset=0.003, conf=object())
     assert n == 14  # the first sample (5 ms before the first command) is left out
     session.puts.clear()
-    n = replay.republish(r, unit="u2", topics=["/signals/state", "/central/sample"],
+    n = republish.republish(r, unit="u2", topics=["/signals/state", "/central/sample"],
                          conf=object())
     assert n == 10 and {k for _, k, _ in session.puts} == {"ctrlunit/u2/signals/state",
                                                          "ctrlunit/u2/central/sample"}
     session.puts.clear()
-    n = replay.republish(r, unit="u2", cycles=(1, 3), conf=object())
+    n = republish.republish(r, unit="u2", cycles=(1, 3), conf=object())
     got = sorted((k, msgpack.unpackb(d)["cycle"]) for _, k, d in session.puts)
     assert n == 4 and got == [("ctrlunit/u2/central/sample", 1), ("ctrlunit/u2/central/sample", 2),
                               ("ctrlunit/u2/plant/command", 1), ("ctrlunit/u2/plant/command", 2)]
-    assert replay.republish(r, unit="u2", topics=["/none"], conf=object()) == 0
+    assert republish.republish(r, unit="u2", topics=["/none"], conf=object()) == 0
 
 
 def test_republish_loops_until_its_time_is_up(rec, fake):
     _clock, session = fake
     r = small(rec)
     span = (r.topics["/signals/state"][-1][0] - r.topics["/central/sample"][0][0]) / 1e9
-    n = replay.republish(r, unit="u3", loop=True, max_seconds=3.5 * span, conf=object())
+    n = republish.republish(r, unit="u3", loop=True, max_seconds=3.5 * span, conf=object())
     assert 45 <= n <= 60  # more than three passes of 15, each in the recorded order
     seq = [msgpack.unpackb(d)["cycle"] if not d.startswith(b"{") else json.loads(d)["cycle"]
            for _, _, d in session.puts]
     assert seq[:15] == seq[15:30]
-    once = replay.republish(r, unit="u3", loop=False, max_seconds=3.5 * span, conf=object())
+    once = republish.republish(r, unit="u3", loop=False, max_seconds=3.5 * span, conf=object())
     assert once == 15
 
 
@@ -490,7 +490,7 @@ def test_republish_waits_for_subscribers_only_as_long_as_asked(rec, fake):
     clock, session = fake
     session.matched = False
     t = clock.now
-    replay.republish(small(rec), unit="u4", wait_subscribers=0.25, conf=object())
+    republish.republish(small(rec), unit="u4", wait_subscribers=0.25, conf=object())
     waited = session.puts[0][0] - t
     assert 0.25 <= waited <= 0.25 + 0.006
     assert all(s == 0.005 for s in clock.sleeps[:10])
@@ -500,18 +500,18 @@ def test_waiting_for_subscribers_ends_as_soon_as_all_match():
     clock = FakeClock()
     pubs = [type("P", (), {"matching_status": type("M", (), {"matching": True})()})()
             for _ in range(3)]
-    orig = replay.time
-    replay.time = clock
+    orig = republish.time
+    republish.time = clock
     try:
-        assert replay._wait_for_subscribers(pubs, 5.0) is True
+        assert republish.wait_for_subscribers(pubs, 5.0) is True
         assert clock.sleeps == []
         pubs[1].matching_status.matching = False
-        assert replay._wait_for_subscribers(pubs, 0.02) is False
+        assert republish.wait_for_subscribers(pubs, 0.02) is False
         assert 0.02 <= sum(clock.sleeps) <= 0.025
         clock.sleeps.clear()
-        assert replay._wait_for_subscribers(pubs, -1.0) is False and clock.sleeps == []
+        assert republish.wait_for_subscribers(pubs, -1.0) is False and clock.sleeps == []
     finally:
-        replay.time = orig
+        republish.time = orig
 
 
 def test_republish_keeps_the_recorded_order_of_messages_logged_at_the_same_time(rec, fake):
@@ -519,7 +519,7 @@ def test_republish_keeps_the_recorded_order_of_messages_logged_at_the_same_time(
     r = recording.Recording(rec.path)
     r.topics = {"/z/first": [(5, msgpack.packb({"cycle": 1}))],
                 "/a/second": [(5, msgpack.packb({"cycle": 2}))]}
-    replay.republish(r, unit="u6", conf=object())
+    republish.republish(r, unit="u6", conf=object())
     assert [k for _, k, _ in session.puts] == ["ctrlunit/u6/z/first", "ctrlunit/u6/a/second"]
 
 
@@ -528,7 +528,7 @@ def test_a_start_offset_keeps_a_message_logged_exactly_at_it(rec, fake):
     r = recording.Recording(rec.path)
     r.topics = {"/x": [(0, msgpack.packb({"cycle": 0})),
                        (10_000_000_000, msgpack.packb({"cycle": 1}))]}
-    assert replay.republish(r, unit="u7", start_offset=10.0, conf=object()) == 1
+    assert republish.republish(r, unit="u7", start_offset=10.0, conf=object()) == 1
     assert [msgpack.unpackb(d)["cycle"] for _, _, d in session.puts] == [1]
 
 

@@ -13,7 +13,8 @@ import time
 
 import machine
 import pytest
-from ctrlunit.runtime import sched
+from ctrlunit.runtime import busy_guard, sched
+from ctrlunit.runtime.busy_guard import BusyGuard
 from ctrlunit.runtime.config import ConfigError, RunConfig
 from runner import start_json
 
@@ -142,9 +143,9 @@ def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limi
                      [(250, 300), (30, 300)]])  # 100 ticks a window: more than half of it
     now = [0.0]
     demoted: list[list[int]] = []
-    monkeypatch.setattr(sched, "demote", lambda pids: demoted.append(list(pids)) or list(pids))
+    monkeypatch.setattr(busy_guard, "demote", lambda pids: demoted.append(list(pids)) or list(pids))
     said: list[str] = []
-    guard = sched.BusyGuard(lambda: [11, 12], 0.95, share=0.95, window_s=0.5,
+    guard = BusyGuard(lambda: [11, 12], 0.95, share=0.95, window_s=0.5,
                             read=lambda: next(readings), clock=lambda: now[0], say=said.append)
     guard(None, 0)  # starts the window at (0, 0)
     now[0] = 0.2
@@ -170,7 +171,7 @@ def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of
     busy put the roles under FIFO at their priority again; a busy window in between
     starts the count again; at most max_restores times."""
     calls: list[tuple[list[int], int]] = []
-    monkeypatch.setattr(sched, "demote", lambda pids, priority=0:
+    monkeypatch.setattr(busy_guard, "demote", lambda pids, priority=0:
                         calls.append((list(pids), priority)) or list(pids))
     busy = [0]  # cumulative busy ticks of CPU 0; 100 ticks a window
     now = [0.0]
@@ -179,7 +180,7 @@ def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of
         return [(busy[0], int(now[0] * 200))]
 
     said: list[str] = []
-    guard = sched.BusyGuard(lambda: [11], 0.95, priority=10, max_restores=2, read=read,
+    guard = BusyGuard(lambda: [11], 0.95, priority=10, max_restores=2, read=read,
                             clock=lambda: now[0], say=said.append)
 
     def window(share: float, cycle: int) -> None:
@@ -242,7 +243,7 @@ def _windows_guard(monkeypatch, **kw):
     ``share`` of 200 ticks in 0.5 s (the reference kernel's 250 Hz tick accounting gives
     125; finer here so that shares are exact) and calls the guard."""
     demoted: list[list[int]] = []
-    monkeypatch.setattr(sched, "demote", lambda pids, priority=0:
+    monkeypatch.setattr(busy_guard, "demote", lambda pids, priority=0:
                         demoted.append(list(pids)) or list(pids))
     busy, now, stale = [0], [0.0], [False]
     shown = [(0, 0)]
@@ -252,7 +253,7 @@ def _windows_guard(monkeypatch, **kw):
             shown[0] = (busy[0], int(now[0] * 400))
         return [shown[0]]
 
-    guard = sched.BusyGuard(lambda: [11], 0.95, read=read, clock=lambda: now[0], **kw)
+    guard = BusyGuard(lambda: [11], 0.95, read=read, clock=lambda: now[0], **kw)
 
     def window(share: float | None, cycle: int) -> None:
         now[0] += 0.5
@@ -308,17 +309,17 @@ def test_a_window_that_is_no_measurement_breaks_the_sustained_rule(monkeypatch) 
 
 def test_the_sustained_rule_reads_at_least_one_window() -> None:
     with pytest.raises(ValueError, match="sustain = 0: allowed 1 or more"):
-        sched.BusyGuard(lambda: [], 0.95, sustain=0)
+        BusyGuard(lambda: [], 0.95, sustain=0)
 
 
 def test_a_busy_guard_without_a_priority_never_goes_back_to_fifo(monkeypatch) -> None:
     calls: list[int] = []
-    monkeypatch.setattr(sched, "demote", lambda pids, priority=0:
+    monkeypatch.setattr(busy_guard, "demote", lambda pids, priority=0:
                         calls.append(priority) or list(pids))
     readings = iter([[(0, 0)], [(100, 100)]] + [[(100 + 10 * k, 100 + 100 * k)]
                                                 for k in range(1, 10)])
     now = [0.0]
-    guard = sched.BusyGuard(lambda: [11], 0.95, read=lambda: next(readings),
+    guard = BusyGuard(lambda: [11], 0.95, read=lambda: next(readings),
                             clock=lambda: now[0])
     for k in range(11):
         guard(None, k)

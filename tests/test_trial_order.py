@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 from ctrlunit.runtime.node import Event
-from ctrlunit.runtime.plant_node import TRIAL_MAX_S, trial_order
+from ctrlunit.runtime.plant_orders import TRIAL_MAX_S, trial_order
 
 
 class FakeNode:

@@ -28,8 +28,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .graph import LAWS, MODEL_STATES, OBSERVERS, StageGraph, stage_graph
-from .placement import Placement, default_placement, placement_from_mapping, save_placement
+from .balance_report import read_report
+from .graph import StageGraph, stage_graph
+from .placement import Placement, default_placement, save_placement
 from .plan import ExchangePlan, exchange_plan
 from .schedule import Costs, Schedule, fit_latency, simulate
 
@@ -39,192 +40,9 @@ shorter than the current one (the model's error on this machine is a few per cen
 
 INTERVALS = 160
 
-MAX_COST_S = 10.0
-"""The largest per-interval cost or period a report may hold (s): far above any run of the
-unit, small enough that sums and ratios of them stay finite."""
-
-
-class ReportError(ValueError):
-    """A report balance cannot read; the message names the field, its value and what is
-    allowed."""
-
-
-def _bad(source: str, field: str, value: Any, allowed: str) -> ReportError:
-    shown = repr(value)
-    if len(shown) > 60:
-        shown = shown[:57] + "..."
-    return ReportError(f"{source}: {field} = {shown}; allowed: {allowed}")
-
-
 def _percent(x: float) -> str:
     """A business as text; a report may not hold one."""
     return f"{x * 100:.0f} %" if math.isfinite(x) else "not measured"
-
-
-def _key(field: str, key: str) -> str:
-    """``field.key``, or ``field['key']`` when the key is not a plain name."""
-    return f"{field}.{key}" if key.isidentifier() and key.isascii() else f"{field}[{key!r}]"
-
-
-_JSON_TYPES = {dict: "an object", list: "a list", str: "a string", bool: "a boolean",
-               int: "a number", float: "a number", type(None): "null"}
-
-
-def _is_number(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool)
-
-
-def _seconds(source: str, field: str, x: Any, *, optional: bool = True,
-             positive: bool = False) -> float | None:
-    """A duration in seconds: a finite number in [0, MAX_COST_S] ((0, ...] if positive)."""
-    if x is None and optional:
-        return None
-    lo = "(0" if positive else "[0"
-    allowed = f"a number of seconds in {lo}, {MAX_COST_S:g}]" + (" or null" if optional else "")
-    if not _is_number(x) or not math.isfinite(x) or not 0 <= x <= MAX_COST_S \
-            or (positive and x == 0):
-        raise _bad(source, field, x, allowed)
-    return float(x)
-
-
-def _mapping(source: str, field: str, x: Any) -> dict[str, Any]:
-    if x is None:
-        return {}
-    if not isinstance(x, dict):
-        raise _bad(source, field, x, "an object or null")
-    return x
-
-
-def _choice(source: str, field: str, x: Any, allowed: tuple[str, ...], default: str) -> str:
-    if x is None:
-        return default
-    if x not in allowed:
-        raise _bad(source, field, x, ", ".join(allowed))
-    return x
-
-
-def read_report(doc: Any, *, source: str = "report") -> dict[str, Any]:
-    """The fields balance reads from a run's report, each checked for type and range.
-
-    Parameters
-    ----------
-    doc : a run's report as decoded from ``--report`` JSON, or rebuilt from a recording.
-    source : the file's name, for the messages.
-
-    Returns
-    -------
-    A report holding only the fields :func:`analyse` and :func:`compare` use, with
-    defaults filled in (law resolved-acceleration, model complete, depth 1, replies auto).
-
-    Raises
-    ------
-    ReportError
-        Naming the field, its value and what is allowed, for anything else: a document
-        that is not an object, a law, model or depth the unit has not, a placement that is
-        not one, block costs of blocks the law has not or that are not durations, figures
-        of the wrong type, negative, non-finite or beyond :data:`MAX_COST_S`.
-    """
-    if not isinstance(doc, dict):
-        got = _JSON_TYPES.get(type(doc), type(doc).__name__)
-        raise ReportError(f"{source}: a run's report must be a JSON object, got {got} (write "
-                          "one with ctrlunit start --report)")
-    law = _choice(source, "law", doc.get("law"), LAWS, "resolved-acceleration")
-    model = _choice(source, "model", doc.get("model"), ("complete", "simplified"), "complete")
-    blocks_raw = _mapping(source, "block_cost_s", doc.get("block_cost_s"))
-    # reports written before the observer was recorded: its second iteration's blocks say it
-    observer = _choice(source, "observer", doc.get("observer"), OBSERVERS,
-                       "previous" if "ik_obs1" in blocks_raw else "predict")
-    # reports written before the model state was recorded evaluated it at the sample
-    model_state = _choice(source, "model_state", doc.get("model_state"), MODEL_STATES,
-                          "acting" if "ahead" in blocks_raw else
-                          "foreseen" if "foresee" in blocks_raw else "sample")
-    graph = stage_graph(law, model, observer=observer, model_state=model_state)
-    names = [b.name for b in graph.blocks]
-    if not blocks_raw:
-        raise _bad(source, "block_cost_s", doc.get("block_cost_s"),
-                   "the measured cost of each block (a report of ctrlunit start --report, "
-                   "or a recording)")
-    block: dict[str, float] = {}
-    for k, v in blocks_raw.items():
-        if k not in names:
-            raise _bad(source, "a key of block_cost_s", k,
-                       f"the blocks of {law}/{model}/{observer}/model at {model_state}: "
-                       f"{', '.join(names)}")
-        block[k] = _seconds(source, _key("block_cost_s", k), v, optional=False)  # type: ignore
-    depth = doc.get("pipeline")
-    if depth is None:
-        depth = 1
-    if depth not in (1, 2) or isinstance(depth, bool):
-        raise _bad(source, "pipeline", depth, "1 or 2")
-    per_axis = {b.name for b in graph.blocks if b.per_axis}
-    pl = doc.get("placement")
-    if pl is None:
-        n = doc.get("peripherals", 0)
-        pl = {"peripherals": n if n is not None else 0}
-    try:
-        placement = placement_from_mapping(pl, block_names=per_axis,
-                                           source=f"{source}: placement")
-    except ValueError as exc:
-        raise ReportError(str(exc)) from None
-    replies = _mapping(source, "replies", doc.get("replies"))
-    cc = _mapping(source, "central_costs_s", doc.get("central_costs_s"))
-    costs = {k: _seconds(source, f"central_costs_s.{k}", cc.get(k))
-             for k in ("send", "reply", "start", "finish", "busy_per_interval")}
-    per_interval: dict[str, float | None] = {}
-    for k in ("replies_per_interval",):
-        v = cc.get(k)
-        if v is not None and (not _is_number(v) or not math.isfinite(v) or not 0 <= v <= 100):
-            raise _bad(source, f"central_costs_s.{k}", v, "a number in [0, 100] or null")
-        per_interval[k] = v
-    exchanges = doc.get("exchanges_per_interval")
-    if exchanges is not None and (not _is_number(exchanges) or not math.isfinite(exchanges)
-                                  or not 0 <= exchanges <= 100):
-        raise _bad(source, "exchanges_per_interval", exchanges, "a number in [0, 100] or null")
-
-    def quantiles(field: str) -> dict[str, float | None]:
-        q = _mapping(source, field, doc.get(field))
-        return {k: _seconds(source, f"{field}.{k}", q.get(k), positive=True)
-                for k in ("p50", "p99", "max") if k in q}
-
-    business: dict[str, float] = {}
-    for k, v in _mapping(source, "business", doc.get("business")).items():
-        if not _is_number(v) or not math.isfinite(v) or not 0 <= v <= 10:
-            raise _bad(source, _key("business", k), v, "a fraction of the run's time in [0, 10]")
-        business[k] = float(v)
-    cpu = {k: _seconds(source, _key("cpu_per_interval_s", k), v)
-           for k, v in _mapping(source, "cpu_per_interval_s", doc.get("cpu_per_interval_s"))
-           .items()}
-    cores = doc.get("cpu_cores")
-    if cores is not None and (not isinstance(cores, int) or isinstance(cores, bool)
-                              or not 1 <= cores <= 4096):
-        raise _bad(source, "cpu_cores", cores, "an integer in [1, 4096] or null")
-    gantt = doc.get("gantt_ms")
-    if gantt is None:
-        gantt = []
-    if not isinstance(gantt, (list, tuple)) or not all(
-            isinstance(g, (list, tuple)) and len(g) == 4 and isinstance(g[0], str)
-            and isinstance(g[1], int) and not isinstance(g[1], bool)
-            and all(_is_number(t) and math.isfinite(t) and 0 <= t <= 1e9 for t in g[2:])
-            for g in gantt):
-        raise _bad(source, "gantt_ms", gantt,
-                   "a list of [process, cycle, start ms, end ms] with finite times in [0, 1e9]")
-    return {
-        "law": law, "model": model, "observer": observer, "model_state": model_state,
-        "pipeline": depth,
-        "placement": placement.to_dict(), "block_cost_s": block,
-        "replies": {"asked": _choice(source, "replies.asked", replies.get("asked"),
-                                     ("auto", "each", "fused"), "auto"),
-                    "mode": _choice(source, "replies.mode", replies.get("mode"),
-                                    ("each", "fused"), "fused")},
-        "central_costs_s": costs | per_interval, "exchanges_per_interval": exchanges,
-        "period_mean_s": _seconds(source, "period_mean_s", doc.get("period_mean_s"),
-                                  positive=True),
-        "period_s": quantiles("period_s"), "traversal_s": quantiles("traversal_s"),
-        "business": business, "cpu_per_interval_s": cpu, "cpu_cores": cores,
-        "cpu_bound_period_s": _seconds(source, "cpu_bound_period_s",
-                                       doc.get("cpu_bound_period_s")),
-        "gantt_ms": gantt,
-    }
 
 
 def placement_of(report: dict[str, Any]) -> Placement:
@@ -360,7 +178,7 @@ def analyse(report: Any, *, source: str = "report") -> dict[str, Any]:
     business = report.get("business") or {}
     current = {d: predict(graph, placement, costs, depth=d, replies=asked)[0] for d in (1, 2)}
     now = current[depth]
-    ranked = []
+    ranked: list[dict[str, Any]] = []
     central_blocks = sum(v for k, v in block.items() if n == 0 or not graph.block(k).per_axis
                          or k in placement.central_blocks)
     measured = cal["measured_period_s"]
@@ -471,7 +289,7 @@ def auto_central_blocks(plan: ExchangePlan, block_s: dict[str, float], round_tri
     ``{"round", "blocks", "arithmetic_s", "round_trip_s", "moved"}``.
     """
     moved: set[str] = set(plan.placement.central_blocks)
-    rounds = []
+    rounds: list[dict[str, Any]] = []
     if plan.placement.peripherals == 0:
         return frozenset(moved), rounds
     ahead = plan.ahead_rounds

@@ -8,12 +8,14 @@ exchange plan (:mod:`ctrlunit.topology.plan`) is derived from it and a placement
 
 Each block names the kernel it runs (``kernel``), the thesis equation, and its cost on a
 T-800 in microseconds (per axis for axis blocks), derived from the 1994 timing table of
-docs/thesis-notes.md (see :data:`T800_NOTES`).
+docs/thesis-notes.md (see :data:`~.t800.T800_NOTES`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from .t800 import T800
 
 AXIS = "axis"
 CENTRAL = "central"
@@ -123,44 +125,6 @@ class StageGraph:
     def t_single_t800_us(self) -> float:
         """T-800 time of the whole interval on one processor."""
         return sum(b.t800_s() for b in self.blocks) * 1e6
-
-
-# T-800 costs (us). docs/thesis-notes.md: IK 240 us for 3 axes; IK + J^-1 380 us; LU 24 us;
-# d/dt(J^-1).pdot 268 us; all kinematics 1320 us; complete law 284 us; whole cycle 1604 us.
-T800 = {
-    "reference": 60.0,  # profile generator (not in the table; a few dozen FLOP)
-    "predict": 10.0,
-    "predict_span": 10.0,  # predict over the time since the estimate: as predict
-    "ik": 80.0,  # 240 / 3
-    "jinv": 140.0 / 3.0,  # (380 - 240) / 3
-    "residual": 4.0,
-    "observer": 24.0 + 36.0,  # LU of J^-1 + solve and update
-    "velocity": 20.0,  # pdot = J qdot (solve with the LU)
-    "velocity_diff": 12.0,  # 14 FLOP, as accel
-    "jdot": 268.0 / 3.0,
-    "accel": 12.0,  # 18 FLOP (§ V.3.4)
-    "ahead": 12.0,  # 18 FLOP, as accel
-    "foresee": 36.0,  # 18 FLOP per period carried (three at depth 2), as inflight
-    "inflight": 24.0,  # 18 FLOP per period of delay, two periods (depth 2)
-    "reference_acting": 90.0,  # the profile generator once more, at the acting period
-    "law": 30.0,
-    "dyn_axis": 30.0,
-    "dyn_central": 284.0 - 30.0 - 3 * 30.0,  # rest of the 127 FLOP law after the axis part
-    "output": 20.0,
-    "ref_rates": 268.0 / 3.0 + 12.0,
-    "joint_law": 10.0,
-    "joint_pd": 10.0,
-    "joint_pd_static": 8.0,
-    "collect": 10.0,
-    "gravity_central": 40.0,
-    "task_accel": 30.0,
-}
-T800_NOTES = (
-    "Per-block T-800 times split from the 1994 table (docs/thesis-notes.md): inverse kinematics "
-    "240 us / 3 axes, inverse Jacobian (380-240) us / 3, LU 24 us, d/dt(J^-1).pdot "
-    "268 us / 3, complete law 284 us split into 30 us per axis and the rest central; "
-    "blocks the table does not list are estimated from their FLOP counts."
-)
 
 
 def _b(name: str, kind: str, kernel: str, inputs: str, outputs: str, eq: str,
@@ -278,88 +242,121 @@ def stage_graph(
               "II.33, also at the acting period's start")] if acting else [
         _b("reference", CENTRAL, "reference", "t hold", "pc vc ac", "II.33")]
     out = [_b("output", CENTRAL, "output", "tau", "cmd", "saturation, command out")]
-    blocks: list[Block]
     if law == "resolved-acceleration":
-        velocity = "difference" if acting else "jacobian"
-        law_blocks = [
-            _b("inflight", CENTRAL, "inflight", "t p pd est", "p0 v0",
-               "the state where the command starts to act: p, pdot carried forward at "
-               "the commands in flight"),
-            _b("law", CENTRAL, "law", "pcd vcd ac p0 v0", "pdd",
-               "IV.14 at the acting period's start",
-               (("pc", "pcd"), ("vc", "vcd"), ("p", "p0"), ("pd", "v0"))),
-            _b("ahead", CENTRAL, "ahead", "p0 v0 pdd hold", "pa pda",
-               "the middle of the acting period: p0 + pdot0 T/2 + pddot T^2/8, "
-               "pdot0 + pddot T/2", (("p", "p0"), ("pd", "v0"))),
-        ] if acting else [_b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14")]
-        if foreseen:  # the model's state from the previous estimate: no sample needed
-            law_blocks.pop()  # no ``ahead``: ``foresee`` gives pa, pda
-            ref.append(_b("foresee", CENTRAL, "foresee", f"t hold {ahead_est} ac", "pa pda",
-                          "the middle of the acting period foreseen from the previous "
-                          "estimate: p, pdot carried at the commands in flight"
-                          + (" (two intervals back)" if est2 else ""),
-                          (("est", EST2),) if est2 else ()))
-            ref += _state_blocks("pa", "pda")
-        blocks = ref + _observer_blocks(iterations, observer, velocity=velocity,
-                                        est2=est2) + [
-            *law_blocks,
-            *(() if foreseen else _state_blocks("pa", "pda") if acting else _state_blocks()),
-            _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
-            _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qdd_i pdd", "tauq_i f_i",
-               "V.50 joint part (qA qddot + qg + coupling)"),
-            _b("dyn_central", CENTRAL, "dyn_central", "row_i tauq_i f_i pdd", "tau",
-               "V.50 operational part and J^T"),
-        ] + out
-    elif law == KINEMATICS:
-        blocks = ref + _observer_blocks(iterations, observer) + [
-            _b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14"),
-            *_state_blocks(),
-            _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
-            _b("collect", CENTRAL, "collect", "qdd_i", "tau", "joint accelerations out",
-               (("taufb_i", "qdd_i"),)),
-        ] + out
-    elif law == "computed-torque":
-        blocks = ref + _reference_joint_blocks() + [
-            _b("joint_law", AXIS, "joint_law", "qc_i qdc_i qddc_i qmeas_i qdmeas_i",
-               "qddcmd_i", "Fig. 18 (qddot* = qddot_c + kp q~ + kd q~dot)"),
-        ] + _observer_blocks(iterations, observer) + _state_blocks() + [
-            _b("task_accel", CENTRAL, "task_accel", "row_i qddcmd_i jdp_i", "pdd",
-               "pddot = J (qddot* - dJ^-1/dt pdot)"),
-            _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qddcmd_i pdd", "tauq_i f_i",
-               "V.50 joint part", (("qdd_i", "qddcmd_i"),)),
-            _b("dyn_central", CENTRAL, "dyn_central", "row_i tauq_i f_i pdd", "tau",
-               "V.50 operational part and J^T"),
-        ] + out
-    elif law == "pd-feedforward":
-        blocks = ref + _reference_joint_blocks() + [
-            _b("dyn_ref", AXIS, "dyn_axis", "axr_i qdc_i qddc_i ac", "tauq_i f_i",
-               "V.50 joint part at the reference",
-               (("ax_i", "axr_i"), ("qd_i", "qdc_i"), ("qdd_i", "qddc_i"), ("pdd", "ac"))),
-            _b("joint_pd", AXIS, "joint_pd", "qc_i qdc_i qmeas_i qdmeas_i", "taufb_i",
-               "IV.13 feedback"),
-            _b("dyn_central", CENTRAL, "dyn_central", "rowr_i tauq_i f_i ac taufb_i", "tau",
-               "V.50 operational part at the reference, J^T, plus feedback",
-               (("row_i", "rowr_i"), ("pdd", "ac"))),
-        ] + out
-    elif law == "pd-gravity":
-        blocks = ref + _reference_joint_blocks()[:1] + [
-            _b("joint_pd", AXIS, "joint_pd_static", "qc_i qmeas_i qdmeas_i", "taufb_i",
-               "V.38 feedback (reference velocity zero-order)"),
-        ] + _observer_blocks(iterations, observer)[:-1] + [
-            _b("gravity_central", CENTRAL, "gravity_central", "J qmeas_i taufb_i", "tau",
-               "V.38: qg(q) + J^T pg + feedback"),
-        ] + out
-    else:  # pd: no model terms
-        blocks = ref + _reference_joint_blocks() + [
-            _b("joint_pd", AXIS, "joint_pd", "qc_i qdc_i qmeas_i qdmeas_i", "taufb_i",
-               "joint PD, no model terms"),
-            _b("collect", CENTRAL, "collect", "taufb_i", "tau", "tau = feedback"),
-        ] + out
+        blocks = _resolved_acceleration(ref, out, iterations, observer, acting=acting,
+                                        foreseen=foreseen, est2=est2, ahead_est=ahead_est)
+    else:
+        blocks = _LAW_BLOCKS[law](ref, out, iterations, observer)
     graph = StageGraph(law, model, observer, iterations, tuple(blocks),
                        (*SOURCES, EST2) if est2 else SOURCES,
                        model_state if acting else "sample")
     validate_graph(graph)
     return graph
+
+
+def _resolved_acceleration(ref: list[Block], out: list[Block], iterations: int,
+                           observer: str, *, acting: bool, foreseen: bool, est2: bool,
+                           ahead_est: str) -> list[Block]:
+    """Resolved acceleration (IV.14 in the operational space, then the model, V.50)."""
+    velocity = "difference" if acting else "jacobian"
+    law_blocks = [
+        _b("inflight", CENTRAL, "inflight", "t p pd est", "p0 v0",
+           "the state where the command starts to act: p, pdot carried forward at "
+           "the commands in flight"),
+        _b("law", CENTRAL, "law", "pcd vcd ac p0 v0", "pdd",
+           "IV.14 at the acting period's start",
+           (("pc", "pcd"), ("vc", "vcd"), ("p", "p0"), ("pd", "v0"))),
+        _b("ahead", CENTRAL, "ahead", "p0 v0 pdd hold", "pa pda",
+           "the middle of the acting period: p0 + pdot0 T/2 + pddot T^2/8, "
+           "pdot0 + pddot T/2", (("p", "p0"), ("pd", "v0"))),
+    ] if acting else [_b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14")]
+    if foreseen:  # the model's state from the previous estimate: no sample needed
+        law_blocks.pop()  # no ``ahead``: ``foresee`` gives pa, pda
+        ref.append(_b("foresee", CENTRAL, "foresee", f"t hold {ahead_est} ac", "pa pda",
+                      "the middle of the acting period foreseen from the previous "
+                      "estimate: p, pdot carried at the commands in flight"
+                      + (" (two intervals back)" if est2 else ""),
+                      (("est", EST2),) if est2 else ()))
+        ref += _state_blocks("pa", "pda")
+    return ref + _observer_blocks(iterations, observer, velocity=velocity, est2=est2) + [
+        *law_blocks,
+        *(() if foreseen else _state_blocks("pa", "pda") if acting else _state_blocks()),
+        _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
+        _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qdd_i pdd", "tauq_i f_i",
+           "V.50 joint part (qA qddot + qg + coupling)"),
+        _b("dyn_central", CENTRAL, "dyn_central", "row_i tauq_i f_i pdd", "tau",
+           "V.50 operational part and J^T"),
+    ] + out
+
+
+def _kinematics_only(ref: list[Block], out: list[Block], iterations: int,
+                     observer: str) -> list[Block]:
+    """The kinematics part alone: its commands are joint accelerations."""
+    return ref + _observer_blocks(iterations, observer) + [
+        _b("law", CENTRAL, "law", "pc vc ac p pd", "pdd", "IV.14"),
+        *_state_blocks(),
+        _b("accel", AXIS, "accel", "row_i pdd jdp_i", "qdd_i", "V.31"),
+        _b("collect", CENTRAL, "collect", "qdd_i", "tau", "joint accelerations out",
+           (("taufb_i", "qdd_i"),)),
+    ] + out
+
+
+def _computed_torque(ref: list[Block], out: list[Block], iterations: int,
+                     observer: str) -> list[Block]:
+    """Computed torque in the joint space (Fig. 18)."""
+    return ref + _reference_joint_blocks() + [
+        _b("joint_law", AXIS, "joint_law", "qc_i qdc_i qddc_i qmeas_i qdmeas_i",
+           "qddcmd_i", "Fig. 18 (qddot* = qddot_c + kp q~ + kd q~dot)"),
+    ] + _observer_blocks(iterations, observer) + _state_blocks() + [
+        _b("task_accel", CENTRAL, "task_accel", "row_i qddcmd_i jdp_i", "pdd",
+           "pddot = J (qddot* - dJ^-1/dt pdot)"),
+        _b("dyn_axis", AXIS, "dyn_axis", "ax_i qd_i qddcmd_i pdd", "tauq_i f_i",
+           "V.50 joint part", (("qdd_i", "qddcmd_i"),)),
+        _b("dyn_central", CENTRAL, "dyn_central", "row_i tauq_i f_i pdd", "tau",
+           "V.50 operational part and J^T"),
+    ] + out
+
+
+def _pd_feedforward(ref: list[Block], out: list[Block], iterations: int,
+                    observer: str) -> list[Block]:
+    """Joint PD with the model's feedforward at the reference (IV.13)."""
+    return ref + _reference_joint_blocks() + [
+        _b("dyn_ref", AXIS, "dyn_axis", "axr_i qdc_i qddc_i ac", "tauq_i f_i",
+           "V.50 joint part at the reference",
+           (("ax_i", "axr_i"), ("qd_i", "qdc_i"), ("qdd_i", "qddc_i"), ("pdd", "ac"))),
+        _b("joint_pd", AXIS, "joint_pd", "qc_i qdc_i qmeas_i qdmeas_i", "taufb_i",
+           "IV.13 feedback"),
+        _b("dyn_central", CENTRAL, "dyn_central", "rowr_i tauq_i f_i ac taufb_i", "tau",
+           "V.50 operational part at the reference, J^T, plus feedback",
+           (("row_i", "rowr_i"), ("pdd", "ac"))),
+    ] + out
+
+
+def _pd_gravity(ref: list[Block], out: list[Block], iterations: int,
+                observer: str) -> list[Block]:
+    """Joint PD with gravity compensation at the measured state (V.38)."""
+    return ref + _reference_joint_blocks()[:1] + [
+        _b("joint_pd", AXIS, "joint_pd_static", "qc_i qmeas_i qdmeas_i", "taufb_i",
+           "V.38 feedback (reference velocity zero-order)"),
+    ] + _observer_blocks(iterations, observer)[:-1] + [
+        _b("gravity_central", CENTRAL, "gravity_central", "J qmeas_i taufb_i", "tau",
+           "V.38: qg(q) + J^T pg + feedback"),
+    ] + out
+
+
+def _pd(ref: list[Block], out: list[Block], iterations: int,
+        observer: str) -> list[Block]:
+    """Joint PD, no model terms."""
+    return ref + _reference_joint_blocks() + [
+        _b("joint_pd", AXIS, "joint_pd", "qc_i qdc_i qmeas_i qdmeas_i", "taufb_i",
+           "joint PD, no model terms"),
+        _b("collect", CENTRAL, "collect", "taufb_i", "tau", "tau = feedback"),
+    ] + out
+
+
+_LAW_BLOCKS = {KINEMATICS: _kinematics_only, "computed-torque": _computed_torque,
+               "pd-feedforward": _pd_feedforward, "pd-gravity": _pd_gravity, "pd": _pd}
+"""The blocks of each law but resolved acceleration, after its reference."""
 
 
 def validate_graph(graph: StageGraph) -> None:

@@ -170,11 +170,12 @@ def exchange_plan(graph: StageGraph, placement: Placement) -> ExchangePlan:
     steps: list[Step] = []
     for b in order:
         if _remote(b, placement):
-            if not steps or steps[-1].kind != "round" or (
-                    b.name in tainted and not any(x.name in tainted
-                                                  for x in steps[-1].round.blocks)):
-                steps.append(Step("round", round=Round(index=0)))
-            steps[-1].round.blocks.append(b)  # type: ignore[union-attr]
+            last = steps[-1].round if steps else None  # a step is a round or has none
+            if last is None or (b.name in tainted
+                                and not any(x.name in tainted for x in last.blocks)):
+                last = Round(index=0)
+                steps.append(Step("round", round=last))
+            last.blocks.append(b)
         else:
             steps.append(Step("central" if b.kind != AXIS else "local_axis", block=b))
     for k, r in enumerate(s.round for s in steps if s.round is not None):
@@ -196,10 +197,11 @@ def exchange_plan(graph: StageGraph, placement: Placement) -> ExchangePlan:
         on_periph.update(made_here)
         later_needs: set[str] = set()
         for s2 in steps[idx + 1:]:
-            blocks = s2.round.blocks if s2.round is not None else [s2.block]
-            for b in blocks:
-                if b is not None and not (s2.round is not None):
-                    later_needs.update(b.inputs)
+            blocks: list[Block | None] = (list(s2.round.blocks) if s2.round is not None
+                                          else [s2.block])
+            for blk in blocks:
+                if blk is not None and not (s2.round is not None):
+                    later_needs.update(blk.inputs)
         r.recv = [v for b in r.blocks for v in b.outputs if v in later_needs]
     # per-axis values produced remotely but needed by a later *remote* round are already on
     # the peripheral; per-axis values computed on the central and needed remotely are sent.

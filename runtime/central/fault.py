@@ -32,7 +32,7 @@ def role_report(report: dict[str, Any]) -> dict[str, Any]:
         v = report.get(name)
         if isinstance(v, bool) or not isinstance(v, types):
             continue
-        if name == "rejected":
+        if name == "rejected" and isinstance(v, dict):
             v = {k: n for k, n in v.items() if isinstance(k, str) and type(n) is int}
         out[name] = v
     return out

@@ -57,7 +57,7 @@ def check_sample(msg: dict[str, Any]) -> Sample:
 
 def synthetic_counts(params: DeltaParams, p: Sequence[float]) -> list[int]:
     """The joint counts a sample at position ``p`` would carry: each axis's inverse
-    kinematics (Eq. V.20-V.21), quantised to the encoder's increment (freerun,
+    kinematics (Eq. V.16-V.21), quantised to the encoder's increment (freerun,
     where there is no plant, and the admission's trial, where the robot rests)."""
     x, y, z = float(p[0]), float(p[1]), float(p[2])
     return [round(ik_axis(params, i, x, y, z).q / params.increment) for i in range(3)]

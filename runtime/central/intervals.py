@@ -314,7 +314,7 @@ class Intervals:
         limit_ns = self.silence.limit_ns(self.done)
         sch = self.settings
         round_trips = self.engine.plan.round_trips
-        parts = []
+        parts: list[dict[str, Any]] = []
         for f in self.outbox:
             rnd = f.round
             assert rnd is not None

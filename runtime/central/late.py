@@ -81,7 +81,7 @@ class LateData:
 
     # -- what the intake tells it --------------------------------------------------------
 
-    def remember(self, vals: dict[str, list[Any]], axes: list[int]) -> None:
+    def remember(self, vals: dict[str, Any], axes: tuple[int, ...]) -> None:
         """Keep ``vals`` (a reply's, for ``axes``) as the last accepted values."""
         Engine.merge(self.last_vals, vals, axes)
 

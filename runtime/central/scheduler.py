@@ -386,7 +386,7 @@ class Central:
         k = grid.next_on_grid(max(self.next_cycle, self.intake.newest_sample + 1)
                               + OVERLOAD_LEAD)
         grid.change(stride, k)
-        change = {"stride": stride, "from_cycle": k - self.ctl.first_cycle,
+        change: dict[str, Any] = {"stride": stride, "from_cycle": k - self.ctl.first_cycle,
                   "at_interval": self.done, **why}
         # the plant reads stride and start; the rest is for the recording's report
         payload = self.orders.say("stride", plant_only=True, start=k, **change)

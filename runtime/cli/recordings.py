@@ -63,6 +63,7 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
     """Replay a recording: --verify bit-compares every block; --csv exports; otherwise
     republish its messages on Zenoh at the recorded pace."""
     from .. import replay as rp
+    from .. import republish
 
     rec = _open_recording(file)
     _check_replay_options(rec, cycle_range, start_offset, topics, unit, connect, listen)
@@ -75,14 +76,14 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
                    "recording")
         return
     if csv_dir:
-        for p in rp.export_csv(rec, csv_dir, cycles=cycle_range):
+        for p in republish.export_csv(rec, csv_dir, cycles=cycle_range):
             click.echo(f"wrote {p}")
         return
     from ..zsession import make_config
 
     conf = make_config(listen=list(listen) or None, connect=list(connect) or None)
     target = unit or f"replay-{rec.config.get('unit', 'x')}"
-    sent = rp.republish(rec, unit=target, rate=rate, loop=loop, start_offset=start_offset,
+    sent = republish.republish(rec, unit=target, rate=rate, loop=loop, start_offset=start_offset,
                         topics=list(topics) or None, cycles=cycle_range, conf=conf,
                         max_seconds=max_seconds, wait_subscribers=wait_subscribers)
     click.echo(f"republished {sent} messages under ctrlunit/{target}/")
@@ -129,7 +130,7 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
 def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
     """Regenerate the run's report from a recording alone."""
     from ..recorded_report import report_from_recording
-    from ..report import summary
+    from ..summary import summary
 
     rec = _open_recording(file)
     rep = report_from_recording(rec)

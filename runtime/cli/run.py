@@ -245,7 +245,7 @@ def _help_all(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
     if not value or ctx.resilient_parsing:
         return
     for p in ctx.command.params:
-        if p.name != "status_file":  # the launcher's, not a person's
+        if isinstance(p, click.Option) and p.name != "status_file":  # the launcher's
             p.hidden = False
     click.echo(ctx.get_help())
     ctx.exit()
@@ -370,7 +370,7 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     if rc.run.report:
         with open(rc.run.report, "w") as fh:
             json.dump(_json_safe(report), fh, indent=2)
-    from ..report import summary
+    from ..summary import summary
 
     click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     if plot_dir:
@@ -539,7 +539,7 @@ def central(as_json: bool, **kw: Any) -> None:
         click.echo("ctrlunit central: the options are valid; nothing was started.")
         sys.exit(0)
     code, report = central_only(rc)
-    from ..report import summary
+    from ..summary import summary
 
     if "cycles" in report:
         if rc.run.report:

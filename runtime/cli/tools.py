@@ -46,7 +46,8 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
 
     Exits 1 when a figure of the thesis stage leaves its guarded range (report.md lists
     them)."""
-    from ...bench.sweep import STAGES, cycles_for, plan_configs, thesis_cycles, thesis_pairs
+    from ...bench.runs import cycles_for, thesis_cycles, thesis_pairs
+    from ...bench.sweep import STAGES, plan_configs
     from ...bench.sweep import bench as run_bench
     from ...bench.thesis import guard_lines
 
@@ -141,7 +142,7 @@ def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
     from pathlib import Path
 
     from ...bench.realtime import markdown_lines, realtime_stage, stage_steps
-    from ...bench.sweep import machine_info
+    from ...bench.runs import machine_info
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -149,7 +150,8 @@ def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
     with _ticker("realtime") as tick:
         st = realtime_stage(runs=runs, long_s=long_s, progress=tick, done=0,
                             total=stage_steps(runs, long_s))
-    rep = {"machine": machine_info(), "realtime": st, "wall_s": time.monotonic() - t0}
+    rep: dict[str, Any] = {"machine": machine_info(), "realtime": st,
+                           "wall_s": time.monotonic() - t0}
     (out / "report.json").write_text(json.dumps(_json_safe(rep), indent=2))
     m = rep["machine"]
     text = "\n".join(["# ctrlunit benchmark: the realtime stage", "",
@@ -208,6 +210,13 @@ def balance(source: str, out: str, rerun: str | None, figure: str | None,
         click.echo(json.dumps(_json_safe(a | ({"compare": cmp} if cmp else {}))))
         return
 
+    click.echo(_balance_text(a, cmp, source=source, out=out, figure=figure))
+
+
+def _balance_text(a: dict[str, Any], cmp: dict[str, Any] | None, *, source: str, out: str,
+                  figure: str | None) -> str:
+    """``ctrlunit balance``'s printed analysis ``a`` (and the re-run's comparison)."""
+
     def us(x: float | None) -> str:
         return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:.0f} us"
 
@@ -250,7 +259,7 @@ def balance(source: str, out: str, rerun: str | None, figure: str | None,
                      f"(gain {cmp['gain'] * 100:+.1f} %)")
     if figure:
         lines.append(f"  Gantt charts: {figure}")
-    click.echo("\n".join(lines))
+    return "\n".join(lines)
 
 
 def load_report(path: str) -> dict[str, Any]:
