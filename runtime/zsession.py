@@ -8,6 +8,7 @@ other roles connect to it (a star). Every key lives under ``ctrlunit/<unit-id>/`
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import re
@@ -130,6 +131,18 @@ trip between two processes 30-50 % faster at the median and 35-45 %
 less CPU; the main job at a fixed 2 ms, 3-12 % less CPU per interval, misses no worse."""
 
 
+@functools.cache
+def zenoh_log() -> bool:
+    """Zenoh's own log, to this process's standard output, where ``RUST_LOG`` asks for it
+    (e.g. ``RUST_LOG=zenoh=info``; the roles a launcher starts inherit it, their output
+    goes to their logs); none otherwise. Returns whether it was asked for; once a
+    process."""
+    if not os.environ.get("RUST_LOG"):
+        return False
+    zenoh.try_init_log_from_env()
+    return True
+
+
 def make_config(
     *,
     listen: list[str] | None = None,
@@ -157,8 +170,7 @@ def make_config(
 
         listen = [tls_endpoint(e) for e in listen or []]
         connect = None if connect is None else [tls_endpoint(e) for e in connect]
-    # keep Zenoh's own logging quiet, here and in the roles started after (they inherit it)
-    os.environ.setdefault("RUST_LOG", "error")
+    zenoh_log()
     # Zenoh's runtimes on one thread (read when a process opens its first session)
     os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
     conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
