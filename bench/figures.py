@@ -11,7 +11,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from ..runtime.plots import COLORS, gantt_figure
+from ..runtime.recording.plots import COLORS, gantt_figure
 
 __all__ = ["COLORS", "gantt_figure", "write_figures"]
 

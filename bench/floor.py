@@ -10,7 +10,7 @@ realtime plant does, so that both sides wake cold every period; it reports the C
 each process spent per round (every thread, Zenoh's included), over pipes and over Zenoh.
 That is the price of the plant's sample and command (one such round per interval) and of
 each peripheral's request and reply. It runs with the idle CPUs a realtime unit gets
-(``--idle``, runtime/idle.py: by default polling where the machine allows): on the
+(``--idle``, runtime/host/idle.py: by default polling where the machine allows): on the
 reference VM polling took a third off the CPU of a round over Zenoh and 40 % off its round
 trip (docs/measurements/2026-11-25-realtime.md).
 """
@@ -98,8 +98,8 @@ def pipe_round_trip(n: int, *, rounds: int = 2000, warmup: int = 200) -> list[fl
 
 
 def _zenoh_child(endpoint: str, index: int, unit: str) -> None:
-    from ctrlunit.runtime.node import Node
-    from ctrlunit.runtime.zsession import make_config
+    from ..runtime.transport.node import Node
+    from ..runtime.transport.zsession import make_config
 
     with Node(make_config(connect=[endpoint]), unit, f"floor-{index}",
               inbox="peripheral") as node:
@@ -123,8 +123,8 @@ def _zenoh_child(endpoint: str, index: int, unit: str) -> None:
 def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[float]:
     """Per-round times (s) of the same scatter/gather over Zenoh (the unit's settings, keys
     and inboxes)."""
-    from ctrlunit.runtime.node import Node
-    from ctrlunit.runtime.zsession import make_config
+    from ..runtime.transport.node import Node
+    from ..runtime.transport.zsession import make_config
 
     run_dir = tempfile.mkdtemp(prefix="ctrlunit-floor-")
     endpoint = f"unixsock-stream/{run_dir}/c.sock"
@@ -191,8 +191,8 @@ class _Link:
             self.proc.start()
             self._w, self._r = a_w, b_r
             return
-        from ctrlunit.runtime.node import Node
-        from ctrlunit.runtime.zsession import make_config
+        from ..runtime.transport.node import Node
+        from ..runtime.transport.zsession import make_config
 
         self.run_dir = tempfile.mkdtemp(prefix="ctrlunit-floor-")
         endpoint = f"unixsock-stream/{self.run_dir}/c.sock"
@@ -282,7 +282,7 @@ def floor(ns: tuple[int, ...] = (1, 3), *, rounds: int = 2000,
     ``paced``: :func:`paced_link` over both at 1 ms, ``paced_rounds`` rounds each
     (``rounds`` unless given), with the idle CPUs ``--idle idle`` gives a realtime unit
     (``paced["idle"]`` says which)."""
-    from ..runtime.idle import idle_request
+    from ..runtime.host.idle import idle_request
 
     res: dict[str, Any] = {"payload_bytes": len(PAYLOAD), "rounds": rounds, "by_n": {}}
     n_paced = rounds if paced_rounds is None else paced_rounds
@@ -319,7 +319,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     if not 100 <= args.rounds <= 100_000:
         ap.error(f"--rounds = {args.rounds}: allowed 100 to 100000")
-    from ..runtime.idle import IdlePermissionError
+    from ..runtime.host.idle import IdlePermissionError
 
     try:
         res = floor((1, 3), rounds=args.rounds, idle=args.idle)

@@ -20,7 +20,7 @@ def _pct(x: Any, *, sign: bool = False) -> str:
 
 
 def _idle_phrase(idle: dict[str, Any] | None) -> str:
-    """How the idle CPUs were during the paced rounds (runtime/idle.py)."""
+    """How the idle CPUs were during the paced rounds (runtime/host/idle.py)."""
     if (idle or {}).get("in_force") == "poll":
         return "Idle CPUs polling, as a realtime unit's (`--idle`)."
     return f"Idle CPUs as they are (`--idle`: {(idle or {}).get('why', 'not recorded')})."

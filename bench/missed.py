@@ -1,9 +1,9 @@
 """What late commands cost the tracking, held or replaced by the extrapolated command.
 
-Offline and deterministic: the one-process controller of a run (runtime/setup.py) and the
+Offline and deterministic: the one-process controller of a run (runtime/compute/setup.py) and the
 simulated Delta, with the realtime unit's timing at depth 2 (sample k's command due at the
 start of period k + 2) and the plant's own rule for a command that is not there in time
-(runtime/plant_node.py, ``PlantServer.apply``). A burst of ``length`` consecutive commands,
+(runtime/roles/plant_node.py, ``PlantServer.apply``). A burst of ``length`` consecutive commands,
 each ``late`` periods late, is placed at 16 phases of the task; the worst tracking error
 over the phases is reported for ``--missed-command hold`` and ``extrapolate``. Each
 command's extrapolation is
@@ -22,10 +22,10 @@ from typing import Any
 
 from ..plant.simulator import Plant, PlantConfig
 from ..runtime.central.settings import extrapolated_command
+from ..runtime.compute.controller import initial_angles, initial_command
+from ..runtime.compute.setup import make_setup
 from ..runtime.config import RunConfig
-from ..runtime.controller import initial_angles, initial_command
-from ..runtime.plant_node import PlantServer
-from ..runtime.setup import make_setup
+from ..runtime.roles.plant_node import PlantServer
 
 PHASES = 16
 

@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..runtime.sched import fifo_permitted
+from ..runtime.host.sched import fifo_permitted
 from .runs import Config, cycles_for, run_one
 
 

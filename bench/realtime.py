@@ -220,7 +220,7 @@ def _fmt(x: Any, scale: float = 1.0, digits: int = 0) -> str:
 
 def _late_words(r: dict[str, Any]) -> str:
     """What a run's late intervals' work took against its median, and the verdict
-    (runtime/report.py's ``late_work_figures``), or nothing without late intervals."""
+    (runtime/observe/report.py's ``late_work_figures``), or nothing without late intervals."""
     stretch = r.get("late_work_stretch")
     if stretch is None:
         return ""

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from ..runtime.config import RunConfig
-from ..runtime.launcher import start
-from ..runtime.stopping import raise_if_stopped
+from ..runtime.launch.launcher import start
+from ..runtime.roles.stopping import raise_if_stopped
 
 
 @dataclass

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from ..runtime.report import gantt_window
-from ..runtime.timing import warm_intervals
+from ..runtime.compute.timing import warm_intervals
+from ..runtime.observe.report import gantt_window
 from .floor import floor
 from .placement import balance_stage, target_stage
 from .realtime import realtime_stage, stage_steps

@@ -3,7 +3,7 @@
 Fixed-step RK4 with sub-steps and projection onto the constraints, first-order actuator lag
 (Eq. IV.6), torque saturation, encoder quantisation, viscous friction and an optional
 elastic belt (two-mass model per axis, § V.6.3). Usable in-process; the Zenoh role lives in
-:mod:`ctrlunit.runtime.plant_node`.
+:mod:`ctrlunit.runtime.roles.plant_node`.
 """
 
 from __future__ import annotations

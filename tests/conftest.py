@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 # The tests that send Ctrl-C (SIGINT) to a unit test what a terminal does. Run as a
 # background job of a non-interactive shell, pytest starts with SIGINT ignored and every
-# process it starts would inherit that (runtime/stopping.py); a handler here is reset to
+# process it starts would inherit that (runtime/roles/stopping.py); a handler here is reset to
 # the default in each child, as in a terminal.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)

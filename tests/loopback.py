@@ -22,13 +22,13 @@ from typing import Any
 
 from ctrlunit.plant.simulator import Plant, PlantConfig
 from ctrlunit.runtime.central import Central
+from ctrlunit.runtime.compute.controller import Controller, initial_angles, initial_command
+from ctrlunit.runtime.compute.setup import make_setup
 from ctrlunit.runtime.config import RunConfig
-from ctrlunit.runtime.controller import Controller, initial_angles, initial_command
-from ctrlunit.runtime.node import Event, Node
-from ctrlunit.runtime.peripheral import Peripheral
-from ctrlunit.runtime.plant_node import PlantServer
-from ctrlunit.runtime.setup import make_setup
-from ctrlunit.runtime.zsession import Keys
+from ctrlunit.runtime.roles.peripheral import Peripheral
+from ctrlunit.runtime.roles.plant_node import PlantServer
+from ctrlunit.runtime.transport.node import Event, Node
+from ctrlunit.runtime.transport.zsession import Keys
 from runner import unit_id
 
 PUMP_ROUNDS = 1000
@@ -61,7 +61,7 @@ class LoopbackPublisher:
 
 
 class LoopbackInbox:
-    """:class:`ctrlunit.runtime.node.Inbox`'s contract over the bus. ``pump`` (set by the
+    """:class:`ctrlunit.runtime.transport.node.Inbox`'s contract over the bus. ``pump`` (set by the
     unit) runs the other roles before the owner looks at its events."""
 
     def __init__(self, on_unknown: Callable[[str], None], prefix: str) -> None:
@@ -104,7 +104,7 @@ class LoopbackInbox:
 
 
 class LoopbackNode(Node):
-    """A :class:`~ctrlunit.runtime.node.Node` on the bus instead of a Zenoh session."""
+    """A :class:`~ctrlunit.runtime.transport.node.Node` on the bus instead of a Zenoh session."""
 
     def __init__(self, bus: Bus, unit: str, role: str, *, inbox: str | None = None) -> None:
         self.unit = unit
@@ -196,7 +196,7 @@ class LoopbackUnit:
         self.server.publish_sample((t, t))
 
     def _plant_lockstep(self) -> bool:
-        """The plant role's lockstep step (runtime/plant_node.py ``serve``): take the
+        """The plant role's lockstep step (runtime/roles/plant_node.py ``serve``): take the
         commands, apply the due one, integrate a period, publish the next sample."""
         server = self.server
         assert server is not None
@@ -231,7 +231,7 @@ class LoopbackUnit:
 
     def commands(self) -> list[list[float]]:
         """Every command the central published, in order."""
-        from ctrlunit.runtime.codec import decode
+        from ctrlunit.runtime.transport.codec import decode
 
         key = self.node.keys.command
         return [decode(d, self.rc.transport.unit)["tau"] for k, d in self.bus.log if k == key]
@@ -246,7 +246,7 @@ def lockstep_config(unit: str, **kw: Any) -> RunConfig:
 def record_lockstep(path: str, unit: str, **kw: Any) -> LoopbackUnit:
     """A lockstep run of the loopback unit recorded to ``path`` as ``ctrlunit start
     --record`` writes it (the same recorder, the peripherals' traces on)."""
-    from ctrlunit.runtime.recorder import Recorder
+    from ctrlunit.runtime.recording.recorder import Recorder
 
     rc = lockstep_config(unit, record=str(path), trace=True, **kw)
     recorder = Recorder(str(path), make_setup(rc))

@@ -27,7 +27,7 @@ PACKAGES = ("kernels", "plant", "topology", "runtime", "bench")
 
 TARGETS: dict[str, tuple[list[str], list[str]]] = {
     # target: (modules to mutate, tests that check them in-process)
-    "codec": (["runtime/codec.py"], ["tests/test_codec.py", "tests/test_validation.py",
+    "codec": (["runtime/transport/codec.py"], ["tests/test_codec.py", "tests/test_validation.py",
                                     "tests/test_codec_contract.py"]),
     "laws": (["kernels/laws.py"], ["tests/test_law_oracles.py", "tests/test_engine.py",
                                    "tests/test_laws.py"]),
@@ -41,18 +41,19 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                                              "tests/test_foreseen2.py",
                                              "tests/test_late_compute.py",
                                              "tests/test_overload.py"]),
-    "replay": (["runtime/replay.py"], ["tests/test_replay_unit.py", "tests/test_overload.py",
-                                       "tests/test_foreseen2.py", "tests/test_late.py"]),
+    "replay": (["runtime/recording/replay.py"],
+               ["tests/test_replay_unit.py", "tests/test_overload.py", "tests/test_foreseen2.py",
+                "tests/test_late.py"]),
     "pipeline": (["topology/pipeline.py"], ["tests/test_pipeline.py", "tests/test_schedule.py",
                                             "tests/test_loopback.py",
                                             "tests/test_pipeline_overlap.py"]),
-    "peripheral": (["runtime/peripheral.py"], ["tests/test_peripheral_role.py",
+    "peripheral": (["runtime/roles/peripheral.py"], ["tests/test_peripheral_role.py",
                                                "tests/test_validation.py",
                                                "tests/test_pipeline_overlap.py",
                                                "tests/test_loopback.py",
                                                "tests/test_late_compute.py",
                                              "tests/test_overload.py"]),
-    "admission": (["runtime/admission.py"], ["tests/test_admission_rules.py",
+    "admission": (["runtime/launch/admission.py"], ["tests/test_admission_rules.py",
                                              "tests/test_admission.py"]),
 }
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import machine
 import numpy as np
 import pytest
-from ctrlunit.runtime.admission import (
+from ctrlunit.runtime.config import EXIT_UNSUSTAINABLE
+from ctrlunit.runtime.launch.admission import (
     EPISODE_GAP,
     HEADROOM,
     LADDER_S,
@@ -13,7 +14,6 @@ from ctrlunit.runtime.admission import (
     rung_verdict,
     trial_intervals,
 )
-from ctrlunit.runtime.config import EXIT_UNSUSTAINABLE
 from runner import ctrlunit, start_json
 
 
@@ -108,7 +108,7 @@ def _admit_with_trials(monkeypatch, verdicts: list[dict], *, period: float = 1e-
     """``admit`` on a stand-in central whose trials return ``verdicts`` in turn."""
     from types import SimpleNamespace
 
-    import ctrlunit.runtime.admission as admission
+    import ctrlunit.runtime.launch.admission as admission
 
     tried: list[float] = []
 
@@ -235,12 +235,12 @@ def test_latency_measures_under_the_policy_asked_and_leaves_the_caller_as_it_was
     import json
     import os
 
-    from ctrlunit.runtime.latency import latency_report
+    from ctrlunit.runtime.launch.latency import latency_report
 
     res = ctrlunit("latency", "--period", "2ms", "--duration", "0.1s", "--rt-priority", "0",
                    "--plot", str(tmp_path / "lat.png"), "--json", timeout=60)
     assert res.returncode == 0, res.stderr
-    from ctrlunit.runtime import sched
+    from ctrlunit.runtime.host import sched
 
     # 0: the policy as it is, the one this test (and its child) runs under
     assert json.loads(res.stdout)["scheduling"] == sched.policy_name()
@@ -260,11 +260,11 @@ def test_the_tracking_prediction_of_a_long_run_simulates_one_loop_of_the_task(mo
     one loop (simulating every interval of the run took longer than the roles wait)."""
     from types import SimpleNamespace
 
-    import ctrlunit.runtime.controller as controller
+    import ctrlunit.runtime.compute.controller as controller
     from ctrlunit.kernels.params import DELTA_IA
     from ctrlunit.kernels.trajectory import get_task
-    from ctrlunit.runtime.admission import predicted_tracking
     from ctrlunit.runtime.config import RunConfig
+    from ctrlunit.runtime.launch.admission import predicted_tracking
 
     asked: list[int] = []
     real = controller.simulate

@@ -1,4 +1,4 @@
-"""The admission's rules (runtime/admission.py) with every figure written out: a trial's
+"""The admission's rules (runtime/launch/admission.py) with every figure written out: a trial's
 length, the ladder, one trial's verdict at each of its edges, and how ``admit`` climbs,
 repeats a trial once after one stall, and words a refusal. ``admit`` runs here on a
 central reduced to what it reads, its trials and tracking predictions scripted; the real
@@ -12,8 +12,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 import pytest
-from ctrlunit.runtime import admission, sched
-from ctrlunit.runtime.admission import (
+from ctrlunit.runtime.central import Supervision
+from ctrlunit.runtime.config import RunConfig
+from ctrlunit.runtime.host import sched
+from ctrlunit.runtime.launch import admission
+from ctrlunit.runtime.launch.admission import (
     LADDER_S,
     Unsustainable,
     admit,
@@ -22,8 +25,6 @@ from ctrlunit.runtime.admission import (
     rung_verdict,
     trial_intervals,
 )
-from ctrlunit.runtime.central import Supervision
-from ctrlunit.runtime.config import RunConfig
 
 MS = 1e-3
 
@@ -245,7 +246,7 @@ def test_the_climb_stops_where_tracking_gets_too_poor(monkeypatch):
 def test_the_tracking_a_period_predicts_is_the_one_process_loops_at_it():
     """1 ms with the main job's settings (depth 2, foreseen2): 0.019 mm, as README says;
     at 8 ms 3.6 mm; the kinematics law has no torques to track with (NaN)."""
-    from ctrlunit.runtime.setup import make_setup
+    from ctrlunit.runtime.compute.setup import make_setup
 
     rc = RunConfig.of(clock="realtime", pipeline=2)
     engine = make_setup(rc).engine()
@@ -330,7 +331,7 @@ def test_the_refusals_words_and_figures_in_full(monkeypatch):
 def test_each_law_is_simulated_as_it_runs():
     """The prediction uses the run's law: PD + gravity tracks far worse than resolved
     acceleration at 1 ms."""
-    from ctrlunit.runtime.setup import make_setup
+    from ctrlunit.runtime.compute.setup import make_setup
 
     rc = RunConfig.of(clock="realtime", pipeline=2, law="pd-gravity")
     central = SimpleNamespace(rc=rc, engine=make_setup(rc).engine())

@@ -101,7 +101,7 @@ def test_a_task_name_is_a_string_shown_in_quotes(tmp_path):
 
 
 def test_report_of_a_recording_cut_before_its_first_interval_is_an_error(tmp_path):
-    from ctrlunit.runtime.mcap_writer import LeanWriter
+    from ctrlunit.runtime.recording.mcap_writer import LeanWriter
 
     path = tmp_path / "cut.mcap"
     with open(path, "wb") as fh:

@@ -349,7 +349,7 @@ def test_the_floor_times_the_units_cadence_with_the_idle_cpus_a_realtime_unit_ge
     """The paced rounds run while the idle request is held (``--idle``, as a realtime
     unit's); the report says which."""
     from ctrlunit.bench import floor as floor_mod
-    from ctrlunit.runtime import idle
+    from ctrlunit.runtime.host import idle
 
     dev = tmp_path / "cpu_dma_latency"
     dev.write_bytes(b"")

@@ -6,7 +6,7 @@ import math
 
 import msgpack
 import pytest
-from ctrlunit.runtime.codec import (
+from ctrlunit.runtime.transport.codec import (
     MAX_STR_BYTES,
     BadMessage,
     check_vals,

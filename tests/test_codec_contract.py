@@ -13,8 +13,9 @@ import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
-from ctrlunit.runtime import codec
-from ctrlunit.runtime.codec import (
+from ctrlunit.runtime.compute.controller import build_engine
+from ctrlunit.runtime.transport import codec
+from ctrlunit.runtime.transport.codec import (
     MAX_ABS,
     MAX_CYCLE,
     MAX_MESSAGE_BYTES,
@@ -31,7 +32,6 @@ from ctrlunit.runtime.codec import (
     shape_of,
     short_text,
 )
-from ctrlunit.runtime.controller import build_engine
 from ctrlunit.topology.graph import LAWS
 
 U = "t-codec"
@@ -250,7 +250,7 @@ def test_shape_of_each_exchanged_value_is_the_shape_the_unit_computes(law, obser
     engine = build_engine(P, task, law=law, model="complete", gains=Gains.from_bandwidth(20.0),
                           period=1e-3, observer=observer, peripherals=3)
     from ctrlunit.kernels.kinematics import inverse_kinematics
-    from ctrlunit.runtime.controller import Estimate
+    from ctrlunit.runtime.compute.controller import Estimate
 
     q = [float(x) for x in inverse_kinematics(P, task.start())]
     ctx = engine.run_local(engine.new_ctx(0.01, Estimate(tuple(task.start()), (0.0,) * 3,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 
 import pytest
-from ctrlunit.runtime.timing import BLOCK, WINDOW
+from ctrlunit.runtime.compute.timing import BLOCK, WINDOW
 from runner import start_json
 
 pytestmark = pytest.mark.zenoh
@@ -37,7 +37,7 @@ def test_bounded_soak_has_no_deadlock_and_flat_memory(tmp_path):
     cycles = int(os.environ.get("CTRLUNIT_SOAK_CYCLES", "20000"))
     rep = soak(tmp_path, cycles)
     # The central keeps the newest WINDOW intervals exactly and folds older ones into
-    # fixed-size histograms (runtime/timing.py), so its log stops growing; the rest of its
+    # fixed-size histograms (runtime/compute/timing.py), so its log stops growing; the rest of its
     # resident memory moves in allocator-sized steps and levels off.
     print("central RSS series (interval, kB):", rep["memory_kb"]["central"]["series"])
     if cycles > WINDOW + BLOCK:

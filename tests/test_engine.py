@@ -7,7 +7,7 @@ from ctrlunit.kernels.kinematics import inverse_kinematics
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
-from ctrlunit.runtime.controller import Controller, build_engine
+from ctrlunit.runtime.compute.controller import Controller, build_engine
 from ctrlunit.topology.graph import LAWS
 
 

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from ctrlunit.runtime.recording import read
+from ctrlunit.runtime.recording.reader import read
 from runner import kill_unit, pids_of, slow_task, unit_id, wait_status
 
 pytestmark = pytest.mark.zenoh
@@ -86,8 +86,8 @@ def test_safe_stop_brings_a_fast_robot_to_rest(period, belt):
     from ctrlunit.kernels.params import DELTA_IA as P
     from ctrlunit.kernels.trajectory import pick_place_task
     from ctrlunit.plant.simulator import Plant, PlantConfig
-    from ctrlunit.runtime import controller as ctl_mod
-    from ctrlunit.runtime.plant_orders import safe_stop
+    from ctrlunit.runtime.compute import controller as ctl_mod
+    from ctrlunit.runtime.roles.plant_orders import safe_stop
 
     task = pick_place_task()
     task.align(0.0005)

@@ -12,9 +12,9 @@ import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
-from ctrlunit.runtime.blocks import BlockConfig, k_foresee, k_inflight, names_for
-from ctrlunit.runtime.codec import decode
-from ctrlunit.runtime.controller import Estimate, simulate
+from ctrlunit.runtime.compute.blocks import BlockConfig, k_foresee, k_inflight, names_for
+from ctrlunit.runtime.compute.controller import Estimate, simulate
+from ctrlunit.runtime.transport.codec import decode
 from ctrlunit.topology.balance import auto_central_blocks
 from ctrlunit.topology.graph import KINEMATICS, LAWS, OBSERVERS, stage_graph
 from ctrlunit.topology.placement import Placement, default_placement
@@ -261,7 +261,7 @@ def test_the_unit_runs_the_model_round_ahead_with_the_one_process_commands(tmp_p
     round on the peripherals (ahead of the sample) and moves what needs the sample to the
     central; the commands are the one-process reference's bit for bit; in realtime the
     report says the round ran ahead."""
-    from ctrlunit.runtime.report import command_digest
+    from ctrlunit.runtime.observe.report import command_digest
     from runner import start_json
 
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",

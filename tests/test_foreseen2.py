@@ -10,9 +10,9 @@ import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
-from ctrlunit.runtime.blocks import BlockConfig, k_predict, k_predict_span, names_for
-from ctrlunit.runtime.codec import decode
-from ctrlunit.runtime.controller import Estimate, simulate
+from ctrlunit.runtime.compute.blocks import BlockConfig, k_predict, k_predict_span, names_for
+from ctrlunit.runtime.compute.controller import Estimate, simulate
+from ctrlunit.runtime.transport.codec import decode
 from ctrlunit.topology.graph import EST2, stage_graph
 from ctrlunit.topology.placement import Placement, default_placement
 from ctrlunit.topology.plan import exchange_plan, needs_sample
@@ -82,7 +82,7 @@ def test_the_prediction_over_two_periods_is_exact_at_constant_acceleration():
 
 
 def _controller():
-    from ctrlunit.runtime.controller import Controller, build_engine
+    from ctrlunit.runtime.compute.controller import Controller, build_engine
 
     engine = build_engine(P, pick_place_task(), law="resolved-acceleration",
                           model="complete", gains=Gains.from_bandwidth(20.0), period=T,
@@ -239,9 +239,9 @@ def test_the_unit_sends_one_exchange_per_two_intervals_and_replay_verifies(tmp_p
     """``ctrlunit start --model-state foreseen2``: lockstep commands are the one-process
     reference's bit for bit; in realtime the model's rounds of two intervals share an
     exchange and the recording replays bit for bit."""
-    from ctrlunit.runtime.recording import read
-    from ctrlunit.runtime.replay import verify
-    from ctrlunit.runtime.report import command_digest
+    from ctrlunit.runtime.observe.report import command_digest
+    from ctrlunit.runtime.recording.reader import read
+    from ctrlunit.runtime.recording.replay import verify
     from runner import start_json
 
     code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--clock",

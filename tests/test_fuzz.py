@@ -15,8 +15,8 @@ from collections import Counter
 import msgpack
 import pytest
 import zenoh
-from ctrlunit.runtime.codec import SCHEMA_VERSION, shape_of
-from ctrlunit.runtime.zsession import Keys, make_config
+from ctrlunit.runtime.transport.codec import SCHEMA_VERSION, shape_of
+from ctrlunit.runtime.transport.zsession import Keys, make_config
 from ctrlunit.topology.graph import stage_graph
 from ctrlunit.topology.placement import default_placement
 from ctrlunit.topology.plan import exchange_plan

@@ -14,15 +14,15 @@ import pytest
 from ctrlunit.kernels.dynamics import gravity_torques
 from ctrlunit.runtime.central import Fault, scheduler, silence
 from ctrlunit.runtime.central.state_check import check_state
-from ctrlunit.runtime.codec import decode
+from ctrlunit.runtime.compute.controller import Estimate
 from ctrlunit.runtime.config import (
     EXIT_OBSERVER,
     EXIT_PERIPHERAL,
     EXIT_PLANT,
     RunConfig,
 )
-from ctrlunit.runtime.controller import Estimate
-from ctrlunit.runtime.supervise import MachineLoad
+from ctrlunit.runtime.roles.supervise import MachineLoad
+from ctrlunit.runtime.transport.codec import decode
 from loopback import LoopbackUnit, realtime_unit, supervise
 from loopback import take_sample as sample
 from runner import unit_id

@@ -1,4 +1,4 @@
-"""``--idle``: the CPU latency request that keeps idle CPUs polling (runtime/idle.py)."""
+"""``--idle``: the CPU latency request that keeps idle CPUs polling (runtime/host/idle.py)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import time
 from pathlib import Path
 
 import pytest
-from ctrlunit.runtime import idle
 from ctrlunit.runtime.config import ConfigError, RunConfig
+from ctrlunit.runtime.host import idle
 
 
 def _cpuidle(tmp_path: Path, states: list[tuple[str, int, int]]) -> Path:
@@ -180,8 +180,8 @@ def test_a_role_started_on_its_own_holds_the_request_for_its_host_while_it_runs(
 def test_start_with_poll_where_the_request_cannot_be_made_refuses_before_any_role(
         tmp_path, monkeypatch):
     """The launcher's error is a configuration error naming the file; no role started."""
-    from ctrlunit.runtime import launcher, unit_start
     from ctrlunit.runtime.config import EXIT_CONFIG
+    from ctrlunit.runtime.launch import launcher, unit_start
 
     monkeypatch.setattr(idle, "CPU_LATENCY_DEV", tmp_path / "no" / "cpu_dma_latency")
     spawned: list[str] = []

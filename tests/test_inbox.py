@@ -7,8 +7,8 @@ import time
 
 import pytest
 import zenoh
-from ctrlunit.runtime.node import Inbox
-from ctrlunit.runtime.zsession import make_config
+from ctrlunit.runtime.transport.node import Inbox
+from ctrlunit.runtime.transport.zsession import make_config
 from runner import unit_id
 
 pytestmark = pytest.mark.zenoh

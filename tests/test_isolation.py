@@ -11,8 +11,8 @@ import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
-from ctrlunit.runtime.controller import simulate
-from ctrlunit.runtime.report import command_digest
+from ctrlunit.runtime.compute.controller import simulate
+from ctrlunit.runtime.observe.report import command_digest
 from runner import kill_unit, unit_id
 from test_fuzz import free_port
 

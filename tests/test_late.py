@@ -55,8 +55,8 @@ def test_hold_policy_uses_the_last_values_per_axis_and_replay_holds_them_too(tmp
     """Under hold, the late rounds of the frozen peripheral (axis 1) are computed with that
     axis's last accepted values, as the recording shows; replay --verify re-executes the
     run with them and gets every command bit for bit."""
-    from ctrlunit.runtime.recording import read
-    from ctrlunit.runtime.replay import _index, verify
+    from ctrlunit.runtime.recording.reader import read
+    from ctrlunit.runtime.recording.replay import _index, verify
 
     mcap = tmp_path / "hold.mcap"
     code, rep, out = freeze_briefly(tmp_path, "hold", "--record", str(mcap))
@@ -98,8 +98,8 @@ def test_compute_policy_computes_the_late_rounds_and_replay_verifies_them(tmp_pa
     """Under compute the frozen peripheral's late rounds are run by the central (the
     recording names them); replay --verify re-executes the run without those replies and
     finds every command bit for bit."""
-    from ctrlunit.runtime.recording import read
-    from ctrlunit.runtime.replay import verify
+    from ctrlunit.runtime.recording.reader import read
+    from ctrlunit.runtime.recording.replay import verify
 
     mcap = tmp_path / "compute.mcap"
     code, rep, out = freeze_briefly(tmp_path, "compute", "--record", str(mcap))

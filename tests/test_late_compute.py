@@ -10,8 +10,9 @@ from typing import Any
 import msgpack
 import pytest
 from ctrlunit.runtime.central import Fault
-from ctrlunit.runtime.codec import decode
+from ctrlunit.runtime.central.late import HELD_KEPT
 from ctrlunit.runtime.config import EXIT_PERIPHERAL, RunConfig
+from ctrlunit.runtime.transport.codec import decode
 from loopback import LoopbackUnit, supervise, turn
 from loopback import take_sample as sample
 from runner import unit_id
@@ -47,6 +48,8 @@ def test_a_late_round_run_ahead_is_computed_at_its_sample_with_the_same_commands
                                                  on_message=lambda *a: seen.append(a))
     for x in (ref, u):
         turn(x)
+    old = {(-i, 0, 0) for i in range(1, HELD_KEPT + 1)}  # a full memory of late rounds
+    u.central.late.held |= old
     for k in range(6):
         for x in (ref, u):
             if x is u and k == 1:
@@ -70,6 +73,14 @@ def test_a_late_round_run_ahead_is_computed_at_its_sample_with_the_same_commands
     assert [msgpack.unpackb(a[4]) for a in rec] == [
         {"cycle": k, "stage": 0, "peripheral": 1} for k in range(2, 6)]
     assert all(a[1] == f"{u.node.keys.root}/faults/computed" for a in rec)
+    assert [(a[2], a[3]) for a in rec] == [(k, 0) for k in range(2, 6)]  # cycle, round
+    for a in rec:  # each computed round is the central's compute, from its record's time
+        t0 = a[5]
+        assert isinstance(t0, int) and t0 > 0
+        assert any(s[:3] == ("central", a[2], t0) and s[3] >= t0 for s in c.meters.spans)
+    # the memory of late rounds stays at its bound: the oldest four went for the new four
+    assert len(c.late.held) == HELD_KEPT and old - c.late.held == {
+        (-i, 0, 0) for i in range(HELD_KEPT - 3, HELD_KEPT + 1)}
     # a late reply is counted as such (each of its parts), never merged
     for k, reply in u.withheld[:1]:
         c.handle(("reply", k, reply, 1))
@@ -158,8 +169,8 @@ def test_a_peripheral_that_stays_silent_is_still_a_fault():
 
 def test_the_summary_tells_late_replies_from_rejected_messages():
     """A late reply is no malformed message: the summary says so on a line of its own."""
-    from ctrlunit.runtime.report import finish_report
-    from ctrlunit.runtime.summary import summary
+    from ctrlunit.runtime.observe.report import finish_report
+    from ctrlunit.runtime.observe.summary import summary
     from loopback import lockstep_config
 
     u = LoopbackUnit(lockstep_config(unit_id("cmpsum"), peripherals=3, pipeline=2,

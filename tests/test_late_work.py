@@ -1,5 +1,5 @@
 """Where a late interval's time went: the peripherals' work against its median
-(runtime/report.py, late_work_figures), and the central's record of it."""
+(runtime/observe/report.py, late_work_figures), and the central's record of it."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from dataclasses import replace
 
 import pytest
 from ctrlunit.runtime.config import RunConfig
-from ctrlunit.runtime.report import STRETCH_SAME, STRETCH_SLOWER, late_work_figures
-from ctrlunit.runtime.summary import _late_lines
+from ctrlunit.runtime.observe.report import STRETCH_SAME, STRETCH_SLOWER, late_work_figures
+from ctrlunit.runtime.observe.summary import _late_lines
 from loopback import LoopbackUnit
 from runner import unit_id
 

@@ -1,7 +1,7 @@
 """The control laws against oracles written here, from the thesis's equations, with the
 plant's own mechanics as the model of the robot.
 
-The unit's laws (kernels/laws.py, wired as blocks in runtime/blocks.py) compute torques
+The unit's laws (kernels/laws.py, wired as blocks in runtime/compute/blocks.py) compute torques
 from the inverse dynamics of kernels/dynamics.py. The oracles below never call those:
 they ask the plant (plant/mechanics.py, derived independently, with multipliers) which
 torque produces a given acceleration, since its accelerations are affine in the torque,
@@ -32,7 +32,7 @@ from ctrlunit.plant.mechanics import (
     platform_velocity,
 )
 from ctrlunit.plant.simulator import Plant, PlantConfig
-from ctrlunit.runtime.controller import (
+from ctrlunit.runtime.compute.controller import (
     Controller,
     Estimate,
     build_engine,
@@ -329,7 +329,7 @@ def test_the_velocity_from_the_observed_positions_removes_the_half_period_lag(mo
     delay), bandwidth at most 1 / (50 T) (measured with the commands in flight
     carried forward: at 1 ms 0.019 mm against 0.333 mm; at 2 ms 0.162 mm against 1.146
     mm)."""
-    import ctrlunit.runtime.blocks as blocks
+    import ctrlunit.runtime.compute.blocks as blocks
 
     def worst(period: float) -> float:
         cycles = round(pick_place_task().period / period) + 1
@@ -353,7 +353,7 @@ def test_the_commands_in_flight_keep_the_loop_at_20_hz_where_the_command_acts_la
     last command computed is the one acting (the acceleration a period or two off) loses
     the robot or misses by ten times as much (measured: 0.089 and 0.451 mm
     against the observer diverging at both)."""
-    import ctrlunit.runtime.blocks as blocks
+    import ctrlunit.runtime.compute.blocks as blocks
 
     def worst(period: float) -> float:
         cycles = round(pick_place_task().period / period) + 1

@@ -134,3 +134,30 @@ def test_the_checker_sees_a_violation():
     relative import of another layer."""
     deps = imports_of(ROOT / "runtime" / "central" / "state_check.py")  # dynamics: deferred
     assert "ctrlunit.kernels.dynamics" in deps and "ctrlunit.runtime.config" in deps
+
+
+RUNTIME_ORDER = ("transport", "host", "config", "compute", "observe", "roles", "central",
+                 "recording", "launch", "cli")
+"""The runtime's packages, each importing only those before it (docs/architecture.md)."""
+
+
+def runtime_package(mod: str) -> str | None:
+    parts = mod.split(".")
+    return parts[2] if len(parts) > 2 and parts[1] == "runtime" else None
+
+
+def test_the_runtime_is_in_packages_and_each_imports_only_those_before_it():
+    flat = sorted(p.name for p in (ROOT / "runtime").glob("*.py") if p.name != "__init__.py")
+    assert not flat, f"modules outside the runtime's packages: {flat}"
+    assert {p.name for p in (ROOT / "runtime").iterdir() if p.is_dir()
+            and (p / "__init__.py").exists()} == set(RUNTIME_ORDER)
+    bad = []
+    for mod, deps in graph().items():
+        here = runtime_package(mod)
+        if here is None:
+            continue
+        for d in deps:
+            there = runtime_package(d)
+            if there is not None and RUNTIME_ORDER.index(there) > RUNTIME_ORDER.index(here):
+                bad.append(f"{mod} -> {d}")
+    assert not bad, "\n".join(sorted(bad))

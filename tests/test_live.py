@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import pytest
-from ctrlunit.runtime.live import LiveStats, TerminalLine
+from ctrlunit.runtime.observe.live import LiveStats, TerminalLine
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from runner import kill_unit, unit_id
@@ -145,7 +145,7 @@ def test_the_bar_counts_periods_covered_when_the_control_rate_is_halved():
     full, not at 15 of 20."""
     from types import SimpleNamespace
 
-    from ctrlunit.runtime.live import LiveLine
+    from ctrlunit.runtime.observe.live import LiveLine
 
     shown: list[tuple[int, int]] = []
     line = LiveLine(lambda text, done, total: shown.append((done, total)))

@@ -9,9 +9,9 @@ from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
 from ctrlunit.runtime.central import Fault
-from ctrlunit.runtime.codec import decode
+from ctrlunit.runtime.compute.controller import simulate
 from ctrlunit.runtime.config import EXIT_PERIPHERAL
-from ctrlunit.runtime.controller import simulate
+from ctrlunit.runtime.transport.codec import decode
 from loopback import LoopbackUnit, lockstep_config
 from runner import unit_id
 

@@ -7,7 +7,7 @@ import io
 import lz4.frame
 import pytest
 import zstandard
-from ctrlunit.runtime.mcap_writer import LeanWriter
+from ctrlunit.runtime.recording.mcap_writer import LeanWriter
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
@@ -193,7 +193,7 @@ def test_a_failed_background_write_is_reported_not_lost() -> None:
 
 
 def test_the_writer_thread_runs_its_set_up_hook_before_every_job() -> None:
-    """The recorder sets the writer thread's policy this way (runtime/sched.py, leave_rt):
+    """The recorder sets the writer thread's policy this way (runtime/host/sched.py, leave_rt):
     the hook runs on the writer thread, never on the caller's, once before each job."""
     import threading
 

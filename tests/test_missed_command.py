@@ -2,7 +2,7 @@
 
 The central sends, with each realtime command at the full rate, the command it expects
 for the next sample (``next``, extrapolated from the last two); the plant applies it in a
-period whose own command did not come in time (runtime/plant_node.py,
+period whose own command did not come in time (runtime/roles/plant_node.py,
 ``PlantServer.apply``), and holds the last command otherwise.
 """
 
@@ -15,9 +15,9 @@ from types import SimpleNamespace
 from typing import Any
 
 import pytest
-from ctrlunit.runtime.codec import decode, encode
 from ctrlunit.runtime.config import ConfigError, RunConfig
-from ctrlunit.runtime.plant_node import PlantServer
+from ctrlunit.runtime.roles.plant_node import PlantServer
+from ctrlunit.runtime.transport.codec import decode, encode
 
 UNIT = "t-missed"
 
@@ -108,7 +108,7 @@ def _ahead(clock: str = "realtime", missed: str = "extrapolate",
     ``CommandAhead``) as a run of ``clock`` and ``--missed-command missed`` sets it,
     with the control rate's grid (halved from ``halved_at``)."""
     from ctrlunit.runtime.central.settings import CommandAhead, LoopSettings
-    from ctrlunit.runtime.stride import StrideSchedule
+    from ctrlunit.runtime.compute.stride import StrideSchedule
 
     grid = StrideSchedule()
     if halved_at:

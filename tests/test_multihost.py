@@ -126,7 +126,7 @@ def delay_lines(hosts: list[str], delay: str) -> tuple[list[subprocess.Popen], l
 
 
 def test_each_role_on_its_own_host_with_and_without_link_limits(tmp_path, star):
-    from ctrlunit.runtime.security import make_keys
+    from ctrlunit.runtime.transport.security import make_keys
 
     central, hosts, links = star
     plain = run_star(tmp_path, central, hosts, "plain")

@@ -45,7 +45,7 @@ def test_prediction_lets_one_iteration_suffice(task):
 
 def block_config(period: float = 1e-3, delay: int = 0):
     from ctrlunit.kernels.laws import Gains
-    from ctrlunit.runtime.blocks import BlockConfig
+    from ctrlunit.runtime.compute.blocks import BlockConfig
 
     return BlockConfig.build(P, model="complete", gains=Gains.from_bandwidth(20.0), task=None,
                              period=period, observer="predict", delay=delay)
@@ -53,7 +53,7 @@ def block_config(period: float = 1e-3, delay: int = 0):
 
 def velocity_from_positions(p, est, t: float, period: float = 1e-3, delay: int = 0):
     """``pd`` of the kernel ``velocity_diff`` for observed position ``p`` at time ``t``."""
-    from ctrlunit.runtime.blocks import k_velocity_diff
+    from ctrlunit.runtime.compute.blocks import k_velocity_diff
 
     cfg = block_config(period, delay)
     ctx = {"t": t, "p": p, "est": est}
@@ -66,7 +66,7 @@ def test_velocity_from_positions_is_exact_at_constant_acceleration(gap):
     """On a path of constant acceleration ``a`` the difference of two estimates ``gap``
     periods apart (samples skipped in between) plus ``dt/2 a`` is the velocity at the newer
     one, to rounding; a sign or a factor wrong in either term misses by ``a dt`` or more."""
-    from ctrlunit.runtime.controller import Estimate
+    from ctrlunit.runtime.compute.controller import Estimate
 
     p0, v0 = np.array([0.05, -0.1, -0.9]), np.array([1.5, -2.0, 0.7])
     a = np.array([40.0, 25.0, -60.0])
@@ -91,7 +91,7 @@ def test_velocity_from_positions_integrates_the_commands_that_acted_across_a_gap
     exact only if it weights each by when it acted. The last command computed (the
     previous interval's) is not the one that acted: taking it for all three misses by
     ``0.02 m/s`` and more here."""
-    from ctrlunit.runtime.controller import Estimate
+    from ctrlunit.runtime.compute.controller import Estimate
 
     T, t0 = 1e-3, 0.1
     accels = [(40.0, 25.0, -60.0), (-30.0, 10.0, 5.0), (15.0, -45.0, 20.0)]
@@ -111,8 +111,8 @@ def test_the_acting_command_is_the_newest_one_due():
     """The plant applies the newest command due by a period's start (or keeps the last
     one when the due one is missing); before any is due it holds the starting command,
     which keeps the robot still (zero acceleration)."""
-    from ctrlunit.runtime.blocks import acting_acceleration
-    from ctrlunit.runtime.controller import Estimate
+    from ctrlunit.runtime.compute.blocks import acting_acceleration
+    from ctrlunit.runtime.compute.controller import Estimate
 
     T = 1e-3
     cfg = block_config(T, delay=2)
@@ -129,8 +129,8 @@ def test_the_state_in_flight_is_carried_at_the_commands_already_sent():
     """``inflight`` carries the sample's ``p, pdot`` to the start of the acting period,
     ``delay`` periods on, each period at the command that acts in it; a command taken in
     the wrong period (one off) misses by ``T^2 |a1 - a2|`` or more."""
-    from ctrlunit.runtime.blocks import k_inflight
-    from ctrlunit.runtime.controller import Estimate
+    from ctrlunit.runtime.compute.blocks import k_inflight
+    from ctrlunit.runtime.compute.controller import Estimate
 
     T, t = 2e-3, 0.05
     accels = [(40.0, 25.0, -60.0), (-30.0, 10.0, 5.0), (15.0, -45.0, 20.0)]
@@ -151,7 +151,7 @@ def test_the_state_in_flight_is_carried_at_the_commands_already_sent():
 
 
 def test_velocity_from_positions_keeps_the_handed_off_velocity_without_an_earlier_sample():
-    from ctrlunit.runtime.controller import Estimate
+    from ctrlunit.runtime.compute.controller import Estimate
 
     est = Estimate((0.0, 0.0, -0.9), (0.25, 0.5, 0.75), (0.0, 0.0, 0.0))  # t = None: the start
     assert velocity_from_positions((0.1, 0.1, -0.8), est, 0.0) == (0.25, 0.5, 0.75)

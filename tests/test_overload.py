@@ -24,7 +24,7 @@ import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
-from ctrlunit.runtime import controller as ctl_mod
+from ctrlunit.runtime.compute import controller as ctl_mod
 from ctrlunit.runtime.config import ConfigError, RunConfig
 from runner import kill_unit, pids_of, slow_task, unit_id, wait_status
 
@@ -82,7 +82,7 @@ def test_controller_halves_once_on_a_grid_from_its_start():
 
 
 def test_a_stride_change_must_start_on_the_grid_after_the_last_one():
-    from ctrlunit.runtime.stride import StrideSchedule
+    from ctrlunit.runtime.compute.stride import StrideSchedule
 
     g = StrideSchedule()
     assert g.check(3, 10) == "stride must be one of 1, 2, got 3"
@@ -133,8 +133,8 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tm
     goes back to every sample. The run completes, the plant took the commands of every
     second cycle in between and of every cycle after, and the recording replays bit for
     bit."""
-    from ctrlunit.runtime.recording import read
-    from ctrlunit.runtime.replay import stride_changes, verify
+    from ctrlunit.runtime.recording.reader import read
+    from ctrlunit.runtime.recording.replay import stride_changes, verify
 
     unit = unit_id("ovl")
     rec, status, report = (tmp_path / f"{unit}.{x}" for x in ("mcap", "status", "json"))
@@ -190,7 +190,7 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tm
     assert div is None, str(div)
     assert n == len(cycles)
     # ``ctrlunit report`` tells the same from the recording alone
-    from ctrlunit.runtime.recorded_report import report_from_recording
+    from ctrlunit.runtime.recording.recorded_report import report_from_recording
 
     again = report_from_recording(recording)
     assert again["overload"] == o and again["periods"] == r["periods"]
@@ -319,11 +319,11 @@ def test_the_plant_publishes_and_counts_misses_on_the_halved_grid_only(monkeypat
     only where a command was due (each one holds two periods), until the order back to
     every sample; an order that cannot be the next change is rejected and changes
     nothing."""
-    from ctrlunit.runtime.plant_node import PlantServer, serve
-    from ctrlunit.runtime.stride import StrideSchedule
+    from ctrlunit.runtime.compute.stride import StrideSchedule
+    from ctrlunit.runtime.roles.plant_node import PlantServer, serve
     from test_plant_trials import ScriptedInbox
 
-    monkeypatch.setattr("ctrlunit.runtime.node.freeze_heap", lambda: None)
+    monkeypatch.setattr("ctrlunit.runtime.transport.node.freeze_heap", lambda: None)
 
     class Server:
         on_grid = PlantServer.on_grid

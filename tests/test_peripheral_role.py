@@ -1,4 +1,4 @@
-"""The peripheral's contract, through what it exposes (runtime/peripheral.py).
+"""The peripheral's contract, through what it exposes (runtime/roles/peripheral.py).
 
 ``Peripheral`` (bytes in, bytes out) and its loop ``serve`` on a loopback node: which
 replies leave and in which order, what is kept between rounds and for how long, what is
@@ -14,12 +14,12 @@ from collections import Counter
 from typing import Any
 
 import pytest
-from ctrlunit.runtime import peripheral as peripheral_module
-from ctrlunit.runtime.codec import decode, encode
+from ctrlunit.runtime.compute.engine import Engine
 from ctrlunit.runtime.config import ConfigError
-from ctrlunit.runtime.engine import Engine
-from ctrlunit.runtime.node import WARM_RSS_AT
-from ctrlunit.runtime.peripheral import MAX_KEPT_CYCLES, Peripheral, declare, serve
+from ctrlunit.runtime.roles import peripheral as peripheral_module
+from ctrlunit.runtime.roles.peripheral import MAX_KEPT_CYCLES, Peripheral, declare, serve
+from ctrlunit.runtime.transport.codec import decode, encode
+from ctrlunit.runtime.transport.node import WARM_RSS_AT
 from loopback import Bus, LoopbackNode
 from test_validation import ENGINE_BY_LAW, UNIT
 
@@ -308,10 +308,10 @@ def test_run_peripheral_says_hello_serves_after_go_and_says_bye_at_stop(tmp_path
     import time
 
     import zenoh
+    from ctrlunit.runtime.compute.setup import make_setup
     from ctrlunit.runtime.config import EXIT_LINK, EXIT_OK, RunConfig
-    from ctrlunit.runtime.peripheral import run_peripheral
-    from ctrlunit.runtime.setup import make_setup
-    from ctrlunit.runtime.zsession import Keys, make_config
+    from ctrlunit.runtime.roles.peripheral import run_peripheral
+    from ctrlunit.runtime.transport.zsession import Keys, make_config
 
     endpoint = f"unixsock-stream/{tmp_path / 'c.sock'}"
     rc = RunConfig.of(unit=UNIT + "-life", peripherals=3, clock="lockstep",

@@ -14,9 +14,9 @@ import itertools
 from typing import Any
 
 import pytest
-from ctrlunit.runtime.codec import decode
 from ctrlunit.runtime.config import RunConfig
-from ctrlunit.runtime.peripheral import declare, serve
+from ctrlunit.runtime.roles.peripheral import declare, serve
+from ctrlunit.runtime.transport.codec import decode
 from loopback import Bus, LoopbackNode, LoopbackUnit
 
 

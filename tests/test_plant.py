@@ -83,7 +83,7 @@ def test_default_substep_changes_nothing_the_encoders_see():
     """Closed loop, pick & place, resolved acceleration at 1 ms: the platform path with
     the default sub-step against one 20 times shorter, far below one increment."""
     from ctrlunit.kernels.laws import Gains
-    from ctrlunit.runtime.controller import simulate
+    from ctrlunit.runtime.compute.controller import simulate
 
     runs = [simulate(P, pick_place_task(), gains=Gains.from_bandwidth(20.0), cycles=600,
                      plant_config=PlantConfig(substeps=n)) for n in (None, 40)]

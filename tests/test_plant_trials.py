@@ -11,8 +11,8 @@ import queue
 import time
 from collections import Counter
 
-from ctrlunit.runtime.node import Event
-from ctrlunit.runtime.plant_node import serve
+from ctrlunit.runtime.roles.plant_node import serve
+from ctrlunit.runtime.transport.node import Event
 
 ORDERS = {
     b"A": {"stage": "probe", "period": 1e-3, "ticks": 200, "base": 1000},
@@ -104,7 +104,8 @@ def test_a_trial_order_during_a_trial_ends_it_and_runs_next() -> None:
 
 
 def test_the_start_order_during_a_trial_ends_it(monkeypatch) -> None:
-    monkeypatch.setattr("ctrlunit.runtime.node.freeze_heap", lambda: None)  # a role's, not ours
+    # a role's, not ours
+    monkeypatch.setattr("ctrlunit.runtime.transport.node.freeze_heap", lambda: None)
     server, result = run([(0, b"A"), (10, b"start"), (11, b"stop")])
     assert 10 <= server.samples.index(-1) < 200  # the run began soon after the start
     assert result["exit"] == "done"

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ctrlunit.runtime.plots import FIGURES, plot_recording
-from ctrlunit.runtime.recording import read
+from ctrlunit.runtime.recording.plots import FIGURES, plot_recording
+from ctrlunit.runtime.recording.reader import read
 from matplotlib.image import imread
 from mcap.reader import make_reader
 from runner import ctrlunit, start_json
@@ -147,8 +147,8 @@ def test_the_spans_at_the_halved_rate_come_from_the_recorded_orders():
     """Halved at 100, back at 300, halved again at 501 and still at the end (600): two
     spans in seconds, the last one open to the end; none without orders."""
     import msgpack
-    from ctrlunit.runtime.plot_data import halved_spans
-    from ctrlunit.runtime.recording import Recording
+    from ctrlunit.runtime.recording.plot_data import halved_spans
+    from ctrlunit.runtime.recording.reader import Recording
 
     orders = [(100, 2), (300, 1), (501, 2)]
     rec = Recording("x.mcap", topics={"/plant/control": [

@@ -1,4 +1,4 @@
-"""What the central reads of the processes it started (runtime/supervise.py): their state
+"""What the central reads of the processes it started (runtime/roles/supervise.py): their state
 and their threads' scheduler accounting, on which the silence rule's excuse rests."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import threading
 import time
 
 import pytest
-from ctrlunit.runtime.supervise import cpu_denied, machine_load, process_state, thread_times
+from ctrlunit.runtime.roles.supervise import cpu_denied, machine_load, process_state, thread_times
 
 MS = 1_000_000
 

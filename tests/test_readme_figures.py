@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 from ctrlunit.kernels.laws import Gains
+from ctrlunit.runtime.compute.controller import simulate
+from ctrlunit.runtime.compute.setup import make_setup
 from ctrlunit.runtime.config import RunConfig
-from ctrlunit.runtime.controller import simulate
-from ctrlunit.runtime.setup import make_setup
 
 README = (Path(__file__).parents[1] / "README.md").read_text()
 FLAT = " ".join(README.split())  # line breaks folded, so phrases may span lines

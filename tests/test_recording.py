@@ -11,9 +11,9 @@ import time
 
 import jsonschema
 import pytest
-from ctrlunit.runtime.recorder import CHUNK_SIZE
-from ctrlunit.runtime.recording import read
-from ctrlunit.runtime.replay import verify
+from ctrlunit.runtime.recording.reader import read
+from ctrlunit.runtime.recording.recorder import CHUNK_SIZE
+from ctrlunit.runtime.recording.replay import verify
 from mcap.reader import make_reader
 from runner import ctrlunit, kill_unit, start_json, unit_id, wait_gone, wait_status
 
@@ -161,7 +161,7 @@ def _republished(path, *options: str) -> list[tuple[int, int]]:
     import zenoh
     from click.testing import CliRunner
     from ctrlunit.runtime.cli import cli
-    from ctrlunit.runtime.zsession import make_config
+    from ctrlunit.runtime.transport.zsession import make_config
     from test_fuzz import free_port
 
     port, unit = free_port(), unit_id("replay")
@@ -234,8 +234,8 @@ def test_replay_waits_for_subscribers_at_most_the_time_asked(short, monkeypatch)
     test moves (each 5 ms poll advances it), so the bound is exact, not a wall-time
     window."""
     from click.testing import CliRunner
-    from ctrlunit.runtime import republish
     from ctrlunit.runtime.cli import cli
+    from ctrlunit.runtime.recording import republish
 
     class Clock:
         def __init__(self) -> None:

@@ -20,8 +20,8 @@ from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import circle_task, pick_place_task
 from ctrlunit.plant.simulator import PlantConfig
-from ctrlunit.runtime.controller import simulate
-from ctrlunit.runtime.report import command_digest
+from ctrlunit.runtime.compute.controller import simulate
+from ctrlunit.runtime.observe.report import command_digest
 
 PINNED = json.loads((Path(__file__).parent / "data" / "reference_commands.json").read_text())
 TASKS = {"pick-place": pick_place_task, "circle": circle_task}

@@ -1,4 +1,4 @@
-"""``replay`` (runtime/replay.py) in this process, on recordings the loopback unit
+"""``replay`` (runtime/recording/replay.py) in this process, on recordings the loopback unit
 (tests/loopback.py) makes with the real recorder: verification finds every kind of
 tampering and names where, a held round is checked and used as the central used it, the
 CSV holds the recorded signals, and republishing keeps the recorded pace, order, topics
@@ -14,8 +14,8 @@ from typing import Any
 
 import msgpack
 import pytest
-from ctrlunit.runtime import recording, replay, republish
-from ctrlunit.runtime.replay import Divergence
+from ctrlunit.runtime.recording import reader, replay, republish
+from ctrlunit.runtime.recording.replay import Divergence
 from loopback import record_lockstep
 from runner import unit_id
 
@@ -32,15 +32,15 @@ def made(tmp_path_factory) -> tuple[Path, Any]:
 
 
 @pytest.fixture
-def rec(made) -> recording.Recording:
-    return recording.read(made[0])  # a fresh copy: tests tamper with it
+def rec(made) -> reader.Recording:
+    return reader.read(made[0])  # a fresh copy: tests tamper with it
 
 
-def messages(rec: recording.Recording, topic: str) -> list[dict]:
+def messages(rec: reader.Recording, topic: str) -> list[dict]:
     return [msgpack.unpackb(d) for _, d in rec.topics[topic]]
 
 
-def rewrite(rec: recording.Recording, topic: str, edit: Any) -> None:
+def rewrite(rec: reader.Recording, topic: str, edit: Any) -> None:
     """Apply ``edit(msg) -> msg | None`` (None: drop it) to every message of ``topic``."""
     out = []
     for t, data in rec.topics[topic]:
@@ -64,7 +64,7 @@ def parts_edit(cycle: int, stage: int, edit: Any) -> Any:
     return go
 
 
-def reply_part(rec: recording.Recording, peripheral: int, cycle: int, stage: int) -> dict:
+def reply_part(rec: reader.Recording, peripheral: int, cycle: int, stage: int) -> dict:
     for m in messages(rec, f"/central/reply/{peripheral + 1}"):
         for part in m["parts"]:
             if (part["cycle"], part["stage"]) == (cycle, stage):
@@ -183,7 +183,7 @@ def test_a_tampered_per_axis_request_value_names_its_axis(rec, axis):
 def test_a_missing_request_or_reply_is_a_divergence(rec):
     rewrite(rec, "/peripheral/request", parts_edit(45, 1, lambda p: None))
     assert replay.verify(rec) == (45, Divergence(45, "(request)", None, "missing", None, None))
-    rec = recording.read(rec.path)
+    rec = reader.read(rec.path)
     rewrite(rec, "/central/reply/1", parts_edit(46, 0, lambda p: None))
     assert replay.verify(rec) == (46, Divergence(46, "(reply)", None, "missing", None, None))
 
@@ -211,7 +211,7 @@ def test_a_divergence_reads_as_where_what_and_both_values():
 # -- held rounds --------------------------------------------------------------------------
 
 
-def hold(rec: recording.Recording, peripheral: int, cycle: int, stage: int,
+def hold(rec: reader.Recording, peripheral: int, cycle: int, stage: int,
          vals: dict) -> None:
     data = msgpack.packb({"cycle": cycle, "stage": stage, "peripheral": peripheral,
                           "vals": vals}, use_single_float=False)
@@ -263,7 +263,7 @@ def test_held_values_replace_the_recomputed_ones(rec):
 
 
 def test_a_held_peripherals_values_go_to_its_axes_only():
-    from ctrlunit.runtime.replay import _apply_held
+    from ctrlunit.runtime.recording.replay import _apply_held
     from ctrlunit.topology.placement import default_placement
 
     plan = type("P", (), {"placement": default_placement(3)})()
@@ -364,7 +364,7 @@ def test_csv_holds_every_recorded_signal_row_and_the_window_asked(rec, tmp_path)
     del rec.topics["/signals/state"]  # nothing to export: the header alone
     [path] = republish.export_csv(rec, tmp_path / "none")
     assert path.read_text().splitlines() == [",".join(rows[0])]
-    rec = recording.read(rec.path)
+    rec = reader.read(rec.path)
     [path] = republish.export_csv(rec, out, cycles=(100, 150))  # into the same folder again
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
@@ -426,9 +426,9 @@ def fake(monkeypatch) -> tuple[FakeClock, FakeSession]:
     return clock, session
 
 
-def small(rec: recording.Recording) -> recording.Recording:
+def small(rec: reader.Recording) -> reader.Recording:
     """Three topics, each message ``(t, data)`` with its cycle; times in ns."""
-    r = recording.Recording(rec.path)
+    r = reader.Recording(rec.path)
     r.topics = {
         "/plant/command": [(1_000_000_000 + k * 10_000_000, msgpack.packb({"cycle": k}))
                            for k in range(5)],
@@ -516,7 +516,7 @@ def test_waiting_for_subscribers_ends_as_soon_as_all_match():
 
 def test_republish_keeps_the_recorded_order_of_messages_logged_at_the_same_time(rec, fake):
     _clock, session = fake
-    r = recording.Recording(rec.path)
+    r = reader.Recording(rec.path)
     r.topics = {"/z/first": [(5, msgpack.packb({"cycle": 1}))],
                 "/a/second": [(5, msgpack.packb({"cycle": 2}))]}
     republish.republish(r, unit="u6", conf=object())
@@ -525,7 +525,7 @@ def test_republish_keeps_the_recorded_order_of_messages_logged_at_the_same_time(
 
 def test_a_start_offset_keeps_a_message_logged_exactly_at_it(rec, fake):
     _clock, session = fake
-    r = recording.Recording(rec.path)
+    r = reader.Recording(rec.path)
     r.topics = {"/x": [(0, msgpack.packb({"cycle": 0})),
                        (10_000_000_000, msgpack.packb({"cycle": 1}))]}
     assert republish.republish(r, unit="u7", start_offset=10.0, conf=object()) == 1
@@ -570,7 +570,7 @@ def test_the_cli_says_where_a_recording_diverges_on_stderr_and_exits_1(made, tmp
     src = made[0]
     same, bad = tmp_path / "same.mcap", tmp_path / "bad.mcap"
     copy_with(src, same, "/central/reply/2", lambda m: m)
-    part = reply_part(recording.read(src), 1, 40, 1)
+    part = reply_part(reader.read(src), 1, 40, 1)
     name = next(n for n in part["vals"] if n.startswith("tauq"))
 
     def spoil(p: dict) -> dict:

@@ -1,4 +1,4 @@
-"""Profiles, the run file and --set (runtime/run_file.py): each layer over the one
+"""Profiles, the run file and --set (runtime/config/run_file.py): each layer over the one
 before, the flags given over all of them; ``ctrlunit config`` prints what they resolve
 to and ``start --config`` reads it back."""
 
@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 from ctrlunit.runtime.cli import cli
 from ctrlunit.runtime.config import ConfigError, RunConfig
-from ctrlunit.runtime.run_file import PROFILES, parse_set, read_run_file, to_toml
+from ctrlunit.runtime.config.run_file import PROFILES, parse_set, read_run_file, to_toml
 
 
 def config(*args: str) -> str:

@@ -13,8 +13,8 @@ from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
 from ctrlunit.plant.simulator import PlantConfig
-from ctrlunit.runtime.controller import simulate
-from ctrlunit.runtime.report import command_digest
+from ctrlunit.runtime.compute.controller import simulate
+from ctrlunit.runtime.observe.report import command_digest
 from runner import start_json, unit_id
 
 pytestmark = pytest.mark.zenoh
@@ -93,7 +93,7 @@ def test_the_heap_is_frozen_for_the_run_and_released_after_it(monkeypatch):
 
     from ctrlunit.runtime.central import Central
     from ctrlunit.runtime.config import RunConfig
-    from ctrlunit.runtime.launcher import start
+    from ctrlunit.runtime.launch.launcher import start
 
     frozen: list[int] = []
     run = Central.run

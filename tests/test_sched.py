@@ -13,9 +13,9 @@ import time
 
 import machine
 import pytest
-from ctrlunit.runtime import busy_guard, sched
-from ctrlunit.runtime.busy_guard import BusyGuard
 from ctrlunit.runtime.config import ConfigError, RunConfig
+from ctrlunit.runtime.host import busy_guard, sched
+from ctrlunit.runtime.host.busy_guard import BusyGuard
 from runner import start_json
 
 
@@ -355,7 +355,7 @@ def test_leave_rt_puts_only_the_calling_thread_under_the_default_policy() -> Non
         pytest.skip("this process may not use SCHED_FIFO")
     got = _child(
         "import json, threading, os\n"
-        "from ctrlunit.runtime import sched\n"
+        "from ctrlunit.runtime.host import sched\n"
         "sched.apply_rt(7)\n"
         "seen = {}\n"
         "def writer():\n"
@@ -375,7 +375,7 @@ def test_policy_reaches_threads_started_later_and_is_restored() -> None:
         pytest.skip("this process may not use SCHED_FIFO")
     got = _child(
         "import json, threading, os\n"
-        "from ctrlunit.runtime import sched\n"
+        "from ctrlunit.runtime.host import sched\n"
         "before = threading.Thread(target=threading.Event().wait, args=(5,), daemon=True)\n"
         "before.start()\n"
         "saved = sched.current()\n"
@@ -400,7 +400,7 @@ def test_zero_leaves_a_policy_given_from_outside_alone() -> None:
         pytest.skip("this process may not use SCHED_FIFO")
     got = _child(
         "import json, os\n"
-        "from ctrlunit.runtime import sched\n"
+        "from ctrlunit.runtime.host import sched\n"
         "os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(5))\n"
         "print(json.dumps({'policy': sched.apply_rt(0)}))")
     assert got == {"policy": "SCHED_FIFO 5"}
@@ -439,9 +439,9 @@ def test_a_unit_run_inside_a_longer_process_leaves_its_policy_as_it_was() -> Non
         pytest.skip("this process may not use SCHED_FIFO")
     got = _child(
         "import json, os\n"
-        "from ctrlunit.runtime import sched\n"
+        "from ctrlunit.runtime.host import sched\n"
         "from ctrlunit.runtime.config import RunConfig\n"
-        "from ctrlunit.runtime.launcher import start\n"
+        "from ctrlunit.runtime.launch.launcher import start\n"
         f"rc = RunConfig.of(peripherals=1, pipeline=2, clock='freerun', cycles=200,"
         f" rt_priority=10, unit='t-rt-{os.getpid()}').validate()\n"
         "code, rep = start(rc, echo=lambda m: None)\n"

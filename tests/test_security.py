@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 import zenoh
-from ctrlunit.runtime.codec import encode
-from ctrlunit.runtime.zsession import Keys, make_config
+from ctrlunit.runtime.transport.codec import encode
+from ctrlunit.runtime.transport.zsession import Keys, make_config
 from runner import kill_unit, start_json, unit_id
 from test_fuzz import free_port
 
@@ -69,12 +69,12 @@ def test_peer_without_credentials_cannot_publish_commands(tmp_path):
           f"{rep['rejected_messages']}")
 
 
-# -- mutual TLS and access control (runtime/security.py) ---------------------------------
+# -- mutual TLS and access control (runtime/transport/security.py) ---------------------------------
 
 
 @pytest.fixture(scope="module")
 def unit_keys(tmp_path_factory):
-    from ctrlunit.runtime.security import make_keys
+    from ctrlunit.runtime.transport.security import make_keys
 
     d = tmp_path_factory.mktemp("keys") / "unit"
     make_keys(d, peripherals=3)
@@ -208,7 +208,7 @@ def test_a_link_beyond_the_host_without_keys_is_refused_and_names_the_fix(tmp_pa
 def test_keys_init_writes_an_authority_and_a_certificate_per_role(tmp_path):
     from cryptography import x509
     from cryptography.x509.oid import NameOID
-    from ctrlunit.runtime.security import access_control, credentials, role_names
+    from ctrlunit.runtime.transport.security import access_control, credentials, role_names
 
     d = tmp_path / "k"
     res = subprocess.run([sys.executable, "-m", "ctrlunit.runtime.cli", "keys", "init",

@@ -18,8 +18,8 @@ import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
-from ctrlunit.runtime.controller import simulate
-from ctrlunit.runtime.report import command_digest
+from ctrlunit.runtime.compute.controller import simulate
+from ctrlunit.runtime.observe.report import command_digest
 from ctrlunit.topology.graph import LAWS
 from runner import kill_unit, pids_of, slow_task, start_json, unit_id, wait_gone, wait_status
 

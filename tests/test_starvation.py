@@ -8,7 +8,7 @@ import subprocess
 import sys
 
 import pytest
-from ctrlunit.runtime.sched import fifo_permitted
+from ctrlunit.runtime.host.sched import fifo_permitted
 from runner import start_json
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]

@@ -1,4 +1,4 @@
-"""The run's per-interval series in bounded memory (runtime/timing.py): what a long run
+"""The run's per-interval series in bounded memory (runtime/compute/timing.py): what a long run
 keeps, and that its figures match the exact ones of every interval."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from ctrlunit.runtime.timing import (
+from ctrlunit.runtime.compute.timing import (
     BoundedSeries,
     ErrorSeries,
     IntervalTimes,

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from ctrlunit.runtime.node import Event
-from ctrlunit.runtime.plant_orders import TRIAL_MAX_S, trial_order
+from ctrlunit.runtime.roles.plant_orders import TRIAL_MAX_S, trial_order
+from ctrlunit.runtime.transport.node import Event
 
 
 class FakeNode:

@@ -15,12 +15,19 @@ from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import Task, pick_place_task
 from ctrlunit.runtime.central.fault import role_report
-from ctrlunit.runtime.codec import MAX_ABS, SCHEMA_VERSION, BadMessage, check_vals, decode, encode
+from ctrlunit.runtime.compute.controller import Controller, build_engine
+from ctrlunit.runtime.compute.engine import Engine
+from ctrlunit.runtime.compute.setup import make_setup
 from ctrlunit.runtime.config import ConfigError, RunConfig
-from ctrlunit.runtime.controller import Controller, build_engine
-from ctrlunit.runtime.engine import Engine
-from ctrlunit.runtime.peripheral import Peripheral
-from ctrlunit.runtime.setup import make_setup
+from ctrlunit.runtime.roles.peripheral import Peripheral
+from ctrlunit.runtime.transport.codec import (
+    MAX_ABS,
+    SCHEMA_VERSION,
+    BadMessage,
+    check_vals,
+    decode,
+    encode,
+)
 from ctrlunit.topology.graph import LAWS
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st

@@ -20,9 +20,9 @@ import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
+from ctrlunit.runtime.compute.controller import simulate
 from ctrlunit.runtime.config import ConfigError, parse_host_port
-from ctrlunit.runtime.controller import simulate
-from ctrlunit.runtime.report import command_digest
+from ctrlunit.runtime.observe.report import command_digest
 from runner import ctrlunit, kill_unit, unit_id
 from test_fuzz import free_port
 from websockets.exceptions import ConnectionClosed
@@ -179,7 +179,7 @@ def test_a_foxglove_client_gets_valid_messages_beside_one_that_does_not_read(tmp
 
 
 def fake_central(cycle: int, t_ns: int) -> tuple[Any, dict]:
-    """What :func:`ctrlunit.runtime.signals.capture` reads of a central after interval
+    """What :func:`ctrlunit.runtime.observe.signals.capture` reads of a central after interval
     ``cycle``."""
     from types import SimpleNamespace
 
@@ -197,7 +197,7 @@ def test_a_viewer_that_stops_reading_never_blocks_the_callers_thread():
     """20 000 intervals (9 MB of messages, more than the kernel's 4 MB send buffer and the
     server's backlog together) with one client subscribed that never reads: the central's
     callback returns at once every time, and the view's thread goes on sending."""
-    from ctrlunit.runtime.viewer import LiveView
+    from ctrlunit.runtime.observe.viewer import LiveView
 
     n = 20_000
     task = pick_place_task()
@@ -249,8 +249,8 @@ def test_the_foxglove_layout_plots_fields_the_view_sends():
     import re
     from pathlib import Path
 
-    from ctrlunit.runtime.signals import SIGNALS_SCHEMA
-    from ctrlunit.runtime.viewer import RUNNING_SCHEMA, RUNNING_TOPIC, STATE_TOPIC
+    from ctrlunit.runtime.observe.signals import SIGNALS_SCHEMA
+    from ctrlunit.runtime.observe.viewer import RUNNING_SCHEMA, RUNNING_TOPIC, STATE_TOPIC
 
     layout = json.loads((Path(__file__).parents[1] / "docs" / "foxglove-layout.json")
                         .read_text())
@@ -275,7 +275,7 @@ def test_the_rate_limits_states_and_the_running_figures_count_every_interval():
     from types import SimpleNamespace
 
     from ctrlunit.runtime.central.records import CycleLog
-    from ctrlunit.runtime.viewer import LiveView
+    from ctrlunit.runtime.observe.viewer import LiveView
 
     n, t0 = 2000, 10**12
     log = CycleLog()

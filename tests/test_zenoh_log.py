@@ -1,4 +1,4 @@
-"""Zenoh's own log is off unless ``RUST_LOG`` asks for it (runtime/zsession.py,
+"""Zenoh's own log is off unless ``RUST_LOG`` asks for it (runtime/transport/zsession.py,
 ``zenoh_log``): a role's output stays the unit's, and a user who sets ``RUST_LOG`` gets
 Zenoh's log on the process's standard output (the roles started by ``ctrlunit start``
 inherit it)."""
@@ -11,7 +11,7 @@ import sys
 
 SCRIPT = """
 import zenoh
-from ctrlunit.runtime.zsession import make_config
+from ctrlunit.runtime.transport.zsession import make_config
 with zenoh.open(make_config(listen=[])) as s:
     print("zid", s.info.zid())
 """

@@ -48,7 +48,7 @@ acts for: 1, or 2 once a realtime run halved its control rate on overload), the 
 handed off by the previous interval, and the measured angles and rates."""
 EST2 = "est2"
 """The extra source of a ``foreseen2`` graph: the newest estimate handed off by an interval
-at least two periods before this one's sample (runtime/controller.py), final when the
+at least two periods before this one's sample (runtime/compute/controller.py), final when the
 interval before this one starts."""
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import NamedTuple
 
-from ..supervise import MachineLoad, ThreadTimes, cpu_denied
+from ..roles.supervise import MachineLoad, ThreadTimes, cpu_denied
 from . import silence_rule
 
 
@@ -23,13 +23,13 @@ class Supervision(NamedTuple):
     child_check: Callable[[], tuple[str, int] | None] | None = None
     """The name and exit status of a role process that has exited, else None."""
     role_state: Callable[[str], str] | None = None
-    """What a role's process is doing (:func:`~ctrlunit.runtime.supervise.process_state`);
+    """What a role's process is doing (:func:`~ctrlunit.runtime.roles.supervise.process_state`);
     ``"central"``: the central's own Zenoh threads."""
     role_times: Callable[[str], ThreadTimes] | None = None
     """The scheduler accounting of a role's threads
-    (:func:`~ctrlunit.runtime.supervise.thread_times`)."""
+    (:func:`~ctrlunit.runtime.roles.supervise.thread_times`)."""
     machine_load: Callable[[], MachineLoad] | None = None
-    """How short of CPUs the machine is (:func:`~ctrlunit.runtime.supervise.machine_load`)."""
+    """How short of CPUs the machine is (:func:`~ctrlunit.runtime.roles.supervise.machine_load`)."""
 
 
 UNSUPERVISED = Supervision()
@@ -54,7 +54,7 @@ class Excuse(NamedTuple):
     times: tuple[ThreadTimes, ThreadTimes, int | None] | None
     """The silent process's and the central's Zenoh threads' scheduler accounting then,
     and the machine's CPU pressure
-    (:attr:`~ctrlunit.runtime.supervise.MachineLoad.pressure_ns`)."""
+    (:attr:`~ctrlunit.runtime.roles.supervise.MachineLoad.pressure_ns`)."""
     runnable: bool
     """Whether the silent process was runnable then."""
     renewals: int = 0
@@ -148,7 +148,7 @@ class Excuses:
     def _renew(self, role: str, prev: Excuse, now: int, limit_ns: int) -> bool:
         """Extend an excused silence by one more limit if, in the window since it was
         granted or last renewed, the machine kept the silent process or the central's
-        Zenoh threads from a CPU (:func:`~ctrlunit.runtime.supervise.cpu_denied`), or kept
+        Zenoh threads from a CPU (:func:`~ctrlunit.runtime.roles.supervise.cpu_denied`), or kept
         some task waiting for one (the CPU pressure, which counts a wait still going on:
         a thread's own wait is added up only when it runs again), for at least half the
         window, and the silence is shorter than :data:`EXCUSED_LIMITS` limits (plus the

@@ -1,6 +1,6 @@
 """The central's intake: every sample and reply it receives, checked field by field
 before use (docs/faults-and-errors.md). A message that fails a check is counted under its
-reason (:attr:`~ctrlunit.runtime.node.Node.rejected`) and dropped; nothing malformed
+reason (:attr:`~ctrlunit.runtime.transport.node.Node.rejected`) and dropped; nothing malformed
 reaches the scheduler.
 
 :class:`Intake` also keeps the samples taken and not yet started from (bounded: in
@@ -14,8 +14,8 @@ from typing import Any, NamedTuple
 
 from ...kernels.kinematics import ik_axis
 from ...kernels.params import DeltaParams
-from ..codec import BadMessage, check_span, check_vals, check_vector, parts_of
-from ..node import Node
+from ..transport.codec import BadMessage, check_span, check_vals, check_vector, parts_of
+from ..transport.node import Node
 
 SAMPLES_KEPT = 64
 """Samples kept waiting for their interval; beyond it the oldest is dropped."""
@@ -37,7 +37,7 @@ class Sample(NamedTuple):
 def check_sample(msg: dict[str, Any]) -> Sample:
     """The fields of a decoded sample, checked (counts: three integers under 10^9 in
     magnitude; ``t_ns`` an integer; ``p`` three finite numbers; ``span`` two ordered
-    times). Raises :class:`~ctrlunit.runtime.codec.BadMessage` naming the field."""
+    times). Raises :class:`~ctrlunit.runtime.transport.codec.BadMessage` naming the field."""
     counts = msg.get("counts")
     if not isinstance(counts, list) or len(counts) != 3 or not all(
         isinstance(c, int) and not isinstance(c, bool) and abs(c) < 10**9

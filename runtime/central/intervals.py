@@ -13,12 +13,12 @@ from typing import Any
 
 from ...topology.pipeline import holds_lone_round, may_prime, may_start
 from ...topology.plan import Round
-from ..blocks import ObserverDiverged
-from ..codec import encode
+from ..compute.blocks import ObserverDiverged
+from ..compute.controller import Controller
+from ..compute.engine import AWAIT_SAMPLE, Engine
 from ..config import EXIT_OBSERVER
-from ..controller import Controller
-from ..engine import AWAIT_SAMPLE, Engine
-from ..node import WARM_RSS_AT, Node, rss_kb
+from ..transport.codec import encode
+from ..transport.node import WARM_RSS_AT, Node, rss_kb
 from .fault import Fault
 from .intake import Intake, synthetic_counts
 from .meters import Meters
@@ -193,7 +193,7 @@ class Intervals:
             self._drop_ahead(cycle)
             if self.on_message is not None:  # its primed steps ran, its interval did not:
                 # the reference they computed stays in the task's cache, which a later
-                # loop of the task reads, so replay runs them too (runtime/replay.py)
+                # loop of the task reads, so replay runs them too (runtime/recording/replay.py)
                 self.on_message("in", self.node.keys.inbox("central") + "/primed", cycle,
                                 "primed", encode(self.node.unit, cycle, "primed"),
                                 time.monotonic_ns())

@@ -18,8 +18,8 @@ from typing import Any
 import msgpack
 
 from ...topology.plan import ExchangePlan as Plan
+from ..compute.engine import Engine
 from ..config import EXIT_PERIPHERAL, LATE_POLICIES
-from ..engine import Engine
 from .fault import Fault
 from .records import InFlight
 

@@ -42,7 +42,7 @@ class Meters:
     max_spans: int = 4_000
     cycle_spans: dict[int, list[tuple[str, int, int]]] = field(default_factory=dict)
     t1_inputs: list[tuple] = field(default_factory=list)
-    """What ``t_1`` recomputes the first intervals from (runtime/engine.py)."""
+    """What ``t_1`` recomputes the first intervals from (runtime/compute/engine.py)."""
     plant_misses: int = 0
     """Commands that missed their deadline at the plant, as the plant last reported."""
     skipped: int = 0

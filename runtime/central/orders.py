@@ -9,9 +9,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from ..codec import encode, short_text
 from ..config import EXIT_LINK
-from ..node import Event, Node
+from ..transport.codec import encode, short_text
+from ..transport.node import Event, Node
 from .fault import Fault, role_report
 
 REPEAT_S = 0.1

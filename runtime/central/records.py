@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ...topology.plan import Round
-from ..timing import BoundedSeries, ErrorSeries, IntervalTimes
+from ..compute.timing import BoundedSeries, ErrorSeries, IntervalTimes
 
 
 @dataclass
@@ -47,7 +47,7 @@ LATE_KEPT = 4096
 class CycleLog:
     """Per-cycle measurements in bounded memory (a long run does not grow): the intervals'
     command times and traversals and the tracking errors, exact for the newest ones and
-    summarised before (:mod:`.timing`); the commands only as a running digest and peak.
+    summarised before (:mod:`..compute.timing`); the commands only as a running digest and peak.
     """
 
     times: IntervalTimes = field(default_factory=IntervalTimes)

@@ -26,10 +26,10 @@ from collections.abc import Callable
 from typing import Any
 
 from ...topology.pipeline import finishes_after_next_request
+from ..compute.controller import Controller
+from ..compute.engine import Engine
 from ..config import RunConfig
-from ..controller import Controller
-from ..engine import Engine
-from ..node import Event, Node, rss_kb
+from ..transport.node import Event, Node, rss_kb
 from .excuse import UNSUPERVISED, Supervision
 from .intake import Intake
 from .intervals import Intervals

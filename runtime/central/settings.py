@@ -13,7 +13,7 @@ from ..config import RunConfig
 
 
 def t1_input(ctx: dict) -> tuple:
-    """What ``t_1`` recomputes an interval from (runtime/engine.py, :func:`measure_t1`):
+    """What ``t_1`` recomputes an interval from (runtime/compute/engine.py, :func:`measure_t1`):
     its sources ``t, est, qmeas, qdmeas`` and, where the graph has it, ``est2``."""
     base = (ctx["t"], ctx["est"], list(ctx["qmeas_i"]), list(ctx["qdmeas_i"]))
     return (*base, ctx[EST2]) if EST2 in ctx else base
@@ -30,7 +30,7 @@ class CommandAhead:
     """``--missed-command extrapolate`` (realtime at the full rate): with each command,
     the one its sample's successor is expected to bring, extrapolated from the last two
     (:func:`extrapolated_command`), for the plant to apply if that command is late
-    (runtime/plant_node.py, ``PlantServer.apply``). None at the first command, across a
+    (runtime/roles/plant_node.py, ``PlantServer.apply``). None at the first command, across a
     gap or a change of rate, in the other clocks (no deadline) and with
     ``--missed-command hold``."""
 
@@ -42,7 +42,7 @@ class CommandAhead:
     def after(self, cycle: int, tau: list[float], *, grid: Any) -> list[float] | None:
         """The command to send with ``tau``, the command of ``cycle``, or None. ``grid``
         tells the control rate (``hold_of``, ``on_grid``: the controller's or a
-        :class:`~ctrlunit.runtime.stride.StrideSchedule`): one is sent only where
+        :class:`~ctrlunit.runtime.compute.stride.StrideSchedule`): one is sent only where
         ``cycle``'s command acts for one period and the next sample runs an interval."""
         last, self.last = self.last, (cycle, tau)
         if (not self.enabled or last is None or last[0] != cycle - 1

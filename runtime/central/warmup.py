@@ -16,12 +16,12 @@ from ...kernels.kinematics import inverse_kinematics
 from ...topology.balance import auto_central_blocks
 from ...topology.pipeline import reply_mode
 from ...topology.plan import Round
-from ..blocks import ObserverDiverged
-from ..codec import BadMessage, check_span, check_vals, encode, parts_of
+from ..compute.blocks import ObserverDiverged
+from ..compute.controller import Controller
+from ..compute.engine import Engine
 from ..config import EXIT_PERIPHERAL
-from ..controller import Controller
-from ..engine import Engine
-from ..node import Event, Node
+from ..transport.codec import BadMessage, check_span, check_vals, encode, parts_of
+from ..transport.node import Event, Node
 from .fault import Fault
 
 WARMUP_BASE = 1 << 40

@@ -37,8 +37,8 @@ def _fail(msg: str, code: int = 1) -> None:
 
 
 def _rt_priority(_ctx: Any, _param: click.Parameter, value: str | int) -> str | int:
-    """``--rt-priority``: ``auto`` or a priority 0-99 (runtime/sched.py)."""
-    from ..sched import AUTO, check_priority
+    """``--rt-priority``: ``auto`` or a priority 0-99 (runtime/host/sched.py)."""
+    from ..host.sched import AUTO, check_priority
 
     text = str(value).strip()
     priority: str | int = AUTO if text == AUTO else (
@@ -85,7 +85,7 @@ class _Group(click.Group):
 
     def invoke(self, ctx: click.Context) -> Any:
         from ..config import EXIT_CONFIG, ConfigError
-        from ..stopping import stop_of
+        from ..roles.stopping import stop_of
 
         try:
             return super().invoke(ctx)

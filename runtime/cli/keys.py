@@ -1,4 +1,4 @@
-"""``ctrlunit keys``: a unit's credentials (runtime/security.py)."""
+"""``ctrlunit keys``: a unit's credentials (runtime/transport/security.py)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def keys_init(directory: str, peripherals: int) -> None:
     """Write a certificate authority and a key and certificate per role (central, plant,
     peripheral-1..N, viewer) into DIRECTORY; give --keys DIRECTORY to every role (each
     host needs ca.pem and its own role's two files only). Nothing is overwritten."""
-    from ..security import make_keys, role_names
+    from ..transport.security import make_keys, role_names
 
     try:
         files = make_keys(directory, peripherals=peripherals)

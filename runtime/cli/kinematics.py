@@ -127,7 +127,7 @@ def trajectory_summary(params: DeltaParams, name: str, *, samples: int = 2001) -
 def trajectory(name: str, as_json: bool, params_file: str | None) -> None:
     """Figures of a task (circle, pick-place or a JSON file): length, duration, peaks,
     smallest eigenvalue of l_a^2 J^-T J^-1 (Eq. V.33), joint range."""
-    from ..report import quoted
+    from ..observe.report import quoted
 
     try:
         data = trajectory_summary(_params(params_file), name)

@@ -1,6 +1,6 @@
 """The options of ``ctrlunit start`` and of the single roles, and the run's
 configuration they resolve to: the defaults, then ``--profile``, the run file
-(``--config``), ``--set`` and the flags given (runtime/run_file.py)."""
+(``--config``), ``--set`` and the flags given (runtime/config/run_file.py)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from ...plant.simulator import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S
 from ...topology.graph import MODEL_STATES
 from ...topology.pipeline import HOLD_RULES
 from ..config import FLAT, LATE_POLICIES, MISSED_COMMANDS, ConfigError, RunConfig, parse_duration
-from ..idle import IDLE_CHOICES
+from ..host.idle import IDLE_CHOICES
 from .base import _rt_priority
 
 
@@ -306,8 +306,8 @@ def explicit_params() -> set[str]:
 
 def make_rc(kw: dict[str, Any]) -> RunConfig:
     """The run's configuration: the defaults, then ``--profile``, the run file
-    (``--config``), ``--set``, and the flags given (runtime/run_file.py)."""
-    from ..run_file import parse_set, profile, read_run_file
+    (``--config``), ``--set``, and the flags given (runtime/config/run_file.py)."""
+    from ..config.run_file import parse_set, profile, read_run_file
 
     layered: dict[str, Any] = profile(kw.pop("profile", None) or "main-job")
     config_file = kw.pop("config_file", None)
@@ -326,7 +326,7 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
 def _flag_options(kw: dict[str, Any]) -> dict[str, Any] | RunConfig:
     """The flags as options by flat name (every flag, defaulted ones too); the run's
     spec instead for a role the launcher started."""
-    from ..setup import load_spec
+    from ..compute.setup import load_spec
 
     spec = kw.pop("spec", None)
     listen = list(kw.pop("listen", ()) or ()) or None
@@ -348,7 +348,7 @@ def _flag_options(kw: dict[str, Any]) -> dict[str, Any] | RunConfig:
     if placement in ("auto", "axes"):
         kw["placement"], kw["placement_auto"] = None, placement == "auto"
     if kw.get("period") == "auto":
-        from ..admission import LADDER_S
+        from ..launch.admission import LADDER_S
 
         kw["period"], kw["period_auto"] = LADDER_S[0], True
     options = {k: v for k, v in kw.items() if k in FLAT}

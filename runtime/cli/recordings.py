@@ -25,7 +25,7 @@ def _cycle_range(_ctx: Any, _param: Any, value: str | None) -> tuple[int, int] |
 
 
 def _open_recording(path: str) -> Any:
-    from ..recording import read
+    from ..recording.reader import read
 
     try:
         rec = read(path)
@@ -62,8 +62,8 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
            wait_subscribers: float, max_seconds: float | None) -> None:
     """Replay a recording: --verify bit-compares every block; --csv exports; otherwise
     republish its messages on Zenoh at the recorded pace."""
-    from .. import replay as rp
-    from .. import republish
+    from ..recording import replay as rp
+    from ..recording import republish
 
     rec = _open_recording(file)
     _check_replay_options(rec, cycle_range, start_offset, topics, unit, connect, listen)
@@ -79,7 +79,7 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
         for p in republish.export_csv(rec, csv_dir, cycles=cycle_range):
             click.echo(f"wrote {p}")
         return
-    from ..zsession import make_config
+    from ..transport.zsession import make_config
 
     conf = make_config(listen=list(listen) or None, connect=list(connect) or None)
     target = unit or f"replay-{rec.config.get('unit', 'x')}"
@@ -95,7 +95,7 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
     """What replay's options ask of this recording, checked before anything is sent:
     intervals it holds, a start inside it, topics it has, a unit id and endpoints Zenoh
     can use."""
-    from ..zsession import check_endpoint, check_unit_id
+    from ..transport.zsession import check_endpoint, check_unit_id
 
     cycles = sorted(m["cycle"] for _, m in rec.decoded("/plant/command")
                     if isinstance(m.get("cycle"), int))
@@ -129,8 +129,8 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
               help="Write the report as JSON.")
 def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
     """Regenerate the run's report from a recording alone."""
-    from ..recorded_report import report_from_recording
-    from ..summary import summary
+    from ..observe.summary import summary
+    from ..recording.recorded_report import report_from_recording
 
     rec = _open_recording(file)
     rep = report_from_recording(rec)
@@ -155,7 +155,7 @@ def plot_cmd(file: str, out_dir: str | None, cycle_range: tuple[int, int] | None
     and an index.html that shows them with the run's summary."""
     from pathlib import Path
 
-    from ..plots import plot_recording
+    from ..recording.plots import plot_recording
 
     rec = _open_recording(file)
     out = Path(out_dir) if out_dir else Path(file).with_suffix("").with_name(

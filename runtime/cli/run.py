@@ -32,7 +32,7 @@ from .options import make_rc, run_options
 def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: bool,
           **kw: Any) -> None:
     """Start plant, central and peripherals on this host and run the task."""
-    from ..launcher import start as run_start
+    from ..launch.launcher import start as run_start
 
     try:
         rc = make_rc(kw).validate()
@@ -63,7 +63,7 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     if rc.run.report:
         with open(rc.run.report, "w") as fh:
             json.dump(_json_safe(report), fh, indent=2)
-    from ..summary import summary
+    from ..observe.summary import summary
 
     click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     if plot_dir:
@@ -76,8 +76,8 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
 
 def _check(rc: RunConfig, as_json: bool) -> None:
     """``start --check``: everything ``start`` derives before it starts a process."""
-    from ..report import quoted
-    from ..setup import make_setup
+    from ..compute.setup import make_setup
+    from ..observe.report import quoted
 
     try:
         setup = make_setup(rc)
@@ -113,8 +113,8 @@ def _check(rc: RunConfig, as_json: bool) -> None:
 
 def _plot_run(record: str | None, plot_dir: str, text: str) -> None:
     """``start --plot``: the run's figures, from its recording (salvaged if it was cut)."""
-    from ..plots import plot_recording
-    from ..recording import read
+    from ..recording.plots import plot_recording
+    from ..recording.reader import read
 
     try:
         plots = plot_recording(read(record or ""), plot_dir, summary=text)
@@ -125,7 +125,7 @@ def _plot_run(record: str | None, plot_dir: str, text: str) -> None:
 
 
 def _progress(show: bool) -> tuple[Any, Any, Any]:
-    """The live line (runtime/live.py) on the terminal only: the central's ``on_cycle``
+    """The live line (runtime/observe/live.py) on the terminal only: the central's ``on_cycle``
     callback, ``echo`` for messages during the run (written above the line), and the
     function that clears it."""
     def echo(m: str) -> None:
@@ -133,7 +133,7 @@ def _progress(show: bool) -> tuple[Any, Any, Any]:
 
     if not show:
         return None, echo, lambda: None
-    from ..live import LiveLine, TerminalLine
+    from ..observe.live import LiveLine, TerminalLine
 
     line = TerminalLine(sys.stdout)
     return LiveLine(line.show), lambda m: line.above(m, sys.stderr), line.close
@@ -144,7 +144,7 @@ def _progress(show: bool) -> tuple[Any, Any, Any]:
 @click.option("--index", type=click.IntRange(1, 3), required=True)
 def peripheral(index: int, **kw: Any) -> None:
     """Run peripheral K of a unit (connects to the central's endpoint)."""
-    from ..peripheral import run_peripheral
+    from ..roles.peripheral import run_peripheral
 
     setup, conf, held = _role_setup(kw, role="peripheral", index=index)
     with held:
@@ -155,13 +155,13 @@ def peripheral(index: int, **kw: Any) -> None:
 def _role_setup(kw: dict[str, Any], *, role: str,
                 index: int | None = None) -> tuple[Any, Any, contextlib.ExitStack]:
     """Setup and Zenoh configuration of a single role, and its CPU idle request
-    (runtime/idle.py: a role started on another host holds it for that host; close it
+    (runtime/host/idle.py: a role started on another host holds it for that host; close it
     when the role ends). Exits on a configuration error; with ``--check``, exits 0 once
     everything is checked, before anything starts."""
-    from ..idle import IdlePermissionError, idle_request
-    from ..sched import RtPermissionError, apply_choice
-    from ..setup import make_setup
-    from ..zsession import make_config, pin_cpus
+    from ..compute.setup import make_setup
+    from ..host.idle import IdlePermissionError, idle_request
+    from ..host.sched import RtPermissionError, apply_choice
+    from ..transport.zsession import make_config, pin_cpus
 
     check = kw.pop("check", False)
     rc = make_rc(kw)
@@ -201,7 +201,7 @@ def _role_setup(kw: dict[str, Any], *, role: str,
 @run_options
 def plant(**kw: Any) -> None:
     """Run the simulated Delta as a Zenoh node (connects to the central's endpoint)."""
-    from ..plant_node import run_plant
+    from ..roles.plant_node import run_plant
 
     setup, conf, held = _role_setup(kw, role="plant")
     with held:
@@ -216,8 +216,8 @@ def central(as_json: bool, **kw: Any) -> None:
     """Run the central alone; plant and peripherals are started separately
     (``ctrlunit plant`` / ``ctrlunit peripheral --index K`` with the same options and
     ``--connect`` to this process's ``--listen`` endpoint)."""
-    from ..launcher import central_only
-    from ..setup import make_setup
+    from ..compute.setup import make_setup
+    from ..launch.launcher import central_only
 
     check = kw.pop("check", False)
     rc = make_rc(kw)
@@ -232,7 +232,7 @@ def central(as_json: bool, **kw: Any) -> None:
         click.echo("ctrlunit central: the options are valid; nothing was started.")
         sys.exit(0)
     code, report = central_only(rc)
-    from ..summary import summary
+    from ..observe.summary import summary
 
     if "cycles" in report:
         if rc.run.report:
@@ -246,7 +246,7 @@ def central(as_json: bool, **kw: Any) -> None:
 
 def _quiet(fn: Any) -> int:
     """Run a role; Ctrl-C ends it quietly (a role run by hand: those ``ctrlunit start``
-    starts ignore it and wait for the launcher's stop order, runtime/supervise.py)."""
+    starts ignore it and wait for the launcher's stop order, runtime/roles/supervise.py)."""
     try:
         return fn()
     except KeyboardInterrupt:
@@ -258,14 +258,14 @@ def _quiet(fn: Any) -> int:
 def config_cmd(check: bool, **kw: Any) -> None:
     """Print the run's settings as a run file: the defaults, or what the given profile,
     run file, --set and flags resolve to (ctrlunit start --config reads it back)."""
-    from ..run_file import to_toml
+    from ..config.run_file import to_toml
 
     del check
     asked_unit = bool(kw.get("unit")) or any(
         i.strip().startswith("transport.unit") for i in kw.get("set_items") or ())
     try:
         if kw.get("config_file"):
-            from ..run_file import read_run_file
+            from ..config.run_file import read_run_file
 
             asked_unit |= "unit" in read_run_file(kw["config_file"])
         rc = make_rc(kw).validate()

@@ -11,8 +11,8 @@ from typing import Any
 import click
 
 from ..config import EXIT_CONFIG, parse_duration
-from ..idle import IDLE_CHOICES
-from ..stopping import raise_if_stopped, stop_signals
+from ..host.idle import IDLE_CHOICES
+from ..roles.stopping import raise_if_stopped, stop_signals
 from .base import _fail, _json_safe, _rt_priority, cli
 
 
@@ -192,7 +192,7 @@ def balance(source: str, out: str, rerun: str | None, figure: str | None,
         _fail(f"balance: --write {out}: {exc.strerror or exc}", EXIT_CONFIG)
         return
     if figure:
-        from ..plots import gantt_figure
+        from ..recording.plots import gantt_figure
 
         d = a["pipeline"]
         panels = {f"depth {d}, measured": a["measured"]["gantt_ms"],
@@ -267,8 +267,8 @@ def load_report(path: str) -> dict[str, Any]:
     from pathlib import Path
 
     if Path(path).suffix == ".mcap":
-        from ..recorded_report import report_from_recording
-        from ..recording import read
+        from ..recording.reader import read
+        from ..recording.recorded_report import report_from_recording
 
         return report_from_recording(read(path))
     try:
@@ -308,9 +308,9 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
     each period for the work. With --unit, then run the unit's admission trial at the
     period: the traversal the unit itself shows, and the period it holds."""
     from ..config import ConfigError, RunConfig
-    from ..idle import IdlePermissionError
-    from ..latency import histogram_png, latency_report
-    from ..sched import RtPermissionError
+    from ..host.idle import IdlePermissionError
+    from ..host.sched import RtPermissionError
+    from ..launch.latency import histogram_png, latency_report
 
     try:
         period_s = parse_duration(period, field_name="--period")
@@ -323,7 +323,7 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
                   title=f"wake-up latency at {period_s * 1e3:g} ms, {rep['ticks']} ticks")
     rep["plot"] = plot
     if with_unit:
-        from ..launcher import start
+        from ..launch.launcher import start
 
         rc = RunConfig.of(peripherals=peripherals, pipeline=pipeline, clock="realtime",
                        period=period_s, trial_only=True, idle=idle)

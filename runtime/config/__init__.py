@@ -1,0 +1,400 @@
+"""Run configuration: every option of ``ctrlunit start`` with its validation."""
+
+from __future__ import annotations
+
+import re
+import typing
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from ...topology.graph import MODEL_STATES
+from ...topology.pipeline import HOLD_RULES
+from .sections import (
+    RENAMED,
+    SECTIONS,
+    ControlConfig,
+    PlantOptions,
+    RunOptions,
+    ScheduleConfig,
+    TransportConfig,
+)
+from .value_types import has_type, type_name
+
+CLOCKS = ("lockstep", "realtime", "freerun")
+REPLY_MODES = ("auto", "fused", "each")
+LATE_POLICIES = ("wait", "compute", "hold", "fault")
+"""``--late-policy``: what the central does with a round whose replies are late (its share
+of the deadline passed, runtime/central/late.py): wait for them, compute the late
+peripherals' blocks itself (the same arithmetic: the commands do not change), hold their
+last values, or stop with a fault. A round takes the strictest of its blocks', in this
+order."""
+MISSED_COMMANDS = ("extrapolate", "hold")
+"""``--missed-command``: what the plant applies in a period whose command is late: the
+command the central extrapolated for it and sent with the one before (runtime/central/settings.py,
+``CommandAhead``), or the last one that came (runtime/roles/plant_node.py)."""
+OVERLOAD_ACTIONS = ("auto", "halve", "continue")
+"""``--overload``: what a realtime run does when its commands keep missing their deadline
+(runtime/central/overload.py, ``Overload.after_interval``): ``halve`` the control rate (every
+second sample, each command held two periods, the plant still ticking at the period),
+``continue`` as it is; ``auto``: halve when the admission is on (the main job) and the gains
+keep their margin at twice the period (``RunConfig.halves_on_overload``), continue otherwise
+(a run that measures the unit as it is)."""
+COMPRESSIONS = ("none", "lz4", "zstd")
+"""``--record-compression`` (runtime/recording/mcap_writer.py)."""
+COMMAND_DELAYS = ("full", "short")
+"""When the plant applies the command of sample k (docs/architecture.md, Clocks): ``full``
+(causal): at depth d, to the period that begins at tick k + d, d periods after the sample;
+``short``: d - 1 periods (the realtime plant integrates the period that *ends* at tick
+k + d with the command due at that tick; kept for recordings made that way)."""
+"""Realtime, a peripheral's reply past its round's share of the deadline: ``wait`` for it
+(the plant counts the miss), ``hold`` the peripheral's last values for its axes, or treat
+it as a ``fault``."""
+
+# exit codes, one per fault class
+EXIT_OK = 0
+EXIT_CONFIG = 1
+EXIT_PERIPHERAL = 3
+EXIT_PLANT = 4
+EXIT_OBSERVER = 5
+EXIT_LINK = 6
+EXIT_UNSUSTAINABLE = 7
+"""Realtime: the admission trial showed that the period asked cannot be held; refused
+before any command reached the plant."""
+EXIT_INTERRUPTED = 130
+"""Ctrl-C (SIGINT). SIGTERM and SIGHUP stop a run the same way, with exit 128 + the
+signal's number (143, 129), as a shell reports a process the signal ended."""
+
+_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0}
+
+
+class ConfigError(ValueError):
+    """An option is out of range; the message names it and the allowed range."""
+
+
+def parse_duration(text: str | float, *, field_name: str = "duration") -> float:
+    """``500us``, ``1ms``, ``30s``, ``2min`` or a bare number of seconds -> seconds."""
+    if isinstance(text, int | float):
+        value = float(text)
+    else:
+        m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zµ]*)\s*", text)
+        if not m or (m.group(2) and m.group(2) not in _UNITS):
+            raise ConfigError(
+                f"{field_name} = {text!r}: expected a number with a unit (s, ms, us, ns, min) "
+                "or a bare number of seconds"
+            )
+        value = float(m.group(1)) * _UNITS.get(m.group(2) or "s", 1.0)
+    if not value > 0.0:
+        raise ConfigError(f"{field_name} = {text!r} must be positive")
+    return value
+
+
+def parse_host_port(text: str, *, field_name: str, default_host: str = "127.0.0.1"
+                    ) -> tuple[str, int]:
+    """``[HOST:]PORT`` -> ``(host, port)``; the port 0 to 65535 (0: any free port), the
+    host a name or an IPv4 address, or an IPv6 one in brackets (``[::1]:8765``)."""
+    text = str(text)
+    m = re.fullmatch(r"(?:(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):)?([0-9]{1,5})", text)
+    if not m or int(m.group(2)) > 65535:
+        raise ConfigError(f"{field_name} = {text!r}: expected [HOST:]PORT with PORT 0 to "
+                          "65535 (e.g. 8765 or 127.0.0.1:8765)")
+    host = m.group(1) or default_host
+    return host.strip("[]"), int(m.group(2))
+
+
+def _flat_names() -> dict[str, tuple[str, str]]:
+    back = {v: k for k, v in RENAMED.items()}
+    return {back.get(f.name, f.name): (section, f.name)
+            for section, cls in SECTIONS.items() for f in fields(cls)}
+
+
+FLAT = _flat_names()
+"""Each option's flat name (the CLI's, a spec's, a recording's) -> (section, field)."""
+_FLAT_TYPES = {flat: typing.get_type_hints(SECTIONS[sec])[name]
+               for flat, (sec, name) in FLAT.items()}
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Options of one run (see ``ctrlunit start --help``), in frozen sections
+    (runtime/config/sections.py). Build one with :meth:`of` from flat option names; a changed
+    copy with :meth:`replace`."""
+
+    control: ControlConfig = field(default_factory=ControlConfig)
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
+    plant: PlantOptions = field(default_factory=PlantOptions)
+    transport: TransportConfig = field(default_factory=TransportConfig)
+    run: RunOptions = field(default_factory=RunOptions)
+
+    @classmethod
+    def of(cls, **options: Any) -> RunConfig:
+        """A configuration from flat option names (``peripherals=3, plant_lag=1e-4``), the
+        rest at their defaults. An unknown name is a :class:`ConfigError`."""
+        parts: dict[str, dict[str, Any]] = {name: {} for name in SECTIONS}
+        for flat, value in options.items():
+            where = FLAT.get(flat)
+            if where is None:
+                raise ConfigError(f"unknown run option {flat!r}")
+            parts[where[0]][where[1]] = value
+        return cls(**{name: SECTIONS[name](**kw) for name, kw in parts.items()})
+
+    def replace(self, **options: Any) -> RunConfig:
+        """A copy with the options named (flat names) changed; this one is unchanged."""
+        return RunConfig.of(**{**self.to_dict(), **options})
+
+    def option(self, flat: str) -> Any:
+        """The value of one option by its flat name."""
+        section, name = FLAT[flat]
+        return getattr(getattr(self, section), name)
+
+    def validate(self) -> RunConfig:
+        """Check every option's value; returns ``self``.
+
+        Raises
+        ------
+        ConfigError
+            Naming the first option out of its range and the range allowed.
+        """
+        self._check_values()
+        self._check_outputs()
+        self._check_host()
+        return self
+
+    def _bad(self, name: str, allowed: str) -> ConfigError:
+        """Names the option (``--max-error``) and the value as the user would write it."""
+        value = self.option(name)
+        unit = {"period": " s", "timeout": " s", "max_error": " m", "bandwidth_hz": " Hz",
+                "foxglove_rate": " Hz"}.get(name, "")
+        shown = f"{value:g}{unit}" if isinstance(value, float) else repr(value)
+        option = "--" + name.removesuffix("_hz").replace("_", "-")
+        return ConfigError(f"{option} = {shown}: allowed {allowed}")
+
+    def _check_values(self) -> None:
+        """What the unit computes and how it is scheduled."""
+        from ...topology.graph import LAWS
+
+        if self.schedule.peripherals not in (0, 1, 2, 3):
+            raise self._bad("peripherals", "0, 1, 2 or 3")
+        if self.schedule.pipeline not in (1, 2):
+            raise self._bad("pipeline", "1 or 2")
+        if self.schedule.clock not in CLOCKS:
+            raise self._bad("clock", ", ".join(CLOCKS))
+        if not 20e-6 <= self.schedule.period <= 1.0:
+            raise self._bad("period", "20us to 1s")
+        if self.control.law not in (*LAWS, "kinematics"):
+            raise self._bad("law", ", ".join(LAWS))
+        if self.control.model not in ("complete", "simplified"):
+            raise self._bad("model", "complete or simplified")
+        if self.run.cycles is not None and not 1 <= self.run.cycles <= 10**9:
+            raise self._bad("cycles", "1 to 1e9")
+        if self.control.cost_model not in ("native", "t800"):
+            raise self._bad("cost_model", "native or t800")
+        if self.control.observer not in ("predict", "previous"):
+            raise self._bad("observer", "predict or previous")
+        if self.control.model_state not in ("auto", *MODEL_STATES):
+            raise self._bad("model_state", ", ".join(("auto", *MODEL_STATES)))
+        if self.control.bandwidth_hz is not None and not 0.1 <= self.control.bandwidth_hz <= 200.0:
+            raise self._bad("bandwidth_hz", "0.1 to 200 Hz")
+        if not 0.01 <= self.transport.timeout <= 600.0:
+            raise self._bad("timeout", "0.01 to 600 s")
+        if self.schedule.cpus not in (None, "same", "split"):
+            raise self._bad("cpus", "same (every role on CPU 0) or split (central on 0, the rest "
+                      "on 1)")
+        if self.schedule.late_policy not in LATE_POLICIES:
+            raise self._bad("late_policy", ", ".join(LATE_POLICIES))
+        if self.schedule.missed_command not in MISSED_COMMANDS:
+            raise self._bad("missed_command", ", ".join(MISSED_COMMANDS))
+        for block, pol in self.schedule.late.items():
+            if pol not in LATE_POLICIES:
+                raise ConfigError(f"--late {block}={pol}: the policy must be one of "
+                                  f"{', '.join(LATE_POLICIES)}")
+        if not 0.01 <= self.control.cost_scale <= 1000.0:
+            raise self._bad("cost_scale", "0.01 to 1000")
+        if not 1.0 <= self.schedule.fault_periods <= 1000.0:
+            raise self._bad("fault_periods", "1 to 1000 periods")
+
+    def _check_outputs(self) -> None:
+        """The run's outputs, the overload rule and the plant's options."""
+        if self.run.record_compression not in COMPRESSIONS:
+            raise self._bad("record_compression", ", ".join(COMPRESSIONS))
+        if self.run.foxglove is not None:
+            parse_host_port(self.run.foxglove, field_name="--foxglove")
+        if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
+            raise self._bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
+        if self.schedule.overload not in OVERLOAD_ACTIONS:
+            raise self._bad("overload", ", ".join(OVERLOAD_ACTIONS))
+        if self.schedule.overload == "halve" and not self.gains_hold_halved:
+            limit = self.bandwidth_limit(2.0 * self.schedule.period)
+            raise ConfigError(
+                f"--overload halve: the gains' bandwidth {self.bandwidth:g} Hz would lose "
+                f"its phase margin at twice the period ({2e3 * self.schedule.period:g} ms); "
+                f"allowed with --bandwidth at most {limit:.3g} Hz, or --overload continue")
+        if self.schedule.hold_rounds not in HOLD_RULES:
+            raise self._bad("hold_rounds", ", ".join(HOLD_RULES))
+        if self.schedule.command_delay not in COMMAND_DELAYS:
+            raise self._bad("command_delay", ", ".join(COMMAND_DELAYS))
+        if self.schedule.replies not in REPLY_MODES:
+            raise self._bad("replies", ", ".join(REPLY_MODES))
+        if not 1e-5 <= self.control.max_error <= 1.0:
+            raise self._bad("max_error", "10 um to 1 m")
+        if self.plant.substeps is not None and not 1 <= self.plant.substeps <= 1000:
+            raise self._bad("plant_substeps", "1 to 1000")
+
+    def _check_host(self) -> None:
+        """The host's scheduling, the unit id, the endpoints and the links' keys."""
+        from ..host.idle import check_idle
+        from ..host.sched import check_priority
+
+        try:
+            check_priority(self.schedule.rt_priority)
+            check_idle(self.schedule.idle)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        from ..transport.zsession import check_endpoint, check_unit_id, check_zenoh_config
+
+        try:
+            check_unit_id(self.transport.unit)
+        except ValueError as exc:
+            raise ConfigError(f"--unit: {exc}") from None
+        try:
+            for option, endpoints in (("--listen", self.transport.listen),
+                                      ("--connect", self.transport.connect)):
+                for e in endpoints or []:
+                    check_endpoint(e, option=option)
+            if self.transport.zenoh_config is not None:
+                check_zenoh_config(self.transport.zenoh_config)
+            self.link_security()
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+
+
+    def link_security(self, *, check_files: bool = True) -> str:
+        """How this run's links are protected (runtime/transport/security.py, ``link_security``):
+        ``tls``, ``local``, ``loopback`` or ``insecure``. Raises ValueError for a link
+        beyond the host without ``--keys`` or ``--insecure``; with ``check_files``, a
+        ``--keys`` directory must hold the authority's certificate."""
+        from ..transport.security import CA_CERT, link_security
+
+        t = self.transport
+        if check_files and t.keys is not None and not (Path(t.keys) / CA_CERT).is_file():
+            raise ValueError(f"--keys {t.keys}: no {CA_CERT} there (make a unit's keys with: "
+                             "ctrlunit keys init DIR)")
+        return link_security(t.listen, t.connect, t.keys, t.insecure)
+
+    @property
+    def bandwidth(self) -> float:
+        """Closed-loop bandwidth of the gains (Hz): ``--bandwidth``, else 20 Hz but at most
+        ``1 / (50 T)`` so that slower periods keep their phase margin against the delay
+        from a sample to its command's action; at most ``1 / (12.5 T)`` where the law
+        servoes the state predicted for the period in which its command acts (resolved
+        acceleration at the ``acting`` model state), whose loop the delay no longer
+        slows (docs/architecture.md, the commands in flight)."""
+        if self.control.bandwidth_hz is not None:
+            return self.control.bandwidth_hz
+        return min(20.0, self.bandwidth_limit(self.schedule.period))
+
+    def bandwidth_limit(self, period: float) -> float:
+        """The highest bandwidth (Hz) whose loop keeps its phase margin at a control period
+        ``period`` (s): ``1 / (12.5 T)`` for resolved acceleration at the ``acting`` model
+        state, ``1 / (50 T)`` for the other laws (:attr:`bandwidth`)."""
+        predicted = (self.control.law == "resolved-acceleration"
+                     and self.resolved_model_state in ("acting", "foreseen", "foreseen2"))
+        return 1.0 / ((12.5 if predicted else 50.0) * period)
+
+    @property
+    def resolved_model_state(self) -> str:
+        """``--model-state`` resolved: ``auto`` is ``foreseen2`` where the model's round
+        can run ahead of the sample and the time from sample to command counts
+        (resolved acceleration in realtime at depth 2: the path then holds the central's
+        work alone, and two intervals' rounds share an exchange, which saves a quarter of
+        the unit's CPU), else ``acting``, which computes the same commands to within 1 %
+        of the tracking error: in freerun its rounds of two intervals fuse into one
+        exchange, and lockstep has no deadline (docs/architecture.md, where the model is
+        evaluated)."""
+        asked = self.control.model_state
+        if asked != "auto":
+            return asked
+        if (self.control.law == "resolved-acceleration" and self.schedule.clock == "realtime"
+                and self.schedule.pipeline >= 2):
+            return "foreseen2"
+        return "acting"
+
+    @property
+    def gains_hold_halved(self) -> bool:
+        """Whether the gains keep their phase margin at twice the period, where a realtime
+        run that halves its control rate on overload continues (``--overload``): at 1 ms
+        the default 20 Hz does (the limit is 40 Hz); at 5 ms the default 16 Hz does not
+        (the one-process loop diverges; docs/architecture.md, overload)."""
+        return self.bandwidth <= self.bandwidth_limit(2.0 * self.schedule.period)
+
+    @property
+    def halves_on_overload(self) -> bool:
+        """``--overload`` resolved: ``halve`` in realtime; ``auto`` in realtime with the
+        admission on (the main job) where :attr:`gains_hold_halved`; never otherwise."""
+        s = self.schedule
+        if s.clock != "realtime" or s.overload == "continue":
+            return False
+        return s.overload == "halve" or (s.admission and self.gains_hold_halved)
+
+    @property
+    def delay_periods(self) -> int:
+        """Periods from sample k to the start of the period in which the command of
+        interval k acts: the depth (``full``) or one less (``short``)."""
+        depth = self.schedule.pipeline
+        return depth if self.schedule.command_delay == "full" else depth - 1
+
+    @property
+    def lead_periods(self) -> int:
+        """The ``delay`` of the feed-forward lead (``(delay + 1/2) T``, runtime/compute/blocks.py):
+        :attr:`delay_periods`, except that ``short`` in realtime keeps the earlier code's
+        lead of d + 1/2 periods, so that its recordings replay bit for bit."""
+        legacy = self.schedule.command_delay == "short" and self.schedule.clock == "realtime"
+        return self.delay_periods + (1 if legacy else 0)
+
+    @classmethod
+    def from_dict(cls, data: Any, *, source: str = "configuration") -> RunConfig:
+        """A configuration as written by :meth:`to_dict` (a spec file, a recording); one
+        written before ``command_delay`` existed used the ``short`` convention, one written
+        before ``model_state`` existed evaluated the model at the sample.
+
+        Every field is checked for its type (a :class:`ConfigError` names the field, the
+        value and the type allowed); ranges are :meth:`validate`'s."""
+        if not isinstance(data, dict):
+            raise ConfigError(f"{source}: expected an object of run options, got "
+                              f"{type(data).__name__}")
+        data = dict(data)
+        data.setdefault("command_delay", "short")
+        data.setdefault("model_state", "sample")
+        for k, v in data.items():
+            if k not in _FLAT_TYPES:
+                raise ConfigError(f"{source}: unknown run option {k!r}")
+            if not has_type(v, _FLAT_TYPES[k]):
+                shown = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
+                raise ConfigError(f"{source}: {k} = {shown}: allowed "
+                                  f"{type_name(_FLAT_TYPES[k])}")
+        return cls.of(**data)
+
+    @classmethod
+    def from_recording(cls, data: Any) -> RunConfig:
+        """The configuration a recording was made with (:meth:`from_dict`), its model state
+        as it ran. The recorder writes ``--model-state auto`` resolved; a recording that
+        says ``auto`` was made when ``auto`` meant ``foreseen`` where it now means
+        ``foreseen2`` (:attr:`resolved_model_state`), and replays as it ran."""
+        rc = cls.from_dict(data, source="recording")
+        if rc.control.model_state != "auto":
+            return rc
+        state = rc.resolved_model_state
+        return rc.replace(model_state="foreseen" if state == "foreseen2" else state)
+
+    def total_cycles(self, task_period: float) -> int:
+        """Cycles to run: ``cycles``, else ``duration / period``, else one task loop."""
+        if self.run.cycles is not None:
+            return self.run.cycles
+        if self.run.duration is not None:
+            return max(1, round(self.run.duration / self.schedule.period))
+        return max(1, round(task_period / self.schedule.period)) + 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every option by its flat name (what :meth:`from_dict` and :meth:`of` read)."""
+        sections = {name: asdict(getattr(self, name)) for name in SECTIONS}
+        return {flat: sections[sec][name] for flat, (sec, name) in FLAT.items()}

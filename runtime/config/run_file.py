@@ -1,0 +1,126 @@
+"""Settings beyond the everyday flags: profiles, the run file and ``--set``.
+
+A run's settings come, each overriding the one before: the defaults (the realtime main
+job), a profile (``--profile``), a run file (``--config run.toml``, with the sections of
+:class:`.RunConfig`: ``[control]``, ``[schedule]``, ``[plant]``, ``[transport]``,
+``[run]``, each key a field of its section), ``--set SECTION.KEY=VALUE``, and the flags
+given on the command line. ``ctrlunit config`` prints them (:func:`to_toml`).
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from typing import Any
+
+from . import FLAT, ConfigError
+from .sections import SECTIONS
+from .value_types import has_type, type_name
+
+PROFILES: dict[str, dict[str, Any]] = {
+    "main-job": {},
+    "thesis": {"model_state": "sample", "placement_auto": False, "observer": "previous"},
+}
+"""Settings of each profile by flat name. ``main-job``: the defaults (realtime at the
+period the admission holds, the model foreseen, placement auto). ``thesis``: the thesis's
+graph (the model at the sample, the axes placement, the observer from the previous
+estimate with two Newton-Raphson iterations), as the 1994 comparison runs it."""
+
+_BY_FIELD = {(sec, name): flat for flat, (sec, name) in FLAT.items()}
+
+
+def _flat(section: str, key: str, where: str) -> str:
+    flat = _BY_FIELD.get((section, key))
+    if flat is None:
+        keys = sorted(name for sec, name in _BY_FIELD if sec == section)
+        if section not in SECTIONS:
+            raise ConfigError(f"{where}: no section [{section}] (allowed: "
+                              f"{', '.join(SECTIONS)})")
+        raise ConfigError(f"{where}: [{section}] has no {key!r} (allowed: {', '.join(keys)})")
+    return flat
+
+
+def _checked(flat: str, value: Any, where: str) -> Any:
+    from . import _FLAT_TYPES
+
+    tp = _FLAT_TYPES[flat]
+    if not has_type(value, tp):
+        raise ConfigError(f"{where}: {value!r}: allowed {type_name(tp)}")
+    return value
+
+
+def read_run_file(path: str) -> dict[str, Any]:
+    """The settings of a run file by flat name, each checked for its type.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the section, key or line at fault."""
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except OSError as exc:
+        raise ConfigError(f"--config {path}: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"--config {path}: {exc}") from None
+    out: dict[str, Any] = {}
+    for section, table in data.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"--config {path}: {section!r} must be a section "
+                              f"([{section}]) holding keys")
+        for key, value in table.items():
+            where = f"--config {path}: [{section}] {key}"
+            flat = _flat(section, key, where)
+            out[flat] = _checked(flat, value, where)
+    return out
+
+
+def parse_set(items: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """``--set SECTION.KEY=VALUE`` items by flat name. VALUE is read as TOML (``5``,
+    ``0.5``, ``true``, ``"x"``, ``["a", "b"]``); a bare word is a string (``wait``)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        section, dot, key = name.strip().partition(".")
+        if not eq or not dot:
+            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE, e.g. "
+                              "schedule.late_policy=wait")
+        where = f"--set {name.strip()}"
+        flat = _flat(section, key, where)
+        try:
+            value = tomllib.loads(f"v = {text.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text.strip()
+        if isinstance(value, dict):
+            value = {str(k): str(v) for k, v in value.items()}
+        out[flat] = _checked(flat, value, where)
+    return out
+
+
+def profile(name: str) -> dict[str, Any]:
+    if name not in PROFILES:
+        raise ConfigError(f"--profile {name!r}: allowed {', '.join(PROFILES)}")
+    return dict(PROFILES[name])
+
+
+def to_toml(settings: dict[str, Any]) -> str:
+    """Settings by flat name as a run file (every section, every key; unset ones as
+    comments, since TOML has no null)."""
+    lines: list[str] = []
+    for section in SECTIONS:
+        lines.append(f"[{section}]")
+        for flat, (sec, name) in FLAT.items():
+            if sec != section or flat not in settings:
+                continue
+            value = settings[flat]
+            if value is None:
+                lines.append(f"# {name} =  (unset)")
+            elif isinstance(value, bool):
+                lines.append(f"{name} = {'true' if value else 'false'}")
+            elif isinstance(value, dict):
+                inner = ", ".join(f"{json.dumps(k)} = {json.dumps(v)}" for k, v in value.items())
+                lines.append(f"{name} = {{{inner}}}")
+            else:
+                lines.append(f"{name} = {json.dumps(value)}")
+        lines.append("")
+    return "\n".join(lines)

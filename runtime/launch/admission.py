@@ -1,0 +1,306 @@
+"""Admission control: before the first real command, whether the unit holds its period.
+
+In realtime the central, after its warm-up, runs a *trial* at the requested period: the
+plant ticks on its wall clock as in the run (integrating a throw-away copy of the robot at
+rest, so that its CPU load is the run's) and publishes trial samples; the central runs the
+real pipeline on them (every process, every exchange, the same scheduler) with positions
+that follow the reference, computes each command and sends none. A trial interval is
+*late* when its command would have reached the plant after the tick it is due at (its
+sample's time plus ``depth`` periods; the traversal counts from the sample's time stamp and
+adds the command's one-way transit measured at warm-up); a skipped sample is late too. The
+period is *held* when at most one trial interval in 200 is late and the 99th percentile of
+the traversal, transit included, uses at most :data:`HEADROOM` of the budget; under
+SCHED_FIFO, also when no CPU was busy more than ``ADMIT_BUSY_SHARE`` of the kernel's
+real-time budget during the trial (runtime/host/sched.py: FIFO tasks win every CPU they want, so
+a trial can hold at a load the kernel would throttle in a longer run). A period that
+holds is admitted only if the task can be tracked at it (:func:`predicted_tracking`).
+
+A trial whose late intervals all fall in one stall, and which holds without it
+(``one_stall``), is run once more at the same period (``retry`` in the second rung's
+figures), once per admission: a stall of the host costs about the same misses per 1000
+periods at every period, so a longer period would not avoid it (docs/measurements/
+2026-11-24-realtime.md, "The admission refuses too often").
+
+When it is not held the trial goes on up :data:`LADDER_S` and stops at the first period
+that holds: the refusal names the period asked, what the trial measured, and the shortest
+period measured to hold. ``--period auto`` starts at the bottom of the ladder and runs at
+the first period that holds (the launcher starts the unit again at it: every role derives
+its setup from the period). The decision and its figures go in the report
+(``admission``); docs/faults-and-errors.md has the exit code.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import statistics
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..config import EXIT_UNSUSTAINABLE
+from ..host import sched
+from ..host.busy_guard import ADMIT_BUSY_SHARE
+
+if TYPE_CHECKING:
+    from ..central import Central
+
+LADDER_S = (1.0e-3, 1.25e-3, 1.6e-3, 2.0e-3, 2.5e-3, 3.2e-3, 4.0e-3, 5.0e-3, 6.4e-3,
+            8.0e-3, 10.0e-3)
+"""The periods ``--period auto`` chooses from, and the trial climbs after a refusal."""
+
+TRIAL_BASE = 1 << 41
+"""Trial cycles are numbered from here (one block of 2**20 per rung), far from the run's
+and the warm-up's, so that a straggling trial message is never taken for a real one."""
+
+HEADROOM = 0.95
+"""The trial's traversal p99 (command transit included) may use at most this share of the
+budget: the rest is for the run's longer tail (a few hundred trial intervals see fewer
+of the machine's stalls than a run of thousands)."""
+
+LATE_SHARE = 1 / 200
+"""At most this share of the trial's intervals may be late (or skipped)."""
+
+EPISODE_GAP = 10
+"""Late (or skipped) intervals less than this many intervals apart belong to one episode."""
+
+
+TRACKING_SHARE = 0.5
+"""A period that holds is admitted only if the one-process simulation of the task at it
+tracks within this share of ``--max-error`` (the run would otherwise stop mid-motion)."""
+
+
+class Unsustainable(Exception):
+    """The requested period cannot be held; ``info`` is the admission's report."""
+
+    code = EXIT_UNSUSTAINABLE
+
+    def __init__(self, message: str, info: dict[str, Any]) -> None:
+        super().__init__(message)
+        self.info = info
+
+
+def trial_intervals(period_s: float, *, seconds: float = 0.3, least: int = 50,
+                    most: int = 300) -> int:
+    """Trial length at ``period_s``: ``seconds`` of it, within ``[least, most]`` intervals."""
+    return max(least, min(most, round(seconds / period_s)))
+
+
+def rung_verdict(traversal_s: np.ndarray, *, skipped: int, budget_s: float,
+                 transit_s: float, busy_share: float | None = None,
+                 busy_limit: float | None = None,
+                 skip_marks: Sequence[tuple[int, int]] = ()) -> dict[str, Any]:
+    """The figures of one trial and whether they hold (module notes).
+
+    Parameters
+    ----------
+    traversal_s : (n,) sample-to-command time of every trial interval that ran, in the
+        order they ran.
+    skipped : samples skipped because the central was behind.
+    budget_s : the command delay's periods: from the sample to the tick it is due at.
+    transit_s : one-way time of the command to the plant.
+    busy_share : the busiest CPU's busy share during the trial (every process).
+    busy_limit : under SCHED_FIFO, the busy share above which the period does not hold
+        (runtime/host/sched.py: a run near the kernel's real-time budget would be throttled);
+        None: no limit. A share that could not be measured (None) is judged on the
+        traversal alone: the run's guard still watches.
+    skip_marks : where the ``skipped`` samples were skipped, as (index into
+        ``traversal_s`` of the next interval, samples skipped); skips without a mark
+        count as one more episode.
+
+    Returns
+    -------
+    The trial's figures; besides ``held``, ``late_episodes`` (late or skipped intervals
+    grouped into runs less than :data:`EPISODE_GAP` apart) and ``one_stall``: every late
+    interval in one episode, and the rest of the trial (at least half of it) would hold
+    without it. Such a trial is worth repeating once (:func:`admit`): a stall of the host
+    costs about the same misses per 1000 periods at any period.
+    """
+    t = np.asarray(traversal_s, dtype=float) + transit_s
+    n = int(t.size) + skipped
+    late_at = np.flatnonzero(t > budget_s)
+    late = int(late_at.size) + skipped
+    p99 = float(np.quantile(t, 0.99)) if t.size else math.inf
+    held = n > 0 and late <= n * LATE_SHARE and p99 <= HEADROOM * budget_s
+    busy_over = busy_limit is not None and busy_share is not None and busy_share > busy_limit
+    if busy_over:
+        held = False
+    points = sorted([int(i) for i in late_at] + [int(i) for i, _ in skip_marks])
+    episodes = sum(1 for a, b in zip([None, *points], points)
+                   if a is None or b - a >= EPISODE_GAP)
+    episodes += 1 if skipped > sum(c for _, c in skip_marks) else 0  # skips not located
+    one_stall = False
+    if episodes == 1 and points and not held and not busy_over:
+        rest = np.concatenate([t[:points[0]], t[points[-1] + 1:]])
+        one_stall = (rest.size >= n / 2
+                     and float(np.quantile(rest, 0.99)) <= HEADROOM * budget_s)
+    return {"intervals": n, "late": late, "skipped": skipped, "budget_s": budget_s,
+            "busy_share": busy_share, "busy_limit": busy_limit,
+            "traversal_p50_s": float(np.median(t)) if t.size else math.inf,
+            "traversal_p99_s": p99,
+            "traversal_p999_s": float(np.quantile(t, 0.999)) if t.size else math.inf,
+            "traversal_max_s": float(t.max()) if t.size else math.inf, "held": held,
+            "late_episodes": episodes, "one_stall": one_stall}
+
+
+def ladder_from(period_s: float) -> list[float]:
+    """``period_s`` then every longer period of :data:`LADDER_S`."""
+    return [period_s] + [p for p in LADDER_S if p > period_s * 1.0001]
+
+
+def admit(central: Central) -> dict[str, Any]:
+    """Run the trial from the configured period up :data:`LADDER_S` until a period holds.
+    Returns the admission's report when the configured period holds; raises
+    :class:`Unsustainable` otherwise (with ``--period auto`` the caller starts again at
+    ``info["sustainable_period_s"]``), before any command has been sent."""
+    rc = central.rc
+    transit = statistics.median(central.warmup.warm_rtt_s) / 2 if central.warmup.warm_rtt_s else 0.0
+    asked = rc.schedule.period
+    rungs: list[dict[str, Any]] = []
+    held_at: float | None = None
+    untrackable: tuple[float, float] | None = None
+    retried = False
+    for period in ladder_from(asked):
+        err = predicted_tracking(central, period)
+        if err > TRACKING_SHARE * rc.control.max_error:  # longer periods only track worse
+            untrackable = (period, err)
+            break
+        verdict = trial(central, period, base=TRIAL_BASE + (len(rungs) << 20),
+                        transit_s=transit)
+        verdict["predicted_tracking_max_m"] = err
+        rungs.append(verdict)
+        if verdict["one_stall"] and not retried:  # one stall of the host: once more
+            retried = True
+            verdict = trial(central, period, base=TRIAL_BASE + (len(rungs) << 20),
+                            transit_s=transit)
+            verdict |= {"predicted_tracking_max_m": err, "retry": True}
+            rungs.append(verdict)
+        if verdict["held"]:
+            held_at = period
+            break
+    info: dict[str, Any] = {
+        "asked": "auto" if rc.schedule.period_auto else asked, "depth": rc.schedule.pipeline,
+        "transit_s": transit, "headroom": HEADROOM, "late_share": LATE_SHARE,
+        "tracking_share": TRACKING_SHARE, "rungs": rungs, "sustainable_period_s": held_at,
+    }
+    if untrackable is not None:
+        info["untrackable_from_s"] = untrackable[0]
+        if not rungs:
+            raise Unsustainable(
+                f"the task cannot be tracked at {asked * 1e3:g} ms: the one-process "
+                f"simulation at it tracks within {untrackable[1] * 1e3:.1f} mm, more than "
+                f"half of --max-error {rc.control.max_error * 1e3:g} mm; refused before any "
+                "motion (try a shorter --period or a slower task)", info)
+    if held_at is not None and math.isclose(held_at, asked):
+        info["period_s"] = held_at
+        return info
+    first = rungs[0]
+    if held_at is None and untrackable is not None:
+        found = (f"the longer periods that might hold track the task worse than half of "
+                 f"--max-error (at {untrackable[0] * 1e3:g} ms: {untrackable[1] * 1e3:.1f} "
+                 "mm in the one-process simulation)")
+    elif held_at is None:
+        found = (f"none of the ladder's periods up to {LADDER_S[-1] * 1e3:g} ms held "
+                 f"either (the last: traversal p99 {rungs[-1]['traversal_p99_s'] * 1e3:.2f} "
+                 f"ms of {rungs[-1]['budget_s'] * 1e3:.2f} ms)")
+    else:
+        found = f"the shortest period measured to hold is {held_at * 1e3:g} ms"
+    raise Unsustainable(
+        f"the period of {asked * 1e3:g} ms cannot be held here: in a trial of "
+        f"{first['intervals']} intervals before any motion, {first['late']} were late and "
+        f"the traversal p99 was {first['traversal_p99_s'] * 1e3:.2f} ms of a "
+        f"{first['budget_s'] * 1e3:.2f} ms budget ({rc.schedule.pipeline} period(s))"
+        + (f", and a CPU was {first['busy_share']:.0%} busy under SCHED_FIFO (limit "
+           f"{first['busy_limit']:.0%})" if _busy_over(first) else "") + f"; {found}. "
+        + ("" if rc.schedule.period_auto and held_at else "Try "
+           + ("--period auto or " if held_at and not rc.schedule.period_auto else "")
+           + (f"--period {held_at * 1e3:g}ms, " if held_at else "")
+           + ("" if sched.fifo_in_force() else "--rt-priority (as root), ")
+           + "a placement from ctrlunit balance, or fewer --peripherals "
+           "(ctrlunit latency measures this machine)"), info)
+
+
+def predicted_tracking(central: Central, period: float) -> float:
+    """Max tracking error (m) of the task in the one-process closed loop at ``period`` with
+    the run's law, model, observer, model state, gains and command delay
+    (runtime/compute/controller.py's ``simulate``, lockstep: no misses), over the run or
+    one loop of the task, whichever is shorter (a long run repeats the loop; simulating a
+    60 s run took longer than the roles wait in silence). NaN for the kinematics law (no
+    torques)."""
+    from ...kernels.laws import Gains
+    from ...kernels.trajectory import get_task
+    from ..compute.controller import simulate
+
+    rc = central.rc.replace(period=period)
+    if rc.control.law == "kinematics":
+        return math.nan
+    task = get_task(rc.control.task)
+    res = simulate(central.engine.cfg.params, task, law=rc.control.law, model=rc.control.model,
+                   gains=Gains.from_bandwidth(rc.bandwidth), period=period,
+                   cycles=min(rc.total_cycles(task.period), round(task.period / period) + 1),
+                   delay=rc.delay_periods,
+                   observer=rc.control.observer, model_state=rc.resolved_model_state)
+    ref = np.asarray(res.references, dtype=float)
+    pos = np.asarray(res.positions, dtype=float)
+    return float(np.max(np.linalg.norm(ref - pos, axis=1))) if ref.size else math.nan
+
+
+def _busy_over(rung: dict[str, Any]) -> bool:
+    limit, share = rung.get("busy_limit"), rung.get("busy_share")
+    return limit is not None and share is not None and share > limit
+
+
+def fifo_busy_limit() -> float | None:
+    """Under SCHED_FIFO where the kernel throttles real-time tasks, the busy
+    share a trial may reach (``ADMIT_BUSY_SHARE`` of the real-time budget,
+    runtime/host/sched.py); None otherwise."""
+    budget = sched.rt_budget()
+    if budget is None or not sched.fifo_in_force():
+        return None
+    return ADMIT_BUSY_SHARE * budget
+
+
+def trial(central: Central, period: float, *, base: int, transit_s: float) -> dict[str, Any]:
+    """One rung: the plant ticks ``trial_intervals(period)`` trial samples at ``period``; a
+    trial central (a :class:`~.central.Central` with ``trial=True`` on the same node and a
+    copy of the controller) runs the pipeline on them. A fault during the trial (a silent
+    peripheral or plant at this period) means the period does not hold; a dead process is
+    a fault of the run."""
+    from ..central import Central, Fault, Supervision
+
+    rc = central.rc
+    n = trial_intervals(period)
+    trc = rc.replace(period=period, t1_cycles=0, record=None, report=None)
+    ctl = copy.copy(central.ctl)
+    ctl.first_cycle, ctl.q_prev, ctl.k_prev = base, None, base
+    child_check = central.silence.supervision.child_check
+    probe = Central(central.node, trc, central.engine, ctl, n, trial=True,
+                    supervision=Supervision(child_check=child_check),
+                    reply_each=central.intervals.reply_each)
+    central.orders.say("probe", period=period, ticks=n, base=base)
+    t0 = time.monotonic()
+    busy0 = sched.cpu_times()
+    fault = None
+    try:
+        probe.run()
+    except Fault as exc:
+        if child_check is not None and child_check() is not None:
+            raise
+        fault = str(exc)
+    busy = sched.busy_share(busy0, sched.cpu_times())
+    budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
+    trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
+    out: dict[str, Any] = {"period_s": period}
+    out |= rung_verdict(trav, skipped=probe.meters.skipped, budget_s=budget, transit_s=transit_s,
+                        busy_share=busy, busy_limit=fifo_busy_limit(),
+                        skip_marks=probe.meters.skip_marks)
+    if fault is not None:
+        out["held"] = out["one_stall"] = False
+        out["fault"] = fault
+        out["intervals"] = n
+        out["late"] = max(out["late"], n - int(trav.size))
+    out["wall_s"] = time.monotonic() - t0
+    central.orders.drain(seconds=min(0.2, 50 * period) if fault else 0.0)
+    return out

@@ -1,0 +1,136 @@
+"""What a start of the unit (:mod:`.unit_start`) is assembled from: the central's view of
+the processes it starts, its per-interval hooks (progress, status file), the live view,
+and the report's parts that come from the roles' final reports."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from typing import Any
+
+from ..central import Central, Supervision
+from ..compute.setup import Setup
+from ..config import RunConfig, parse_host_port
+from ..host import sched
+from ..observe.report import cpu_budget, text_or_none
+from ..roles.supervise import ZENOH_THREADS, ThreadTimes, machine_load, process_state, thread_times
+from ..transport.node import rss_kb
+
+STOP_REPORTS_WAIT_S = 0.5
+"""How long the central waits for the roles' last reports (the plant's safe stop among
+them) after a fault or a stop by the user; it goes on as soon as every role reported."""
+
+
+def child_names(rc: RunConfig, setup: Setup) -> list[str]:
+    """The roles a start runs besides the central, in the order they are started."""
+    names = [] if rc.schedule.clock == "freerun" else ["plant"]
+    return names + [f"peripheral-{k + 1}" for k in range(setup.placement.peripherals)]
+
+
+def supervision(children: list[subprocess.Popen], pids: dict[str, int],
+                names: list[str]) -> Supervision:
+    """What the central can learn of the role processes it starts (``children``, named
+    ``names`` in order; ``pids`` by name, filled as they are started)."""
+
+    def check() -> tuple[str, int] | None:
+        for p, name in zip(children, names, strict=False):
+            if p.poll() is not None:
+                return name, p.returncode
+        return None
+
+    def role_state(role: str) -> str:
+        if role == "central":  # its Zenoh threads: is anything in transit here?
+            return process_state(os.getpid(), threads=ZENOH_THREADS)
+        return process_state(pids[role]) if role in pids else "unknown"
+
+    def role_times(role: str) -> ThreadTimes:
+        if role == "central":
+            return thread_times(os.getpid(), threads=ZENOH_THREADS)
+        return thread_times(pids[role]) if role in pids else {}
+
+    return Supervision(check, role_state, role_times, machine_load)
+
+
+def live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
+    """``--foxglove``: the live view's server (runtime/observe/viewer.py), or ``None``."""
+    if not rc.run.foxglove:
+        return None
+    from ..observe.viewer import LiveView
+
+    host, port = parse_host_port(rc.run.foxglove, field_name="--foxglove")
+    view = LiveView(host=host, port=port, task=view_task(rc, setup),
+                    period_s=rc.schedule.period,
+                    cycles=setup.cycles, rate_hz=rc.run.foxglove_rate,
+                    name=f"ctrlunit {rc.transport.unit}")
+    echo(f"ctrlunit: live view on {view.url} (in Foxglove: Open connection, Foxglove "
+         "WebSocket)")
+    return view
+
+
+def view_task(rc: RunConfig, setup: Setup) -> Any:
+    """The reference the live view draws (none in freerun)."""
+    return setup.task if rc.schedule.clock != "freerun" else None
+
+
+def status_writer(path: str | None) -> Any:
+    """Every 10 intervals, write the completed count to ``path`` (atomic rename)."""
+    if not path:
+        return None
+    tmp = path + ".tmp"
+
+    def write(central: Central, _cycle: int, _ctx: dict) -> None:
+        if central.done % 10 == 0:
+            with open(tmp, "w") as fh:
+                fh.write(str(central.done))
+            os.replace(tmp, path)
+
+    return write
+
+
+def chain(*fns: Any) -> Any:
+    """One hook calling each of ``fns`` that is not None, in order (None: none is)."""
+    fs = [f for f in fns if f is not None]
+    if not fs:
+        return None
+
+    def call(*a: Any) -> None:
+        for f in fs:
+            f(*a)
+
+    return call
+
+
+def report_extras(rc: RunConfig, setup: Setup, central: Central, *, cores: int | None,
+                  spawn: bool) -> dict[str, Any]:
+    """The report's late data, memory, CPU budget, scheduling policies and the plant's
+    own word on its safe stop: from the central's parts and the roles' final reports."""
+    reports = central.orders.role_reports
+    names = child_names(rc, setup)
+    m = central.meters
+    out: dict[str, Any] = {
+        "late": {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),
+                 "misses_per_axis": list(central.late.late_per_axis),
+                 "computed": central.late.computed},
+        "memory_kb": {"central": {"warm": m.rss_warm,
+                                  "end": m.rss_end if m.rss_end > 0 else rss_kb(),
+                                  "series": m.rss_series}},
+    }
+    for role, rep in reports.items():
+        if isinstance(rep.get("rss_kb"), dict):
+            out["memory_kb"][role] = rep["rss_kb"]
+    out.update(cpu_budget(central, names, cores))
+    out["scheduling"] = {"central": sched.policy_name()} | {
+        name.replace("-", "_"): text_or_none((reports.get(name) or {}).get("sched"))
+        for name in (names if spawn else [])}
+    if rc.schedule.clock != "freerun":  # the plant's own word that it held and braked
+        plant = reports.get("plant") or {}
+        stop = plant.get("safe_stop")
+        out["safe_stop"] = stop if isinstance(stop, dict) else None
+        out["plant_commands"] = plant.get("commands")  # commands it took
+        # late commands it replaced with the one extrapolated the period before
+        out["plant_spares"] = plant.get("spares")
+    return out
+
+
+__all__ = ["STOP_REPORTS_WAIT_S", "chain", "child_names", "live_view", "report_extras",
+           "status_writer", "supervision", "view_task"]

@@ -1,0 +1,113 @@
+"""What the plots read of a recording (:mod:`.plots`): the ``/signals/state`` messages
+as arrays, the deadline and fault events, the compute spans and the spans at the halved
+control rate. A malformed message is skipped, never a crash."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+
+from .reader import Recording
+
+
+def _num(x: Any) -> float:
+    return math.nan if x is None else float(x)
+
+
+def _vec(v: Any) -> list[float]:
+    if v is None:
+        return [math.nan] * 3
+    return [_num(v.get("x")), _num(v.get("y")), _num(v.get("z"))]
+
+
+def signals(rec: Recording, *, cycles: tuple[int, int] | None = None
+            ) -> dict[str, np.ndarray]:
+    """The ``/signals/state`` messages as arrays, in cycle order (see :class:`Plots`).
+
+    Parameters
+    ----------
+    rec : a recording.
+    cycles : keep intervals ``A <= cycle < B`` only.
+
+    Raises
+    ------
+    ValueError
+        If the recording (or the range) holds no interval.
+    """
+    rows: dict[int, dict[str, Any]] = {}
+    for _, data in rec.topics.get("/signals/state", []):
+        try:
+            m = json.loads(data)
+            k = int(m["cycle"])
+        except (ValueError, KeyError, TypeError):
+            continue
+        if cycles is None or cycles[0] <= k < cycles[1]:
+            rows[k] = m
+    if not rows:
+        where = f" in cycles {cycles[0]}:{cycles[1]}" if cycles else ""
+        raise ValueError(f"{rec.path}: no interval to plot{where}")
+    ks = sorted(rows)
+    ms = [rows[k] for k in ks]
+    return {
+        "cycle": np.array(ks, dtype=np.int64),
+        "t_s": np.array([_num(m.get("t")) for m in ms]),
+        "p_m": np.array([_vec(m.get("p")) for m in ms]).reshape(-1, 3),
+        "reference_m": np.array([_vec(m.get("reference")) for m in ms]).reshape(-1, 3),
+        "tracking_error_m": np.array([_num(m.get("tracking_error")) for m in ms]),
+        "torque_nm": np.array([[_num(x) for x in (m.get("torque") or [None] * 3)]
+                               for m in ms]).reshape(-1, 3),
+        "period_s": np.array([_num(m.get("period")) for m in ms]),
+        "traversal_s": np.array([_num(m.get("traversal")) for m in ms]),
+    }
+
+
+def events(rec: Recording, cycles: tuple[int, int] | None
+            ) -> tuple[list[tuple[int, int, int]], dict[str, Any] | None]:
+    """``(cycle, deadline misses so far, skipped samples so far)`` as recorded, and the
+    fault of the run (None if it ended well)."""
+    ev = []
+    for _, m in rec.decoded("/faults/deadline"):
+        try:
+            ev.append((int(m["cycle"]), int(m["deadline_misses"]), int(m["skipped_samples"])))
+        except (KeyError, TypeError, ValueError):
+            continue
+    if cycles is not None:
+        ev = [e for e in ev if cycles[0] <= e[0] < cycles[1]]
+    result = rec.metadata.get("ctrlunit.result", {})
+    try:
+        fault = json.loads(result.get("fault", "null") or "null")
+    except ValueError:
+        fault = None
+    if rec.salvaged and not fault:
+        fault = {"process": "recording", "message": rec.note}
+    return ev, fault
+
+
+def gantt_spans(rec: Recording, cycles: tuple[int, int] | None = None
+                ) -> list[tuple[str, int, int, int]]:
+    """Compute spans ``(process, cycle, t0_ns, t1_ns)`` from ``/timing/spans``."""
+    out: list[tuple[str, int, int, int]] = []
+    for _, m in rec.decoded("/timing/spans"):
+        try:
+            k = int(m["cycle"])
+            if cycles is not None and not cycles[0] <= k < cycles[1]:
+                continue
+            out.extend((str(p), k, int(a), int(b)) for p, a, b in m["spans"])
+        except (KeyError, TypeError, ValueError):
+            continue
+    return out
+
+
+def halved_spans(rec: Recording, period: float, end_cycle: int) -> np.ndarray:
+    """``[[t0, t1], ...]`` (s): the spans the recorded run spent at the halved control
+    rate (its ``stride`` orders), the last one open to ``end_cycle``."""
+    from .replay import stride_grid
+
+    spans = stride_grid(rec).halved_spans(end_cycle)
+    return np.array(spans, dtype=float).reshape(-1, 2) * period
+
+
+__all__ = ["events", "gantt_spans", "halved_spans", "signals"]

@@ -1,0 +1,341 @@
+"""Pictures of a run (``ctrlunit plot``, ``ctrlunit start --plot``).
+
+From a recording alone (whole, compressed or salvaged after a crash), six PNGs and an
+``index.html`` that shows them with the run's summary:
+
+``path.png``
+    The platform's path against the reference, x-z and x-y views (the plant's true
+    position from the samples; freerun has no plant, and says so).
+``tracking_error.png``
+    ``|p - p_c|`` against time, with ``--max-error`` (the fault threshold) drawn.
+``torques.png``
+    The three commanded torques against time, with the joint limit ``tau_max``.
+``timing.png``
+    Histograms of the period (command to command) and of the traversal (sample to
+    command), with the nominal period and the deadline (the command of sample k is due
+    at tick k + d, d the command delay in periods) marked.
+``events.png``
+    The period over the run, with each deadline miss, skipped sample and the fault (if
+    any) where it fell, and the spans at the halved control rate (``--overload``).
+``gantt.png``
+    The processes' compute spans over a few intervals of the middle of the run.
+
+Every figure is drawn from the arrays in :class:`Plots.series`, which the caller (and
+the tests) can read: ``tracking_error_m`` is the recorded ``/signals/state`` error, an
+account independent of the report's (rebuilt from the samples).
+"""
+
+from __future__ import annotations
+
+import html
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+import numpy as np
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+
+from ..config import RunConfig
+from .plot_data import events, gantt_spans, halved_spans, signals
+from .reader import Recording
+
+COLORS = {"central": "#1f77b4", "peripheral_1": "#ff7f0e", "peripheral_2": "#2ca02c",
+          "peripheral_3": "#d62728", "plant": "#7f7f7f"}
+"""One colour per process, in every Gantt chart of ctrlunit."""
+
+FIGURES = ("path", "tracking_error", "torques", "timing", "events", "gantt")
+"""The PNGs :func:`plot_recording` writes, in the order index.html shows them."""
+
+_DPI = 90
+
+
+@dataclass
+class Plots:
+    """What :func:`plot_recording` wrote and the arrays it drew.
+
+    Attributes
+    ----------
+    images : figure name (one of :data:`FIGURES`) -> PNG path.
+    index : the index.html path.
+    series : the drawn arrays: ``cycle`` (n,), ``t_s`` (n,), ``p_m`` and ``reference_m``
+        (n, 3; NaN where absent), ``tracking_error_m`` (n,), ``torque_nm`` (n, 3),
+        ``period_s`` (n,), ``traversal_s`` (n,).
+    notes : what a figure could not show (e.g. no plant in freerun).
+    """
+
+    images: dict[str, Path] = field(default_factory=dict)
+    index: Path | None = None
+    series: dict[str, np.ndarray] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def gantt_figure(path: Path, panels: dict[str, list]) -> None:
+    """One Gantt chart per panel: spans ``(process, cycle, t0_ms, t1_ms)``, labelled with
+    the cycle mod 100 (the measured or predicted counterparts of the thesis's Fig. 22-24).
+    Panels without spans are left out; nothing is written if none has any."""
+    panels = {k: v for k, v in panels.items() if v}
+    if not panels:
+        return
+    fig, axes = plt.subplots(len(panels), 1, figsize=(12, 2.6 * len(panels)),
+                             constrained_layout=True, squeeze=False)
+    span_ms = max(b for spans in panels.values() for *_, b in spans)
+    for ax, (title, spans) in zip(axes[:, 0], panels.items()):
+        procs = sorted({p for p, *_ in spans}, key=lambda p: (p != "central", p))
+        for y, proc in enumerate(procs):
+            for p, c, a, b in spans:
+                if p == proc:
+                    ax.broken_barh([(a, max(b - a, 0.01))], (y - 0.4, 0.8),
+                                   color=COLORS.get(p, "#999999"))
+                    ax.text(a, y, str(c % 100), fontsize=6, va="center")
+        ax.set_yticks(range(len(procs)), procs)
+        ax.set_xlim(0, span_ms * 1.02)
+        ax.set_xlabel("time (ms)")
+        ax.set_title(f"Gantt chart, {title} - labels: cycle mod 100; cf. thesis Fig. 22-24",
+                     fontsize=9)
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+
+
+def _empty(ax: Any, text: str) -> None:
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, wrap=True)
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
+def _path(path: Path, s: dict[str, np.ndarray], notes: list[str]) -> None:
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), constrained_layout=True)
+    p, ref = s["p_m"] * 1e3, s["reference_m"] * 1e3
+    have_p, have_ref = np.isfinite(p).all(axis=1), np.isfinite(ref).all(axis=1)
+    if not have_p.any() and not have_ref.any():
+        notes.append("path: no platform position in this recording (freerun has no plant)")
+    for ax, (i, j, name) in zip(axes, ((0, 2, "x-z"), (0, 1, "x-y"))):
+        if not have_p.any() and not have_ref.any():
+            _empty(ax, "no platform position: a freerun run has no plant")
+            continue
+        ax.plot(ref[have_ref, i], ref[have_ref, j], "--", color="#555555", lw=1.2,
+                label="reference p_c")
+        ax.plot(p[have_p, i], p[have_p, j], color="#1f77b4", lw=1.0, label="platform p")
+        ax.set_xlabel(f"{'xyz'[i]} (mm)")
+        ax.set_ylabel(f"{'xyz'[j]} (mm)")
+        ax.set_title(f"path, {name} view")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.legend(fontsize=8)
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+
+
+def _tracking(path: Path, s: dict[str, np.ndarray], max_error: float,
+              notes: list[str]) -> None:
+    fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
+    e = s["tracking_error_m"]
+    ok = np.isfinite(e)
+    if not ok.any():
+        notes.append("tracking error: none recorded (freerun has no plant)")
+        _empty(ax, "no tracking error: a freerun run has no plant")
+    else:
+        ax.plot(s["t_s"][ok], e[ok] * 1e3, color="#1f77b4", lw=1.0, label="|p - p_c|")
+        k = int(np.nanargmax(e))
+        ax.plot(s["t_s"][k], e[k] * 1e3, "o", color="#d62728", ms=4,
+                label=f"max {e[k] * 1e3:.3f} mm at cycle {int(s['cycle'][k])}")
+        if max_error <= 4 * e[k]:  # the fault threshold in view
+            ax.axhline(max_error * 1e3, color="#d62728", ls="--", lw=1.0,
+                       label=f"--max-error {max_error * 1e3:g} mm (fault)")
+            top = max(max_error, float(e[k]))
+        else:  # far above: scale to the error and say where the threshold is
+            ax.plot([], [], color="#d62728", ls="--",
+                    label=f"--max-error {max_error * 1e3:g} mm (fault), above the plot")
+            top = float(e[k])
+        ax.set_xlabel("reference time (s)")
+        ax.set_ylabel("tracking error (mm)")
+        ax.set_ylim(0, top * 1e3 * 1.12)
+        ax.legend(fontsize=8, loc="upper right")
+    ax.set_title("tracking error")
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+
+
+def _torques(path: Path, s: dict[str, np.ndarray], tau_max: float, kind: str) -> None:
+    fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
+    tau = s["torque_nm"]
+    for i in range(3):
+        ax.plot(s["t_s"], tau[:, i], lw=1.0, label=f"axis {i + 1}")
+    if kind == "torque":
+        for sign in (1, -1):
+            ax.axhline(sign * tau_max, color="#d62728", ls="--", lw=1.0,
+                       label="tau_max" if sign == 1 else None)
+        ax.set_ylabel("torque (N m)")
+        ax.set_title(f"commanded torques (limit +/- {tau_max:g} N m)")
+    else:
+        ax.set_ylabel("joint acceleration (rad/s^2)")
+        ax.set_title("commands of the kinematics law (joint accelerations, not torques)")
+    ax.set_xlabel("reference time (s)")
+    ax.legend(fontsize=8, loc="upper right")
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+
+
+def _timing(path: Path, s: dict[str, np.ndarray], rc: RunConfig) -> None:
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), constrained_layout=True)
+    nominal_us = rc.schedule.period * 1e6
+    deadline_us = max(rc.delay_periods, 1) * rc.schedule.period * 1e6
+    for ax, key, title in ((axes[0], "period_s", "period (command to command)"),
+                           (axes[1], "traversal_s", "traversal (sample to command)")):
+        v = s[key][np.isfinite(s[key])] * 1e6
+        if v.size == 0:
+            _empty(ax, f"no {key[:-2]} recorded")
+            continue
+        ax.hist(v, bins=min(80, max(10, v.size // 20)), color="#1f77b4", alpha=0.85)
+        if rc.schedule.clock == "realtime":
+            ax.axvline(nominal_us, color="#2ca02c", ls="--", lw=1.0,
+                       label=f"period {nominal_us:g} us")
+        if key == "traversal_s" and rc.schedule.clock == "realtime":
+            ax.axvline(deadline_us, color="#d62728", ls="--", lw=1.0,
+                       label=f"deadline {deadline_us:g} us (tick k + {max(rc.delay_periods, 1)})")
+        p50, p99 = np.percentile(v, [50, 99])
+        clock = "" if rc.schedule.clock == "realtime" else f" ({rc.schedule.clock}: wall time)"
+        ax.set_title(f"{title}{clock}: p50 {p50:.0f} us, p99 {p99:.0f} us", fontsize=10)
+        ax.set_xlabel("us")
+        ax.set_ylabel("intervals")
+        ax.set_yscale("log")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+
+
+def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int, int]],
+                   fault: dict[str, Any] | None, rc: RunConfig) -> None:
+    fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
+    t = s["cycle"] * rc.schedule.period
+    for a, b in s.get("halved_spans_s", np.empty((0, 2))):
+        ax.axvspan(a, b, color="#1f77b4", alpha=0.12, lw=0)
+    if len(s.get("halved_spans_s", ())):
+        ax.fill_between([], [], color="#1f77b4", alpha=0.12, label="control rate halved")
+    ax.plot(t, s["period_s"] * 1e6, lw=0.6, color="#7f7f7f", label="period")
+    if rc.schedule.clock == "realtime":
+        ax.axhline(rc.schedule.period * 1e6, color="#2ca02c", ls="--", lw=0.8, label="nominal")
+    prev_m = prev_s = 0
+    miss_t, skip_t = [], []
+    for k, m, sk in ev:
+        if m > prev_m:
+            miss_t.append(k * rc.schedule.period)
+        if sk > prev_s:
+            skip_t.append(k * rc.schedule.period)
+        prev_m, prev_s = max(prev_m, m), max(prev_s, sk)
+    for x in miss_t:
+        ax.axvline(x, color="#d62728", lw=0.8, alpha=0.7)
+    for x in skip_t:
+        ax.axvline(x, color="#ff7f0e", lw=0.8, alpha=0.7, ls=":")
+    title = f"deadline misses {prev_m}, skipped samples {prev_s}"
+    if fault:
+        x = t[-1] if t.size else 0.0
+        ax.axvline(x, color="black", lw=2.0)
+        ax.annotate(f"fault: {str(fault.get('message', ''))[:70]}", (x, 0.95),
+                    xycoords=("data", "axes fraction"), ha="right", fontsize=8)
+        title += " - the run ended in a fault"
+    if miss_t:
+        ax.plot([], [], color="#d62728", label="deadline miss")
+    if skip_t:
+        ax.plot([], [], color="#ff7f0e", ls=":", label="skipped sample")
+    ax.set_xlabel("time of the interval, k T (s)")
+    ax.set_ylabel("period (us)")
+    ax.set_title(title)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+
+
+def _index(path: Path, rec: Recording, images: dict[str, Path], summary: str,
+           notes: list[str]) -> None:
+    title = f"ctrlunit run: {Path(rec.path).name}"
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+             "</title><style>body{font-family:sans-serif;margin:1.5em;max-width:1100px}"
+             "img{max-width:100%;border:1px solid #ddd;margin:0.4em 0 1.2em}"
+             "pre{background:#f6f6f6;padding:0.8em;overflow-x:auto;font-size:12px}"
+             "</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
+    if rec.salvaged:
+        parts.append(f"<p><b>Salvaged:</b> {html.escape(rec.note)}</p>")
+    parts.append(f"<pre>{html.escape(summary)}</pre>")
+    for n in notes:
+        parts.append(f"<p><i>{html.escape(n)}</i></p>")
+    for name in FIGURES:
+        if name in images:
+            parts.append(f"<h2>{name.replace('_', ' ')}</h2><img src='{images[name].name}' "
+                         f"alt='{name}'>")
+    parts.append("</body></html>")
+    path.write_text("\n".join(parts), encoding="utf-8")
+
+
+def plot_recording(rec: Recording, out: str | Path, *,
+                   cycles: tuple[int, int] | None = None,
+                   summary: str | None = None) -> Plots:
+    """Draw the six figures of :data:`FIGURES` and ``index.html`` into ``out``.
+
+    Parameters
+    ----------
+    rec : the recording (see :func:`ctrlunit.runtime.recording.reader.read`).
+    out : a directory, created if missing.
+    cycles : draw intervals ``A <= cycle < B`` only.
+    summary : the run's text summary for index.html (default: rebuilt from the
+        recording with :func:`ctrlunit.runtime.recording.recorded_report.report_from_recording`).
+
+    Raises
+    ------
+    ValueError
+        If the recording has no interval (in ``cycles``) or no configuration.
+    """
+    cfg = rec.config
+    if not cfg:
+        raise ValueError(f"{rec.path}: no ctrlunit configuration in the recording")
+    rc = RunConfig.from_recording(cfg)
+    from ...kernels.params import DELTA_IA, load_params
+
+    path = rc.control.params
+    params = load_params(path) if path and Path(path).exists() else DELTA_IA
+    s = signals(rec, cycles=cycles)
+    s["halved_spans_s"] = halved_spans(rec, rc.schedule.period,
+                                       int(s["cycle"][-1]) + 1 if s["cycle"].size else 0)
+    ev, fault = events(rec, cycles)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    plots = Plots(series=s)
+    images = plots.images
+    images["path"] = out / "path.png"
+    _path(images["path"], s, plots.notes)
+    images["tracking_error"] = out / "tracking_error.png"
+    _tracking(images["tracking_error"], s, rc.control.max_error, plots.notes)
+    images["torques"] = out / "torques.png"
+    _torques(images["torques"], s, params.tau_max,
+             "acceleration" if rc.control.law == "kinematics" else "torque")
+    images["timing"] = out / "timing.png"
+    _timing(images["timing"], s, rc)
+    images["events"] = out / "events.png"
+    _events_figure(images["events"], s, ev, fault, rc)
+    from ..observe.report import gantt_window
+
+    window = gantt_window(gantt_spans(rec, cycles))
+    images["gantt"] = out / "gantt.png"
+    if window:
+        sch = rc.schedule
+        gantt_figure(images["gantt"],
+                     {f"n = {sch.peripherals}, depth {sch.pipeline} (measured)": window})
+    else:
+        fig, ax = plt.subplots(figsize=(11, 2.6), constrained_layout=True)
+        _empty(ax, "no compute spans in this recording")
+        fig.savefig(images["gantt"], dpi=_DPI)
+        plt.close(fig)
+        plots.notes.append("gantt: no compute spans in the recording")
+    if summary is None:
+        from ..observe.summary import summary as summary_text
+        from .recorded_report import report_from_recording
+
+        try:
+            summary = summary_text(report_from_recording(rec))
+        except Exception as exc:  # a damaged recording still gets its pictures
+            summary = f"(no summary: {type(exc).__name__}: {exc})"
+    plots.index = out / "index.html"
+    _index(plots.index, rec, images, summary, plots.notes)
+    return plots

@@ -1,0 +1,105 @@
+"""The run's report rebuilt from a recording alone (``ctrlunit report``, ``balance``):
+the same numbers as the live run's, from the recorded messages, timing and result."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+from ..compute.engine import measure_t1
+from ..compute.setup import make_setup
+from ..compute.timing import timing_figures
+from ..config import RunConfig
+from ..observe.report import (
+    CPU_KEYS,
+    build_report,
+    command_digest,
+    error_stats,
+    overload_figures,
+    tracking_errors,
+)
+from .reader import Recording
+from .replay import recorded_inputs, stride_grid
+
+
+def report_from_recording(rec: Recording) -> dict[str, Any]:
+    """The run's report rebuilt from the recording alone (same numbers as the live one).
+
+    ``t_1`` comes from the run's result record; if the run died before writing it, it is
+    measured again here on the recorded intervals.
+    """
+    cfg = rec.config
+    rc = RunConfig.from_recording(cfg).replace(record=None, report=None)
+    setup = make_setup(rc)
+    samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
+    cmd_ns: list[int] = []
+    sample_ns: list[int] = []
+    commands: list[float] = []  # the torques of every command, one after the other
+    true_p: dict[int, tuple[float, float, float]] = {}
+    for t, m in rec.decoded("/plant/command"):
+        k = m["cycle"]
+        s = samples.get(k)
+        if s is None:
+            continue
+        cmd_ns.append(t)
+        sample_ns.append(s["t_ns"])
+        commands.extend(float(x) for x in m["tau"])
+    for k, s in samples.items():
+        if "p" in s and k < setup.cycles:  # as live: the run's samples only
+            p = s["p"]
+            true_p[k] = (p[0], p[1], p[2])
+    result = rec.metadata.get("ctrlunit.result", {})
+    busy = json.loads(result.get("busy", "{}") or "{}")
+    t0, t1_ns = int(result.get("t_start_ns", "0") or 0), int(result.get("t_end_ns", "0") or 0)
+    wall = max(1, t1_ns - t0) if t0 else max(1, (cmd_ns[-1] - cmd_ns[0]) if cmd_ns else 1)
+    n = setup.placement.peripherals
+    if busy:
+        business = {"central": max(0.0, 1.0 - busy["central_wait_ns"] / wall)}
+        for k in range(n):
+            business[f"peripheral_{k + 1}"] = busy["periph_busy_ns"][k] / wall
+        if rc.schedule.clock != "freerun":
+            business["plant"] = busy["plant_busy_ns"] / wall
+    else:  # from the spans
+        acc: dict[str, int] = {}
+        for _, m in rec.decoded("/timing/spans"):
+            for proc, a, b in m["spans"]:
+                acc[proc] = acc.get(proc, 0) + (b - a)
+        business = {k: v / wall for k, v in sorted(acc.items())}
+    deadline = rec.decoded("/faults/deadline")
+    misses = deadline[-1][1]["deadline_misses"] if deadline else 0
+    skipped = deadline[-1][1]["skipped_samples"] if deadline else 0
+    rejected = json.loads(result.get("rejected", "{}") or "{}")
+    if not rejected:
+        rej = rec.decoded("/faults/rejected")
+        rejected = rej[-1][1] if rej else {}
+    t1 = float(result["t1_s"]) if result.get("t1_s") not in (None, "None", "") else math.nan
+    per_block = json.loads(result.get("block_cost_s", "{}") or "{}")
+    if not math.isfinite(t1):
+        t1, per_block = measure_t1(lambda: setup.engine(peripherals_plan=False),
+                                   recorded_inputs(rec, setup)[: rc.run.t1_cycles])
+    fault = json.loads(result.get("fault", "null") or "null")
+    if rec.salvaged:
+        fault = fault or {"process": "recording", "message": rec.note, "code": None}
+    task = setup.task
+    rep = build_report(
+        rc=rc, plan=setup.plan, task=task, timing=timing_figures(cmd_ns, sample_ns),
+        digest=command_digest(commands),
+        torque_max=max((abs(x) for x in commands), default=math.nan),
+        tracking=error_stats(tracking_errors(task, rc.schedule.period, true_p)), business=business,
+        deadline_misses=misses,
+        skipped=skipped, rejected=rejected, t1_s=t1, per_block_s=per_block, fault=fault,
+        wall_s=wall / 1e9,
+    )
+    cpu = json.loads(result.get("cpu", "{}") or "{}")  # per process: only the run knew
+    rep.update({k: cpu.get(k) for k in CPU_KEYS if k in cpu})
+    grid = stride_grid(rec)
+    last = max((m["cycle"] for _, m in rec.decoded("/plant/command")), default=-1)
+    rep["periods"] = last + grid.hold_of(last) if last >= 0 else 0
+    changes = [{"from_cycle": m.get("start"), **{k: v for k, v in m.items() if k not in (
+        "v", "unit", "cycle", "stage", "start")}}
+        for _, m in rec.decoded("/plant/control") if m.get("stage") == "stride"
+        and type(m.get("start")) is int and m.get("stride") in (1, 2)]
+    rep["overload"] = overload_figures(changes, rc.halves_on_overload, grid,
+                                       end=rep["periods"])
+    return rep

@@ -1,0 +1,2 @@
+"""The roles other than the central (peripheral, plant) and what supervises and stops a
+role's process."""

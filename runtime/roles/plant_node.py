@@ -1,0 +1,386 @@
+"""The plant role: the simulated Delta as a Zenoh node.
+
+It publishes each sample (encoder counts, sample number, the host monotonic time of the
+sample, the plant's compute span) and takes commands (three torques and the cycle they
+answer). A command is rejected and counted when it is malformed (NaN, inf, wrong length
+or type), stale or from the future; the last valid command stays applied.
+
+Clocks
+------
+``delay`` is the number of periods from sample k to the start of the period in which the
+command of interval k acts: the pipeline depth d with ``--command-delay full`` (causal,
+the default), d - 1 with ``short``.
+
+``lockstep``: after sample k the plant waits for the command of cycle ``k - delay``
+(before the first one it holds the initial command), applies it, advances one period and
+publishes sample k+1.
+
+``realtime``: the plant ticks on its own wall clock. ``full``: at tick j it publishes
+sample j (the state at jT, integrated ahead during the previous period), then applies the
+command of cycle ``j - d`` if it has arrived (else a deadline miss is counted and the last
+command stays) and integrates the period [jT, (j+1)T) while the controller works: the
+sample leaves at the tick, and a command acts only on physics after it was due.
+``short``: at tick j it applies the command of cycle ``j - d``, integrates the period that
+ended at the tick, [(j-1)T, jT), and then publishes sample j.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+from ...plant.simulator import Plant, PlantConfig
+from ..compute.controller import initial_angles, initial_command
+from ..compute.setup import Setup
+from ..compute.stride import StrideSchedule
+from ..config import EXIT_LINK, EXIT_OK
+from ..host import sched
+from ..transport.codec import BadMessage, check_vector, encode
+from ..transport.node import WARM_RSS_AT, Node, control_order, cpu_used, is_stop, rss_kb, say_bye
+from .plant_orders import STOP_ORDER_WAIT_S, safe_stop, trial_order, wait_for_stop
+from .stopping import stop_of, stop_signals
+
+SLEEP_SLICE_S = 0.02
+"""Longest the realtime plant sleeps before it reads its inbox (a stop order waits at most
+this long)."""
+
+class PlantServer:
+    """State of the plant role between messages. ``trial_plant(period)`` builds the
+    throw-away robot of an admission trial at ``period`` (:func:`trial_ticks`)."""
+
+    def __init__(self, node: Node, plant: Plant, *, depth: int, initial: list[float],
+                 trial_plant: Callable[[float], Plant] | None = None) -> None:
+        self.node = node
+        self.trial_plant = trial_plant
+        self.commands_taken = 0
+        self.plant = plant
+        self.depth = depth
+        self.pub = node.publisher(node.keys.sample)
+        node.route(node.keys.command, "command")
+        self.commands: dict[int, list[float]] = {}
+        self.spares: dict[int, list[float]] = {}
+        """Cycle -> the command the central extrapolated for it, sent with the command of
+        the cycle before (``next``): applied if that cycle's own command is late."""
+        self.spares_applied = 0
+        self.applied_cycle = -1
+        self.plant.set_command(initial)
+        self.misses = 0
+        self.busy_ns = 0
+        self.sample_no = 0
+        self.rss_warm = -1
+        self.grid = StrideSchedule()
+        """The samples published and the commands due: every one until the central halves
+        its control rate (``stride`` orders; then every second one, each command held two
+        periods), runtime/compute/stride.py."""
+        self.next_trial: tuple[float, int, int] | None = None
+        """A trial order that came during a trial: it ends that trial and runs next."""
+
+    def take_command(self, data: bytes) -> None:
+        msg = self.node.decode(data)
+        if msg is None:
+            return
+        if msg["stage"] != "command":
+            self.node.reject("bad_stage")
+            return
+        try:
+            tau = check_vector(msg.get("tau"), 3, "tau")
+            nxt = None if msg.get("next") is None else check_vector(msg["next"], 3, "next")
+        except BadMessage as exc:
+            self.node.reject(exc.reason)
+            return
+        cycle = msg["cycle"]
+        if cycle <= self.applied_cycle:
+            self.node.reject("stale_cycle")
+            return
+        if cycle >= self.sample_no + 1:  # no sample of that number was published yet
+            self.node.reject("future_cycle")
+            return
+        if len(self.commands) > 64:
+            self.commands.pop(min(self.commands))
+        self.commands[cycle] = tau
+        if nxt is not None:
+            self.spares[cycle + 1] = nxt
+            if len(self.spares) > 64:
+                self.spares.pop(min(self.spares))
+        self.commands_taken += 1
+        self.node.last_heard_ns = time.monotonic_ns()
+
+    def take_stride(self, msg: dict[str, Any]) -> None:
+        """The central's ``stride`` order (it halved its control rate, or went back to the
+        full one), checked field by field: one that cannot be the next change is
+        rejected (``bad_value``) and changes nothing."""
+        stride, start = msg.get("stride"), msg.get("start")
+        if self.grid.check(stride, start) is not None:
+            self.node.reject("bad_value")
+            return
+        self.grid.change(stride, start)  # type: ignore[arg-type]
+
+    def on_grid(self, cycle: int) -> bool:
+        """Whether sample ``cycle`` is published and its command due."""
+        return self.grid.on_grid(cycle)
+
+    def apply(self, cycle: int) -> bool:
+        """Apply the command of ``cycle``; if it is not here (a deadline miss), apply the
+        command the central extrapolated for it with the command before (``next``, sent
+        in realtime at the full rate), else the newest earlier command that arrived late,
+        else keep the last one. Returns whether the due command was here.
+
+        A late command left the last one acting a period longer; a burst of them, each
+        the next period's, held a command ever older: at 1.6 ms four in a row cost up to
+        0.47 mm of tracking, and 0.12 mm with the extrapolated ones (bench/missed.py;
+        docs/measurements/2026-11-25-realtime.md)."""
+        ready = [c for c in self.commands if c <= cycle]
+        spare = self.spares.pop(cycle, None)
+        for c in [c for c in self.spares if c < cycle]:
+            del self.spares[c]
+        newest = max(ready) if ready else None
+        if newest != cycle and spare is not None:
+            self.plant.set_command(spare)
+            self.spares_applied += 1
+        elif newest is not None:
+            self.plant.set_command(self.commands[newest])
+        if newest is not None:
+            self.applied_cycle = newest
+            for c in ready:
+                del self.commands[c]
+        return newest == cycle
+
+    def publish_sample(self, span: tuple[int, int], *,
+                       trial: tuple[Plant, int] | None = None) -> None:
+        """Publish the robot's sample now; ``trial``: an admission trial's robot and
+        sample number instead (flagged ``probe``, no misses, nothing applied)."""
+        plant, cycle = trial or (self.plant, self.sample_no)
+        extra = {"misses": 0, "applied": -1, "probe": True} if trial else {
+            "misses": self.misses, "applied": self.applied_cycle}
+        self.pub.put(encode(
+            self.node.unit, cycle, "sample", counts=plant.encoder_counts(),
+            t_ns=time.monotonic_ns(), span=list(span), p=[float(x) for x in plant.state.p],
+            **extra))
+
+    def simulate(self) -> tuple[int, int]:
+        t0 = time.monotonic_ns()
+        if self.sample_no == WARM_RSS_AT:
+            self.rss_warm = rss_kb()
+        self.plant.step()
+        t1 = time.monotonic_ns()
+        self.busy_ns += t1 - t0
+        if not all(math.isfinite(x) for x in self.plant.state.q):
+            raise FloatingPointError("plant state is no longer finite")
+        return t0, t1
+
+
+def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles: int,
+          watchdog: float, delay: int) -> dict[str, Any]:
+    """Run the plant until ``cycles`` samples are out, a stop, or the watchdog.
+
+    ``delay``: periods from a sample to the period its command acts in (module notes).
+    The clock starts on the central's ``start`` order (after its warm-up)."""
+    causal = clock == "realtime" and delay == server.depth
+    while True:
+        try:
+            ev = node.events.get(timeout=0.2)
+        except queue.Empty:
+            if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
+                return _result(server, "watchdog", time.monotonic_ns())
+            continue
+        if is_stop(node, ev):
+            return _result(server, "stop", time.monotonic_ns())
+        if node.cpu_start_s is not None:  # is_stop noted the start order
+            break
+        order = trial_order(node, ev)
+        while order is not None:  # a trial, or the one that superseded it
+            if not trial_ticks(node, server, *order, causal=causal):
+                return _result(server, "stop", time.monotonic_ns())
+            order, server.next_trial = server.next_trial, None
+        if node.cpu_start_s is not None:  # the start came during a trial
+            break
+    t_start = time.monotonic_ns()
+    server.publish_sample((t_start, t_start))
+    span = server.simulate() if causal else (t_start, t_start)  # the state at T, ahead
+    exit_reason = "done"
+    tick_ns = int(period * 1e9)
+    next_tick = time.monotonic_ns() + tick_ns
+    while server.sample_no < cycles:
+        if clock == "lockstep":
+            due = server.sample_no - delay
+            if due >= 0:
+                # wait for the awaited command
+                while due not in server.commands:
+                    try:
+                        ev = node.events.get(timeout=0.2)
+                    except queue.Empty:
+                        if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
+                            return _result(server, "watchdog", t_start)
+                        continue
+                    if is_stop(node, ev):
+                        return _result(server, "stop", t_start)
+                    if ev.kind == "command":
+                        server.take_command(ev.data)
+                server.apply(due)
+            span = server.simulate()
+            server.sample_no += 1
+            server.publish_sample(span)
+        else:  # realtime
+            if not sleep_to_tick(node, server, next_tick, take_commands=True):
+                return _result(server, "stop", t_start)
+            next_tick = tick_after(next_tick, tick_ns)
+            server.sample_no += 1
+            due = server.sample_no - server.depth
+            grid = server.on_grid(server.sample_no)
+            if causal and grid:  # the sample leaves at the tick; the period is integrated after
+                server.publish_sample(span)
+            if due >= 0 and not server.apply(due) and server.on_grid(due):
+                server.misses += 1  # off the grid no command is due: the last one holds
+            if server.sample_no < cycles or not causal:
+                span = server.simulate()
+            if not causal and grid:
+                server.publish_sample(span)
+            if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
+                return _result(server, "watchdog", t_start)
+    # keep answering until the central says stop (it may still be finishing)
+    deadline = time.monotonic() + watchdog
+    while time.monotonic() < deadline:
+        try:
+            ev = node.events.get(timeout=0.1)
+        except queue.Empty:
+            continue
+        if is_stop(node, ev):
+            break
+        if ev.kind == "command":
+            server.take_command(ev.data)
+    return _result(server, exit_reason, t_start)
+
+
+def sleep_to_tick(node: Node, server: PlantServer, tick_ns: int, *,
+                  take_commands: bool) -> bool:
+    """Sleep to the monotonic time ``tick_ns``, reading the inbox every
+    :data:`SLEEP_SLICE_S` and once at the tick (commands are taken then, all at once, when
+    ``take_commands``: a wake-up per command and a ticker hop per tick cost more CPU than
+    the simulation; otherwise, during a trial, a new trial order is kept in
+    :attr:`PlantServer.next_trial`). Returns False on a stop order."""
+    while True:
+        ahead = tick_ns - time.monotonic_ns()
+        if ahead > 0:
+            time.sleep(min(ahead / 1e9, SLEEP_SLICE_S))
+        while True:
+            try:
+                ev = node.events.get_nowait()
+            except queue.Empty:
+                break
+            if take_commands:
+                if ev.kind == "command":
+                    server.take_command(ev.data)
+                    continue
+                order = control_order(node, ev)
+                if order is not None and order["stage"] == "stop":
+                    return False
+                if order is not None and order["stage"] == "stride":
+                    server.take_stride(order)
+            elif is_stop(node, ev):
+                return False
+            elif (trial := trial_order(node, ev)) is not None:
+                server.next_trial = trial
+        if time.monotonic_ns() >= tick_ns:
+            return True
+
+
+def tick_after(tick_ns: int, period_ns: int) -> int:
+    """The tick after ``tick_ns``; a period from now when the plant fell more than a period
+    behind (the ticks missed are skipped, not caught up)."""
+    nxt = tick_ns + period_ns
+    now = time.monotonic_ns()
+    return now + period_ns if now > nxt else nxt
+
+
+def trial_ticks(node: Node, server: PlantServer, period: float, ticks: int, base: int, *,
+                causal: bool) -> bool:
+    """An admission trial (runtime/launch/admission.py): tick ``ticks`` times at ``period`` on the
+    wall clock, integrating a throw-away robot at rest (the run's load) and publishing its
+    samples, numbered from ``base`` and flagged ``probe``, in the run's order (``causal``:
+    at the tick, then integrate). Commands are not taken. The trial ends early when a new
+    trial order comes (the central gave this one up, e.g. on a fault: the new one runs at
+    once, where it used to be dropped and its trial found the plant silent) or the start
+    order. Returns False on a stop order."""
+    if server.trial_plant is None:
+        return True
+    sim = server.trial_plant(period)
+    tick_ns = int(period * 1e9)
+    next_tick = time.monotonic_ns() + tick_ns
+    span = (0, 0)
+
+    for j in range(ticks):
+        if not sleep_to_tick(node, server, next_tick, take_commands=False):
+            return False
+        if server.next_trial is not None or node.cpu_start_s is not None:
+            break
+        next_tick = tick_after(next_tick, tick_ns)
+        if causal:
+            server.publish_sample(span, trial=(sim, base + j))
+        t0 = time.monotonic_ns()
+        sim.step()
+        span = (t0, time.monotonic_ns())
+        if not causal:
+            server.publish_sample(span, trial=(sim, base + j))
+    node.last_heard_ns = time.monotonic_ns()
+    return True
+
+
+def _result(server: PlantServer, reason: str, t_start: int) -> dict[str, Any]:
+    return {"exit": reason, "samples": server.sample_no, "misses": server.misses,
+            "busy_ns": server.busy_ns, "wall_ns": time.monotonic_ns() - t_start,
+            "rejected": dict(server.node.rejected), "commands": server.commands_taken,
+            "spares": server.spares_applied,
+            "rss_kb": {"warm": server.rss_warm, "end": rss_kb()},
+            "cpu_s": cpu_used(server.node)}
+
+
+def run_plant(setup: Setup, conf: Any) -> int:
+    rc = setup.rc
+    initial = initial_command(setup.params, setup.task)
+
+    def make_plant(period: float) -> Plant:
+        return Plant(setup.params, PlantConfig(period=period, substeps=rc.plant.substeps,
+                                               lag=rc.plant.lag, friction=rc.plant.friction,
+                                               belt=rc.plant.belt),
+                     q0=initial_angles(setup.params, setup.task),
+                     p_guess=tuple(setup.task.start()))
+
+    def trial_plant(period: float) -> Plant:
+        sim = make_plant(period)
+        sim.set_command(initial)  # at rest at the task's start, held against gravity
+        return sim
+
+    plant = make_plant(rc.schedule.period)
+    with Node(conf, rc.transport.unit, "plant") as node:
+        server = PlantServer(node, plant, depth=rc.schedule.pipeline, initial=initial,
+                             trial_plant=trial_plant)
+        try:
+            node.wait_for_go(timeout=rc.transport.startup_timeout)
+        except TimeoutError as exc:
+            print(f"ctrlunit plant: {exc}", file=sys.stderr)
+            return EXIT_LINK
+        t_serve = time.monotonic_ns()
+        code = EXIT_OK
+        try:
+            with stop_signals():
+                res = serve(node, server, clock=rc.schedule.clock, period=rc.schedule.period,
+                            cycles=setup.cycles, watchdog=max(5.0, 3 * rc.transport.timeout),
+                            delay=rc.delay_periods)
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP to the plant itself
+            code, _ = stop_of(exc)  # the robot brakes all the same
+            res = _result(server, "interrupted", t_serve)
+            wait_for_stop(node, STOP_ORDER_WAIT_S)
+        hold = (node.stop_msg or {}).get("hold")
+        if isinstance(hold, list) and len(hold) == 3 and all(
+                isinstance(x, float) and math.isfinite(x) for x in hold):
+            plant.set_command(hold)
+        res["safe_stop"] = safe_stop(plant)
+        res["sched"] = sched.policy_name()
+        say_bye(node, res)
+        if code != EXIT_OK:
+            return code
+        return EXIT_OK if res["exit"] in ("stop", "done") else EXIT_LINK

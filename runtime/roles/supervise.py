@@ -1,0 +1,229 @@
+"""Supervision of the roles ``ctrlunit start`` runs as child processes: how they are
+started (their CPUs taken between fork and exec, death with the parent) and ended."""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import NamedTuple
+
+from ..config import RunConfig
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    with contextlib.suppress(Exception):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+LEFT_TO_THE_LAUNCHER = (signal.SIGINT, signal.SIGHUP)
+"""Signals a role the launcher started ignores. A terminal's Ctrl-C and hang-up reach
+every process of the foreground group; a role that ended on them at once left the robot
+without its safe stop (the plant gone before the central's stop order came). The launcher
+gets them too and stops every role in order (runtime/roles/stopping.py)."""
+
+
+def _child_setup(cpus: set[int] | None) -> Callable[[], None]:
+    """What a role's process does between fork and exec: die with its parent, leave
+    :data:`LEFT_TO_THE_LAUNCHER` to it, and take its CPUs before its first instruction
+    (threads it starts later, numpy's and Zenoh's, inherit them)."""
+    def setup() -> None:
+        _die_with_parent()
+        for s in LEFT_TO_THE_LAUNCHER:
+            signal.signal(s, signal.SIG_IGN)
+        if cpus:
+            os.sched_setaffinity(0, cpus)
+
+    return setup
+
+
+def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Path, *,
+               cpus: set[int] | None = None) -> subprocess.Popen:
+    """Start one role as a child process (``ctrlunit plant|peripheral --spec``), on
+    ``cpus`` (see :func:`role_cpus`) if given."""
+    run = json.loads(spec.read_text())["run"]
+    args = [sys.executable, "-m", "ctrlunit.runtime.cli", role, "--spec", str(spec),
+            "--connect", endpoint, "--unit", run["unit"]]  # the unit id names it in ps
+    if index is not None:
+        args += ["--index", str(index)]
+    out = open(log, "wb")
+    return subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                            preexec_fn=_child_setup(cpus))
+
+
+def role_cpus(rc: RunConfig) -> tuple[set[int] | None, set[int] | None]:
+    """``(central, others)``: the CPUs the launcher pins itself (the central) and the roles
+    it starts to, or None to leave an affinity alone.
+
+    ``--cpus same``: every role on CPU 0; ``--cpus split``: the central on 0, the others
+    on 1; ``--pin`` alone pins the central only. Read before the central pins itself: the
+    children are given their CPUs explicitly, since they would otherwise inherit the
+    central's. A CPU this process may not use is replaced by every CPU it may use.
+    """
+    pin = {int(c) for c in rc.schedule.pin.split(",") if c.strip()} if rc.schedule.pin else None
+    try:
+        mine = set(os.sched_getaffinity(0))
+    except OSError:
+        return pin, None
+
+    def only(cpu: int) -> set[int]:
+        return {cpu} if cpu in mine else mine
+
+    if rc.schedule.cpus == "same":
+        return pin or only(0), only(0)
+    if rc.schedule.cpus == "split":
+        return pin or only(0), only(1)
+    return pin, (mine if pin else None)
+
+
+def end_children(children: list[subprocess.Popen], *, grace: float = 1.0) -> None:
+    """Wait up to ``grace`` s for children to exit, then terminate, then kill."""
+    deadline = time.monotonic() + grace
+    for p in children:
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+    for p in children:
+        if p.poll() is None:
+            p.terminate()
+    for p in children:
+        try:
+            p.wait(timeout=0.3)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=1.0)
+
+
+ZENOH_THREADS = re.compile(r"(app|rx|tx|net|acc)-\d+")
+"""The names Zenoh gives its runtimes' worker threads."""
+
+
+def process_state(pid: int, *, threads: re.Pattern[str] | None = None) -> str:
+    """What the threads of process ``pid`` (those whose name matches ``threads``, if
+    given) are doing now, from ``/proc``: ``runnable`` (a thread is running or waiting for
+    a CPU), ``stopped`` (by a signal or a tracer), ``blocked`` (in uninterruptible
+    sleep), ``sleeping`` (every thread waits for an event: a message, a timer),
+    ``exited``, or ``unknown`` where ``/proc`` does not say. Reads one small file per
+    thread (about 10 us each)."""
+    states = set()
+    try:
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            with contextlib.suppress(OSError):
+                with open(f"/proc/{pid}/task/{tid}/stat") as fh:
+                    stat = fh.read()
+                name = stat[stat.index("(") + 1:stat.rindex(")")]
+                if threads is None or threads.fullmatch(name):
+                    states.add(stat[stat.rindex(")") + 2])
+    except OSError:
+        return "exited"
+    if not states:
+        return "unknown"
+    if "R" in states:
+        return "runnable"
+    if states & {"T", "t"}:
+        return "stopped"
+    if states & {"Z", "X"}:
+        return "exited"
+    if "D" in states:
+        return "blocked"
+    return "sleeping"
+
+
+ThreadTimes = dict[int, tuple[int, int]]
+"""Per thread id: nanoseconds run on a CPU, nanoseconds waited on a runqueue for one."""
+
+
+def thread_times(pid: int, *, threads: re.Pattern[str] | None = None) -> ThreadTimes:
+    """The CPU time and the runqueue wait of each thread of process ``pid`` (those whose
+    name matches ``threads``, if given) since it started, from
+    ``/proc/<pid>/task/<tid>/schedstat`` (the kernel's scheduler accounting; on a guest
+    with paravirtual time accounting a thread's CPU time leaves out what the hypervisor
+    took). Empty where the process is gone or the kernel does not keep them."""
+    out: ThreadTimes = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            if threads is not None:
+                with open(f"/proc/{pid}/task/{tid}/comm") as fh:
+                    if not threads.fullmatch(fh.read().strip()):
+                        continue
+            with open(f"/proc/{pid}/task/{tid}/schedstat") as fh:
+                run, wait = fh.read().split()[:2]
+            out[int(tid)] = (int(run), int(wait))
+    return out
+
+
+def cpu_denied(before: ThreadTimes, after: ThreadTimes, *, window_ns: int,
+               runnable: bool) -> tuple[int, int]:
+    """Of a window of ``window_ns`` between two :func:`thread_times` readings of one
+    process, how long the machine kept it from running, and how much CPU it got.
+
+    Kept from running: the longest any one thread waited on a runqueue in the window, or,
+    where the process was runnable at both ends (``runnable``), the window less the CPU
+    time its threads got, if more (a thread left on a CPU the hypervisor took neither
+    runs nor waits in the guest's accounting). Threads started in the window count from
+    zero. A reading that is empty (the process gone, the accounting unreadable) is no
+    evidence: nothing denied.
+
+    Returns
+    -------
+    (denied_ns, ran_ns) : both at least 0; ``ran_ns`` summed over the threads.
+    """
+    if not before or not after:
+        return 0, 0
+    waited = ran = 0
+    for tid, (run, wait) in after.items():
+        run0, wait0 = before.get(tid, (0, 0))
+        waited = max(waited, wait - wait0)
+        ran += max(0, run - run0)
+    denied = max(waited, window_ns - ran if runnable else 0)
+    return max(0, min(denied, window_ns)), ran
+
+
+class MachineLoad(NamedTuple):
+    """How short of CPUs this machine is (:func:`machine_load`)."""
+
+    pressure_ns: int | None
+    """How long, in all, at least one task has waited for a CPU since boot (the
+    kernel's pressure stall information, ``some`` line of ``/proc/pressure/cpu``), in ns;
+    unlike a thread's own runqueue wait, which the kernel adds up only once the thread
+    runs again, it counts a wait still going on. None where the kernel does not keep it
+    (before Linux 4.20, or PSI disabled)."""
+    waiting: int | None
+    """Tasks runnable now beyond the machine's CPUs (``/proc/loadavg``), the reader
+    included; None where unknown."""
+
+
+def machine_load() -> MachineLoad:
+    """Read :class:`MachineLoad` (two small files, about 20 us)."""
+    pressure = waiting = None
+    with contextlib.suppress(OSError, IndexError, ValueError):
+        with open("/proc/pressure/cpu") as fh:
+            pressure = int(fh.readline().rsplit("total=", 1)[1]) * 1000
+    with contextlib.suppress(OSError, IndexError, ValueError):
+        with open("/proc/loadavg") as fh:
+            running = int(fh.read().split()[3].split("/")[0])
+        waiting = max(0, running - (os.cpu_count() or 1))
+    return MachineLoad(pressure, waiting)
+
+
+def unit_cores(central: set[int] | None, others: set[int] | None) -> int:
+    """How many CPUs the roles started on this host can use together, given
+    :func:`role_cpus` (read before the central pins itself)."""
+    try:
+        mine = set(os.sched_getaffinity(0))
+    except OSError:
+        return os.cpu_count() or 1
+    return len((central or mine) | (others or mine))

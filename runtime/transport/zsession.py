@@ -1,0 +1,206 @@
+"""Zenoh session set-up and the key space of a unit.
+
+Peer mode, multicast and gossip scouting off, and the lowest-latency transport that
+eclipse-zenoh offers here (``transport/unicast/lowlatency`` with QoS off: docs/message-costs.md
+measured 138 us against 172 us p50 for a unix-socket round trip). The central listens; the
+other roles connect to it (a star). Every key lives under ``ctrlunit/<unit-id>/``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+UNIT_ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+
+def check_unit_id(unit: str) -> str:
+    """A unit id is 1-64 characters of ``A-Z a-z 0-9 _ -`` (it becomes a key chunk)."""
+    if not UNIT_ID_RE.match(unit):
+        raise ValueError(
+            f"unit id {unit!r} must be 1-64 characters of letters, digits, '_' or '-'"
+        )
+    return unit
+
+
+_IP_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(?P<host>\[[^\]]+\]|[^:\[\]/]+):(?P<port>[^?#]*)"
+                          r"([?#].*)?$")
+
+
+def check_endpoint(endpoint: str, *, option: str) -> str:
+    """A Zenoh endpoint ``<protocol>/<address>``: checked here, before any role starts,
+    where Zenoh would report it only when a session opens (or, for a connect endpoint,
+    never: it keeps retrying). IP protocols need ``HOST:PORT`` with a port in 0-65535."""
+    if not isinstance(endpoint, str) or "/" not in endpoint or endpoint.startswith("/"):
+        raise ValueError(f"{option} = {endpoint!r}: expected <protocol>/<address>, e.g. "
+                         "tcp/127.0.0.1:7447 or unixsock-stream/PATH")
+    proto = endpoint.split("/", 1)[0]
+    if proto in ("tcp", "udp", "tls", "quic", "ws"):
+        m = _IP_ENDPOINT.match(endpoint)
+        port = m.group("port") if m else ""
+        if not m or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise ValueError(f"{option} = {endpoint!r}: expected {proto}/HOST:PORT with PORT "
+                             "0 to 65535")
+    try:
+        conf = zenoh.Config()
+        conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    except Exception as exc:  # Zenoh's parser: ZError, whose text is long and multi-line
+        raise ValueError(f"{option} = {endpoint!r}: {_first_line(exc)}") from None
+    return endpoint
+
+
+def check_zenoh_config(path: str) -> None:
+    """``--zenoh-config``: a readable Zenoh JSON5 configuration (Zenoh's own parser)."""
+    try:
+        zenoh.Config.from_file(path)
+    except Exception as exc:  # ZError: syntax, unknown field, unreadable file
+        raise ValueError(f"--zenoh-config {path}: {_first_line(exc)}") from None
+
+
+def _first_line(exc: BaseException) -> str:
+    """Zenoh's error in one line: without its source location, the parser's nesting and
+    the JSON5 parser's drawing of the line (kept: its position and what it expected)."""
+    text = re.sub(r" at /\S+:\d+\.?", "", str(exc)).strip() or type(exc).__name__
+    where = re.search(r"-->\s*(\d+):(\d+)", text)
+    expected = re.search(r"^\s*= (.*)$", text, re.MULTILINE)
+    if where and expected:
+        return f"syntax error at line {where[1]}, column {where[2]}: {expected[1]}"
+    m = re.search(r'msg: "([^"]*)"', text)
+    text = m.group(1) if m else text.splitlines()[0]
+    return text if len(text) <= 300 else text[:text.rfind(", ", 0, 300)] + ", ..."
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of one unit, addressed by destination: every key a role receives
+    lies under its inbox ``ctrlunit/<unit>/<role>/`` (``central``, ``peripheral``,
+    ``plant``), so that each role reads all of its traffic from one subscriber."""
+
+    unit: str
+
+    @property
+    def root(self) -> str:
+        return f"ctrlunit/{self.unit}"
+
+    def inbox(self, role: str) -> str:
+        """The key prefix of everything ``role`` (central, peripheral, plant) receives."""
+        return f"{self.root}/{role}"
+
+    @property
+    def sample(self) -> str:
+        """Plant -> central: encoder counts of one sample."""
+        return f"{self.root}/central/sample"
+
+    def reply(self, k: int) -> str:
+        """Peripheral k -> central: the values of one round."""
+        return f"{self.root}/central/reply/{k}"
+
+    @property
+    def hello(self) -> str:
+        """Any role -> central: hello and bye."""
+        return f"{self.root}/central/hello"
+
+    @property
+    def request(self) -> str:
+        """Central -> every peripheral: one request per round (each reads its own axes)."""
+        return f"{self.root}/peripheral/request"
+
+    @property
+    def command(self) -> str:
+        """Central -> plant: the torques of one interval."""
+        return f"{self.root}/plant/command"
+
+    def control(self, role: str) -> str:
+        """Central -> ``role`` (peripheral or plant): go, start, stop."""
+        return f"{self.root}/{role}/control"
+
+
+ZENOH_RUNTIME = ("(rx: (handover: app), tx: (handover: app), acc: (handover: app), "
+                 "net: (handover: app), app: (worker_threads: 1))")
+"""Zenoh's asynchronous runtimes (receive, transmit, accept, network, application) as
+one worker thread per process, unless the environment already sets ``ZENOH_RUNTIME``.
+By default each is a pool of its own, and a message crosses threads on its way between
+the socket and the role's inbox. Measured side by side (docs/message-costs.md): a round
+trip between two processes 30-50 % faster at the median and 35-45 %
+less CPU; the main job at a fixed 2 ms, 3-12 % less CPU per interval, misses no worse."""
+
+
+@functools.cache
+def zenoh_log() -> bool:
+    """Zenoh's own log, to this process's standard output, where ``RUST_LOG`` asks for it
+    (e.g. ``RUST_LOG=zenoh=info``; the roles a launcher starts inherit it, their output
+    goes to their logs); none otherwise. Returns whether it was asked for; once a
+    process."""
+    if not os.environ.get("RUST_LOG"):
+        return False
+    zenoh.try_init_log_from_env()
+    return True
+
+
+def make_config(
+    *,
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
+    lowlatency: bool = True,
+    config_file: str | None = None,
+    keys: str | None = None,
+    role: str = "central",
+) -> zenoh.Config:
+    """A Zenoh configuration for one role.
+
+    Parameters
+    ----------
+    listen, connect : endpoints (``tcp/127.0.0.1:7447``, ``unixsock-stream/PATH``, ...).
+    lowlatency : use the low-latency transport (QoS off).
+    config_file : a Zenoh JSON5 configuration passed through (``--zenoh-config``); the
+        options above are applied on top of it only where given.
+    keys, role : with the unit's keys (``--keys DIR``), ``tcp`` endpoints become ``tls``
+        ones, authenticated both ways as ``role`` (``central``, ``plant``,
+        ``peripheral-K``, ``viewer``), under the unit's access control
+        (runtime/transport/security.py).
+    """
+    if keys is not None:
+        from .security import tls_endpoint
+
+        listen = [tls_endpoint(e) for e in listen or []]
+        connect = None if connect is None else [tls_endpoint(e) for e in connect]
+    zenoh_log()
+    # Zenoh's runtimes on one thread (read when a process opens its first session)
+    os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
+    conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    if not config_file:
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("scouting/gossip/enabled", "false")
+        if lowlatency:
+            conf.insert_json5("transport/unicast/lowlatency", "true")
+            conf.insert_json5("transport/unicast/qos/enabled", "false")
+    # listen only where asked (Zenoh's default would open a port on every interface)
+    conf.insert_json5("listen/endpoints", json.dumps(listen or []))
+    if connect is not None:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if keys is not None:
+        from .security import secure
+
+        secure(conf, keys, role)
+    return conf
+
+
+def default_endpoint(run_dir: Path) -> str:
+    """The central's default endpoint: a unix socket in the run directory (loopback only)."""
+    return f"unixsock-stream/{run_dir / 'central.sock'}"
+
+
+def pin_cpus(spec: str | None) -> None:
+    """Pin this process to CPUs (``"0"``, ``"0,1"``) before ``zenoh.open`` so that Zenoh's
+    threads inherit it (docs/message-costs.md). ``None`` leaves the affinity alone."""
+    if not spec:
+        return
+    cpus = {int(c) for c in spec.split(",") if c.strip()}
+    os.sched_setaffinity(0, cpus)
