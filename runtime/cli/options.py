@@ -85,6 +85,7 @@ def _what_runs() -> list[Any]:
                      help="Run length instead of --cycles (e.g. 30s)."),
     ]
 
+
 def _outputs() -> list[Any]:
     """What a run writes and shows, and under which unit id."""
     return [
@@ -104,6 +105,7 @@ def _outputs() -> list[Any]:
                      help="Write the report as JSON."),
         click.option("--unit", default=None, help="Unit id (keys ctrlunit/<unit>/...)."),
     ]
+
 
 def _computation() -> list[Any]:
     """How the unit computes: cost model, placement, parameters, observer, model state, gains."""
@@ -141,6 +143,7 @@ def _computation() -> list[Any]:
                      "1/(50 period) otherwise)."),
     ]
 
+
 def _links() -> list[Any]:
     """The links between the roles and when a silent one is a fault."""
     return [
@@ -158,6 +161,7 @@ def _links() -> list[Any]:
                      show_default=True, help="Realtime: a peripheral, the plant or a link "
                      "silent for this many periods is a fault (the robot is stopped)."),
     ]
+
 
 def _late_data() -> list[Any]:
     """Late data, missed commands, overload, the tracking limit and the pipeline's rules."""
@@ -202,6 +206,7 @@ def _late_data() -> list[Any]:
                      "sample), always otherwise."),
     ]
 
+
 def _host() -> list[Any]:
     """The host's CPUs and scheduling."""
     return [
@@ -229,6 +234,7 @@ def _host() -> list[Any]:
                      "them alone."),
     ]
 
+
 def _plant() -> list[Any]:
     """The simulated robot."""
     return [
@@ -242,6 +248,7 @@ def _plant() -> list[Any]:
                      show_default=True, help="Viscous friction on each joint (N m s/rad)."),
         click.option("--belt", is_flag=True, help="Simulate the elastic belt (§ V.6.3)."),
     ]
+
 
 def _run_file() -> list[Any]:
     """The run file, profiles, and the launcher's own options."""
