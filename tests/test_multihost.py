@@ -82,19 +82,21 @@ def run_star(tmp_path, central: str, hosts: list[str], tag: str,
     report = tmp_path / f"{tag}.json"
     # the thesis's placement: two round trips per interval to each peripheral, whatever
     # --placement auto would choose on these links
-    common = ["--unit", unit, "--clock", "lockstep", "--cycles", "300", "--peripherals", "3",
-              "--timeout", "5s", "--placement", "axes",
-              *(["--keys", keys] if keys else ["--insecure"])]
+    # the roles take the run's configuration from the central at the handshake: each is
+    # given only its unit, its link and its keys
+    link = ["--unit", unit, *(["--keys", keys] if keys else ["--insecure"])]
     py = [sys.executable, "-m", "ctrlunit.runtime.cli"]
-    procs = [subprocess.Popen(["ip", "netns", "exec", central, *py, "central", *common,
+    procs = [subprocess.Popen(["ip", "netns", "exec", central, *py, "central", *link,
+                               "--clock", "lockstep", "--cycles", "300", "--peripherals", "3",
+                               "--timeout", "5s", "--placement", "axes",
                                "--listen", "tcp/0.0.0.0:7447", "--report", str(report)],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
     for k, (ns, role) in enumerate(zip(hosts, ROLES), start=1):
         args = ["plant"] if role == "plant" else ["peripheral", "--index", role[-1]]
         procs.append(subprocess.Popen(
-            ["ip", "netns", "exec", ns, *py, *args, *common, "--connect",
+            ["ip", "netns", "exec", ns, *py, *args, *link, "--connect",
              endpoints[k - 1] if endpoints else f"tcp/10.77.{k}.1:7447"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            stdout=subprocess.DEVNULL, stderr=(tmp_path / f"{tag}-{role}.err").open("w")))
     try:
         out, _ = procs[0].communicate(timeout=300)
         for p in procs[1:]:
@@ -103,7 +105,8 @@ def run_star(tmp_path, central: str, hosts: list[str], tag: str,
         for p in procs:
             if p.poll() is None:
                 p.kill()
-    assert procs[0].returncode == 0, out
+    errs = {f.name: f.read_text()[-400:] for f in sorted(tmp_path.glob(f"{tag}-*.err"))}
+    assert procs[0].returncode == 0, (out, errs)
     return json.loads(report.read_text())
 
 
@@ -149,7 +152,7 @@ def test_each_role_on_its_own_host_with_and_without_link_limits(tmp_path, star):
             if res.returncode != 0:
                 netem = False
                 sh("ip", "netns", "exec", ns, "tc", "qdisc", "add", "dev", dev, "root", "tbf",
-                   "rate", "20mbit", "burst", "4kbit", "latency", "100ms")
+                   "rate", "20mbit", "burst", "1600", "latency", "100ms")
     relays: list[subprocess.Popen] = []
     try:
         endpoints = None

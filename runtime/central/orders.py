@@ -30,17 +30,21 @@ class Orders:
     startup_timeout_s : how long the roles may take to say hello or confirm an order.
     check_children : raises the fault of a role process that has exited.
     take_sample : takes a sample that arrives while an order waits (``place``).
+    config : the fields of the ``config`` order, the run's configuration a role started by
+        hand asks for at its handshake (runtime/config/handed.py, ``config_message``).
     """
 
     def __init__(self, node: Node, *, peripherals: int, plant: bool,
                  startup_timeout_s: float, check_children: Callable[[], None],
-                 take_sample: Callable[[bytes, int], None]) -> None:
+                 take_sample: Callable[[bytes, int], None],
+                 config: dict[str, Any]) -> None:
         self.node = node
         self.peripherals = peripherals
         self.plant = plant
         self.startup_timeout_s = startup_timeout_s
         self.check_children = check_children
         self.take_sample = take_sample
+        self.config = config
         self.pubs = [node.publisher(node.keys.control(r)) for r in ("peripheral", "plant")]
         self.role_reports: dict[str, dict] = {}
         """Each role's final report (:func:`~.fault.role_report`), by role name."""
@@ -72,7 +76,9 @@ class Orders:
         if msg is None:
             return
         stage = msg.get("stage")
-        if stage == "hello":
+        if stage == "hello" and msg.get("want") == "config":
+            self.hand_config(msg)
+        elif stage == "hello":
             self.say("go")  # a role that missed go asks again
         elif stage == "bye":
             report = msg.get("report")
@@ -82,6 +88,16 @@ class Orders:
             self.role_reports[msg["role"]] = role_report(report)
         elif stage != "placed":  # a late acknowledgement of a place order is no fault
             self.node.reject("bad_stage")
+
+    def hand_config(self, hello: dict[str, Any]) -> None:
+        """Send the run's configuration to the kind of role that asked for it in
+        ``hello`` (a role started by hand); a role not of this unit is rejected."""
+        role = hello.get("role")
+        if role not in self.expected_roles():
+            self.node.reject("bad_value")
+            return
+        self.say("config", peripherals_only=role != "plant", plant_only=role == "plant",
+                 **self.config)
 
     def handshake(self) -> None:
         """Wait for every role's hello, then say go.
@@ -107,7 +123,9 @@ class Orders:
                 continue
             if ev.kind == "hello":
                 msg = self.node.decode(ev.data)
-                if msg is not None and msg.get("role") in expected:
+                if msg is not None and msg.get("want") == "config":
+                    self.hand_config(msg)  # its hello comes once it is set up
+                elif msg is not None and msg.get("role") in expected:
                     seen.add(msg["role"])
             # a sample now is no fault: the plant's first sample may only follow go
         self.say("go")

@@ -29,6 +29,7 @@ from ...topology.pipeline import finishes_after_next_request
 from ..compute.controller import Controller
 from ..compute.engine import Engine
 from ..config import RunConfig
+from ..config.handed import config_message
 from ..transport.node import Event, Node, rss_kb
 from .excuse import UNSUPERVISED, Supervision
 from .intake import Intake
@@ -118,7 +119,7 @@ class Central:
         self.orders = Orders(node, peripherals=n, plant=sch.clock != "freerun",
                              startup_timeout_s=rc.transport.startup_timeout,
                              check_children=self.silence.check_children,
-                             take_sample=self._on_sample)
+                             take_sample=self._on_sample, config=config_message(rc))
         self.warmup = WarmUp(node, engine, controller,
                              publish=self.intervals.publish_request, depth=sch.pipeline,
                              asked=sch.replies, startup_timeout_s=rc.transport.startup_timeout,

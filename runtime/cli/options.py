@@ -311,6 +311,11 @@ def explicit_params() -> set[str]:
     return {n for n in ctx.params if ctx.get_parameter_source(n) in given}
 
 
+def given_settings() -> set[str]:
+    """The settings (flat names) that flags given on the command line set."""
+    return {f for p in explicit_params() for f in PARAM_FLATS.get(p, (p,)) if f in FLAT}
+
+
 def make_rc(kw: dict[str, Any]) -> RunConfig:
     """The run's configuration: the defaults, then ``--profile``, the run file
     (``--config``), ``--set``, and the flags given (runtime/config/run_file.py)."""

@@ -11,11 +11,12 @@ import click
 
 from ..config import (
     EXIT_CONFIG,
+    EXIT_LINK,
     ConfigError,
     RunConfig,
 )
 from .base import _emit, _fail, _json_safe, cli
-from .options import make_rc, run_options
+from .options import given_settings, make_rc, run_options
 
 
 @cli.command(epilog="Every other setting (the pipeline's and the scheduler's levers, late "
@@ -164,18 +165,21 @@ def _role_setup(kw: dict[str, Any], *, role: str,
     from ..transport.zsession import make_config, pin_cpus
 
     check = kw.pop("check", False)
+    by_hand = not kw.get("spec")  # not started by ctrlunit start: ask the central
+    name = role if index is None else f"{role}-{index}"
     rc = make_rc(kw)
     try:
         setup = make_setup(rc.validate())
     except (ConfigError, ValueError, OSError) as exc:
         _fail(str(exc), EXIT_CONFIG)
-    if index is not None and index > setup.placement.peripherals:
-        _fail(f"--index = {index}: allowed 1 to {setup.placement.peripherals} (the unit's "
-              "peripherals)" if setup.placement.peripherals else
-              f"--index = {index}: the unit has no peripherals (--peripherals 0)", EXIT_CONFIG)
+    _check_index(index, setup.placement.peripherals)  # by hand: the unit's, again below
     if check:
         click.echo(f"ctrlunit {role}: the options are valid; nothing was started.")
         sys.exit(0)
+    if by_hand:
+        setup = _unit_config(rc, name)
+        rc = setup.rc
+        _check_index(index, setup.placement.peripherals)
     pin_cpus(rc.schedule.pin)
     try:  # before zenoh.open: its threads inherit it
         apply_choice(rc.schedule.rt_priority, clock=rc.schedule.clock,
@@ -187,7 +191,6 @@ def _role_setup(kw: dict[str, Any], *, role: str,
         held.enter_context(idle_request(rc.schedule.idle, clock=rc.schedule.clock))
     except IdlePermissionError as exc:
         _fail(str(exc), EXIT_CONFIG)
-    name = role if index is None else f"{role}-{index}"
     try:
         conf = make_config(listen=rc.transport.listen, connect=rc.transport.connect,
                            config_file=rc.transport.zenoh_config, keys=rc.transport.keys,
@@ -195,6 +198,45 @@ def _role_setup(kw: dict[str, Any], *, role: str,
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc), EXIT_CONFIG)
     return setup, conf, held
+
+
+def _check_index(index: int | None, peripherals: int) -> None:
+    """Exits if peripheral ``index`` is not one of the unit's ``peripherals``."""
+    if index is not None and index > peripherals:
+        _fail(f"--index = {index}: allowed 1 to {peripherals} (the unit's peripherals)"
+              if peripherals else
+              f"--index = {index}: the unit has no peripherals (--peripherals 0)", EXIT_CONFIG)
+
+
+def _unit_config(own: Any, name: str) -> Any:
+    """The setup of a role started by hand, from the run's configuration the central
+    hands it at the handshake (runtime/config/handed.py) with the role's own endpoints,
+    keys and CPUs. Exits on a link that does not answer or a configuration that does not
+    hold here."""
+    from ..compute.setup import make_setup
+    from ..config.handed import handed
+    from ..transport.node import Node
+    from ..transport.zsession import make_config
+
+    t = own.transport
+    try:
+        conf = make_config(listen=t.listen, connect=t.connect, config_file=t.zenoh_config,
+                           keys=t.keys, role=name)
+        with Node(conf, t.unit, name) as node:
+            msg = node.ask_config(timeout=t.startup_timeout)
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc), EXIT_CONFIG)
+    except TimeoutError as exc:
+        _fail(f"{exc} (is --unit the central's, and --connect its --listen endpoint?)",
+              EXIT_LINK)
+    try:
+        rc, notes = handed(msg, own, given_settings())
+        setup = make_setup(rc)
+    except (ConfigError, ValueError, OSError) as exc:
+        _fail(str(exc), EXIT_CONFIG)
+    for note in notes:
+        click.echo(f"ctrlunit {name}: {note}", err=True)
+    return setup
 
 
 @cli.command()
@@ -214,8 +256,9 @@ def plant(**kw: Any) -> None:
 @click.option("--json", "as_json", is_flag=True)
 def central(as_json: bool, **kw: Any) -> None:
     """Run the central alone; plant and peripherals are started separately
-    (``ctrlunit plant`` / ``ctrlunit peripheral --index K`` with the same options and
-    ``--connect`` to this process's ``--listen`` endpoint)."""
+    (``ctrlunit plant`` / ``ctrlunit peripheral --index K`` with ``--unit``, ``--connect``
+    to this process's ``--listen`` endpoint and ``--keys``; they take the run's
+    configuration from this process at the handshake)."""
     from ..compute.setup import make_setup
     from ..launch.launcher import central_only
 

@@ -251,6 +251,26 @@ class Node:
         TimeoutError
             If no go arrives within ``timeout`` seconds.
         """
+        return self._hello_until("go", timeout=timeout, on_event=on_event)
+
+    def ask_config(self, *, timeout: float) -> dict[str, Any]:
+        """Say hello asking for the unit's configuration until the central sends it (a
+        role started by hand, runtime/config/handed.py); returns the ``config`` message.
+        The central does not count this hello as the role's: the role says hello again
+        once it is set up (:meth:`wait_for_go`).
+
+        Raises
+        ------
+        TimeoutError
+            If no configuration arrives within ``timeout`` seconds.
+        """
+        return self._hello_until("config", timeout=timeout, want="config")
+
+    def _hello_until(self, stage: str, *, timeout: float,
+                     on_event: Callable[[Event], None] | None = None,
+                     **hello_fields: Any) -> dict[str, Any]:
+        """Say hello every 50 ms until the central's order ``stage`` comes on this role's
+        control key; other events go to ``on_event``."""
         hello = self.publisher(self.keys.hello)
         self.route(self.keys.control(self.inbox_name), "control")
         deadline = time.monotonic() + timeout
@@ -258,9 +278,10 @@ class Node:
         while True:
             now = time.monotonic()
             if now > deadline:
-                raise TimeoutError(f"{self.role}: no go from the central within {timeout} s")
+                raise TimeoutError(f"{self.role}: no {stage} from the central within "
+                                   f"{timeout} s")
             if now >= next_hello:
-                hello.put(encode(self.unit, 0, "hello", role=self.role))
+                hello.put(encode(self.unit, 0, "hello", role=self.role, **hello_fields))
                 next_hello = now + 0.05
             try:
                 ev = self.events.get(timeout=0.05)
@@ -268,7 +289,7 @@ class Node:
                 continue
             if ev.kind == "control":
                 msg = self.decode(ev.data)
-                if msg is not None and msg["stage"] == "go":
+                if msg is not None and msg["stage"] == stage:
                     self.last_heard_ns = time.monotonic_ns()
                     return msg
             elif on_event is not None:
@@ -301,7 +322,7 @@ def freeze_heap(*, collect: bool = False) -> None:
     gc.freeze()
 
 
-CONTROL_STAGES = frozenset({"go", "place", "probe", "start", "stop", "stride"})
+CONTROL_STAGES = frozenset({"config", "go", "place", "probe", "start", "stop", "stride"})
 """The orders the central sends on the roles' control keys (``Central.say``)."""
 
 

@@ -1,0 +1,111 @@
+"""The unit's configuration handed to a role started by hand (``ctrlunit plant``,
+``ctrlunit peripheral --index K``, on this host or another): the central sends it at the
+handshake (runtime/central/orders.py, ``config``), so such a role needs only its unit id,
+where to connect and its keys.
+
+The role keeps its own :data:`ROLE_OWN` settings (its endpoints, credentials and CPUs)
+and takes every other one from the central's configuration. A file that configuration
+names (:data:`FILE_SETTINGS`: a task file, the robot's parameters, a placement) is read
+on the role's own host: at the path the role was given, else at the central's, and its
+contents must be the central's (their SHA-256 travels with the configuration).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from typing import Any
+
+from . import FLAT, ConfigError, RunConfig
+from .sections import SECTIONS
+
+ROLE_OWN = frozenset({"unit", "listen", "connect", "zenoh_config", "keys", "insecure",
+                      "startup_timeout", "pin", "status_file"})
+"""Settings by flat name that a role started by hand keeps from its own command line:
+which unit, how it reaches the central, its credentials and its host's CPUs."""
+
+FILE_SETTINGS = ("task", "params", "placement")
+"""Settings by flat name that may name a file on the host that reads them."""
+
+
+def _digest(path: str) -> str:
+    with open(path, "rb") as fh:
+        return hashlib.sha256(fh.read()).hexdigest()
+
+
+def config_message(rc: RunConfig) -> dict[str, Any]:
+    """The fields of the central's ``config`` message: ``settings``, every setting by
+    section and flat name (each map well under the codec's bound on a map's entries), and
+    ``files``, the SHA-256 of each :data:`FILE_SETTINGS` setting that names a file on the
+    central's host."""
+    settings: dict[str, dict[str, Any]] = {name: {} for name in SECTIONS}
+    for flat, value in rc.to_dict().items():
+        settings[FLAT[flat][0]][flat] = value
+    files = {flat: _digest(path) for flat in FILE_SETTINGS
+             if isinstance(path := rc.option(flat), str) and os.path.isfile(path)}
+    return {"settings": settings, "files": files}
+
+
+def _flat_settings(msg: dict[str, Any]) -> dict[str, Any]:
+    """The settings of a ``config`` message by flat name, each checked to be where the
+    message says it is."""
+    settings = msg.get("settings")
+    if not isinstance(settings, dict) or set(settings) != set(SECTIONS):
+        raise ConfigError(f"the central's configuration: expected the sections "
+                          f"{', '.join(SECTIONS)}")
+    flat: dict[str, Any] = {}
+    for section, table in settings.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"the central's configuration: [{section}] is not a table")
+        for name, value in table.items():
+            if FLAT.get(name, (None,))[0] != section:
+                raise ConfigError(f"the central's configuration: [{section}] has no "
+                                  f"{name!r}")
+            flat[name] = value
+    return flat
+
+
+def _check_files(rc: RunConfig, digests: Any) -> None:
+    """Each file the central named exists on this host with the central's contents."""
+    if not isinstance(digests, dict):
+        raise ConfigError("the central's configuration: 'files' is not a table")
+    for flat, digest in digests.items():
+        if flat not in FILE_SETTINGS:
+            raise ConfigError(f"the central's configuration: files has {flat!r} (allowed: "
+                              f"{', '.join(FILE_SETTINGS)})")
+        path = rc.option(flat)
+        flag = "--" + flat.replace("_", "-")
+        if not isinstance(path, str) or not os.path.isfile(path):
+            raise ConfigError(f"{flag} {path}: the unit's file is not on this host; give "
+                              f"{flag} with this host's copy")
+        if _digest(path) != digest:
+            raise ConfigError(f"{flag} {path}: differs from the central's file (SHA-256 "
+                              f"{str(digest)[:12]}...); give {flag} with a copy of it")
+
+
+def handed(msg: dict[str, Any], own: RunConfig, given: set[str]
+           ) -> tuple[RunConfig, list[str]]:
+    """The configuration a role started by hand runs with, and a note for each setting it
+    was given that the unit's replaces.
+
+    Parameters
+    ----------
+    msg : the central's ``config`` message (:func:`config_message`'s fields).
+    own : the role's configuration from its own command line.
+    given : the settings (flat names) given on that command line.
+
+    Raises
+    ------
+    ConfigError
+        On a malformed configuration (naming the section or setting), or a file the unit
+        names that is missing on this host or differs from the central's.
+    """
+    unit = RunConfig.from_dict(_flat_settings(msg), source="the central's configuration")
+    keep = {f: own.option(f) for f in ROLE_OWN}
+    keep |= {f: own.option(f) for f in FILE_SETTINGS if f in given}
+    rc = unit.replace(**keep)
+    _check_files(rc, msg.get("files", {}))
+    notes = [f"{FLAT[f][0]}.{FLAT[f][1]} = {unit.option(f)!r} of the unit over "
+             f"{own.option(f)!r} given" for f in sorted(given - ROLE_OWN - set(FILE_SETTINGS))
+             if f in FLAT and own.option(f) != unit.option(f)]
+    return rc.validate(), notes

@@ -1,0 +1,151 @@
+"""A role started by hand takes the run's configuration from the central at its handshake
+(runtime/config/handed.py, runtime/central/orders.py): it needs only its unit id, where to
+connect and its keys, and runs the unit's settings whatever else it was given."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import msgpack
+import pytest
+from ctrlunit.runtime.central.fault import Fault
+from ctrlunit.runtime.central.orders import Orders
+from ctrlunit.runtime.config import ConfigError, RunConfig
+from ctrlunit.runtime.config.handed import ROLE_OWN, config_message, handed
+from ctrlunit.runtime.transport.codec import decode, encode
+from loopback import Bus, LoopbackNode
+from runner import ctrlunit, unit_id
+from test_fuzz import free_port
+
+CENTRAL = dict(peripherals=2, pipeline=2, clock="lockstep", law="computed-torque",
+               observer="previous", plant_friction=0.5, period=2e-3, cycles=123,
+               late={"ik": "hold"}, listen=["tcp/127.0.0.1:7447"], unit="u1")
+
+
+def _orders(bus: Bus, rc: RunConfig, *, timeout: float = 0.3) -> Orders:
+    node = LoopbackNode(bus, rc.transport.unit, "central")
+    node.route(node.keys.hello, "hello")
+    return Orders(node, peripherals=rc.schedule.peripherals, plant=True,
+                  startup_timeout_s=timeout, check_children=lambda: None,
+                  take_sample=lambda data, ns: None, config=config_message(rc))
+
+
+def _sent(bus: Bus, unit: str, stage: str) -> list[tuple[str, dict]]:
+    return [(key, decode(data, unit)) for key, data in bus.log
+            if key.startswith(f"ctrlunit/{unit}/") and decode(data, unit)["stage"] == stage]
+
+
+def test_a_role_that_asks_gets_the_configuration_and_counts_once_it_says_hello():
+    rc = RunConfig.of(**CENTRAL)
+    bus = Bus()
+    orders = _orders(bus, rc)
+    hello = f"ctrlunit/{rc.transport.unit}/central/hello"
+    bus.put(hello, encode("u1", 0, "hello", role="peripheral-2", want="config"))
+    with pytest.raises(Fault, match="no hello from"):  # asking is not its hello
+        orders.handshake()
+    (key, msg), = _sent(bus, "u1", "config")
+    assert key == "ctrlunit/u1/peripheral/control"  # to the peripherals, not the plant
+    # what the role runs: the central's settings, its own endpoints
+    own = RunConfig.of(unit="u1", connect=["tcp/127.0.0.1:7447"], pipeline=1)
+    got, notes = handed(msg, own, {"unit", "connect", "pipeline"})
+    assert got.to_dict() == rc.replace(listen=None, connect=["tcp/127.0.0.1:7447"]).to_dict()
+    assert notes == ["schedule.pipeline = 2 of the unit over 1 given"]
+    assert not _sent(bus, "u1", "go")
+    for role in ("plant", "peripheral-1", "peripheral-2"):
+        bus.put(hello, encode("u1", 0, "hello", role=role))
+    orders.handshake()
+    assert len(_sent(bus, "u1", "go")) == 2  # to the peripherals' and the plant's key
+
+
+def test_a_role_of_no_such_unit_gets_nothing_and_is_counted():
+    rc = RunConfig.of(**CENTRAL)
+    bus = Bus()
+    orders = _orders(bus, rc)
+    orders.on_hello(encode("u1", 0, "hello", role="peripheral-3", want="config"))
+    assert not _sent(bus, "u1", "config")
+    assert orders.node.rejected["bad_value"] == 1
+
+
+def test_the_role_keeps_its_own_endpoints_keys_and_cpus():
+    rc = RunConfig.of(**CENTRAL, keys="/central/keys", pin="0", startup_timeout=30.0)
+    own = RunConfig.of(unit="u1", connect=["tcp/10.0.0.1:7447"], keys=None, pin="1",
+                       insecure=True, startup_timeout=5.0, zenoh_config=None)
+    got, _ = handed(config_message(rc), own, set())
+    assert {f: got.option(f) for f in ROLE_OWN} == {f: own.option(f) for f in ROLE_OWN}
+    assert got.replace(**{f: rc.option(f) for f in ROLE_OWN}).to_dict() == rc.to_dict()
+
+
+def _message_through_the_codec(rc: RunConfig) -> dict:
+    return decode(encode("u1", 0, "config", **config_message(rc)), "u1")
+
+
+@pytest.mark.parametrize("change, error", [
+    (lambda m: m.pop("settings"), "expected the sections"),
+    (lambda m: m["settings"].pop("plant"), "expected the sections"),
+    (lambda m: m["settings"].update(plant=[1, 2]), r"\[plant\] is not a table"),
+    (lambda m: m["settings"]["plant"].update(pipeline=2), r"\[plant\] has no 'pipeline'"),
+    (lambda m: m["settings"]["schedule"].update(pipeline="two"), "pipeline = 'two'"),
+    (lambda m: m["settings"]["schedule"].update(pipeline=7), "pipeline"),
+    (lambda m: m.update(files=[1]), "'files' is not a table"),
+    (lambda m: m.update(files={"record": "ab"}), "files has 'record'"),
+])
+def test_a_malformed_configuration_is_refused_naming_what(change, error):
+    msg = _message_through_the_codec(RunConfig.of(**CENTRAL))
+    change(msg)
+    with pytest.raises(ConfigError, match=error):
+        handed(msg, RunConfig.of(unit="u1"), set())
+
+
+def test_the_unit_s_files_must_be_on_the_role_s_host_with_the_central_s_contents(tmp_path):
+    params, mine = tmp_path / "central.toml", tmp_path / "params.toml"
+    params.write_text("# the robot's parameters (only their bytes matter here)\n")
+    mine.write_bytes(params.read_bytes())
+    msg = config_message(RunConfig.of(**CENTRAL, params=str(params)))
+    assert set(msg["files"]) == {"params"}
+    own = RunConfig.of(unit="u1", params=str(mine))
+    assert handed(msg, own, {"params"})[0].control.params == str(mine)  # its own copy
+    assert handed(msg, own, set())[0].control.params == str(params)  # the central's path
+    mine.write_bytes(params.read_bytes() + b"\n# changed\n")
+    with pytest.raises(ConfigError, match="--params .*differs from the central's file"):
+        handed(msg, own, {"params"})
+    gone = RunConfig.of(unit="u1", params=str(tmp_path / "none.toml"))
+    with pytest.raises(ConfigError, match="--params .*not on this host; give --params"):
+        handed(msg, gone, {"params"})
+
+
+def test_the_message_fits_the_codec_s_bounds():
+    msg = config_message(RunConfig.of(**CENTRAL))
+    data = encode("u1", 0, "config", **msg)
+    assert _message_through_the_codec(RunConfig.of(**CENTRAL))["settings"] == \
+        msgpack.unpackb(data)["settings"]
+
+
+@pytest.mark.zenoh
+def test_roles_started_by_hand_with_only_their_links_run_the_central_s_commands(tmp_path):
+    unit, endpoint = unit_id("hand"), f"tcp/127.0.0.1:{free_port()}"
+    options = ["--clock", "lockstep", "--peripherals", "2", "--pipeline", "2", "--law",
+               "computed-torque", "--cycles", "200", "--placement", "axes"]
+    py = [sys.executable, "-m", "ctrlunit.runtime.cli"]
+    link = ["--unit", unit, "--connect", endpoint]
+    procs = [subprocess.Popen([*py, "central", *options, "--unit", unit, "--listen", endpoint,
+                               "--report", str(tmp_path / "hand.json")],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
+    roles = [["plant"], ["peripheral", "--index", "1", "--pipeline", "1"],
+             ["peripheral", "--index", "2"]]
+    procs += [subprocess.Popen([*py, *r, *link], stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True) for r in roles]
+    try:
+        out, _ = procs[0].communicate(timeout=120)
+        errs = [p.communicate(timeout=30)[1] for p in procs[1:]]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    assert [p.returncode for p in procs] == [0, 0, 0, 0], (out, errs)
+    assert "schedule.pipeline = 2 of the unit over 1 given" in errs[1]
+    assert ctrlunit("start", *options, "--report", str(tmp_path / "start.json")).returncode == 0
+    hand, start = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("hand", "start"))
+    assert hand["command_digest"] == start["command_digest"]
