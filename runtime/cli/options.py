@@ -4,15 +4,15 @@ configuration they resolve to: the defaults, then ``--profile``, the run file
 
 from __future__ import annotations
 
+import dataclasses
+import typing
 from typing import Any
 
 import click
 
-from ...plant.simulator import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S
-from ...topology.graph import MODEL_STATES
-from ...topology.pipeline import HOLD_RULES
-from ..config import FLAT, LATE_POLICIES, MISSED_COMMANDS, ConfigError, RunConfig, parse_duration
-from ..host.idle import IDLE_CHOICES
+from ..config import FLAT, LATE_POLICIES, ConfigError, RunConfig, parse_duration
+from ..config.sections import SECTIONS
+from ..config.setting import About, abouts
 from .base import _rt_priority
 
 
@@ -32,231 +32,96 @@ def _period(ctx: Any, param: click.Parameter, value: str) -> float | str:
 
 
 def run_options(fn: Any) -> Any:
-    """Options shared by start and the single roles (README, ctrlunit start); those not
-    in :data:`EVERYDAY` are hidden from ``--help`` (``--help-all`` shows them)."""
-    opts = [o for group in (_what_runs, _outputs, _computation, _links, _late_data, _host,
-                            _plant, _run_file) for o in group()]
+    """Options shared by start and the single roles (README, ctrlunit start): one per
+    setting that has a flag (runtime/config/sections.py, in :data:`CLI_SECTIONS`' order),
+    then the run file's; those not everyday are hidden from ``--help`` (``--help-all``
+    shows them)."""
+    opts = [_option(flat, a) for section in CLI_SECTIONS
+            for flat, a in _flags_of(section)] + _run_file()
     for o in reversed(opts):
         fn = o(fn)
-    for param in getattr(fn, "__click_params__", []):
-        if param.name not in EVERYDAY:
-            param.hidden = True
     return fn
 
 
-def _what_runs() -> list[Any]:
-    """What the unit is: its processes, pipeline, clock and period, the task and the law."""
+CLI_SECTIONS = ("schedule", "control", "run", "transport", "plant")
+"""The order in which ``--help`` lists the sections' flags: how the work is spread and
+timed, what it computes, what the run writes, the links, the plant."""
+
+
+def _flags_of(section: str) -> list[tuple[str, About]]:
+    """The settings of a section that have a flag, by flat name, in declaration order."""
+    back = {(sec, name): flat for flat, (sec, name) in FLAT.items()}
+    return [(back[(section, f.name)], a) for f, a in abouts(SECTIONS[section])
+            if a.flag is not None]
+
+
+def _option(flat: str, a: About) -> Any:
+    """The click option of one setting, from its declaration."""
+    fl = a.flag
+    assert fl is not None
+    name = "--" + (fl.name or flat.replace("_", "-"))
+    field_default = _DEFAULTS[flat]
+    default = fl.default if fl.default is not None else field_default
+    shown: dict[str, Any] = dict(help=a.help, hidden=fl.hidden or not fl.everyday,
+                                 metavar=fl.metavar)
+    if fl.kind == "flag":
+        return click.option(name, flat, is_flag=True, **shown)
+    if fl.kind == "switch":
+        return click.option(f"{name}/--no-{name[2:]}", flat, default=default,
+                            show_default=True, **shown)
+    if fl.kind in ("many", "late"):
+        return click.option(name, "late_items" if fl.kind == "late" else flat,
+                            multiple=True, **shown)
+    callback = {"duration": _duration_or_zero if default == "0s" else _duration,
+                "period": _period, "priority": _rt_priority}.get(fl.kind)
+    return click.option(name, flat, type=_click_type(flat, a), default=default,
+                        show_default=default is not None, callback=callback, **shown)
+
+
+def _click_type(flat: str, a: About) -> Any:
+    """The click type of a value setting: its choices, its bounds, a path, or its type."""
+    fl = a.flag
+    assert fl is not None
+    if fl.kind == "file":
+        return click.Path(dir_okay=False)
+    if fl.kind == "dir":
+        return click.Path(file_okay=False)
+    if fl.kind != "value":
+        return None  # read by the callback
+    if a.choices is not None:
+        return click.Choice(list(a.choices))
+    base = _BASE_TYPES[flat]
+    if a.bounds is not None and base is int:
+        return click.IntRange(int(a.bounds[0]), int(a.bounds[1]))
+    if a.bounds is not None and base is float:
+        return click.FloatRange(*a.bounds)
+    return base
+
+
+def _base_type(tp: Any) -> Any:
+    """``int`` of ``int | None``, and so on; str for anything else."""
+    args = [t for t in typing.get_args(tp) if t is not type(None)] or [tp]
+    return args[0] if args[0] in (int, float, bool) else str
+
+
+def _default(f: Any) -> Any:
+    return None if f.default is dataclasses.MISSING else f.default
+
+
+_DEFAULTS = {flat: _default(f) for flat, (sec, name) in FLAT.items()
+             for f in dataclasses.fields(SECTIONS[sec]) if f.name == name}
+_BASE_TYPES = {flat: _base_type(typing.get_type_hints(SECTIONS[sec])[name])
+               for flat, (sec, name) in FLAT.items()}
+
+
+def _run_file() -> list[Any]:
+    """The run file, profiles, ``--check``, and the launcher's own options."""
     return [
         click.option("--check", is_flag=True,
                      help="Check the options and files (task, placement, parameters, Zenoh "
                      "configuration), print the plan and exit: nothing is started."),
-        click.option("--peripherals", type=click.IntRange(0, 3), default=3, show_default=True,
-                     help="Number of peripheral processes (0 = single processor)."),
-        click.option("--pipeline", type=click.IntRange(1, 2), default=1, show_default=True,
-                     help="Pipeline depth (§ IV.7.2)."),
-        click.option("--clock", type=click.Choice(["lockstep", "realtime", "freerun"]),
-                     default="realtime", show_default=True),
-        click.option("--command-delay", type=click.Choice(["full", "short"]), default="full",
-                     show_default=True,
-                     help="When the plant applies the command of sample k: full (causal) "
-                     "in the period that begins at tick k + depth; short: the earlier "
-                     "convention, one period sooner, on physics that began before the "
-                     "command was due."),
-        click.option("--period", default="auto", show_default=True, callback=_period,
-                     help="Sampling period: 500us, 1ms, or seconds; auto: in realtime the "
-                     "shortest period from 1 ms up that the admission trial shows this "
-                     "machine holds (1 ms in the other clocks)."),
-        click.option("--admission/--no-admission", default=True, show_default=True,
-                     help="Realtime: a trial at the period before the first command; a "
-                     "period that does not hold is refused (exit 7) before any motion."),
-        click.option("--task", default="pick-place", show_default=True,
-                     help="pick-place, circle, or a JSON task file."),
-        click.option("--law", type=click.Choice(["resolved-acceleration", "computed-torque",
-                                                 "pd-feedforward", "pd-gravity", "pd",
-                                                 "kinematics"]),
-                     default="resolved-acceleration", show_default=True,
-                     help="Control law; 'kinematics' runs the kinematics part alone "
-                     "(benchmarks: its commands are joint accelerations, not torques)."),
-        click.option("--model", type=click.Choice(["complete", "simplified"]),
-                     default="complete", show_default=True),
-        click.option("--cycles", type=click.IntRange(1, 10**9), default=None,
-                     help="Intervals to run (default: one loop of the task)."),
-        click.option("--duration", default=None, callback=_duration,
-                     help="Run length instead of --cycles (e.g. 30s)."),
-    ]
-
-
-def _outputs() -> list[Any]:
-    """What a run writes and shows, and under which unit id."""
-    return [
-        click.option("--record", type=click.Path(dir_okay=False), default=None,
-                     help="Record every interval to an MCAP file."),
-        click.option("--record-compression", type=click.Choice(["zstd", "lz4", "none"]),
-                     default="zstd", show_default=True,
-                     help="MCAP chunk compression of --record, done on a writer thread "
-                     "off the control path (zstd: about 3x smaller)."),
-        click.option("--foxglove", default=None, metavar="[HOST:]PORT",
-                     help="Serve a live view to Foxglove (WebSocket; host 127.0.0.1 "
-                     "unless given; port 0: any free one), off the control path."),
-        click.option("--foxglove-rate", type=float, default=200.0, show_default=True,
-                     metavar="HZ", help="/signals/state messages per second of the live "
-                     "view; 0: every interval (each costs the central ~0.1 ms of CPU)."),
-        click.option("--report", type=click.Path(dir_okay=False), default=None,
-                     help="Write the report as JSON."),
-        click.option("--unit", default=None, help="Unit id (keys ctrlunit/<unit>/...)."),
-    ]
-
-
-def _computation() -> list[Any]:
-    """How the unit computes: cost model, placement, parameters, observer, model state, gains."""
-    return [
-        click.option("--cost-model", type=click.Choice(["native", "t800"]), default="native",
-                     show_default=True),
-        click.option("--cost-scale", type=click.FloatRange(0.01, 1000.0), default=1.0,
-                     show_default=True, help="Multiply the T-800 block times (t800 cost "
-                     "model): reproduce the 1994 ratio of arithmetic to communication."),
-        click.option("--placement", default="auto", show_default=True, metavar="auto|axes|FILE",
-                     help="Which process runs which block: axes (each peripheral all of "
-                     "its axes' blocks, § IV.7), auto (at warm-up, a round cheaper than its "
-                     "round trip moves to the central) or a FILE from ctrlunit balance."),
-        click.option("--params", type=click.Path(dir_okay=False), default=None,
-                     help="TOML file of Delta parameters."),
-        click.option("--observer", type=click.Choice(["predict", "previous"]),
-                     default="predict", show_default=True,
-                     help="Newton-Raphson start: prediction (1 iteration) or previous (2)."),
-        click.option("--model-state", type=click.Choice(["auto", *MODEL_STATES]),
-                     default="auto", show_default=True,
-                     help="Resolved acceleration: servo the state predicted for the period "
-                     "in which the command acts (carried forward at the commands in flight) "
-                     "and evaluate the model (second round's kinematics, dynamics) there, "
-                     "from a velocity taken from the observed positions (acting); the same "
-                     "with the model's kinematics at that state foreseen from the previous "
-                     "interval, so that at depth 2 the peripherals compute them before the "
-                     "sample (foreseen); the same from the estimate of two intervals back, "
-                     "the observer's prediction too, so that two intervals' rounds go in "
-                     "one exchange (foreseen2); or servo and evaluate at the sample's estimate "
-                     "with pdot = J qdot as the thesis (sample); auto: foreseen2 in "
-                     "realtime at depth 2, acting otherwise."),
-        click.option("--bandwidth", "bandwidth_hz", type=float, default=None,
-                     help="Closed-loop bandwidth of the gains in Hz (default: 20, at most "
-                     "1/(12.5 period) with resolved acceleration at the acting state, "
-                     "1/(50 period) otherwise)."),
-    ]
-
-
-def _links() -> list[Any]:
-    """The links between the roles and when a silent one is a fault."""
-    return [
-        click.option("--listen", multiple=True, help="Zenoh endpoint to listen on."),
-        click.option("--connect", multiple=True, help="Zenoh endpoint to connect to."),
-        click.option("--keys", "keys", type=click.Path(file_okay=False), default=None,
-                     help="The unit's credentials (ctrlunit keys init DIR): every link but "
-                     "the local socket is mutual TLS under the unit's access control."),
-        click.option("--insecure", is_flag=True,
-                     help="Allow links beyond this host without --keys (a lab bench)."),
-        click.option("--zenoh-config", type=click.Path(dir_okay=False), default=None),
-        click.option("--timeout", default="2s", show_default=True, callback=_duration,
-                     help="Reply timeout in lockstep and freerun (realtime: --fault-periods)."),
-        click.option("--fault-periods", default=3.0, type=click.FloatRange(1.0, 1000.0),
-                     show_default=True, help="Realtime: a peripheral, the plant or a link "
-                     "silent for this many periods is a fault (the robot is stopped)."),
-    ]
-
-
-def _late_data() -> list[Any]:
-    """Late data, missed commands, overload, the tracking limit and the pipeline's rules."""
-    return [
-        click.option("--late-policy", type=click.Choice(list(LATE_POLICIES)),
-                     default="compute", show_default=True,
-                     help="Realtime: a peripheral's late reply is waited for, computed by "
-                     "the central itself (compute: the same arithmetic, so the same "
-                     "commands), replaced by its last values (hold), or a fault."),
-        click.option("--late", "late_items", multiple=True, metavar="BLOCK=POLICY",
-                     help="Late-data policy for one block (overrides --late-policy)."),
-        click.option("--missed-command", type=click.Choice(list(MISSED_COMMANDS)),
-                     default="extrapolate", show_default=True,
-                     help="Realtime: in a period whose command is late the plant applies "
-                     "the command the central extrapolated for it and sent with the one "
-                     "before (at the full control rate), or holds the last one that came."),
-        click.option("--overload", type=click.Choice(["auto", "halve", "continue"]),
-                     default="auto", show_default=True,
-                     help="Realtime: when 10 of the last 100 intervals were late (their "
-                     "command left after its deadline, or their sample was skipped), halve "
-                     "the control rate: the unit takes every second sample and the plant "
-                     "holds each command two periods, still ticking at --period (the "
-                     "report's overload says from where); continue: go on as it is; auto: "
-                     "halve with the admission on where the gains keep their margin at "
-                     "twice the period, else continue."),
-        click.option("--max-error", default=0.02, type=click.FloatRange(1e-5, 1.0),
-                     show_default=True, help="Tracking error (m) beyond which the unit "
-                     "stops the robot (a fault)."),
-        click.option("--replies", type=click.Choice(["auto", "fused", "each"]), default="auto",
-                     show_default=True,
-                     help="Depth 2: peripherals answer a fused request in one reply "
-                     "(fused), or each round as soon as it is computed, first rounds first, "
-                     "so the central works on one interval while they work on the other "
-                     "(each); auto: each when the central's work between two rounds "
-                     "exceeds a round trip measured at warm-up."),
-        click.option("--hold-rounds", type=click.Choice(list(HOLD_RULES)),
-                     default="auto", show_default=True,
-                     help="Depth 2: a lone round ready early waits to travel with the next "
-                     "interval's first round (always: one exchange per interval), or goes "
-                     "at once (never: two exchanges, no wait for the next sample); auto: "
-                     "never in realtime (a held round waits up to a period for the next "
-                     "sample), always otherwise."),
-    ]
-
-
-def _host() -> list[Any]:
-    """The host's CPUs and scheduling."""
-    return [
-        click.option("--pin", default=None, help="CPUs for this process, e.g. 0 or 0,1."),
-        click.option("--cpus", type=click.Choice(["same", "split"]), default=None,
-                     help="start: pin every role on CPU 0 (same), or the central on 0 and "
-                     "the others on 1 (split); default: no pinning."),
-        click.option("--rt-priority", default="auto", show_default=True,
-                     callback=_rt_priority, metavar="auto|0-99",
-                     help="SCHED_FIFO priority of every role of the unit (the roles "
-                     "inherit it from start); 0: leave the policy as it is (1-99 needs "
-                     "root, CAP_SYS_NICE or ulimit -r). auto: FIFO at 10 in realtime with "
-                     "the admission, where permitted and the kernel throttles real-time "
-                     "tasks; the admission then refuses a period that keeps a CPU "
-                     "over 85 % of the kernel's real-time budget, and the run goes back to "
-                     "the default policy if it stays over 95 % of it for a second or "
-                     "passes it (the report says which and why)."),
-        click.option("--idle", type=click.Choice(list(IDLE_CHOICES)),
-                     default="auto", show_default=True,
-                     help="poll holds the kernel's CPU latency request at 0 us while this "
-                     "process runs (/dev/cpu_dma_latency), so that idle CPUs spin "
-                     "instead of halting and every wake-up is quicker, at the cost of "
-                     "the CPUs spinning while idle (needs root); auto: poll in realtime "
-                     "where permitted and a deeper idle state exists; default: leave "
-                     "them alone."),
-    ]
-
-
-def _plant() -> list[Any]:
-    """The simulated robot."""
-    return [
-        click.option("--plant-substeps", type=click.IntRange(1, 1000), default=None,
-                     help="RK4 sub-steps of the plant per period; default: the fewest of "
-                     f"at most {MAX_SUBSTEP_S * 1e3:g} ms ({MAX_SUBSTEP_BELT_S * 1e3:g} ms "
-                     "with --belt)."),
-        click.option("--plant-lag", default="0s", callback=_duration_or_zero,
-                     help="Actuator time constant (Eq. IV.6)."),
-        click.option("--plant-friction", type=click.FloatRange(0.0, 100.0), default=0.0,
-                     show_default=True, help="Viscous friction on each joint (N m s/rad)."),
-        click.option("--belt", is_flag=True, help="Simulate the elastic belt (§ V.6.3)."),
-    ]
-
-
-def _run_file() -> list[Any]:
-    """The run file, profiles, and the launcher's own options."""
-    return [
-        click.option("--spec", type=click.Path(dir_okay=False), default=None,
+        click.option("--spec", type=click.Path(dir_okay=False), default=None, hidden=True,
                      help="Run configuration written by ctrlunit start (internal)."),
-        click.option("--status-file", type=click.Path(dir_okay=False), default=None,
-                     hidden=True, help="Write the completed-interval count every 10."),
         click.option("--profile", type=click.Choice(["main-job", "thesis"]),
                      default="main-job", show_default=True,
                      help="Settings for an intent: the realtime main job, or the thesis's "
@@ -272,12 +137,8 @@ def _run_file() -> list[Any]:
 
     ]
 
-EVERYDAY = frozenset({"check", "peripherals", "pipeline", "clock", "period", "task", "law",
-                      "cycles", "duration", "record", "report", "foxglove", "placement",
-                      "profile", "config_file", "set_items", "help_all", "as_json",
-                      "plot_dir"})
-"""The options ``--help`` shows (the rest: ``--help-all``, README's table): what a person
-running the unit sets; the others are tuning levers with good defaults."""
+NEVER_SHOWN = frozenset({"status_file"})
+"""Options even ``--help-all`` hides: what the launcher passes to the roles it starts."""
 
 
 def _help_all(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
@@ -285,7 +146,7 @@ def _help_all(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
     if not value or ctx.resilient_parsing:
         return
     for p in ctx.command.params:
-        if isinstance(p, click.Option) and p.name != "status_file":  # the launcher's
+        if isinstance(p, click.Option) and p.name not in NEVER_SHOWN:
             p.hidden = False
     click.echo(ctx.get_help())
     ctx.exit()
@@ -370,4 +231,4 @@ def _flag_options(kw: dict[str, Any]) -> dict[str, Any] | RunConfig:
     return options
 
 
-__all__ = ["EVERYDAY", "make_rc", "run_options"]
+__all__ = ["CLI_SECTIONS", "given_settings", "make_rc", "run_options"]

@@ -298,12 +298,20 @@ def _quiet(fn: Any) -> int:
 
 @cli.command("config")
 @run_options
-def config_cmd(check: bool, **kw: Any) -> None:
-    """Print the run's settings as a run file: the defaults, or what the given profile,
-    run file, --set and flags resolve to (ctrlunit start --config reads it back)."""
+@click.option("--table", is_flag=True,
+              help="Print every setting as Markdown tables instead (docs/settings.md).")
+def config_cmd(check: bool, table: bool, **kw: Any) -> None:
+    """Print the run's settings as a run file, each with its help: the defaults, or what
+    the given profile, run file, --set and flags resolve to (ctrlunit start --config reads
+    it back)."""
     from ..config.run_file import to_toml
 
     del check
+    if table:
+        from ..config.settings_doc import settings_table
+
+        click.echo(settings_table(), nl=False)
+        return
     asked_unit = bool(kw.get("unit")) or any(
         i.strip().startswith("transport.unit") for i in kw.get("set_items") or ())
     try:

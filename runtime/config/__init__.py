@@ -8,8 +8,16 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from ...topology.graph import MODEL_STATES
-from ...topology.pipeline import HOLD_RULES
+from .choices import (  # noqa: F401  (re-exported: the sets belong with the configuration)
+    CLOCKS,
+    COMMAND_DELAYS,
+    COMPRESSIONS,
+    CPU_SPREADS,
+    LATE_POLICIES,
+    MISSED_COMMANDS,
+    OVERLOAD_ACTIONS,
+    REPLY_MODES,
+)
 from .sections import (
     RENAMED,
     SECTIONS,
@@ -19,37 +27,8 @@ from .sections import (
     ScheduleConfig,
     TransportConfig,
 )
+from .setting import about, allowed_text
 from .value_types import has_type, type_name
-
-CLOCKS = ("lockstep", "realtime", "freerun")
-REPLY_MODES = ("auto", "fused", "each")
-LATE_POLICIES = ("wait", "compute", "hold", "fault")
-"""``--late-policy``: what the central does with a round whose replies are late (its share
-of the deadline passed, runtime/central/late.py): wait for them, compute the late
-peripherals' blocks itself (the same arithmetic: the commands do not change), hold their
-last values, or stop with a fault. A round takes the strictest of its blocks', in this
-order."""
-MISSED_COMMANDS = ("extrapolate", "hold")
-"""``--missed-command``: what the plant applies in a period whose command is late: the
-command the central extrapolated for it and sent with the one before (runtime/central/settings.py,
-``CommandAhead``), or the last one that came (runtime/roles/plant_node.py)."""
-OVERLOAD_ACTIONS = ("auto", "halve", "continue")
-"""``--overload``: what a realtime run does when its commands keep missing their deadline
-(runtime/central/overload.py, ``Overload.after_interval``): ``halve`` the control rate (every
-second sample, each command held two periods, the plant still ticking at the period),
-``continue`` as it is; ``auto``: halve when the admission is on (the main job) and the gains
-keep their margin at twice the period (``RunConfig.halves_on_overload``), continue otherwise
-(a run that measures the unit as it is)."""
-COMPRESSIONS = ("none", "lz4", "zstd")
-"""``--record-compression`` (runtime/recording/mcap_writer.py)."""
-COMMAND_DELAYS = ("full", "short")
-"""When the plant applies the command of sample k (docs/architecture.md, Clocks): ``full``
-(causal): at depth d, to the period that begins at tick k + d, d periods after the sample;
-``short``: d - 1 periods (the realtime plant integrates the period that *ends* at tick
-k + d with the command due at that tick; kept for recordings made that way)."""
-"""Realtime, a peripheral's reply past its round's share of the deadline: ``wait`` for it
-(the plant counts the miss), ``hold`` the peripheral's last values for its axes, or treat
-it as a ``fault``."""
 
 # exit codes, one per fault class
 EXIT_OK = 0
@@ -112,6 +91,8 @@ FLAT = _flat_names()
 """Each option's flat name (the CLI's, a spec's, a recording's) -> (section, field)."""
 _FLAT_TYPES = {flat: typing.get_type_hints(SECTIONS[sec])[name]
                for flat, (sec, name) in FLAT.items()}
+_ABOUT = {flat: about(f) for flat, (sec, name) in FLAT.items()
+          for f in fields(SECTIONS[sec]) if f.name == name}
 
 
 @dataclass(frozen=True)
@@ -170,75 +151,35 @@ class RunConfig:
         return ConfigError(f"{option} = {shown}: allowed {allowed}")
 
     def _check_values(self) -> None:
-        """What the unit computes and how it is scheduled."""
-        from ...topology.graph import LAWS
+        """Each setting against the choices and bounds its field declares
+        (runtime/config/setting.py), in the order of the sections and their fields."""
+        for flat, (section, name) in FLAT.items():
+            a = _ABOUT[flat]
+            value = getattr(getattr(self, section), name)
+            if value is None or (a.choices is None and a.bounds is None):
+                continue
+            if a.choices is not None and value not in a.choices:
+                raise self._bad(flat, allowed_text(a))
+            if a.bounds is not None and not a.bounds[0] <= value <= a.bounds[1]:
+                raise self._bad(flat, allowed_text(a))
 
-        if self.schedule.peripherals not in (0, 1, 2, 3):
-            raise self._bad("peripherals", "0, 1, 2 or 3")
-        if self.schedule.pipeline not in (1, 2):
-            raise self._bad("pipeline", "1 or 2")
-        if self.schedule.clock not in CLOCKS:
-            raise self._bad("clock", ", ".join(CLOCKS))
-        if not 20e-6 <= self.schedule.period <= 1.0:
-            raise self._bad("period", "20us to 1s")
-        if self.control.law not in (*LAWS, "kinematics"):
-            raise self._bad("law", ", ".join(LAWS))
-        if self.control.model not in ("complete", "simplified"):
-            raise self._bad("model", "complete or simplified")
-        if self.run.cycles is not None and not 1 <= self.run.cycles <= 10**9:
-            raise self._bad("cycles", "1 to 1e9")
-        if self.control.cost_model not in ("native", "t800"):
-            raise self._bad("cost_model", "native or t800")
-        if self.control.observer not in ("predict", "previous"):
-            raise self._bad("observer", "predict or previous")
-        if self.control.model_state not in ("auto", *MODEL_STATES):
-            raise self._bad("model_state", ", ".join(("auto", *MODEL_STATES)))
-        if self.control.bandwidth_hz is not None and not 0.1 <= self.control.bandwidth_hz <= 200.0:
-            raise self._bad("bandwidth_hz", "0.1 to 200 Hz")
-        if not 0.01 <= self.transport.timeout <= 600.0:
-            raise self._bad("timeout", "0.01 to 600 s")
-        if self.schedule.cpus not in (None, "same", "split"):
-            raise self._bad("cpus", "same (every role on CPU 0) or split (central on 0, the rest "
-                      "on 1)")
-        if self.schedule.late_policy not in LATE_POLICIES:
-            raise self._bad("late_policy", ", ".join(LATE_POLICIES))
-        if self.schedule.missed_command not in MISSED_COMMANDS:
-            raise self._bad("missed_command", ", ".join(MISSED_COMMANDS))
+    def _check_outputs(self) -> None:
+        """What the declared choices and bounds do not say: the late data's blocks, the
+        live view's address and rate, and whether the gains hold a halved rate."""
         for block, pol in self.schedule.late.items():
             if pol not in LATE_POLICIES:
                 raise ConfigError(f"--late {block}={pol}: the policy must be one of "
                                   f"{', '.join(LATE_POLICIES)}")
-        if not 0.01 <= self.control.cost_scale <= 1000.0:
-            raise self._bad("cost_scale", "0.01 to 1000")
-        if not 1.0 <= self.schedule.fault_periods <= 1000.0:
-            raise self._bad("fault_periods", "1 to 1000 periods")
-
-    def _check_outputs(self) -> None:
-        """The run's outputs, the overload rule and the plant's options."""
-        if self.run.record_compression not in COMPRESSIONS:
-            raise self._bad("record_compression", ", ".join(COMPRESSIONS))
         if self.run.foxglove is not None:
             parse_host_port(self.run.foxglove, field_name="--foxglove")
         if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
             raise self._bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
-        if self.schedule.overload not in OVERLOAD_ACTIONS:
-            raise self._bad("overload", ", ".join(OVERLOAD_ACTIONS))
         if self.schedule.overload == "halve" and not self.gains_hold_halved:
             limit = self.bandwidth_limit(2.0 * self.schedule.period)
             raise ConfigError(
                 f"--overload halve: the gains' bandwidth {self.bandwidth:g} Hz would lose "
                 f"its phase margin at twice the period ({2e3 * self.schedule.period:g} ms); "
                 f"allowed with --bandwidth at most {limit:.3g} Hz, or --overload continue")
-        if self.schedule.hold_rounds not in HOLD_RULES:
-            raise self._bad("hold_rounds", ", ".join(HOLD_RULES))
-        if self.schedule.command_delay not in COMMAND_DELAYS:
-            raise self._bad("command_delay", ", ".join(COMMAND_DELAYS))
-        if self.schedule.replies not in REPLY_MODES:
-            raise self._bad("replies", ", ".join(REPLY_MODES))
-        if not 1e-5 <= self.control.max_error <= 1.0:
-            raise self._bad("max_error", "10 um to 1 m")
-        if self.plant.substeps is not None and not 1 <= self.plant.substeps <= 1000:
-            raise self._bad("plant_substeps", "1 to 1000")
 
     def _check_host(self) -> None:
         """The host's scheduling, the unit id, the endpoints and the links' keys."""

@@ -104,14 +104,17 @@ def profile(name: str) -> dict[str, Any]:
 
 
 def to_toml(settings: dict[str, Any]) -> str:
-    """Settings by flat name as a run file (every section, every key; unset ones as
-    comments, since TOML has no null)."""
+    """Settings by flat name as a run file: every section, every key with its help above
+    it (runtime/config/settings_doc.py); unset ones as comments, since TOML has no null."""
+    from .settings_doc import help_lines, settings_of
+
     lines: list[str] = []
     for section in SECTIONS:
         lines.append(f"[{section}]")
-        for flat, (sec, name) in FLAT.items():
-            if sec != section or flat not in settings:
+        for flat, name, _, about in settings_of(section):
+            if flat not in settings:
                 continue
+            lines += help_lines(about)
             value = settings[flat]
             if value is None:
                 lines.append(f"# {name} =  (unset)")

@@ -1,0 +1,72 @@
+"""Every setting as a person reads it, from its declaration (runtime/config/setting.py):
+the help above each key of the run file ``ctrlunit config`` prints, and the table of
+docs/settings.md (``ctrlunit config --table``)."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+import typing
+from dataclasses import MISSING
+from typing import Any
+
+from . import FLAT
+from .sections import SECTIONS
+from .setting import About, abouts, allowed_text
+from .value_types import type_name
+
+
+def settings_of(section: str) -> list[tuple[str, str, Any, About]]:
+    """``(flat name, key, default, about)`` of each setting of a section, in order; the
+    default None for one made afresh per run (the unit id)."""
+    back = {(sec, name): flat for flat, (sec, name) in FLAT.items()}
+    return [(back[(section, f.name)], f.name,
+             None if f.default is MISSING else f.default, a)
+            for f, a in abouts(SECTIONS[section])]
+
+
+def help_lines(a: About, *, width: int = 88) -> list[str]:
+    """A setting's help as TOML comment lines."""
+    return textwrap.wrap(a.help, width=width - 2, initial_indent="# ",
+                         subsequent_indent="# ")
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def _default(value: Any, a: About) -> str:
+    if a.flag is not None and a.flag.default is not None:
+        return f"`{a.flag.default}`"
+    if value is None:
+        return ""
+    return f"`{json.dumps(value)}`"
+
+
+def _flag(flat: str, a: About) -> str:
+    if a.flag is None or a.flag.hidden:
+        return ""
+    name = "--" + (a.flag.name or flat.replace("_", "-"))
+    if a.flag.kind == "switch":
+        return f"`{name}/--no-{name[2:]}`"
+    return f"`{name} {a.flag.metavar}`" if a.flag.metavar else f"`{name}`"
+
+
+def settings_table() -> str:
+    """Markdown: one table per section, a row per setting (key, flag, default, allowed,
+    help)."""
+    out: list[str] = []
+    for section in SECTIONS:
+        hints = typing.get_type_hints(SECTIONS[section])
+        out += [f"### [{section}]", "", "| key | flag | default | allowed | what it does |",
+                "|---|---|---|---|---|"]
+        for flat, key, default, a in settings_of(section):
+            allowed = allowed_text(a) if (a.choices or a.bounds or a.allowed) \
+                else type_name(hints[key])
+            out.append(f"| `{key}` | {_flag(flat, a)} | {_default(default, a)} | "
+                       f"{_cell(allowed)} | {_cell(a.help)} |")
+        out.append("")
+    return "\n".join(out)
+
+
+__all__ = ["help_lines", "settings_of", "settings_table"]
