@@ -146,33 +146,40 @@ def _holds_request(pid: int) -> bool:
                     reason="no idle state deeper than polling here, or not root")
 def test_a_role_started_on_its_own_holds_the_request_for_its_host_while_it_runs():
     """``ctrlunit plant`` started apart (on another host, say) holds the request there
-    under ``--idle auto`` in realtime, and not under ``--idle default``."""
+    under the unit's ``--idle auto`` in realtime, and not under ``--idle default``: it takes
+    the setting from the central at its handshake (runtime/config/handed.py)."""
     import subprocess
     import sys
 
     from runner import kill_unit, unit_id
+    from test_fuzz import free_port
 
     seen: dict[str, bool] = {}
     waited = 0.0
+    py = [sys.executable, "-m", "ctrlunit.runtime.cli"]
     for asked in ("auto", "default"):
-        unit = unit_id(f"idle-{asked}")
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "ctrlunit.runtime.cli", "plant", "--unit", unit,
-             "--clock", "realtime", "--connect", "tcp/127.0.0.1:9", "--idle", asked],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        unit, endpoint = unit_id(f"idle-{asked}"), f"tcp/127.0.0.1:{free_port()}"
+        procs = [subprocess.Popen(
+            [*py, "central", "--unit", unit, "--listen", endpoint, "--clock", "realtime",
+             "--peripherals", "0", "--duration", "60s", "--idle", asked],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+        procs.append(subprocess.Popen([*py, "plant", "--unit", unit, "--connect", endpoint],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        plant = procs[1]
         try:
             t0 = time.monotonic()
             # auto: until the plant holds it (bounded); default: at least as long as that took
             limit = 30.0 if asked == "auto" else waited + 1.0
-            while time.monotonic() - t0 < limit and proc.poll() is None:
-                if _holds_request(proc.pid):
+            while time.monotonic() - t0 < limit and plant.poll() is None:
+                if _holds_request(plant.pid):
                     break
                 time.sleep(0.05)
-            seen[asked] = _holds_request(proc.pid)
+            seen[asked] = _holds_request(plant.pid)
             waited = time.monotonic() - t0
         finally:
-            proc.kill()
-            proc.wait(timeout=10)
+            for p in procs:
+                p.kill()
+                p.wait(timeout=10)
             kill_unit(unit)
     assert seen == {"auto": True, "default": False}
 
