@@ -372,3 +372,59 @@ def test_start_check_names_the_overload_policy_and_refuses_gains_that_cannot_hal
     bad = ctrlunit("start", "--period", "5ms", "--overload", "halve", "--check")
     assert bad.returncode == 1
     assert "--overload halve" in bad.stderr and "--bandwidth at most 8 Hz" in bad.stderr
+
+
+def test_the_window_and_the_settling_intervals_at_their_edges():
+    """A late interval counts while it is among the last 100 (marked at done - 99, not at
+    done - 100); the first 20 intervals' lateness is not counted; the halving says why."""
+    for last, halves in ((200, True), (201, False)):
+        c = OverloadRule(1e-3)
+        c.intervals(100, late=False)
+        c.intervals(9, late=True)  # 101..109
+        c.intervals(last - 1 - c.done, late=False)
+        c.intervals(1, late=True)  # the tenth, at `last`: is 101 still in the window?
+        assert (c.stride == 2) is halves, last
+    assert c.rate_changes == [] and list(c.overload.late_marks) == [*range(102, 110), 201]
+    c = OverloadRule(1e-3)
+    c.intervals(18, late=False)
+    c.intervals(10, late=True)  # 19..28: the one at 19 does not count
+    assert c.stride == 1
+    c.intervals(1, late=True)
+    assert c.rate_changes == [{"stride": 2, "at_interval": 29, "late": 10, "window": 100}]
+
+
+def test_a_return_is_on_trial_to_the_interval_its_lead_and_half_a_second_end():
+    """After a return decided at interval R the rate is on trial up to R + 3 + 500 (1 ms):
+    three late intervals ending there halve it again, one later they do not. The halving's
+    ``after_return`` counts from the latest return."""
+    for end, halves in ((504, False), (503, True)):
+        c = OverloadRule(1e-3)
+        c.intervals(100, late=False)
+        c.intervals(10, late=True)
+        c.intervals(1000, late=False)
+        back = c.done
+        assert c.stride == 1 and c.overload.trial_until == back + 3 + 500
+        c.intervals(back + end - 3 - c.done, late=False)
+        c.intervals(3, late=True)
+        assert (c.stride == 2) is halves, end
+    c.intervals(2000, late=False)  # the second return (the halving at 503 waits 4 s)
+    second = c.done
+    assert c.stride == 1
+    c.intervals(100, late=False)
+    c.intervals(3, late=True)
+    assert c.rate_changes[-1]["after_return"] == c.done - second == 103
+
+
+def test_a_disabled_rule_marks_nothing_and_a_halved_start_stays_until_a_halving():
+    from ctrlunit.runtime.central.overload import Overload
+
+    changes: list = []
+    off = Overload(enabled=False, period_s=1e-3, change_rate=lambda s, w: changes.append(s))
+    for done in range(1, 300):
+        off.mark_late(done, 1)
+        off.after_interval(done, 1)
+    assert not off.late_marks and changes == []
+    on = Overload(enabled=True, period_s=1e-3, change_rate=lambda s, w: changes.append(s))
+    for done in range(1, 5000):
+        on.after_interval(done, 2)  # no halving yet: nothing to go back from
+    assert changes == []

@@ -64,3 +64,121 @@ def test_the_limit_ends_at_its_nanosecond_and_lockstep_adds_nothing():
     assert lock.fault_at(90 * MS, 95 * MS, 3 * MS) == 93 * MS
     assert lock.silence_ends("plant", 90 * MS, 95 * MS, 3 * MS) == 93 * MS
     assert w.silence_ends("plant", 90 * MS, 95 * MS, 3 * MS) == 94 * MS
+
+
+def _interval(cycle: int, waiting: set[int], deadline_ns: int):
+    from types import SimpleNamespace
+
+    from ctrlunit.runtime.central.records import InFlight
+
+    return InFlight(cycle=cycle, gen=iter(()), ctx={}, sample_ns=0, start_ns=0,
+                    round=SimpleNamespace(index=1), waiting=set(waiting),
+                    deadline_ns=deadline_ns)
+
+
+def _fault(w: SilenceWatch, now: int, intervals, **kw):
+    from ctrlunit.runtime.central.fault import Fault
+
+    args = dict(done=100, plant_awaited=None, newest_sample=0, started_ns=0) | kw
+    try:
+        w.check(now, 3 * MS, intervals, **args)
+    except Fault as exc:
+        return str(exc)
+    return None
+
+
+def test_a_peripheral_that_never_answered_is_judged_by_its_rounds_not_as_fallen_silent():
+    w = watch()
+    w.heard_sample(9 * MS)
+    w.asked(1 * MS)  # asked 9 ms ago, never answered: not yet the alive check's business
+    assert _fault(w, 10 * MS, [_interval(5, {0}, deadline_ns=12 * MS)]) is None
+    w.heard_reply(0, 2 * MS)  # once it has answered, its silence since is watched
+    w.asked(3 * MS)
+    assert "peripheral 1 has not answered for 7.0 ms" in _fault(
+        w, 10 * MS, [_interval(5, {0}, deadline_ns=12 * MS)])
+
+
+def test_every_interval_and_every_waiting_peripheral_is_looked_at():
+    """An interval with nothing to wait for, or still within its limit, does not end the
+    look at the ones after it; nor does an excused peripheral at the next one."""
+    w = watch(realtime=False)
+    overdue = _interval(7, {1}, deadline_ns=2 * MS)
+    for first in (_interval(6, set(), deadline_ns=1 * MS),
+                  _interval(6, {2}, deadline_ns=20 * MS)):
+        assert "peripheral 2 did not answer round 1 of cycle 7: silent for 9.0 ms" in \
+            _fault(w, 8 * MS, [first, overdue])
+
+
+class _Roles:
+    """Scripted process states and accounting (runtime/central/excuse.py, Supervision)."""
+
+    def __init__(self, states: dict[str, str]) -> None:
+        self.states = states | {"central": "sleeping"}
+
+    def supervision(self):
+        from ctrlunit.runtime.central.excuse import Supervision
+        from ctrlunit.runtime.roles.supervise import MachineLoad
+
+        return Supervision(role_state=self.states.__getitem__,
+                           role_times=lambda role: {1: (0, 0)},
+                           machine_load=lambda: MachineLoad(0, 0))
+
+
+def test_an_excused_peripheral_does_not_hide_the_next_one_and_keeps_its_silence_s_start():
+    w = watch()
+    w.heard_sample(7 * MS)
+    w.supervise(_Roles({"peripheral-1": "runnable", "peripheral-2": "stopped",
+                        "peripheral-3": "runnable"}).supervision())
+    message = _fault(w, 8 * MS, [_interval(7, {0, 1}, deadline_ns=3 * MS)])
+    assert message.startswith("peripheral 2 did not answer round 1 of cycle 7")
+    assert "its process was stopped" in message
+    excused = w.excuse_of("peripheral-1")
+    assert excused is not None and excused.since == 0 and excused.until == 2 * 3 * MS
+    # the excuse renewed against its own start: 8 limits from 0, not from elsewhere
+    assert _fault(w, 9 * MS, [_interval(7, {0}, deadline_ns=3 * MS)]) is None
+
+
+def test_the_plant_s_silence_names_the_central_s_own_stall():
+    w = watch()
+    w.heard_sample(10 * MS)
+    w.woke(11 * MS, 13_050_001)  # the central did not run for 2.05 ms + 1 ns
+    message = _fault(w, 15_100_000, [], plant_awaited=12, newest_sample=11)
+    assert message == ("no sample from the plant for 5.1 ms (cycle 12 awaited, newest seen "
+                       "11, plus 2.1 ms the central itself did not run)")
+    brief = watch()
+    brief.heard_sample(10 * MS)
+    brief.woke(8 * MS, 10 * MS + 1)  # a stall that overlaps the silence by 1 ns
+    assert _fault(brief, 14 * MS, [], plant_awaited=12, newest_sample=11).endswith(
+        "plus 0.0 ms the central itself did not run)")
+
+
+def test_the_watch_keeps_the_eight_newest_gaps_of_each_kind():
+    w = watch()
+    for k in range(1, 11):  # ten gaps of the plant, ten stalls of the central
+        w.heard_sample(10 * k * MS)
+        w.woke(10 * k * MS, 10 * k * MS + 2 * MS)
+    assert list(w.plant_gaps) == [(10 * k * MS, 10 * (k + 1) * MS) for k in range(2, 10)]
+    assert list(w.own_gaps) == [(10 * k * MS, 10 * k * MS + 2 * MS) for k in range(3, 11)]
+
+
+def test_a_one_second_period_is_a_billion_nanoseconds():
+    w = SilenceWatch(peripherals=1, realtime=True, period_s=1.0, fault_periods=3,
+                     timeout_s=2.0, stride=lambda: 1)
+    w.woke(0, 1_000_000_000)  # exactly a period late: not a stall
+    w.woke(5_000_000_000, 6_000_000_001)
+    assert list(w.own_gaps) == [(5_000_000_000, 6_000_000_001)]
+
+
+def test_a_plant_silent_from_the_start_can_be_excused_and_judged_again():
+    w = watch()
+    w.supervise(_Roles({"plant": "runnable"}).supervision())  # and denied its CPU
+    assert _fault(w, 8 * MS, [], plant_awaited=0, started_ns=1 * MS) is None  # excused
+    assert w.excuse_of("plant") is not None
+    assert _fault(w, 9 * MS, [], plant_awaited=0, started_ns=1 * MS) is None  # renewed
+
+
+def test_the_wake_up_for_the_plant_s_silence_counts_the_central_s_stalls():
+    w = watch()
+    w.heard_sample(10 * MS)
+    w.woke(11 * MS, 13 * MS)  # 2 ms the central did not run, 1 ms of it before 12 ms
+    assert w.wake_at(12 * MS, 3 * MS, []) == 10 * MS + 3 * MS + 1 * MS
