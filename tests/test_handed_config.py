@@ -149,3 +149,17 @@ def test_roles_started_by_hand_with_only_their_links_run_the_central_s_commands(
     assert ctrlunit("start", *options, "--report", str(tmp_path / "start.json")).returncode == 0
     hand, start = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("hand", "start"))
     assert hand["command_digest"] == start["command_digest"]
+
+
+def test_a_role_by_hand_needs_the_unit_id_and_its_help_shows_what_it_keeps():
+    from click.testing import CliRunner
+    from ctrlunit.runtime.cli import cli
+
+    res = CliRunner().invoke(cli, ["plant", "--connect", "tcp/127.0.0.1:9"])
+    assert res.exit_code == 1 and "needs --unit ID" in res.output
+    shown = CliRunner().invoke(cli, ["peripheral", "--help"]).output
+    flags = {w.split()[0] for w in shown.splitlines() if w.strip().startswith("--")}
+    assert flags == {"--pin", "--unit", "--listen", "--connect", "--zenoh-config", "--keys",
+                     "--insecure", "--check", "--help-all", "--index"}
+    every = CliRunner().invoke(cli, ["peripheral", "--help-all"]).output
+    assert "--pipeline" in every and "--late-policy" in every

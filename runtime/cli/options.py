@@ -11,6 +11,7 @@ from typing import Any
 import click
 
 from ..config import FLAT, LATE_POLICIES, ConfigError, RunConfig, parse_duration
+from ..config.handed import ROLE_OWN
 from ..config.sections import SECTIONS
 from ..config.setting import About, abouts
 from .base import _rt_priority
@@ -36,9 +37,20 @@ def run_options(fn: Any) -> Any:
     setting that has a flag (runtime/config/sections.py, in :data:`CLI_SECTIONS`' order),
     then the run file's; those not everyday are hidden from ``--help`` (``--help-all``
     shows them)."""
-    opts = [_option(flat, a) for section in CLI_SECTIONS
-            for flat, a in _flags_of(section)] + _run_file()
-    for o in reversed(opts):
+    return _with_options(fn, role=False)
+
+
+def role_options(fn: Any) -> Any:
+    """:func:`run_options` for ``ctrlunit plant`` and ``ctrlunit peripheral``, which take
+    the run's configuration from the central at the handshake (runtime/config/handed.py):
+    ``--help`` shows only the settings such a role keeps of its own (``ROLE_OWN``)."""
+    return _with_options(fn, role=True)
+
+
+def _with_options(fn: Any, *, role: bool) -> Any:
+    opts = [_option(flat, a, shown=(flat in ROLE_OWN) if role else None)
+            for section in CLI_SECTIONS for flat, a in _flags_of(section)]
+    for o in reversed(opts + _run_file(role=role)):
         fn = o(fn)
     return fn
 
@@ -55,27 +67,29 @@ def _flags_of(section: str) -> list[tuple[str, About]]:
             if a.flag is not None]
 
 
-def _option(flat: str, a: About) -> Any:
-    """The click option of one setting, from its declaration."""
+def _option(flat: str, a: About, *, shown: bool | None = None) -> Any:
+    """The click option of one setting, from its declaration; ``shown``: whether
+    ``--help`` shows it (None: if the flag is everyday)."""
     fl = a.flag
     assert fl is not None
     name = "--" + (fl.name or flat.replace("_", "-"))
     field_default = _DEFAULTS[flat]
     default = fl.default if fl.default is not None else field_default
-    shown: dict[str, Any] = dict(help=a.help, hidden=fl.hidden or not fl.everyday,
+    everyday = fl.everyday if shown is None else shown
+    about: dict[str, Any] = dict(help=a.help, hidden=fl.hidden or not everyday,
                                  metavar=fl.metavar)
     if fl.kind == "flag":
-        return click.option(name, flat, is_flag=True, **shown)
+        return click.option(name, flat, is_flag=True, **about)
     if fl.kind == "switch":
         return click.option(f"{name}/--no-{name[2:]}", flat, default=default,
-                            show_default=True, **shown)
+                            show_default=True, **about)
     if fl.kind in ("many", "late"):
         return click.option(name, "late_items" if fl.kind == "late" else flat,
-                            multiple=True, **shown)
+                            multiple=True, **about)
     callback = {"duration": _duration_or_zero if default == "0s" else _duration,
                 "period": _period, "priority": _rt_priority}.get(fl.kind)
     return click.option(name, flat, type=_click_type(flat, a), default=default,
-                        show_default=default is not None, callback=callback, **shown)
+                        show_default=default is not None, callback=callback, **about)
 
 
 def _click_type(flat: str, a: About) -> Any:
@@ -114,8 +128,9 @@ _BASE_TYPES = {flat: _base_type(typing.get_type_hints(SECTIONS[sec])[name])
                for flat, (sec, name) in FLAT.items()}
 
 
-def _run_file() -> list[Any]:
-    """The run file, profiles, ``--check``, and the launcher's own options."""
+def _run_file(*, role: bool = False) -> list[Any]:
+    """The run file, profiles, ``--check``, and the launcher's own options (``role``: a
+    role started by hand, whose configuration is the central's: the layers hidden)."""
     return [
         click.option("--check", is_flag=True,
                      help="Check the options and files (task, placement, parameters, Zenoh "
@@ -123,14 +138,14 @@ def _run_file() -> list[Any]:
         click.option("--spec", type=click.Path(dir_okay=False), default=None, hidden=True,
                      help="Run configuration written by ctrlunit start (internal)."),
         click.option("--profile", type=click.Choice(["main-job", "thesis"]),
-                     default="main-job", show_default=True,
+                     default="main-job", show_default=True, hidden=role,
                      help="Settings for an intent: the realtime main job, or the thesis's "
                      "graph (model at the sample, axes placement, observer previous)."),
         click.option("--config", "config_file", type=click.Path(dir_okay=False),
-                     default=None, help="A run file (TOML, the sections ctrlunit config "
-                     "prints) over the profile."),
+                     default=None, hidden=role, help="A run file (TOML, the sections "
+                     "ctrlunit config prints) over the profile."),
         click.option("--set", "set_items", multiple=True, metavar="SECTION.KEY=VALUE",
-                     help="One setting over the run file (repeatable), e.g. "
+                     hidden=role, help="One setting over the run file (repeatable), e.g. "
                      "schedule.late_policy=wait."),
         click.option("--help-all", is_flag=True, expose_value=False, is_eager=True,
                      callback=_help_all, help="Show every option, the tuning ones too."),
@@ -231,4 +246,4 @@ def _flag_options(kw: dict[str, Any]) -> dict[str, Any] | RunConfig:
     return options
 
 
-__all__ = ["CLI_SECTIONS", "given_settings", "make_rc", "run_options"]
+__all__ = ["CLI_SECTIONS", "given_settings", "make_rc", "role_options", "run_options"]

@@ -16,7 +16,7 @@ from ..config import (
     RunConfig,
 )
 from .base import _emit, _fail, _json_safe, cli
-from .options import given_settings, make_rc, run_options
+from .options import given_settings, make_rc, role_options, run_options
 
 
 @cli.command(epilog="Every other setting (the pipeline's and the scheduler's levers, late "
@@ -140,11 +140,14 @@ def _progress(show: bool) -> tuple[Any, Any, Any]:
     return LiveLine(line.show), lambda m: line.above(m, sys.stderr), line.close
 
 
-@cli.command()
-@run_options
-@click.option("--index", type=click.IntRange(1, 3), required=True)
+@cli.command(epilog="Every run option (--help-all) is the central's: it sends them at the "
+             "handshake, and one given here that differs is replaced (with a note).")
+@role_options
+@click.option("--index", type=click.IntRange(1, 3), required=True,
+              help="Which peripheral of the unit this is (1 to its peripherals).")
 def peripheral(index: int, **kw: Any) -> None:
-    """Run peripheral K of a unit (connects to the central's endpoint)."""
+    """Run peripheral K of a unit: connects to the central's endpoint and takes the run's
+    configuration from it at the handshake."""
     from ..roles.peripheral import run_peripheral
 
     setup, conf, held = _role_setup(kw, role="peripheral", index=index)
@@ -166,6 +169,7 @@ def _role_setup(kw: dict[str, Any], *, role: str,
 
     check = kw.pop("check", False)
     by_hand = not kw.get("spec")  # not started by ctrlunit start: ask the central
+    unit_given = _unit_given(kw)
     name = role if index is None else f"{role}-{index}"
     rc = make_rc(kw)
     try:
@@ -177,6 +181,9 @@ def _role_setup(kw: dict[str, Any], *, role: str,
         click.echo(f"ctrlunit {role}: the options are valid; nothing was started.")
         sys.exit(0)
     if by_hand:
+        if not unit_given:
+            _fail(f"ctrlunit {role} needs --unit ID: the unit id the central was started "
+                  "with (it prints it)", EXIT_CONFIG)
         setup = _unit_config(rc, name)
         rc = setup.rc
         _check_index(index, setup.placement.peripherals)
@@ -198,6 +205,20 @@ def _role_setup(kw: dict[str, Any], *, role: str,
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc), EXIT_CONFIG)
     return setup, conf, held
+
+
+def _unit_given(kw: dict[str, Any]) -> bool:
+    """Whether the unit id is given (``--unit``, ``--set transport.unit=``, the run
+    file), not made afresh for this run; a run file that cannot be read is
+    :func:`make_rc`'s error to report."""
+    from ..config.run_file import read_run_file
+
+    given = bool(kw.get("unit")) or any(
+        i.strip().startswith("transport.unit") for i in kw.get("set_items") or ())
+    if kw.get("config_file"):
+        with contextlib.suppress(ConfigError):
+            given |= "unit" in read_run_file(kw["config_file"])
+    return given
 
 
 def _check_index(index: int | None, peripherals: int) -> None:
@@ -239,10 +260,12 @@ def _unit_config(own: Any, name: str) -> Any:
     return setup
 
 
-@cli.command()
-@run_options
+@cli.command(epilog="Every run option (--help-all) is the central's: it sends them at the "
+             "handshake, and one given here that differs is replaced (with a note).")
+@role_options
 def plant(**kw: Any) -> None:
-    """Run the simulated Delta as a Zenoh node (connects to the central's endpoint)."""
+    """Run the simulated Delta as a Zenoh node: connects to the central's endpoint and
+    takes the run's configuration from it at the handshake."""
     from ..roles.plant_node import run_plant
 
     setup, conf, held = _role_setup(kw, role="plant")
@@ -274,6 +297,9 @@ def central(as_json: bool, **kw: Any) -> None:
     if check:
         click.echo("ctrlunit central: the options are valid; nothing was started.")
         sys.exit(0)
+    click.echo(f"ctrlunit central: unit {rc.transport.unit} on "
+               f"{', '.join(rc.transport.listen or [])}: start the other roles with --unit "
+               f"{rc.transport.unit} --connect ENDPOINT", err=True)
     code, report = central_only(rc)
     from ..observe.summary import summary
 
@@ -312,13 +338,8 @@ def config_cmd(check: bool, table: bool, **kw: Any) -> None:
 
         click.echo(settings_table(), nl=False)
         return
-    asked_unit = bool(kw.get("unit")) or any(
-        i.strip().startswith("transport.unit") for i in kw.get("set_items") or ())
+    asked_unit = _unit_given(kw)
     try:
-        if kw.get("config_file"):
-            from ..config.run_file import read_run_file
-
-            asked_unit |= "unit" in read_run_file(kw["config_file"])
         rc = make_rc(kw).validate()
     except ConfigError as exc:
         _fail(str(exc), EXIT_CONFIG)
