@@ -35,7 +35,7 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                "runtime/central/excuse.py", "runtime/central/late.py",
                "runtime/central/state_check.py", "runtime/central/overload.py"],
               ["tests/test_silence_arithmetic.py", "tests/test_silence_watch.py",
-               "tests/test_excuses.py",
+               "tests/test_excuses.py", "tests/test_late_data.py",
                "tests/test_guard.py", "tests/test_loopback.py",
                                              "tests/test_validation.py",
                                              "tests/test_silence_rule.py",

@@ -182,3 +182,17 @@ def test_the_wake_up_for_the_plant_s_silence_counts_the_central_s_stalls():
     w.heard_sample(10 * MS)
     w.woke(11 * MS, 13 * MS)  # 2 ms the central did not run, 1 ms of it before 12 ms
     assert w.wake_at(12 * MS, 3 * MS, []) == 10 * MS + 3 * MS + 1 * MS
+
+
+def test_the_note_of_a_silence_the_plant_shared_states_the_part_not_counted():
+    w = watch()
+    for rx in (9 * MS, 13_050_001, 14 * MS):  # the plant silent 4.05 ms + 1 ns
+        w.heard_sample(rx)
+    message = _fault(w, 15_100_000, [_interval(7, {0}, deadline_ns=13 * MS)])
+    assert message == ("peripheral 1 did not answer round 1 of cycle 7: silent for 5.1 ms "
+                       "(limit 3.0 ms, plus 2.1 ms the plant was silent too)")
+    brief = watch()
+    for rx in (9 * MS, 11 * MS + 1, 12 * MS, 13 * MS, 14 * MS, 15 * MS):  # 1 ns shared
+        brief.heard_sample(rx)
+    assert _fault(brief, 15_100_000, [_interval(7, {0}, deadline_ns=13 * MS)]).endswith(
+        "(limit 3.0 ms, plus 0.0 ms the plant was silent too)")
