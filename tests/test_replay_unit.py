@@ -586,3 +586,19 @@ def test_the_cli_says_where_a_recording_diverges_on_stderr_and_exits_1(made, tmp
     assert "after 40 identical intervals" in err[0]
     assert f"cycle 40, block dyn_axis (axis 1), value {name}" in err[0]
 
+
+
+def test_only_stride_orders_with_integer_fields_change_the_replayed_rate():
+    """``/plant/control`` also carries the other orders (``start``, ``stop``, ...); only a
+    ``stride`` order with an integer start and stride is a change of the control rate."""
+    import msgpack
+    from ctrlunit.runtime.recording.reader import Recording
+
+    orders = [{"stage": "start", "start": 3}, {"stage": "stride", "stride": 2, "start": 40},
+              {"stage": "stride", "stride": "1", "start": 90},
+              {"stage": "stride", "stride": 1, "start": 90.0},
+              {"stage": "stride", "stride": 1, "start": 120}, {"stage": "stop", "start": 7},
+              {"stage": "probe", "stride": 3, "start": 5}]  # fields alike, another order
+    rec = Recording("orders.mcap", topics={
+        "/plant/control": [(t, msgpack.packb(m)) for t, m in enumerate(orders)]})
+    assert replay.stride_changes(rec) == [(40, 2), (120, 1)]
