@@ -59,13 +59,20 @@ def test_a_role_that_asks_gets_the_configuration_and_counts_once_it_says_hello()
     assert len(_sent(bus, "u1", "go")) == 2  # to the peripherals' and the plant's key
 
 
-def test_a_role_of_no_such_unit_gets_nothing_and_is_counted():
+def test_a_peripheral_the_unit_lacks_is_told_and_a_name_that_is_no_role_is_counted():
     rc = RunConfig.of(**CENTRAL)
     bus = Bus()
     orders = _orders(bus, rc)
-    orders.on_hello(encode("u1", 0, "hello", role="peripheral-3", want="config"))
-    assert not _sent(bus, "u1", "config")
+    hello = f"ctrlunit/{rc.transport.unit}/central/hello"
+    bus.put(hello, encode("u1", 0, "hello", role="peripheral-3", want="config"))
+    bus.put(hello, encode("u1", 0, "hello", role="viewer", want="config"))
+    with pytest.raises(Fault):
+        orders.handshake()
+    (_, msg), = _sent(bus, "u1", "config")  # peripheral 3 checks its index against it
+    assert msg["settings"]["schedule"]["peripherals"] == 2
     assert orders.node.rejected["bad_value"] == 1
+    orders.on_hello(encode("u1", 0, "hello", role="peripheral-1", want="config"))
+    assert len(_sent(bus, "u1", "config")) == 1  # after the handshake: too late to join
 
 
 def test_the_role_keeps_its_own_endpoints_keys_and_cpus():
@@ -77,8 +84,12 @@ def test_the_role_keeps_its_own_endpoints_keys_and_cpus():
     assert got.replace(**{f: rc.option(f) for f in ROLE_OWN}).to_dict() == rc.to_dict()
 
 
+def _message_through_codec(msg: dict) -> dict:
+    return decode(encode("u1", 0, "config", **msg), "u1")
+
+
 def _message_through_the_codec(rc: RunConfig) -> dict:
-    return decode(encode("u1", 0, "config", **config_message(rc)), "u1")
+    return _message_through_codec(config_message(rc))
 
 
 @pytest.mark.parametrize("change, error", [
@@ -88,6 +99,10 @@ def _message_through_the_codec(rc: RunConfig) -> dict:
     (lambda m: m["settings"]["plant"].update(pipeline=2), r"\[plant\] has no 'pipeline'"),
     (lambda m: m["settings"]["schedule"].update(pipeline="two"), "pipeline = 'two'"),
     (lambda m: m["settings"]["schedule"].update(pipeline=7), "pipeline"),
+    (lambda m: m["settings"]["schedule"].pop("command_delay"), "missing command_delay"),
+    (lambda m: m["settings"]["run"].update(report="r.json"), r"\[run\] has no 'report'"),
+    (lambda m: m["settings"]["transport"].update(unit="u2"), "has no 'unit'"),
+    (lambda m: m.clear() or m.update(error="why"), "cannot hand this role .*: why"),
     (lambda m: m.update(files=[1]), "'files' is not a table"),
     (lambda m: m.update(files={"record": "ab"}), "files has 'record'"),
 ])
@@ -113,6 +128,21 @@ def test_the_unit_s_files_must_be_on_the_role_s_host_with_the_central_s_contents
     gone = RunConfig.of(unit="u1", params=str(tmp_path / "none.toml"))
     with pytest.raises(ConfigError, match="--params .*not on this host; give --params"):
         handed(msg, gone, {"params"})
+    # a central without a parameters file: the role's is replaced, and it is told
+    plain = config_message(RunConfig.of(**CENTRAL))
+    got, notes = handed(plain, own, {"params"})
+    assert got.control.params is None
+    assert notes == [f"control.params = None of the unit over {str(mine)!r} given"]
+
+
+def test_a_text_longer_than_the_messages_carry_is_refused_by_name():
+    msg = config_message(RunConfig.of(**CENTRAL, task="/" + "t" * 300 + ".json"))
+    assert set(msg) == {"error"} and "control.task is longer than 256 bytes" in msg["error"]
+    with pytest.raises(ConfigError, match="cannot hand this role .*control.task"):
+        handed(_message_through_codec(msg), RunConfig.of(unit="u1"), set())
+    # what only the central uses does not travel
+    long_report = RunConfig.of(**CENTRAL, report="/" + "r" * 300 + ".json")
+    assert "report" not in config_message(long_report)["settings"]["run"]
 
 
 def test_the_message_fits_the_codec_s_bounds():
@@ -160,6 +190,26 @@ def test_a_role_by_hand_needs_the_unit_id_and_its_help_shows_what_it_keeps():
     shown = CliRunner().invoke(cli, ["peripheral", "--help"]).output
     flags = {w.split()[0] for w in shown.splitlines() if w.strip().startswith("--")}
     assert flags == {"--pin", "--unit", "--listen", "--connect", "--zenoh-config", "--keys",
-                     "--insecure", "--check", "--help-all", "--index"}
+                     "--insecure", "--check", "--help-all", "--index", "--task", "--params",
+                     "--placement"}
     every = CliRunner().invoke(cli, ["peripheral", "--help-all"]).output
     assert "--pipeline" in every and "--late-policy" in every
+
+
+@pytest.mark.zenoh
+def test_a_role_the_unit_does_not_have_is_told_at_once(tmp_path):
+    unit, endpoint = unit_id("nohand"), f"tcp/127.0.0.1:{free_port()}"
+    py = [sys.executable, "-m", "ctrlunit.runtime.cli"]
+    central = subprocess.Popen([*py, "central", "--unit", unit, "--listen", endpoint,
+                                "--clock", "freerun", "--peripherals", "1", "--cycles", "50"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for role, error in ((["peripheral", "--index", "2"],
+                             "--index = 2: allowed 1 to 1 (the unit's peripherals)"),
+                            (["plant"], "the unit runs --clock freerun, which has no plant")):
+            res = subprocess.run([*py, *role, "--unit", unit, "--connect", endpoint],
+                                 capture_output=True, text=True, timeout=60)
+            assert res.returncode == 1 and error in res.stderr, res.stderr
+    finally:
+        central.kill()
+        central.wait(timeout=10)

@@ -5,6 +5,7 @@ handshake (every role's ``hello``, then ``go``), the orders (``place``, ``start`
 from __future__ import annotations
 
 import queue
+import re
 import time
 from collections.abc import Callable
 from typing import Any
@@ -13,6 +14,9 @@ from ..config import EXIT_LINK
 from ..transport.codec import encode, short_text
 from ..transport.node import Event, Node
 from .fault import Fault, role_report
+
+ROLE_NAME = re.compile(r"plant|peripheral-[1-9]")
+"""What a role that asks for the configuration may be called."""
 
 REPEAT_S = 0.1
 """An order not yet acknowledged (place, stop) is given again this often: a role may
@@ -77,8 +81,8 @@ class Orders:
             return
         stage = msg.get("stage")
         if stage == "hello" and msg.get("want") == "config":
-            self.hand_config(msg)
-        elif stage == "hello":
+            return  # the run has begun: a role that asks now is too late to join it
+        if stage == "hello":
             self.say("go")  # a role that missed go asks again
         elif stage == "bye":
             report = msg.get("report")
@@ -91,9 +95,11 @@ class Orders:
 
     def hand_config(self, hello: dict[str, Any]) -> None:
         """Send the run's configuration to the kind of role that asked for it in
-        ``hello`` (a role started by hand); a role not of this unit is rejected."""
+        ``hello`` (a role started by hand). A peripheral this unit does not have gets it
+        too, and says so itself (its index against the unit's peripherals); a name that
+        is no role is rejected."""
         role = hello.get("role")
-        if role not in self.expected_roles():
+        if not isinstance(role, str) or not ROLE_NAME.fullmatch(role):
             self.node.reject("bad_value")
             return
         self.say("config", peripherals_only=role != "plant", plant_only=role == "plant",

@@ -11,7 +11,7 @@ from typing import Any
 import click
 
 from ..config import FLAT, LATE_POLICIES, ConfigError, RunConfig, parse_duration
-from ..config.handed import ROLE_OWN
+from ..config.handed import FILE_SETTINGS, ROLE_OWN
 from ..config.sections import SECTIONS
 from ..config.setting import About, abouts
 from .base import _rt_priority
@@ -43,12 +43,14 @@ def run_options(fn: Any) -> Any:
 def role_options(fn: Any) -> Any:
     """:func:`run_options` for ``ctrlunit plant`` and ``ctrlunit peripheral``, which take
     the run's configuration from the central at the handshake (runtime/config/handed.py):
-    ``--help`` shows only the settings such a role keeps of its own (``ROLE_OWN``)."""
+    ``--help`` shows only the settings such a role keeps of its own (``ROLE_OWN``) and
+    the files it reads on its host (``FILE_SETTINGS``)."""
     return _with_options(fn, role=True)
 
 
 def _with_options(fn: Any, *, role: bool) -> Any:
-    opts = [_option(flat, a, shown=(flat in ROLE_OWN) if role else None)
+    opts = [_option(flat, a, shown=(flat in ROLE_OWN or flat in FILE_SETTINGS) if role
+                    else None)
             for section in CLI_SECTIONS for flat, a in _flags_of(section)]
     for o in reversed(opts + _run_file(role=role)):
         fn = o(fn)
@@ -134,7 +136,7 @@ def _run_file(*, role: bool = False) -> list[Any]:
     return [
         click.option("--check", is_flag=True,
                      help="Check the options and files (task, placement, parameters, Zenoh "
-                     "configuration), print the plan and exit: nothing is started."),
+                     "configuration) and exit: nothing is started."),
         click.option("--spec", type=click.Path(dir_okay=False), default=None, hidden=True,
                      help="Run configuration written by ctrlunit start (internal)."),
         click.option("--profile", type=click.Choice(["main-job", "thesis"]),

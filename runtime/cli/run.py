@@ -169,7 +169,7 @@ def _role_setup(kw: dict[str, Any], *, role: str,
 
     check = kw.pop("check", False)
     by_hand = not kw.get("spec")  # not started by ctrlunit start: ask the central
-    unit_given = _unit_given(kw)
+    given = _given(kw)
     name = role if index is None else f"{role}-{index}"
     rc = make_rc(kw)
     try:
@@ -181,12 +181,14 @@ def _role_setup(kw: dict[str, Any], *, role: str,
         click.echo(f"ctrlunit {role}: the options are valid; nothing was started.")
         sys.exit(0)
     if by_hand:
-        if not unit_given:
+        if "unit" not in given:
             _fail(f"ctrlunit {role} needs --unit ID: the unit id the central was started "
                   "with (it prints it)", EXIT_CONFIG)
-        setup = _unit_config(rc, name)
+        setup = _unit_config(rc, name, given)
         rc = setup.rc
         _check_index(index, setup.placement.peripherals)
+        if role == "plant" and rc.schedule.clock == "freerun":
+            _fail("the unit runs --clock freerun, which has no plant", EXIT_CONFIG)
     pin_cpus(rc.schedule.pin)
     try:  # before zenoh.open: its threads inherit it
         apply_choice(rc.schedule.rt_priority, clock=rc.schedule.clock,
@@ -207,17 +209,17 @@ def _role_setup(kw: dict[str, Any], *, role: str,
     return setup, conf, held
 
 
-def _unit_given(kw: dict[str, Any]) -> bool:
-    """Whether the unit id is given (``--unit``, ``--set transport.unit=``, the run
-    file), not made afresh for this run; a run file that cannot be read is
-    :func:`make_rc`'s error to report."""
-    from ..config.run_file import read_run_file
+def _given(kw: dict[str, Any]) -> set[str]:
+    """The settings (flat names) given rather than defaulted: by flag, ``--set`` or the
+    run file; one that cannot be read is :func:`make_rc`'s error to report."""
+    from ..config.run_file import parse_set, read_run_file
 
-    given = bool(kw.get("unit")) or any(
-        i.strip().startswith("transport.unit") for i in kw.get("set_items") or ())
+    given = given_settings()
+    with contextlib.suppress(ConfigError):
+        given |= set(parse_set(kw.get("set_items") or ()))
     if kw.get("config_file"):
         with contextlib.suppress(ConfigError):
-            given |= "unit" in read_run_file(kw["config_file"])
+            given |= set(read_run_file(kw["config_file"]))
     return given
 
 
@@ -229,7 +231,7 @@ def _check_index(index: int | None, peripherals: int) -> None:
               f"--index = {index}: the unit has no peripherals (--peripherals 0)", EXIT_CONFIG)
 
 
-def _unit_config(own: Any, name: str) -> Any:
+def _unit_config(own: Any, name: str, given: set[str]) -> Any:
     """The setup of a role started by hand, from the run's configuration the central
     hands it at the handshake (runtime/config/handed.py) with the role's own endpoints,
     keys and CPUs. Exits on a link that does not answer or a configuration that does not
@@ -251,7 +253,7 @@ def _unit_config(own: Any, name: str) -> Any:
         _fail(f"{exc} (is --unit the central's, and --connect its --listen endpoint?)",
               EXIT_LINK)
     try:
-        rc, notes = handed(msg, own, given_settings())
+        rc, notes = handed(msg, own, given)
         setup = make_setup(rc)
     except (ConfigError, ValueError, OSError) as exc:
         _fail(str(exc), EXIT_CONFIG)
@@ -333,12 +335,16 @@ def config_cmd(check: bool, table: bool, **kw: Any) -> None:
     from ..config.run_file import to_toml
 
     del check
-    if table:
+    if table:  # the defaults as the command line resolves them, whatever else is given
         from ..config.settings_doc import settings_table
 
-        click.echo(settings_table(), nl=False)
+        ctx = click.get_current_context()
+        flags = {p.name: p.process_value(ctx, p.get_default(ctx)) for p in ctx.command.params
+                 if p.name in kw and p.expose_value}
+        defaults = make_rc(flags).to_dict() | {"unit": None}
+        click.echo(settings_table(defaults), nl=False)
         return
-    asked_unit = _unit_given(kw)
+    asked_unit = "unit" in _given(kw)
     try:
         rc = make_rc(kw).validate()
     except ConfigError as exc:

@@ -151,11 +151,14 @@ class RunConfig:
         return ConfigError(f"{option} = {shown}: allowed {allowed}")
 
     def _check_values(self) -> None:
-        """Each setting against the choices and bounds its field declares
+        """Each setting against its field's type and the choices and bounds it declares
         (runtime/config/setting.py), in the order of the sections and their fields."""
         for flat, (section, name) in FLAT.items():
             a = _ABOUT[flat]
             value = getattr(getattr(self, section), name)
+            if not has_type(value, _FLAT_TYPES[flat]):  # as the range says, where one does
+                raise self._bad(flat, allowed_text(a) if a.choices or a.bounds or a.allowed
+                                else type_name(_FLAT_TYPES[flat]))
             if value is None or (a.choices is None and a.bounds is None):
                 continue
             if a.choices is not None and value not in a.choices:

@@ -16,6 +16,7 @@ import hashlib
 import os
 from typing import Any
 
+from ..transport.codec import MAX_STR_BYTES
 from . import FLAT, ConfigError, RunConfig
 from .sections import SECTIONS
 
@@ -27,6 +28,15 @@ which unit, how it reaches the central, its credentials and its host's CPUs."""
 FILE_SETTINGS = ("task", "params", "placement")
 """Settings by flat name that may name a file on the host that reads them."""
 
+CENTRAL_ONLY = frozenset({"record", "report", "foxglove"})
+"""Settings only the central uses (its outputs): not sent."""
+
+SENT = frozenset(FLAT) - ROLE_OWN - CENTRAL_ONLY
+"""The settings the ``config`` message carries, by flat name: every one a role reads."""
+
+MAX_TEXT = MAX_STR_BYTES
+"""The longest text the message codec passes: a setting longer cannot be handed."""
+
 
 def _digest(path: str) -> str:
     with open(path, "rb") as fh:
@@ -34,12 +44,21 @@ def _digest(path: str) -> str:
 
 
 def config_message(rc: RunConfig) -> dict[str, Any]:
-    """The fields of the central's ``config`` message: ``settings``, every setting by
-    section and flat name (each map well under the codec's bound on a map's entries), and
-    ``files``, the SHA-256 of each :data:`FILE_SETTINGS` setting that names a file on the
-    central's host."""
+    """The fields of the central's ``config`` message: ``settings``, each of :data:`SENT`
+    by section and flat name (each map well under the codec's bound on a map's entries),
+    and ``files``, the SHA-256 of each :data:`FILE_SETTINGS` setting that names a file on
+    the central's host; or ``error`` alone, saying why the configuration cannot be handed
+    (a text longer than the codec passes)."""
     settings: dict[str, dict[str, Any]] = {name: {} for name in SECTIONS}
     for flat, value in rc.to_dict().items():
+        if flat not in SENT:
+            continue
+        texts = value if isinstance(value, list) else [*value.keys(), *value.values()] \
+            if isinstance(value, dict) else [value]
+        if any(isinstance(t, str) and len(t.encode()) > MAX_TEXT for t in texts):
+            section, name = FLAT[flat]
+            return {"error": f"{section}.{name} is longer than {MAX_TEXT} bytes, which the "
+                    "unit's messages do not carry: start the central with a shorter one"}
         settings[FLAT[flat][0]][flat] = value
     files = {flat: _digest(path) for flat in FILE_SETTINGS
              if isinstance(path := rc.option(flat), str) and os.path.isfile(path)}
@@ -48,7 +67,10 @@ def config_message(rc: RunConfig) -> dict[str, Any]:
 
 def _flat_settings(msg: dict[str, Any]) -> dict[str, Any]:
     """The settings of a ``config`` message by flat name, each checked to be where the
-    message says it is."""
+    message says it is, and every one of :data:`SENT` there."""
+    if "error" in msg:
+        raise ConfigError(f"the central cannot hand this role its configuration: "
+                          f"{msg['error']}")
     settings = msg.get("settings")
     if not isinstance(settings, dict) or set(settings) != set(SECTIONS):
         raise ConfigError(f"the central's configuration: expected the sections "
@@ -58,17 +80,19 @@ def _flat_settings(msg: dict[str, Any]) -> dict[str, Any]:
         if not isinstance(table, dict):
             raise ConfigError(f"the central's configuration: [{section}] is not a table")
         for name, value in table.items():
-            if FLAT.get(name, (None,))[0] != section:
+            if name not in SENT or FLAT[name][0] != section:
                 raise ConfigError(f"the central's configuration: [{section}] has no "
                                   f"{name!r}")
             flat[name] = value
+    missing = sorted(SENT - set(flat))
+    if missing:
+        raise ConfigError(f"the central's configuration: missing {', '.join(missing)} (a "
+                          "central of another version?)")
     return flat
 
 
-def _check_files(rc: RunConfig, digests: Any) -> None:
+def _check_files(rc: RunConfig, digests: dict[str, Any]) -> None:
     """Each file the central named exists on this host with the central's contents."""
-    if not isinstance(digests, dict):
-        raise ConfigError("the central's configuration: 'files' is not a table")
     for flat, digest in digests.items():
         if flat not in FILE_SETTINGS:
             raise ConfigError(f"the central's configuration: files has {flat!r} (allowed: "
@@ -92,20 +116,27 @@ def handed(msg: dict[str, Any], own: RunConfig, given: set[str]
     ----------
     msg : the central's ``config`` message (:func:`config_message`'s fields).
     own : the role's configuration from its own command line.
-    given : the settings (flat names) given on that command line.
+    given : the settings (flat names) given on that command line, by flag, ``--set`` or
+        run file.
+
+    A file setting given (``--params FILE``) is kept where the central's names a file
+    too: it is this host's copy of it, checked against the central's digest. Otherwise
+    the unit's value replaces it, as any other setting.
 
     Raises
     ------
     ConfigError
-        On a malformed configuration (naming the section or setting), or a file the unit
-        names that is missing on this host or differs from the central's.
+        On a malformed or incomplete configuration (naming the section or settings), or a
+        file the unit names that is missing on this host or differs from the central's.
     """
     unit = RunConfig.from_dict(_flat_settings(msg), source="the central's configuration")
-    keep = {f: own.option(f) for f in ROLE_OWN}
-    keep |= {f: own.option(f) for f in FILE_SETTINGS if f in given}
-    rc = unit.replace(**keep)
-    _check_files(rc, msg.get("files", {}))
+    digests = msg.get("files", {})
+    if not isinstance(digests, dict):
+        raise ConfigError("the central's configuration: 'files' is not a table")
+    copies = {f for f in FILE_SETTINGS if f in given and f in digests}
+    rc = unit.replace(**{f: own.option(f) for f in ROLE_OWN | copies})
+    _check_files(rc, digests)
     notes = [f"{FLAT[f][0]}.{FLAT[f][1]} = {unit.option(f)!r} of the unit over "
-             f"{own.option(f)!r} given" for f in sorted(given - ROLE_OWN - set(FILE_SETTINGS))
-             if f in FLAT and own.option(f) != unit.option(f)]
+             f"{own.option(f)!r} given" for f in sorted(given & SENT - copies)
+             if own.option(f) != unit.option(f)]
     return rc.validate(), notes

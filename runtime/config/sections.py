@@ -68,7 +68,8 @@ class ControlConfig:
         help="Closed-loop bandwidth of the gains in Hz (default: 20, at most 1/(12.5 "
         "period) with resolved acceleration at the acting state, 1/(50 period) otherwise).")
     params: str | None = setting(None, flag=Flag(kind="file"),
-                                 help="TOML file of Delta parameters.")
+                                 help="TOML file of Delta parameters (a role started by "
+                                 "hand: this host's copy of the central's).")
     max_error: float = setting(
         0.02, flag=Flag(), bounds=(1e-5, 1.0), allowed="10 um to 1 m",
         help="Tracking error (m) beyond which the unit stops the robot (a fault).")
@@ -169,6 +170,7 @@ class ScheduleConfig:
         "latency --unit`).")
     rt_priority: int | str = setting(
         "auto", flag=Flag(kind="priority", metavar="auto|0-99"),
+        allowed="auto, 0 (leave the policy as it is) or 1 to 99 (SCHED_FIFO priority)",
         help="SCHED_FIFO priority of every role of the unit (the roles inherit it from "
         "start); 0: leave the policy as it is (1-99 needs root, CAP_SYS_NICE or ulimit -r). "
         "auto: FIFO at 10 in realtime with the admission, where permitted and the kernel "
@@ -178,6 +180,7 @@ class ScheduleConfig:
         "which and why).")
     idle: str = setting(
         "auto", flag=Flag(), choices=IDLE_CHOICES,
+        allowed="auto (poll in realtime where permitted), poll or default",
         help="poll holds the kernel's CPU latency request at 0 us while this process runs "
         "(/dev/cpu_dma_latency), so that idle CPUs spin instead of halting and every "
         "wake-up is quicker, at the cost of the CPUs spinning while idle (needs root); "
@@ -200,7 +203,8 @@ class PlantOptions:
         None, flag=Flag(), bounds=(1, 1000),
         help="RK4 sub-steps of the plant per period; default: the fewest of at most "
         f"{MAX_SUBSTEP_S * 1e3:g} ms ({MAX_SUBSTEP_BELT_S * 1e3:g} ms with --belt).")
-    lag: float = setting(0.0, flag=Flag(kind="duration", default="0s"),
+    lag: float = setting(0.0, flag=Flag(kind="duration", default="0s"), bounds=(0.0, 1.0),
+                         allowed="0 to 1 s",
                          help="Actuator time constant (Eq. IV.6).")
     friction: float = setting(0.0, flag=Flag(), bounds=(0.0, 100.0),
                               help="Viscous friction on each joint (N m s/rad).")
@@ -213,7 +217,8 @@ class TransportConfig:
     """The unit's Zenoh session: its id, endpoints and time-outs."""
 
     unit: str = setting(factory=lambda: "u" + secrets.token_hex(4), flag=Flag(),
-                        help="Unit id (keys ctrlunit/<unit>/...); default: a random one.")
+                        help="Unit id (keys ctrlunit/<unit>/...); default: a random one (a "
+                        "role started by hand: give the central's).")
     listen: list[str] | None = setting(None, flag=Flag(kind="many"),
                                        help="Zenoh endpoint to listen on.")
     connect: list[str] | None = setting(None, flag=Flag(kind="many"),
@@ -231,8 +236,8 @@ class TransportConfig:
         allowed="0.01 to 600 s",
         help="Reply timeout in lockstep and freerun (realtime: --fault-periods).")
     startup_timeout: float = setting(
-        30.0, help="How long, in seconds, the roles may take to say hello or confirm an "
-        "order.")
+        30.0, bounds=(0.1, 3600.0), allowed="0.1 to 3600 s",
+        help="How long, in seconds, the roles may take to say hello or confirm an order.")
 
 
 @dataclass(frozen=True)
@@ -243,8 +248,10 @@ class RunOptions:
                                  allowed="1 to 1e9",
                                  help="Intervals to run (default: one loop of the task).")
     duration: float | None = setting(None, flag=Flag(kind="duration", everyday=True),
+                                     bounds=(1e-6, 1e7), allowed="1 us to 1e7 s",
                                      help="Run length instead of --cycles (e.g. 30s).")
-    t1_cycles: int = setting(500, help="Intervals of the one-process run that measures t_1 "
+    t1_cycles: int = setting(500, bounds=(0, 10**6),
+                             help="Intervals of the one-process run that measures t_1 "
                              "(Eq. IV.23) before the run.")
     record: str | None = setting(None, flag=Flag(kind="file", everyday=True),
                                  help="Record every interval to an MCAP file.")
@@ -266,7 +273,7 @@ class RunOptions:
         help="Serve a live view to Foxglove (WebSocket; host 127.0.0.1 unless given; port "
         "0: any free one), off the control path.")
     foxglove_rate: float = setting(
-        200.0, flag=Flag(metavar="HZ"),
+        200.0, flag=Flag(metavar="HZ"), allowed="0 (every interval) or 1 to 100000 Hz",
         help="/signals/state messages per second of the live view; 0: every interval (each "
         "costs the central ~0.1 ms of CPU).")
 

@@ -35,12 +35,8 @@ def _cell(text: str) -> str:
     return text.replace("|", "\\|")
 
 
-def _default(value: Any, a: About) -> str:
-    if a.flag is not None and a.flag.default is not None:
-        return f"`{a.flag.default}`"
-    if value is None:
-        return ""
-    return f"`{json.dumps(value)}`"
+def _default(value: Any) -> str:
+    return "" if value is None else f"`{json.dumps(value)}`"
 
 
 def _flag(flat: str, a: About) -> str:
@@ -52,9 +48,10 @@ def _flag(flat: str, a: About) -> str:
     return f"`{name} {a.flag.metavar}`" if a.flag.metavar else f"`{name}`"
 
 
-def settings_table() -> str:
+def settings_table(defaults: dict[str, Any] | None = None) -> str:
     """Markdown: one table per section, a row per setting (key, flag, default, allowed,
-    help)."""
+    help). ``defaults``: the value of each setting by flat name as the command line
+    resolves it when nothing is given (``ctrlunit config``'s); else each field's."""
     out: list[str] = []
     for section in SECTIONS:
         hints = typing.get_type_hints(SECTIONS[section])
@@ -63,7 +60,8 @@ def settings_table() -> str:
         for flat, key, default, a in settings_of(section):
             allowed = allowed_text(a) if (a.choices or a.bounds or a.allowed) \
                 else type_name(hints[key])
-            out.append(f"| `{key}` | {_flag(flat, a)} | {_default(default, a)} | "
+            shown = defaults.get(flat) if defaults is not None else default
+            out.append(f"| `{key}` | {_flag(flat, a)} | {_default(shown)} | "
                        f"{_cell(allowed)} | {_cell(a.help)} |")
         out.append("")
     return "\n".join(out)
