@@ -6,6 +6,7 @@ namespaces cannot be made."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -91,12 +92,14 @@ def run_star(tmp_path, central: str, hosts: list[str], tag: str,
                                "--timeout", "5s", "--placement", "axes",
                                "--listen", "tcp/0.0.0.0:7447", "--report", str(report)],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
+    logs = contextlib.ExitStack()  # each role's stderr, for the failure's message
     for k, (ns, role) in enumerate(zip(hosts, ROLES), start=1):
         args = ["plant"] if role == "plant" else ["peripheral", "--index", role[-1]]
         procs.append(subprocess.Popen(
             ["ip", "netns", "exec", ns, *py, *args, *link, "--connect",
              endpoints[k - 1] if endpoints else f"tcp/10.77.{k}.1:7447"],
-            stdout=subprocess.DEVNULL, stderr=(tmp_path / f"{tag}-{role}.err").open("w")))
+            stdout=subprocess.DEVNULL,
+            stderr=logs.enter_context((tmp_path / f"{tag}-{role}.err").open("w"))))
     try:
         out, _ = procs[0].communicate(timeout=300)
         for p in procs[1:]:
@@ -105,6 +108,8 @@ def run_star(tmp_path, central: str, hosts: list[str], tag: str,
         for p in procs:
             if p.poll() is None:
                 p.kill()
+                p.wait(timeout=10)
+        logs.close()
     errs = {f.name: f.read_text()[-400:] for f in sorted(tmp_path.glob(f"{tag}-*.err"))}
     assert procs[0].returncode == 0, (out, errs)
     return json.loads(report.read_text())
