@@ -33,11 +33,13 @@ def test_the_main_job_rides_out_a_cpu_taken_for_10_ms_at_a_time(tmp_path):
     if len(os.sched_getaffinity(0)) < 2 or not fifo_permitted():
         pytest.skip("needs SCHED_FIFO and two CPUs")
     cpu = max(os.sched_getaffinity(0))
-    hog = subprocess.Popen([sys.executable, "-c", HOG, str(cpu), "20"])
+    # about 25 bursts: on 2026-11-26 one run of 8 s (about 10) caught no role of the unit
+    # (a burst that finds none of it on that CPU costs it nothing)
+    hog = subprocess.Popen([sys.executable, "-c", HOG, str(cpu), "30"])
     try:
         code, report, out = start_json(
             tmp_path, "--peripherals", "3", "--pipeline", "2", "--period", "1ms",
-            "--no-admission", "--rt-priority", "10", "--duration", "8s", tag="starve",
+            "--no-admission", "--rt-priority", "10", "--duration", "15s", tag="starve",
             timeout=120)
     finally:
         hog.kill()
@@ -48,4 +50,4 @@ def test_the_main_job_rides_out_a_cpu_taken_for_10_ms_at_a_time(tmp_path):
     # the bursts did catch the unit (a silence past its limit, ridden out), and the run
     # went on to its end at its period
     assert report["silences_excused"] >= 1, out[-1500:]
-    assert report["periods"] == 8000
+    assert report["periods"] == 15000
