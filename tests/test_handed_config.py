@@ -37,12 +37,20 @@ def _sent(bus: Bus, unit: str, stage: str) -> list[tuple[str, dict]]:
             if key.startswith(f"ctrlunit/{unit}/") and decode(data, unit)["stage"] == stage]
 
 
-def test_a_role_that_asks_gets_the_configuration_and_counts_once_it_says_hello():
+def _asked(*roles: str) -> tuple[RunConfig, Bus, Orders, str]:
+    """The central's orders on a bus, and a hello asking for the configuration from each
+    of ``roles`` on it."""
     rc = RunConfig.of(**CENTRAL)
     bus = Bus()
     orders = _orders(bus, rc)
     hello = f"ctrlunit/{rc.transport.unit}/central/hello"
-    bus.put(hello, encode("u1", 0, "hello", role="peripheral-2", want="config"))
+    for role in roles:
+        bus.put(hello, encode("u1", 0, "hello", role=role, want="config"))
+    return rc, bus, orders, hello
+
+
+def test_a_role_that_asks_gets_the_configuration_and_counts_once_it_says_hello():
+    rc, bus, orders, hello = _asked("peripheral-2")
     with pytest.raises(Fault, match="no hello from"):  # asking is not its hello
         orders.handshake()
     (key, msg), = _sent(bus, "u1", "config")
@@ -60,12 +68,7 @@ def test_a_role_that_asks_gets_the_configuration_and_counts_once_it_says_hello()
 
 
 def test_a_peripheral_the_unit_lacks_is_told_and_a_name_that_is_no_role_is_counted():
-    rc = RunConfig.of(**CENTRAL)
-    bus = Bus()
-    orders = _orders(bus, rc)
-    hello = f"ctrlunit/{rc.transport.unit}/central/hello"
-    bus.put(hello, encode("u1", 0, "hello", role="peripheral-3", want="config"))
-    bus.put(hello, encode("u1", 0, "hello", role="viewer", want="config"))
+    _, bus, orders, _ = _asked("peripheral-3", "viewer")
     with pytest.raises(Fault):
         orders.handshake()
     (_, msg), = _sent(bus, "u1", "config")  # peripheral 3 checks its index against it

@@ -4,7 +4,6 @@ configuration they resolve to: the defaults, then ``--profile``, the run file
 
 from __future__ import annotations
 
-import dataclasses
 import typing
 from typing import Any
 
@@ -13,7 +12,8 @@ import click
 from ..config import FLAT, LATE_POLICIES, ConfigError, RunConfig, parse_duration
 from ..config.handed import FILE_SETTINGS, ROLE_OWN
 from ..config.sections import SECTIONS
-from ..config.setting import About, abouts
+from ..config.setting import About
+from ..config.settings_doc import settings_of
 from .base import _rt_priority
 
 
@@ -64,9 +64,7 @@ timed, what it computes, what the run writes, the links, the plant."""
 
 def _flags_of(section: str) -> list[tuple[str, About]]:
     """The settings of a section that have a flag, by flat name, in declaration order."""
-    back = {(sec, name): flat for flat, (sec, name) in FLAT.items()}
-    return [(back[(section, f.name)], a) for f, a in abouts(SECTIONS[section])
-            if a.flag is not None]
+    return [(flat, a) for flat, _, _, a in settings_of(section) if a.flag is not None]
 
 
 def _option(flat: str, a: About, *, shown: bool | None = None) -> Any:
@@ -120,12 +118,8 @@ def _base_type(tp: Any) -> Any:
     return args[0] if args[0] in (int, float, bool) else str
 
 
-def _default(f: Any) -> Any:
-    return None if f.default is dataclasses.MISSING else f.default
-
-
-_DEFAULTS = {flat: _default(f) for flat, (sec, name) in FLAT.items()
-             for f in dataclasses.fields(SECTIONS[sec]) if f.name == name}
+_DEFAULTS = {flat: default for section in SECTIONS
+             for flat, _, default, _ in settings_of(section)}
 _BASE_TYPES = {flat: _base_type(typing.get_type_hints(SECTIONS[sec])[name])
                for flat, (sec, name) in FLAT.items()}
 

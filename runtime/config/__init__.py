@@ -89,6 +89,8 @@ def _flat_names() -> dict[str, tuple[str, str]]:
 
 FLAT = _flat_names()
 """Each option's flat name (the CLI's, a spec's, a recording's) -> (section, field)."""
+BY_FIELD = {(sec, name): flat for flat, (sec, name) in FLAT.items()}
+"""(section, field) -> the option's flat name."""
 _FLAT_TYPES = {flat: typing.get_type_hints(SECTIONS[sec])[name]
                for flat, (sec, name) in FLAT.items()}
 _ABOUT = {flat: about(f) for flat, (sec, name) in FLAT.items()

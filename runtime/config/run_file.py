@@ -13,7 +13,7 @@ import json
 import tomllib
 from typing import Any
 
-from . import FLAT, ConfigError
+from . import BY_FIELD, ConfigError
 from .sections import SECTIONS
 from .value_types import has_type, type_name
 
@@ -26,13 +26,11 @@ period the admission holds, the model foreseen, placement auto). ``thesis``: the
 graph (the model at the sample, the axes placement, the observer from the previous
 estimate with two Newton-Raphson iterations), as the 1994 comparison runs it."""
 
-_BY_FIELD = {(sec, name): flat for flat, (sec, name) in FLAT.items()}
-
 
 def _flat(section: str, key: str, where: str) -> str:
-    flat = _BY_FIELD.get((section, key))
+    flat = BY_FIELD.get((section, key))
     if flat is None:
-        keys = sorted(name for sec, name in _BY_FIELD if sec == section)
+        keys = sorted(name for sec, name in BY_FIELD if sec == section)
         if section not in SECTIONS:
             raise ConfigError(f"{where}: no section [{section}] (allowed: "
                               f"{', '.join(SECTIONS)})")

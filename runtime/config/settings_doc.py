@@ -10,7 +10,7 @@ import typing
 from dataclasses import MISSING
 from typing import Any
 
-from . import FLAT
+from . import BY_FIELD
 from .sections import SECTIONS
 from .setting import About, abouts, allowed_text
 from .value_types import type_name
@@ -19,8 +19,7 @@ from .value_types import type_name
 def settings_of(section: str) -> list[tuple[str, str, Any, About]]:
     """``(flat name, key, default, about)`` of each setting of a section, in order; the
     default None for one made afresh per run (the unit id)."""
-    back = {(sec, name): flat for flat, (sec, name) in FLAT.items()}
-    return [(back[(section, f.name)], f.name,
+    return [(BY_FIELD[(section, f.name)], f.name,
              None if f.default is MISSING else f.default, a)
             for f, a in abouts(SECTIONS[section])]
 
