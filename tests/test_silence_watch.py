@@ -196,3 +196,26 @@ def test_the_note_of_a_silence_the_plant_shared_states_the_part_not_counted():
         brief.heard_sample(rx)
     assert _fault(brief, 15_100_000, [_interval(7, {0}, deadline_ns=13 * MS)]).endswith(
         "(limit 3.0 ms, plus 0.0 ms the plant was silent too)")
+
+
+def test_a_look_at_the_inbox_without_waiting_is_no_stall_of_the_central():
+    """Where something was already due, the loop looks at its inbox without sleeping: the
+    time since it was due is not time the machine kept the central from running."""
+    w = watch()
+    w.woke(10 * MS, 15 * MS, slept_from=15 * MS - 1000)  # asked at 15 ms - 1 us, to 10 ms
+    assert not w.own_gaps
+    w.woke(20 * MS, 25 * MS, slept_from=19 * MS)  # slept from 19 ms, meant to wake at 20
+    assert list(w.own_gaps) == [(20 * MS, 25 * MS)]
+    w.woke(30 * MS, 35 * MS, slept_from=32 * MS)  # began to wait 2 ms late: 3 ms of its own
+    assert list(w.own_gaps) == [(20 * MS, 25 * MS), (32 * MS, 35 * MS)]
+
+
+def test_the_same_stall_is_never_counted_twice():
+    """Looks again and again at the same past moment count each nanosecond once: summed,
+    overlapping gaps made the silence they were waiting out longer at every look."""
+    w = watch()
+    w.woke(10 * MS, 13 * MS)
+    w.woke(10 * MS, 14 * MS)  # the same moment meant: 1 ms past the last, not a stall
+    w.woke(10 * MS, 16 * MS + 1)  # counted from where the last one ended
+    assert list(w.own_gaps) == [(10 * MS, 13 * MS), (13 * MS, 16 * MS + 1)]
+    assert w._own_stall(0, 20 * MS) == 6 * MS + 1  # from 10 ms to 16 ms, not 3 + 6 ms

@@ -237,7 +237,7 @@ class Central:
                 ev = None
             t1 = time.monotonic_ns()
             self.meters.wait_ns += t1 - t0
-            self.silence.woke(wait_until, t1)
+            self.silence.woke(wait_until, t1, slept_from=t0)
             if ev is not None:
                 self.handle(ev)
             self.check_late(time.monotonic_ns())

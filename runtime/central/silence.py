@@ -96,12 +96,22 @@ class SilenceWatch:
             if self.asked_ns[k] <= self.last_reply_ns[k]:
                 self.asked_ns[k] = now
 
-    def woke(self, meant_ns: int, now: int) -> None:
+    def woke(self, meant_ns: int, now: int, *, slept_from: int | None = None) -> None:
         """The central meant to be awake again by ``meant_ns`` and woke at ``now``: more
         than a period later is a stall of its own (the machine did not run it), which the
-        silence rule does not count (:meth:`_own_stall`)."""
-        if now - meant_ns > self.period_ns:
-            self.own_gaps.append((meant_ns, now))
+        silence rule does not count (:meth:`_own_stall`).
+
+        ``slept_from``: when the wait began. A wait that began after ``meant_ns`` (a look
+        at the inbox without waiting, because something was already due) is late by
+        nothing of its own: the stall is counted from the later of the two. Each stall
+        starts no earlier than the last one ended, so that none is counted twice
+        (silence_rule.overlap sums them): otherwise the loop's own looks would lengthen
+        the silence they wait out (docs/measurements/2026-11-27-starvation.md)."""
+        start = meant_ns if slept_from is None else max(meant_ns, slept_from)
+        if self.own_gaps:
+            start = max(start, self.own_gaps[-1][1])
+        if now - start > self.period_ns:
+            self.own_gaps.append((start, now))
 
     # -- the limit --------------------------------------------------------------------
 
