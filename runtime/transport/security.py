@@ -21,10 +21,8 @@ what not, is in docs/faults-and-errors.md (Security).
 
 from __future__ import annotations
 
-import datetime
 import ipaddress
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -41,80 +39,22 @@ def role_names(peripherals: int = MAX_PERIPHERALS) -> list[str]:
             VIEWER]
 
 
-def make_keys(directory: str | Path, *, peripherals: int = MAX_PERIPHERALS,
-              days: int = VALID_DAYS) -> list[Path]:
-    """Write a unit's credentials into ``directory`` (made if missing; existing files are
-    not overwritten: a :class:`FileExistsError` names the first). Private keys are
-    readable by their owner only. Returns the files written.
+def make_keys(directory: str | Path, *, authority: str | Path | None = None,
+              peripherals: int = MAX_PERIPHERALS, days: int = VALID_DAYS) -> list[Path]:
+    """Write a unit's credentials: ``ca.pem`` and a key and certificate per role
+    (:func:`role_names`) into ``directory``, the authority's ``ca.key`` (and a copy of
+    ``ca.pem``) into ``authority`` (default: the sibling ``<directory>-authority``). Both
+    directories are made 0700, keys 0600, certificates 0644, whatever the umask; no file
+    is overwritten (a :class:`FileExistsError` names the first, before anything is
+    written). Returns the files written, the authority's two last.
 
     Uses the ``cryptography`` package: an ECDSA P-256 authority and, per role, a
-    certificate for both TLS server and client use whose common name is the role."""
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes, serialization
-    from cryptography.hazmat.primitives.asymmetric import ec
-    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+    certificate for both TLS server and client use whose common name is the role
+    (runtime/transport/keygen.py)."""
+    from .keygen import write_keys
 
-    out = Path(directory)
-    names = role_names(peripherals)
-    files = [out / CA_CERT, out / CA_KEY] + [out / f"{r}.{x}" for r in names
-                                             for x in ("pem", "key")]
-    for f in files:
-        if f.exists():
-            raise FileExistsError(f"{f} exists: keys are never overwritten (choose another "
-                                  "directory)")
-    out.mkdir(parents=True, exist_ok=True)
-    now = datetime.datetime.now(datetime.UTC)
-    start, end = now - datetime.timedelta(minutes=5), now + datetime.timedelta(days=days)
-
-    def write_key(key: Any, path: Path) -> None:
-        data = key.private_bytes(serialization.Encoding.PEM,
-                                 serialization.PrivateFormat.PKCS8,
-                                 serialization.NoEncryption())
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-
-    def write_cert(cert: Any, path: Path) -> None:
-        path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-
-    def name(cn: str) -> Any:
-        return x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "ctrlunit"),
-                          x509.NameAttribute(NameOID.COMMON_NAME, cn)])
-
-    ca_key = ec.generate_private_key(ec.SECP256R1())
-    ca_name = name("ctrlunit unit authority")
-    usage = {k: False for k in ("digital_signature", "content_commitment", "key_encipherment",
-                                "data_encipherment", "key_agreement", "key_cert_sign",
-                                "crl_sign", "encipher_only", "decipher_only")}
-    ca = (x509.CertificateBuilder().subject_name(ca_name).issuer_name(ca_name)
-          .public_key(ca_key.public_key()).serial_number(x509.random_serial_number())
-          .not_valid_before(start).not_valid_after(end)
-          .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-          .add_extension(x509.KeyUsage(**usage | {"digital_signature": True,
-                                                  "key_cert_sign": True, "crl_sign": True}),
-                         critical=True)
-          .sign(ca_key, hashes.SHA256()))
-    write_cert(ca, out / CA_CERT)
-    write_key(ca_key, out / CA_KEY)
-    for role in names:
-        key = ec.generate_private_key(ec.SECP256R1())
-        cert = (x509.CertificateBuilder().subject_name(name(role)).issuer_name(ca_name)
-                .public_key(key.public_key()).serial_number(x509.random_serial_number())
-                .not_valid_before(start).not_valid_after(end)
-                .add_extension(x509.BasicConstraints(ca=False, path_length=None),
-                               critical=True)
-                .add_extension(x509.KeyUsage(**usage | {"digital_signature": True}),
-                               critical=True)
-                .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH,
-                                                      ExtendedKeyUsageOID.CLIENT_AUTH]),
-                               critical=False)
-                .add_extension(x509.SubjectAlternativeName([
-                    x509.DNSName("localhost"),
-                    x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False)
-                .sign(ca_key, hashes.SHA256()))
-        write_cert(cert, out / f"{role}.pem")
-        write_key(key, out / f"{role}.key")
-    return files
+    return write_keys(directory, role_names(peripherals), authority=authority, days=days,
+                      ca_cert=CA_CERT, ca_key=CA_KEY)
 
 
 def credentials(directory: str | Path, role: str) -> dict[str, str]:
