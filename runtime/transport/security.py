@@ -15,7 +15,10 @@ carries the same access-control policy (:func:`access_control`), default deny:
 - every authenticated peer, a viewer included, may subscribe and be sent what the
   central publishes; a viewer may publish nothing.
 
-Zenoh drops a message the policy denies before the role sees it. What this protects, and
+Zenoh drops a message the policy denies before the role sees it. Before anything starts,
+:func:`check_credentials` checks the files of the roles a run uses (they parse, each key
+is its certificate's, each certificate is the role's and signed by the authority, and
+valid now; no key others can read, no file others can write). What this protects, and
 what not, is in docs/faults-and-errors.md (Security).
 """
 
