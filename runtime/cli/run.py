@@ -36,7 +36,8 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     from ..launch.launcher import start as run_start
 
     try:
-        rc = make_rc(kw).validate()
+        rc = make_rc(kw)
+        rc.validate(roles=rc.started_roles)  # with --keys, every role's before any starts
     except ConfigError as exc:
         _fail(str(exc), EXIT_CONFIG)
         return
@@ -173,7 +174,7 @@ def _role_setup(kw: dict[str, Any], *, role: str,
     name = role if index is None else f"{role}-{index}"
     rc = make_rc(kw)
     try:
-        setup = make_setup(rc.validate())
+        setup = make_setup(rc.validate(roles=[name]))  # with --keys, its own credentials
     except (ConfigError, ValueError, OSError) as exc:
         _fail(str(exc), EXIT_CONFIG)
     _check_index(index, setup.placement.peripherals)  # by hand: the unit's, again below
@@ -290,7 +291,7 @@ def central(as_json: bool, **kw: Any) -> None:
     check = kw.pop("check", False)
     rc = make_rc(kw)
     try:
-        make_setup(rc.validate())
+        make_setup(rc.validate(roles=["central"]))  # with --keys, its own credentials
     except (ConfigError, ValueError, OSError) as exc:
         _fail(str(exc), EXIT_CONFIG)
         return

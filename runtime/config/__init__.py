@@ -5,7 +5,6 @@ from __future__ import annotations
 import re
 import typing
 from dataclasses import asdict, dataclass, field, fields
-from pathlib import Path
 from typing import Any
 
 from .choices import (  # noqa: F401  (re-exported: the sets belong with the configuration)
@@ -130,18 +129,31 @@ class RunConfig:
         section, name = FLAT[flat]
         return getattr(getattr(self, section), name)
 
-    def validate(self) -> RunConfig:
-        """Check every option's value; returns ``self``.
+    def validate(self, *, roles: tuple[str, ...] | list[str] = ()) -> RunConfig:
+        """Check every option's value; returns ``self``. With ``--keys``, the keys
+        directory and the credentials of ``roles`` (the roles this process starts or is:
+        :attr:`started_roles` for ``ctrlunit start``, ``("plant",)`` for ``ctrlunit
+        plant``; none: the directory and its authority alone) are checked too
+        (runtime/transport/security.py, ``check_credentials``).
 
         Raises
         ------
         ConfigError
-            Naming the first option out of its range and the range allowed.
+            Naming the first option out of its range and the range allowed, or the first
+            key file that will not do and why.
         """
         self._check_values()
         self._check_outputs()
-        self._check_host()
+        self._check_host(roles)
         return self
+
+    @property
+    def started_roles(self) -> tuple[str, ...]:
+        """The roles ``ctrlunit start`` runs: the central, the plant (not in freerun) and
+        peripheral-1 to -n."""
+        plant = () if self.schedule.clock == "freerun" else ("plant",)
+        return ("central", *plant,
+                *(f"peripheral-{k}" for k in range(1, self.schedule.peripherals + 1)))
 
     def _bad(self, name: str, allowed: str) -> ConfigError:
         """Names the option (``--max-error``) and the value as the user would write it."""
@@ -186,8 +198,9 @@ class RunConfig:
                 f"its phase margin at twice the period ({2e3 * self.schedule.period:g} ms); "
                 f"allowed with --bandwidth at most {limit:.3g} Hz, or --overload continue")
 
-    def _check_host(self) -> None:
-        """The host's scheduling, the unit id, the endpoints and the links' keys."""
+    def _check_host(self, roles: tuple[str, ...] | list[str]) -> None:
+        """The host's scheduling, the unit id, the endpoints and the links' keys (those of
+        ``roles``)."""
         from ..host.idle import check_idle
         from ..host.sched import check_priority
 
@@ -209,22 +222,22 @@ class RunConfig:
                     check_endpoint(e, option=option)
             if self.transport.zenoh_config is not None:
                 check_zenoh_config(self.transport.zenoh_config)
-            self.link_security()
+            self.link_security(roles=roles)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
 
-
-    def link_security(self, *, check_files: bool = True) -> str:
+    def link_security(self, *, check_files: bool = True,
+                      roles: tuple[str, ...] | list[str] = ()) -> str:
         """How this run's links are protected (runtime/transport/security.py, ``link_security``):
         ``tls``, ``local``, ``loopback`` or ``insecure``. Raises ValueError for a link
-        beyond the host without ``--keys`` or ``--insecure``; with ``check_files``, a
-        ``--keys`` directory must hold the authority's certificate."""
-        from ..transport.security import CA_CERT, link_security
+        beyond the host without ``--keys`` or ``--insecure``; with ``check_files``, for a
+        ``--keys`` directory whose authority or whose credentials of ``roles`` will not do
+        (``check_credentials``: the file and the reason)."""
+        from ..transport.security import check_credentials, link_security
 
         t = self.transport
-        if check_files and t.keys is not None and not (Path(t.keys) / CA_CERT).is_file():
-            raise ValueError(f"--keys {t.keys}: no {CA_CERT} there (make a unit's keys with: "
-                             "ctrlunit keys init DIR)")
+        if check_files and t.keys is not None:
+            check_credentials(t.keys, roles)
         return link_security(t.listen, t.connect, t.keys, t.insecure)
 
     @property
