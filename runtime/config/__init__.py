@@ -214,18 +214,31 @@ class RunConfig:
             raise ConfigError(str(exc)) from None
 
 
-    def link_security(self, *, check_files: bool = True) -> str:
-        """How this run's links are protected (runtime/transport/security.py, ``link_security``):
-        ``tls``, ``local``, ``loopback`` or ``insecure``. Raises ValueError for a link
-        beyond the host without ``--keys`` or ``--insecure``; with ``check_files``, a
+    def link_security(self, *, check_files: bool = True, central: str | None = None) -> str:
+        """How this run's links are protected, the weakest of them
+        (runtime/transport/security.py, ``PROTECTIONS``): ``tls``, ``local``, ``loopback``
+        or ``insecure``. Raises ValueError for a link beyond the host (a ``--zenoh-config``
+        file's, its multicast scouting included) without ``--keys`` or ``--insecure``, or
+        one that cannot carry a certificate with ``--keys``; with ``check_files``, a
         ``--keys`` directory must hold the authority's certificate."""
-        from ..transport.security import CA_CERT, link_security
+        from ..transport.security import CA_CERT, weakest
 
         t = self.transport
         if check_files and t.keys is not None and not (Path(t.keys) / CA_CERT).is_file():
             raise ValueError(f"--keys {t.keys}: no {CA_CERT} there (make a unit's keys with: "
                              "ctrlunit keys init DIR)")
-        return link_security(t.listen, t.connect, t.keys, t.insecure)
+        return weakest(self.links(central=central), keys=t.keys)
+
+    def links(self, *, central: str | None = None) -> list[dict[str, str]]:
+        """Every link of this run with what protects it (runtime/transport/security.py,
+        ``unit_links``); ``central``: the endpoint a launcher's central listens on when
+        ``--listen`` is not given. Raises ValueError as :meth:`link_security`."""
+        from ..transport.security import unit_links
+        from ..transport.zsession import file_links
+
+        path = self.transport.zenoh_config
+        return unit_links(self.transport, central=central,
+                          file=file_links(path) if path is not None else None)
 
     @property
     def bandwidth(self) -> float:

@@ -3,9 +3,10 @@
 A unit's credentials (``ctrlunit keys init DIR``, :func:`make_keys`) are one certificate
 authority and one key and certificate per role, each certificate's common name the role's
 name (``central``, ``plant``, ``peripheral-K``, ``viewer``). With ``--keys DIR`` every
-link that is not the local socket is TLS with mutual authentication (a peer without a
-certificate signed by the unit's authority cannot connect), and each role's session
-carries the same access-control policy (:func:`access_control`), default deny:
+link is TLS with mutual authentication (a peer without a certificate signed by the
+unit's authority cannot connect; a link that cannot carry a certificate, a unix socket,
+is refused), and each role's session carries the same access-control policy
+(:func:`access_control`), default deny:
 
 - only the plant publishes samples to the central;
 - only peripheral K publishes its replies (``central/reply/K``);
@@ -202,27 +203,128 @@ def reaches_beyond_host(endpoint: str) -> bool:
         return True  # a host name other than localhost
 
 
-def link_security(listen: list[str] | None, connect: list[str] | None, keys: str | None,
-                  insecure: bool) -> str:
-    """How a role's links are protected, for the report: ``tls`` (with ``keys``),
-    ``local`` (unix sockets only), ``loopback`` (a loopback address without keys: any
-    process on this host may connect) or ``insecure`` (beyond the host, ``--insecure``).
+PROTECTIONS = ("insecure", "loopback", "local", "tls")
+"""What protects a link, the weakest first: ``insecure`` (beyond the host without keys,
+``--insecure``), ``loopback`` (a loopback address without keys: any process on this
+host may connect), ``local`` (a unix socket: who may enter its directory; the default
+one's is this user's alone) and ``tls`` (mutual TLS under the unit's access control)."""
+
+CERTIFIED = ("tcp", "tls")
+"""The protocols whose links carry the roles' certificates with ``--keys`` (``tcp``
+becomes ``tls``)."""
+
+Link = tuple[str, str, str]
+"""One link: (endpoint, ``listen`` or ``connect``, where it was given: ``--listen``,
+``--connect``, ``--zenoh-config FILE`` or ``default``)."""
+
+
+def _where(endpoint: str, way: str, source: str) -> str:
+    """An endpoint as an error names it: with the option, or the file and its key."""
+    if source.startswith("--zenoh-config"):
+        return f"{source}: {way}/endpoints {endpoint}"
+    return f"{source} {endpoint}" if source.startswith("--") else endpoint
+
+
+def _beyond(endpoint: str, way: str, source: str) -> ValueError:
+    where = _where(endpoint, way, source) if source.startswith("--zenoh") else endpoint
+    return ValueError(
+        f"{where} can be reached from other hosts, and without keys anyone who can "
+        "reach it may read the unit's traffic and move the robot: make keys with "
+        "'ctrlunit keys init DIR' and give --keys DIR to every role, or --insecure for "
+        "a lab bench")
+
+
+def protect(links: list[Link], *, keys: str | None, insecure: bool,
+            multicast: str | None = None) -> list[dict[str, str]]:
+    """Each link with what protects it (:data:`PROTECTIONS`), as the report lists them:
+    ``{"endpoint", "way", "from", "protection"}``; with keys, ``tcp`` endpoints as the
+    ``tls`` ones they become. ``multicast`` names the file that turns multicast scouting
+    on (it announces the unit to, and lets it connect to, anything on the network): a
+    link of its own, ``scouting``.
 
     Raises
     ------
     ValueError
-        A link beyond the host without keys or ``--insecure``, naming the endpoint and
-        the fix."""
-    eps = [*(listen or []), *(connect or [])]
-    if keys:
-        return "tls"
-    beyond = [e for e in eps if reaches_beyond_host(e)]
-    if beyond and not insecure:
-        raise ValueError(
-            f"{beyond[0]} can be reached from other hosts, and without keys anyone who can "
-            "reach it may read the unit's traffic and move the robot: make keys with "
-            "'ctrlunit keys init DIR' and give --keys DIR to every role, or --insecure for "
-            "a lab bench")
-    if beyond:
-        return "insecure"
-    return "loopback" if any(not e.startswith("unixsock") for e in eps) else "local"
+        Without keys or ``--insecure``: a link beyond the host, or multicast scouting
+        (naming the endpoint or ``scouting/multicast/enabled``, the file, and the fix).
+        With keys: a link that cannot carry a certificate (a unix socket, udp, ...): the
+        unit's access control would drop all of its traffic."""
+    out = []
+    for endpoint, way, source in links:
+        proto = endpoint.partition("/")[0]
+        if keys:
+            if proto not in CERTIFIED:
+                raise ValueError(
+                    f"{_where(endpoint, way, source)}: with --keys every role is known by "
+                    f"its certificate, and a {proto} link carries none (the unit's access "
+                    "control would drop all of its traffic): use a tcp/ endpoint (it becomes "
+                    "tls/), e.g. tcp/127.0.0.1:7447")
+            prot = "tls"
+        elif not reaches_beyond_host(endpoint):
+            prot = "local" if proto.startswith("unixsock") else "loopback"
+        elif insecure:
+            prot = "insecure"
+        else:
+            raise _beyond(endpoint, way, source)
+        out.append({"endpoint": tls_endpoint(endpoint) if keys else endpoint, "way": way,
+                    "from": source, "protection": prot})
+    if multicast is not None:
+        if not keys and not insecure:
+            raise ValueError(
+                f"{multicast}: scouting/multicast/enabled is true, and without keys multicast "
+                "scouting announces the unit to every host of the network and connects to "
+                "what answers, which may then read its traffic and move the robot: remove it "
+                "from the file (ctrlunit turns scouting off), or make keys with 'ctrlunit keys "
+                "init DIR' and give --keys DIR to every role, or --insecure for a lab bench")
+        out.append({"endpoint": "scouting/multicast", "way": "scouting", "from": multicast,
+                    "protection": "tls" if keys else "insecure"})
+    return out
+
+
+def weakest(links: list[dict[str, str]], *, keys: str | None) -> str:
+    """The weakest protection among ``links`` (:data:`PROTECTIONS`); with none, the
+    default link's: ``tls`` with keys, else ``local``."""
+    if not links:
+        return "tls" if keys else "local"
+    return min((ln["protection"] for ln in links), key=PROTECTIONS.index)
+
+
+def unit_links(transport: Any, *, central: str | None = None,
+               file: Any = None) -> list[dict[str, str]]:
+    """The links of a unit whose transport settings are ``transport`` (a
+    ``TransportConfig``), each with its protection (:func:`protect`): the endpoints
+    listened on (``--listen``, else the launcher's ``central`` endpoint if given, and the
+    ``--zenoh-config`` file's), those connected to (``--connect``, else the file's) and
+    the file's multicast scouting if it turns it on; ``file``: what the file says
+    (runtime/transport/zsession.py, ``file_links``), given when there is one.
+
+    Raises
+    ------
+    ValueError
+        As :func:`protect`."""
+    t = transport
+    listen = t.listen or ([central] if central else [])
+    links: list[Link] = [(e, "listen", "--listen" if t.listen else "default") for e in listen]
+    links += [(e, "connect", "--connect") for e in t.connect or []]
+    multicast = None
+    if file is not None:
+        f, source = file, f"--zenoh-config {t.zenoh_config}"
+        links += [(e, "listen", source) for e in f.listen if e not in listen]
+        if t.connect is None:
+            links += [(e, "connect", source) for e in f.connect]
+        multicast = source if f.multicast else None
+    return protect(links, keys=t.keys, insecure=t.insecure, multicast=multicast)
+
+
+def link_security(listen: list[str] | None, connect: list[str] | None, keys: str | None,
+                  insecure: bool) -> str:
+    """How a role's links are protected, for the report: the weakest of
+    :data:`PROTECTIONS` among ``listen`` and ``connect`` (:func:`protect`, :func:`weakest`).
+
+    Raises
+    ------
+    ValueError
+        As :func:`protect`."""
+    links = [*((e, "listen", "--listen") for e in listen or []),
+             *((e, "connect", "--connect") for e in connect or [])]
+    return weakest(protect(links, keys=keys, insecure=insecure), keys=keys)
