@@ -226,19 +226,32 @@ class RunConfig:
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
 
-    def link_security(self, *, check_files: bool = True,
+    def link_security(self, *, check_files: bool = True, central: str | None = None,
                       roles: tuple[str, ...] | list[str] = ()) -> str:
-        """How this run's links are protected (runtime/transport/security.py, ``link_security``):
-        ``tls``, ``local``, ``loopback`` or ``insecure``. Raises ValueError for a link
-        beyond the host without ``--keys`` or ``--insecure``; with ``check_files``, for a
+        """How this run's links are protected, the weakest of them
+        (runtime/transport/security.py, ``PROTECTIONS``): ``tls``, ``local``, ``loopback``
+        or ``insecure``. Raises ValueError for a link beyond the host (a ``--zenoh-config``
+        file's, its multicast scouting included) without ``--keys`` or ``--insecure``, or
+        one that cannot carry a certificate with ``--keys``; with ``check_files``, for a
         ``--keys`` directory whose authority or whose credentials of ``roles`` will not do
         (``check_credentials``: the file and the reason)."""
-        from ..transport.security import check_credentials, link_security
+        from ..transport.security import check_credentials, weakest
 
         t = self.transport
         if check_files and t.keys is not None:
             check_credentials(t.keys, roles)
-        return link_security(t.listen, t.connect, t.keys, t.insecure)
+        return weakest(self.links(central=central), keys=t.keys)
+
+    def links(self, *, central: str | None = None) -> list[dict[str, str]]:
+        """Every link of this run with what protects it (runtime/transport/security.py,
+        ``unit_links``); ``central``: the endpoint a launcher's central listens on when
+        ``--listen`` is not given. Raises ValueError as :meth:`link_security`."""
+        from ..transport.security import unit_links
+        from ..transport.zsession import file_links
+
+        path = self.transport.zenoh_config
+        return unit_links(self.transport, central=central,
+                          file=file_links(path) if path is not None else None)
 
     @property
     def bandwidth(self) -> float:

@@ -223,12 +223,14 @@ class TransportConfig:
                                        help="Zenoh endpoint to listen on.")
     connect: list[str] | None = setting(None, flag=Flag(kind="many"),
                                         help="Zenoh endpoint to connect to.")
-    zenoh_config: str | None = setting(None, flag=Flag(kind="file"),
-                                       help="A Zenoh configuration file (JSON5).")
+    zenoh_config: str | None = setting(
+        None, flag=Flag(kind="file"),
+        help="A Zenoh configuration file (JSON5); its endpoints are checked as --listen "
+        "and --connect, and scouting stays off unless it turns it on.")
     keys: str | None = setting(
         None, flag=Flag(kind="dir"),
-        help="The unit's credentials (ctrlunit keys init DIR): every link but the local "
-        "socket is mutual TLS under the unit's access control.")
+        help="The unit's credentials (ctrlunit keys init DIR): every link is mutual TLS "
+        "under the unit's access control (the default one too: TLS on a loopback port).")
     insecure: bool = setting(False, flag=Flag(kind="flag"),
                              help="Allow links beyond this host without --keys (a lab bench).")
     timeout: float = setting(

@@ -32,7 +32,7 @@ from ..observe.report import finish_report
 from ..roles.stopping import STOP_SIGNALS, not_ignored, stop_of, stopped_by_user
 from ..roles.supervise import end_children, role_cpus, spawn_role, unit_cores
 from ..transport.node import Node, freeze_heap
-from ..transport.zsession import default_endpoint, make_config
+from ..transport.zsession import default_endpoint, loopback_endpoint, make_config
 from .admission import Unsustainable, admit
 from .run_parts import (
     STOP_REPORTS_WAIT_S,
@@ -132,17 +132,11 @@ class UnitStart:
         rc, setup = self.rc, self.setup
         self.run_dir = Path(tempfile.mkdtemp(prefix="ctrlunit-"))
         (self.run_dir / "spec.json").write_text(json.dumps({"run": rc.to_dict()}))
-        self.endpoint = rc.transport.listen[0] if rc.transport.listen \
-            else default_endpoint(self.run_dir)  # the children connect to their own central
         self.cpus = role_cpus(rc)  # (the central's, the children's): before pinning
         self.cores = unit_cores(*self.cpus) if self.spawn else None
         if self.cpus[0]:
             os.sched_setaffinity(0, self.cpus[0])  # before zenoh.open: its threads inherit it
-        # --connect joins the central to another Zenoh network (e.g. another unit's)
-        self.node = Node(make_config(listen=[self.endpoint], connect=rc.transport.connect,
-                                     config_file=rc.transport.zenoh_config,
-                                     keys=rc.transport.keys, role="central"),
-                         rc.transport.unit, "central")
+        self.node = self._central_node()
         self.guard = self._busy_guard()
         self.recorder = None
         if rc.run.record:
@@ -157,6 +151,25 @@ class UnitStart:
             on_message=self.recorder.on_message if self.recorder else None,
             supervision=supervision(self.children, self.pids, child_names(rc, setup))
             if self.spawn else Supervision())
+
+    def _central_node(self) -> Node:
+        """The central's node, listening on ``--listen``, else on the default endpoint
+        (the children connect to it): the local socket, or with keys, whose links must
+        carry the roles' certificates, TLS on a free loopback port (another on a port
+        taken meanwhile, up to 5 tries). ``--connect`` joins the central to another Zenoh
+        network (e.g. another unit's)."""
+        t = self.rc.transport
+        for attempt in range(5):
+            self.endpoint = t.listen[0] if t.listen else loopback_endpoint("tls") \
+                if t.keys else default_endpoint(self.run_dir)
+            conf = make_config(listen=[self.endpoint], connect=t.connect,
+                               config_file=t.zenoh_config, keys=t.keys, role="central")
+            try:
+                return Node(conf, t.unit, "central")
+            except Exception:  # ZError: the port was taken meanwhile
+                if t.listen or not t.keys or attempt == 4:
+                    raise
+        raise AssertionError("unreachable")
 
     def _busy_guard(self) -> BusyGuard | None:
         """Under FIFO: back to the default policy before the kernel throttles."""
@@ -282,6 +295,8 @@ class UnitStart:
         report["idle"] = self.idle
         report["scheduling_fallback"] = self.guard.report() if self.guard is not None else None
         report["zenoh"] = self.decided.get("zenoh", {})
+        report["link_list"] = rc.links(central=self.endpoint)  # the central's, the default's too
+        report["links"] = rc.link_security(check_files=False, central=self.endpoint)
         report.update(report_extras(rc, self.setup, central, cores=self.cores,
                                     spawn=self.spawn))
         if self.inspect is not None:

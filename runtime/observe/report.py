@@ -160,7 +160,8 @@ def _what_ran(rc: Any, plan: Any, task: Task, *, cycles: int, exchanges: int | N
         "cost_model": rc.control.cost_model,
         "cost_scale": rc.control.cost_scale,
         "unit": rc.transport.unit,
-        "links": rc.link_security(check_files=False),
+        "links": rc.link_security(check_files=False),  # the weakest of link_list's
+        "link_list": rc.links(),
         "round_trips": plan.round_trips,
         "rounds_ahead": plan.ahead_rounds if n and rc.schedule.pipeline > 1 else 0,
         "exchanges_per_interval": (exchanges / cycles) if exchanges is not None

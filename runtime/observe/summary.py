@@ -114,12 +114,32 @@ def _safe_stop_line(stop: Any) -> str:
 
 LINK_LINES = {
     "tls": "TLS with mutual authentication, under the unit's access control (--keys)",
+    "local": "a unix socket: who may enter its directory may connect (the default's: "
+             "this user alone)",
     "loopback": "TCP on a loopback address without keys: any process on this host may "
                 "connect (--keys DIR makes it TLS)",
     "insecure": "INSECURE: links beyond this host without keys (--insecure): anyone who "
                 "reaches them may read the unit's traffic and move the robot",
 }
-"""The summary's line on how the links were protected (none for the local socket)."""
+"""The summary's line on what protects a run's links, by protection
+(runtime/transport/security.py, ``PROTECTIONS``)."""
+
+
+def _link_lines(r: dict[str, Any]) -> list[str]:
+    """One line per protection among the report's ``link_list``, the weakest first, with
+    the endpoints it covers; a report without the list (an older one): its ``links``."""
+    listed = r.get("link_list")
+    if not isinstance(listed, list) or not listed:
+        line = LINK_LINES.get(r.get("links", "local"))
+        return [f"  links       {line}"] if line and r.get("links", "local") != "local" else []
+    lines = []
+    for prot in ("insecure", "loopback", "local", "tls"):
+        eps = [f"{ln['endpoint']} ({ln['way']}"
+               + (f", {ln['from']})" if ln["from"].startswith("--zenoh") else ")")
+               for ln in listed if ln.get("protection") == prot]
+        if eps:
+            lines.append(f"  links       {LINK_LINES[prot]}: {', '.join(eps)}")
+    return lines
 
 
 def summary(r: dict[str, Any]) -> str:
@@ -175,9 +195,7 @@ def summary(r: dict[str, Any]) -> str:
     choice = r.get("placement_choice")
     if choice:
         lines.append(f"  placement   auto: {choice['why']}")
-    links = LINK_LINES.get(r.get("links", "local"))
-    if links:
-        lines.append(f"  links       {links}")
+    lines += _link_lines(r)
     adm = r.get("admission")
     if adm and adm.get("period_s"):
         lines.append(f"  admission   {adm['period_s'] * 1e3:g} ms held in a trial of "

@@ -3,9 +3,10 @@
 A unit's credentials (``ctrlunit keys init DIR``, :func:`make_keys`) are one certificate
 authority and one key and certificate per role, each certificate's common name the role's
 name (``central``, ``plant``, ``peripheral-K``, ``viewer``). With ``--keys DIR`` every
-link that is not the local socket is TLS with mutual authentication (a peer without a
-certificate signed by the unit's authority cannot connect), and each role's session
-carries the same access-control policy (:func:`access_control`), default deny:
+link is TLS with mutual authentication (a peer without a certificate signed by the
+unit's authority cannot connect; a link that cannot carry a certificate, a unix socket,
+is refused), and each role's session carries the same access-control policy
+(:func:`access_control`), default deny:
 
 - only the plant publishes samples to the central;
 - only peripheral K publishes its replies (``central/reply/K``);
@@ -24,14 +25,14 @@ what not, is in docs/faults-and-errors.md (Security).
 
 from __future__ import annotations
 
-import datetime
 import ipaddress
 import json
 from pathlib import Path
 from typing import Any
 
-CA_CERT = "ca.pem"
-CA_KEY = "ca.key"
+from .keycheck import CA_CERT, CA_KEY
+from .keycheck import check_credentials as check_credentials  # the checks live apart
+
 VIEWER = "viewer"
 MAX_PERIPHERALS = 3
 VALID_DAYS = 365
@@ -75,165 +76,6 @@ def credentials(directory: str | Path, role: str) -> dict[str, str]:
             raise FileNotFoundError(f"--keys {directory}: {f.name} is missing (make a unit's "
                                     "keys with: ctrlunit keys init DIR)")
     return {k: str(v) for k, v in files.items()}
-
-
-def check_credentials(directory: str | Path, roles: list[str] | tuple[str, ...], *,
-                      now: datetime.datetime | None = None) -> None:
-    """Check, before anything starts, the keys directory ``directory`` for the ``roles``
-    a run uses (``central``, ``plant``, ``peripheral-K``, ``viewer``; none: the directory
-    and the authority alone), as ssh checks its keys:
-
-    - the directory exists with ``ca.pem``, and no one but its owner may write it;
-    - the authority's private key ``ca.key`` is not there (no role needs it, and whoever
-      reads it can make a certificate for any role);
-    - ``ca.pem`` parses (PEM), is a certificate authority's, is valid at ``now`` and no
-      one but its owner may write it;
-    - per role, ``ROLE.pem`` and ``ROLE.key`` exist; the key is its owner's alone (no
-      group or other permission bits), the certificate writable by its owner only; the
-      certificate parses, was issued by ``ca.pem``'s authority (issuer name and
-      signature), its common name is the role's and it is valid at ``now``; the key
-      parses, has no passphrase and is the certificate's (same public key).
-
-    ``now`` is an aware datetime; None: the current time.
-
-    Raises
-    ------
-    ValueError
-        At the first failure, one line naming the file and the reason, with the fix where
-        there is one (``--keys keys: plant.key is open to others (mode 0644; ...): chmod
-        600 keys/plant.key``).
-    """
-    d, where = Path(directory), f"--keys {directory}"
-    when = datetime.datetime.now(datetime.UTC) if now is None else now
-    if not (d / CA_CERT).is_file():
-        raise ValueError(f"{where}: no {CA_CERT} there (make a unit's keys with: ctrlunit "
-                         "keys init DIR)")
-    mode = d.stat().st_mode & 0o777
-    if mode & 0o022:
-        raise ValueError(f"{where}: {directory} can be written by others (mode {mode:04o}), "
-                         f"who could replace the unit's keys: chmod 700 {directory}")
-    if (d / CA_KEY).exists():
-        from .keygen import authority_of
-
-        raise ValueError(
-            f"{where}: {CA_KEY} is there, the authority's private key: no role needs it, and "
-            "whoever reads it can make a certificate for any role; move it off the unit's "
-            f"hosts (e.g. mv {d / CA_KEY} {authority_of(d)}/)")
-    _check_mode(d / CA_CERT, where, secret=False)
-    ca = _read_cert(d / CA_CERT, where)
-    _check_authority(ca, where, when)
-    for role in roles:
-        files = [d / f"{role}.pem", d / f"{role}.key"]
-        for f in files:
-            if not f.is_file():
-                raise ValueError(f"{where}: {f.name} is missing (each host needs {CA_CERT} "
-                                 "and its role's .pem and .key; make a unit's keys with: "
-                                 "ctrlunit keys init DIR)")
-            _check_mode(f, where, secret=f.suffix == ".key")
-        cert = _read_cert(files[0], where)
-        _check_issued(cert, ca, files[0].name, where)
-        _check_name(cert, role, where)
-        _check_time(cert, files[0].name, where, when)
-        _check_key(files[1], files[0].name, cert, where)
-
-
-def _check_mode(path: Path, where: str, *, secret: bool) -> None:
-    """A private key must have no group or other permission bits, a certificate no group
-    or other write bit."""
-    mode = path.stat().st_mode & 0o777
-    if secret and mode & 0o077:
-        raise ValueError(f"{where}: {path.name} is open to others (mode {mode:04o}; a private "
-                         f"key must be its owner's alone): chmod 600 {path}")
-    if not secret and mode & 0o022:
-        raise ValueError(f"{where}: {path.name} can be written by others (mode {mode:04o}), "
-                         f"who could replace it: chmod 644 {path}")
-
-
-def _read(path: Path, where: str) -> bytes:
-    try:
-        return path.read_bytes()
-    except OSError as exc:
-        raise ValueError(f"{where}: {path.name} cannot be read ({exc.strerror})") from None
-
-
-def _read_cert(path: Path, where: str) -> Any:
-    from cryptography import x509
-
-    try:
-        return x509.load_pem_x509_certificate(_read(path, where))
-    except ValueError:
-        raise ValueError(f"{where}: {path.name} is not a readable PEM certificate (cut short "
-                         "or damaged: copy it again from the unit's keys)") from None
-
-
-def _check_authority(ca: Any, where: str, when: datetime.datetime) -> None:
-    from cryptography import x509
-
-    try:
-        is_ca = ca.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
-    except x509.ExtensionNotFound:
-        is_ca = False
-    if not is_ca:
-        raise ValueError(f"{where}: {CA_CERT} is not a certificate authority's (its basic "
-                         "constraints do not say CA): give the unit's ca.pem")
-    _check_time(ca, CA_CERT, where, when)
-
-
-def _check_issued(cert: Any, ca: Any, name: str, where: str) -> None:
-    from cryptography.exceptions import InvalidSignature, UnsupportedAlgorithm
-
-    if cert.issuer != ca.subject:
-        raise ValueError(f"{where}: {name} was issued by '{cert.issuer.rfc4514_string()}', "
-                         f"not by the authority of {CA_CERT} "
-                         f"('{ca.subject.rfc4514_string()}')")
-    try:
-        cert.verify_directly_issued_by(ca)
-    except InvalidSignature:
-        raise ValueError(f"{where}: {name} is not signed by the authority of {CA_CERT} (its "
-                         "signature does not verify: another unit's certificate?)") from None
-    except (ValueError, TypeError, UnsupportedAlgorithm) as exc:
-        raise ValueError(f"{where}: {name}'s signature cannot be checked against {CA_CERT} "
-                         f"({exc})") from None
-
-
-def _check_name(cert: Any, role: str, where: str) -> None:
-    from cryptography.x509.oid import NameOID
-
-    cns = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
-    cn = cns[0].value if cns else None
-    if cn != role:
-        raise ValueError(f"{where}: {role}.pem is the certificate of {cn!r} (its common "
-                         f"name), not of {role}" if cn is not None else
-                         f"{where}: {role}.pem has no common name: it is not the certificate "
-                         f"of {role}")
-
-
-def _check_time(cert: Any, name: str, where: str, when: datetime.datetime) -> None:
-    start, end = cert.not_valid_before_utc, cert.not_valid_after_utc
-    if when > end:
-        raise ValueError(f"{where}: {name} expired on {end:%Y-%m-%d %H:%M} UTC (make the "
-                         "unit's keys again and replace them on every host)")
-    if when < start:
-        raise ValueError(f"{where}: {name} is valid only from {start:%Y-%m-%d %H:%M} UTC "
-                         "(is this host's clock right?)")
-
-
-def _check_key(path: Path, cert_name: str, cert: Any, where: str) -> None:
-    from cryptography.exceptions import UnsupportedAlgorithm
-    from cryptography.hazmat.primitives import serialization
-
-    try:
-        key = serialization.load_pem_private_key(_read(path, where), password=None)
-    except TypeError:
-        raise ValueError(f"{where}: {path.name} is encrypted with a passphrase, which a role "
-                         "cannot give: use the key as ctrlunit keys init writes it") from None
-    except (ValueError, UnsupportedAlgorithm):
-        raise ValueError(f"{where}: {path.name} is not a readable PEM private key (cut short "
-                         "or damaged: copy it again from the unit's keys)") from None
-    spki = serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo
-    if key.public_key().public_bytes(*spki) != cert.public_key().public_bytes(*spki):
-        raise ValueError(f"{where}: {path.name} does not match {cert_name} (the "
-                         "certificate's public key differs)")
 
 
 def _rule(rid: str, messages: list[str], keys: list[str], flows: list[str]) -> dict[str, Any]:
@@ -305,27 +147,128 @@ def reaches_beyond_host(endpoint: str) -> bool:
         return True  # a host name other than localhost
 
 
-def link_security(listen: list[str] | None, connect: list[str] | None, keys: str | None,
-                  insecure: bool) -> str:
-    """How a role's links are protected, for the report: ``tls`` (with ``keys``),
-    ``local`` (unix sockets only), ``loopback`` (a loopback address without keys: any
-    process on this host may connect) or ``insecure`` (beyond the host, ``--insecure``).
+PROTECTIONS = ("insecure", "loopback", "local", "tls")
+"""What protects a link, the weakest first: ``insecure`` (beyond the host without keys,
+``--insecure``), ``loopback`` (a loopback address without keys: any process on this
+host may connect), ``local`` (a unix socket: who may enter its directory; the default
+one's is this user's alone) and ``tls`` (mutual TLS under the unit's access control)."""
+
+CERTIFIED = ("tcp", "tls")
+"""The protocols whose links carry the roles' certificates with ``--keys`` (``tcp``
+becomes ``tls``)."""
+
+Link = tuple[str, str, str]
+"""One link: (endpoint, ``listen`` or ``connect``, where it was given: ``--listen``,
+``--connect``, ``--zenoh-config FILE`` or ``default``)."""
+
+
+def _where(endpoint: str, way: str, source: str) -> str:
+    """An endpoint as an error names it: with the option, or the file and its key."""
+    if source.startswith("--zenoh-config"):
+        return f"{source}: {way}/endpoints {endpoint}"
+    return f"{source} {endpoint}" if source.startswith("--") else endpoint
+
+
+def _beyond(endpoint: str, way: str, source: str) -> ValueError:
+    where = _where(endpoint, way, source) if source.startswith("--zenoh") else endpoint
+    return ValueError(
+        f"{where} can be reached from other hosts, and without keys anyone who can "
+        "reach it may read the unit's traffic and move the robot: make keys with "
+        "'ctrlunit keys init DIR' and give --keys DIR to every role, or --insecure for "
+        "a lab bench")
+
+
+def protect(links: list[Link], *, keys: str | None, insecure: bool,
+            multicast: str | None = None) -> list[dict[str, str]]:
+    """Each link with what protects it (:data:`PROTECTIONS`), as the report lists them:
+    ``{"endpoint", "way", "from", "protection"}``; with keys, ``tcp`` endpoints as the
+    ``tls`` ones they become. ``multicast`` names the file that turns multicast scouting
+    on (it announces the unit to, and lets it connect to, anything on the network): a
+    link of its own, ``scouting``.
 
     Raises
     ------
     ValueError
-        A link beyond the host without keys or ``--insecure``, naming the endpoint and
-        the fix."""
-    eps = [*(listen or []), *(connect or [])]
-    if keys:
-        return "tls"
-    beyond = [e for e in eps if reaches_beyond_host(e)]
-    if beyond and not insecure:
-        raise ValueError(
-            f"{beyond[0]} can be reached from other hosts, and without keys anyone who can "
-            "reach it may read the unit's traffic and move the robot: make keys with "
-            "'ctrlunit keys init DIR' and give --keys DIR to every role, or --insecure for "
-            "a lab bench")
-    if beyond:
-        return "insecure"
-    return "loopback" if any(not e.startswith("unixsock") for e in eps) else "local"
+        Without keys or ``--insecure``: a link beyond the host, or multicast scouting
+        (naming the endpoint or ``scouting/multicast/enabled``, the file, and the fix).
+        With keys: a link that cannot carry a certificate (a unix socket, udp, ...): the
+        unit's access control would drop all of its traffic."""
+    out = []
+    for endpoint, way, source in links:
+        proto = endpoint.partition("/")[0]
+        if keys:
+            if proto not in CERTIFIED:
+                raise ValueError(
+                    f"{_where(endpoint, way, source)}: with --keys every role is known by "
+                    f"its certificate, and a {proto} link carries none (the unit's access "
+                    "control would drop all of its traffic): use a tcp/ endpoint (it becomes "
+                    "tls/), e.g. tcp/127.0.0.1:7447")
+            prot = "tls"
+        elif not reaches_beyond_host(endpoint):
+            prot = "local" if proto.startswith("unixsock") else "loopback"
+        elif insecure:
+            prot = "insecure"
+        else:
+            raise _beyond(endpoint, way, source)
+        out.append({"endpoint": tls_endpoint(endpoint) if keys else endpoint, "way": way,
+                    "from": source, "protection": prot})
+    if multicast is not None:
+        if not keys and not insecure:
+            raise ValueError(
+                f"{multicast}: scouting/multicast/enabled is true, and without keys multicast "
+                "scouting announces the unit to every host of the network and connects to "
+                "what answers, which may then read its traffic and move the robot: remove it "
+                "from the file (ctrlunit turns scouting off), or make keys with 'ctrlunit keys "
+                "init DIR' and give --keys DIR to every role, or --insecure for a lab bench")
+        out.append({"endpoint": "scouting/multicast", "way": "scouting", "from": multicast,
+                    "protection": "tls" if keys else "insecure"})
+    return out
+
+
+def weakest(links: list[dict[str, str]], *, keys: str | None) -> str:
+    """The weakest protection among ``links`` (:data:`PROTECTIONS`); with none, the
+    default link's: ``tls`` with keys, else ``local``."""
+    if not links:
+        return "tls" if keys else "local"
+    return min((ln["protection"] for ln in links), key=PROTECTIONS.index)
+
+
+def unit_links(transport: Any, *, central: str | None = None,
+               file: Any = None) -> list[dict[str, str]]:
+    """The links of a unit whose transport settings are ``transport`` (a
+    ``TransportConfig``), each with its protection (:func:`protect`): the endpoints
+    listened on (``--listen``, else the launcher's ``central`` endpoint if given, and the
+    ``--zenoh-config`` file's), those connected to (``--connect``, else the file's) and
+    the file's multicast scouting if it turns it on; ``file``: what the file says
+    (runtime/transport/zsession.py, ``file_links``), given when there is one.
+
+    Raises
+    ------
+    ValueError
+        As :func:`protect`."""
+    t = transport
+    listen = t.listen or ([central] if central else [])
+    links: list[Link] = [(e, "listen", "--listen" if t.listen else "default") for e in listen]
+    links += [(e, "connect", "--connect") for e in t.connect or []]
+    multicast = None
+    if file is not None:
+        f, source = file, f"--zenoh-config {t.zenoh_config}"
+        links += [(e, "listen", source) for e in f.listen if e not in listen]
+        if t.connect is None:
+            links += [(e, "connect", source) for e in f.connect]
+        multicast = source if f.multicast else None
+    return protect(links, keys=t.keys, insecure=t.insecure, multicast=multicast)
+
+
+def link_security(listen: list[str] | None, connect: list[str] | None, keys: str | None,
+                  insecure: bool) -> str:
+    """How a role's links are protected, for the report: the weakest of
+    :data:`PROTECTIONS` among ``listen`` and ``connect`` (:func:`protect`, :func:`weakest`).
+
+    Raises
+    ------
+    ValueError
+        As :func:`protect`."""
+    links = [*((e, "listen", "--listen") for e in listen or []),
+             *((e, "connect", "--connect") for e in connect or [])]
+    return weakest(protect(links, keys=keys, insecure=insecure), keys=keys)

@@ -12,6 +12,7 @@ import functools
 import json
 import os
 import re
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,11 +57,64 @@ def check_endpoint(endpoint: str, *, option: str) -> str:
 
 
 def check_zenoh_config(path: str) -> None:
-    """``--zenoh-config``: a readable Zenoh JSON5 configuration (Zenoh's own parser)."""
+    """``--zenoh-config``: a readable Zenoh JSON5 configuration (Zenoh's own parser) whose
+    mode, if it names one, is ``peer`` (the roles are peers in a star around the central:
+    a client cannot listen, a router would route for others) and whose endpoints are
+    valid ones (:func:`check_endpoint`)."""
+    links = file_links(path)
+    if links.mode not in (None, "peer"):
+        raise ValueError(f"--zenoh-config {path}: mode {links.mode!r}: the unit's roles are "
+                         "Zenoh peers (a star around the central); remove mode from the "
+                         "file or set it to \"peer\"")
+    for key, endpoints in (("listen/endpoints", links.listen),
+                           ("connect/endpoints", links.connect)):
+        for e in endpoints:
+            check_endpoint(e, option=f"--zenoh-config {path}: {key}")
+
+
+@dataclass(frozen=True)
+class FileLinks:
+    """What a ``--zenoh-config`` file says of the links: the endpoints a peer listens on
+    and connects to (a per-mode object read for ``peer``; listen endpoints only where the
+    file gives them, not Zenoh's default), whether it turns multicast scouting and gossip
+    on or off (None: it does not say), and its mode (None: not given)."""
+
+    listen: list[str]
+    connect: list[str]
+    multicast: bool | None
+    gossip: bool | None
+    mode: str | None
+
+
+def file_links(path: str) -> FileLinks:
+    """Read :class:`FileLinks` from a Zenoh configuration file with Zenoh's parser.
+
+    Raises
+    ------
+    ValueError
+        ``--zenoh-config FILE: ...``: the file does not parse (Zenoh's message in a line)
+        or its endpoints are not lists of strings."""
     try:
-        zenoh.Config.from_file(path)
+        conf = zenoh.Config.from_file(path)
     except Exception as exc:  # ZError: syntax, unknown field, unreadable file
         raise ValueError(f"--zenoh-config {path}: {_first_line(exc)}") from None
+
+    def endpoints(key: str) -> list[str]:
+        value = json.loads(conf.get_json(key))
+        if key.startswith("listen") and value == json.loads(zenoh.Config().get_json(key)):
+            return []  # Zenoh's default, not the file's: ctrlunit listens only where asked
+        if isinstance(value, dict):  # per mode: the roles are peers
+            value = value.get("peer") or []
+        if not isinstance(value, list) or not all(isinstance(e, str) for e in value):
+            raise ValueError(f"--zenoh-config {path}: {key} must be a list of endpoints (or "
+                             "one per mode), e.g. [\"tcp/127.0.0.1:7447\"]")
+        return value
+
+    return FileLinks(listen=endpoints("listen/endpoints"),
+                     connect=endpoints("connect/endpoints"),
+                     multicast=json.loads(conf.get_json("scouting/multicast/enabled")),
+                     gossip=json.loads(conf.get_json("scouting/gossip/enabled")),
+                     mode=json.loads(conf.get_json("mode")))
 
 
 def _first_line(exc: BaseException) -> str:
@@ -158,13 +212,20 @@ def make_config(
     ----------
     listen, connect : endpoints (``tcp/127.0.0.1:7447``, ``unixsock-stream/PATH``, ...).
     lowlatency : use the low-latency transport (QoS off).
-    config_file : a Zenoh JSON5 configuration passed through (``--zenoh-config``); the
-        options above are applied on top of it only where given.
+    config_file : a Zenoh JSON5 configuration passed through (``--zenoh-config``): the
+        role listens on ``listen`` and the file's listen endpoints, and connects to
+        ``connect`` if given, else to the file's; multicast scouting and gossip stay off
+        unless the file turns them on. Whether its links may reach beyond the host is
+        :meth:`RunConfig.validate`'s check, not this function's.
     keys, role : with the unit's keys (``--keys DIR``), ``tcp`` endpoints become ``tls``
         ones, authenticated both ways as ``role`` (``central``, ``plant``,
         ``peripheral-K``, ``viewer``), under the unit's access control
         (runtime/transport/security.py).
     """
+    links = file_links(config_file) if config_file else None
+    if links is not None:
+        listen = [*(listen or []), *(e for e in links.listen if e not in (listen or []))]
+        connect = links.connect if connect is None and links.connect else connect
     if keys is not None:
         from .security import tls_endpoint
 
@@ -174,6 +235,11 @@ def make_config(
     # Zenoh's runtimes on one thread (read when a process opens its first session)
     os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
     conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    if links is not None:  # no discovery unless the file asks for it
+        if links.multicast is not True:
+            conf.insert_json5("scouting/multicast/enabled", "false")
+        if links.gossip is not True:
+            conf.insert_json5("scouting/gossip/enabled", "false")
     if not config_file:
         conf.insert_json5("mode", '"peer"')
         conf.insert_json5("scouting/multicast/enabled", "false")
@@ -195,6 +261,16 @@ def make_config(
 def default_endpoint(run_dir: Path) -> str:
     """The central's default endpoint: a unix socket in the run directory (loopback only)."""
     return f"unixsock-stream/{run_dir / 'central.sock'}"
+
+
+def loopback_endpoint(protocol: str = "tls") -> str:
+    """``PROTOCOL/127.0.0.1:PORT`` on a port free now (the kernel's choice for a socket
+    bound to port 0, then closed): the central's default endpoint with keys, whose links
+    must carry the roles' certificates, which a unix socket cannot. Another process may
+    take the port before Zenoh binds it: the caller retries on another one."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"{protocol}/127.0.0.1:{s.getsockname()[1]}"
 
 
 def pin_cpus(spec: str | None) -> None:

@@ -1,0 +1,122 @@
+"""Every link of a unit is checked before it starts, whichever way it was given: a
+``--zenoh-config`` file's endpoints and multicast scouting as ``--listen`` and
+``--connect`` are (nothing another host can reach without keys, unless ``--insecure``),
+and with ``--keys`` every link, the default one too, carries the roles' certificates.
+The report's ``link_list`` and the summary's ``links`` lines say what protects each
+(issue 56, items 4 and 5). No address beyond the host is ever contacted: those runs are
+refused before anything starts."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from ctrlunit.runtime.transport.zsession import file_links, make_config
+from runner import ctrlunit, start_json
+
+pytestmark = pytest.mark.zenoh
+
+SHORT = ("--clock", "lockstep", "--cycles", "300")
+
+
+def zenoh_file(tmp_path: Path, name: str, conf: dict) -> str:
+    path = tmp_path / f"{name}.json5"
+    path.write_text(json.dumps(conf))
+    return str(path)
+
+
+REFUSED = {
+    "connects beyond": ({"connect": {"endpoints": ["tcp/192.0.2.1:7447"]}},
+                        "connect/endpoints tcp/192.0.2.1:7447 can be reached from other hosts"),
+    "listens everywhere": ({"listen": {"endpoints": ["tcp/0.0.0.0:0"]}},
+                           "listen/endpoints tcp/0.0.0.0:0 can be reached from other hosts"),
+    "listens everywhere, per mode": (
+        {"listen": {"endpoints": {"router": ["tcp/127.0.0.1:0"], "peer": ["tcp/0.0.0.0:0"]}}},
+        "listen/endpoints tcp/0.0.0.0:0 can be reached from other hosts"),
+    "multicast scouting": ({"scouting": {"multicast": {"enabled": True}}},
+                           "scouting/multicast/enabled is true"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(REFUSED))
+def test_a_zenoh_file_reaching_beyond_the_host_without_keys_is_refused(tmp_path, case):
+    conf, says = REFUSED[case]
+    path = zenoh_file(tmp_path, "z", conf)
+    for extra in (("--check",), ("--peripherals", "1")):  # checked, and refused at start
+        res = ctrlunit("start", "--zenoh-config", path, *SHORT, *extra, timeout=120)
+        assert res.returncode == 1, (case, extra, res.stdout, res.stderr)
+        err = res.stderr.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"ctrlunit: error: --zenoh-config {path}: ")
+        assert says in err[0], err[0]
+        assert "--keys DIR" in err[0] and "--insecure" in err[0], err[0]
+    # a lab bench may (the run would then say INSECURE)
+    res = ctrlunit("start", "--zenoh-config", path, *SHORT, "--check", "--insecure",
+                   timeout=120)
+    assert res.returncode == 0, res.stderr
+
+
+def test_a_run_file_naming_such_a_zenoh_file_is_refused_too(tmp_path):
+    path = zenoh_file(tmp_path, "z", REFUSED["connects beyond"][0])
+    run = tmp_path / "run.toml"
+    run.write_text(f'[transport]\nzenoh_config = "{path}"\n')
+    for how in (("--config", str(run)), ("--set", f'transport.zenoh_config="{path}"')):
+        res = ctrlunit("start", *how, *SHORT, "--check", timeout=120)
+        assert res.returncode == 1, (how, res.stdout, res.stderr)
+        assert f"--zenoh-config {path}: connect/endpoints tcp/192.0.2.1:7447" in res.stderr
+
+
+def test_a_zenoh_file_in_another_mode_than_peer_is_refused(tmp_path):
+    path = zenoh_file(tmp_path, "z", {"mode": "router"})
+    res = ctrlunit("start", "--zenoh-config", path, *SHORT, "--check", timeout=120)
+    assert res.returncode == 1 and "mode 'router'" in res.stderr, res.stderr
+
+
+def test_a_loopback_zenoh_file_runs_and_its_links_are_reported(tmp_path):
+    path = zenoh_file(tmp_path, "z", {"listen": {"endpoints": ["tcp/127.0.0.1:0"]}})
+    code, rep, out = start_json(tmp_path, "--zenoh-config", path, "--peripherals", "1",
+                                *SHORT, tag="loopfile")
+    assert code == 0, out
+    assert rep["links"] == "loopback", rep.get("link_list")
+    ways = {(ln["endpoint"], ln["protection"]) for ln in rep["link_list"]}
+    assert ("tcp/127.0.0.1:0", "loopback") in ways  # the file's
+    assert any(p == "local" and e.startswith("unixsock-stream/") for e, p in ways)  # default
+    assert "links       TCP on a loopback address without keys" in out
+    assert f"tcp/127.0.0.1:0 (listen, --zenoh-config {path})" in out
+
+
+def test_with_a_file_scouting_stays_off_unless_it_turns_it_on(tmp_path):
+    quiet = zenoh_file(tmp_path, "quiet", {"connect": {"endpoints": ["tcp/127.0.0.1:9"]}})
+    conf = make_config(config_file=quiet)
+    assert conf.get_json("scouting/multicast/enabled") == "false"
+    assert conf.get_json("scouting/gossip/enabled") == "false"
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/127.0.0.1:9"]
+    assert json.loads(conf.get_json("listen/endpoints")) == []  # not Zenoh's default
+    loud = zenoh_file(tmp_path, "loud", {"scouting": {"multicast": {"enabled": True},
+                                                      "gossip": {"enabled": True}}})
+    conf = make_config(config_file=loud)
+    assert conf.get_json("scouting/multicast/enabled") == "true"
+    assert conf.get_json("scouting/gossip/enabled") == "true"
+    both = zenoh_file(tmp_path, "both", {"listen": {"endpoints": {"peer": ["tcp/127.0.0.1:0"]}}})
+    assert file_links(both).listen == ["tcp/127.0.0.1:0"]
+    conf = make_config(listen=["tcp/127.0.0.1:7"], config_file=both)
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7",
+                                                             "tcp/127.0.0.1:0"]
+
+
+def test_keys_with_the_default_link_run_over_tls(tmp_path):
+    keys = tmp_path / "keys"
+    init = ctrlunit("keys", "init", str(keys), timeout=120)
+    assert init.returncode == 0, init.stderr
+    code, rep, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", *SHORT,
+                                "--keys", str(keys), tag="keysdefault", timeout=180)
+    assert code == 0, out
+    assert rep["links"] == "tls" and rep["cycles"] == 300
+    (link,) = rep["link_list"]
+    assert link["endpoint"].startswith("tls/127.0.0.1:") and link["from"] == "default"
+    assert "links       TLS with mutual authentication" in out
+    assert "safe stop   NOT confirmed" not in out
+    # a link that carries no certificate would drop everything: refused before start
+    res = ctrlunit("start", "--listen", f"unixsock-stream/{tmp_path / 'c.sock'}",
+                   "--keys", str(keys), *SHORT, "--check", timeout=120)
+    assert res.returncode == 1 and "carries none" in res.stderr, res.stderr
