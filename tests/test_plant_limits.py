@@ -199,3 +199,15 @@ def test_the_stops_lie_outside_the_joint_box_of_eq_v32():
     assert LO < P.q_min and HI > P.q_max
     # the lower stop is before the arm tips meet on the robot's axis
     assert P.r_a + P.l_a * math.cos(LO) > 0.0
+
+
+def test_the_central_takes_the_plant_fault_from_its_report_and_names_it():
+    from ctrlunit.runtime.central.fault import plant_fault, role_report
+
+    kept = role_report({"exit": "fault", "fault": limits.PlantEvent(
+        limits.MECHANICAL_STOP, "plant: arm 2 at its mechanical stop -135 deg", 1.5).as_dict()})
+    fault = plant_fault(kept)
+    assert (fault.process, fault.code) == ("plant", 4)
+    assert str(fault) == ("plant: arm 2 at its mechanical stop -135 deg (mechanical_stop, "
+                          "at 1.500 s of plant time)")
+    assert "fault" not in role_report({"fault": {"name": 3, "message": "x", "time": 0.0}})
