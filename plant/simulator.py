@@ -4,6 +4,11 @@ Fixed-step RK4 with sub-steps and projection onto the constraints, first-order a
 (Eq. IV.6), torque saturation, encoder quantisation, viscous friction and an optional
 elastic belt (two-mass model per axis, § V.6.3). Usable in-process; the Zenoh role lives in
 :mod:`ctrlunit.runtime.roles.plant_node`.
+
+The plant never raises on a command: its arms stop inelastically at their mechanical stops
+(:mod:`.limits`), and where the integration meets a singular or unreachable configuration,
+a state no longer finite, or a command that is not three finite torques, it stops (the
+last valid state held, every rate zero) and names the fault in :attr:`Plant.fault`.
 """
 
 from __future__ import annotations
@@ -13,6 +18,25 @@ from dataclasses import dataclass, field
 
 from ..kernels.params import DELTA_IA, DeltaParams
 from . import mechanics as mech
+from .limits import (
+    ARM_STOPS,
+    BAD_COMMAND,
+    MAX_EVENTS,
+    MECHANICAL_STOP,
+    NON_FINITE_STATE,
+    NUMERIC_ERRORS,
+    SINGULAR,
+    PlantEvent,
+    check_command,
+    clamp_to_stops,
+    degrees,
+    reproject,
+    singular_message,
+    stop_message,
+)
+
+_FREE: list[float | None] = [None, None, None]
+""":attr:`Plant.at_stop` while no arm rests at a stop."""
 
 MAX_SUBSTEP_S = 5e-4
 """Longest RK4 sub-step (s) of the rigid plant when no sub-step count is given.
@@ -55,6 +79,10 @@ class PlantConfig:
     belt_ratio : reduction n_r (reported; the model is written at the joint).
     motor_inertia : motor and pulley inertia reflected at the joint (kg m^2).
     belt_damping : damping of the belt (N m s/rad).
+    arm_stops : ``(lower, upper)`` mechanical stops of each arm (rad), :data:`~.limits.
+        ARM_STOPS` by default (-135 and +45 deg, outside the joint box of Eq. V.32);
+        ``None``: none, the arms swing freely (to measure the integrator alone, e.g. its
+        energy drift in a free fall that swings the arms past -180 deg).
     """
 
     period: float = 1e-3
@@ -67,6 +95,7 @@ class PlantConfig:
     belt_ratio: float = 10.0
     motor_inertia: float = 0.0065
     belt_damping: float = 0.0
+    arm_stops: tuple[float, float] | None = ARM_STOPS
 
     def __post_init__(self) -> None:
         checks = {
@@ -90,6 +119,13 @@ class PlantConfig:
             raise PlantConfigError(
                 f"plant substeps = {self.substeps!r} must be an integer in [1, 10000] (or "
                 "None: automatic)")
+        lo_hi = self.arm_stops
+        if lo_hi is not None and not (isinstance(lo_hi, tuple) and len(lo_hi) == 2
+                and all(isinstance(v, float) and math.isfinite(v) for v in lo_hi)
+                and -math.pi <= lo_hi[0] < lo_hi[1] <= math.pi):
+            raise PlantConfigError(
+                f"plant arm_stops = {lo_hi!r} must be two floats lower < upper within "
+                "[-pi, pi] rad, or None")
 
     @property
     def n_substeps(self) -> int:
@@ -148,12 +184,24 @@ class Plant:
         self.state = PlantState(q=q, p=p, qd=[0.0] * 3, pd=[0.0] * 3, motor=list(q))
         self.command = [0.0, 0.0, 0.0]
         self.step_count = 0
+        self.fault: PlantEvent | None = None
+        """The fault that stopped the plant (:mod:`.limits`), or None while it runs."""
+        self.events: list[PlantEvent] = []
+        """The first :data:`~.limits.MAX_EVENTS` events (arms reaching a stop, the fault)."""
+        self.event_count = 0
+        self.at_stop: list[float | None] = [None, None, None]
+        """The stop each arm rests at (rad), None while it is within its stops."""
 
     # -- actuators ------------------------------------------------------------------------
 
     def set_command(self, tau: list[float] | tuple[float, ...]) -> None:
         """Set the commanded torques (N m), saturated at ``tau_max``. The caller validates
-        the message; this clamps."""
+        the message; this clamps, and a command that is not three finite torques is not
+        applied: the plant stops with a :data:`~.limits.BAD_COMMAND` fault."""
+        why = check_command(tau)
+        if why is not None:
+            self._stop(BAD_COMMAND, why)
+            return
         lim = self.params.tau_max
         self.command = [min(max(float(t), -lim), lim) for t in tau]
 
@@ -195,9 +243,14 @@ class Plant:
             s.motor, s.motor_d = y[12:15], y[15:18]
 
     def substep(self, h: float) -> None:
-        """Advance one sub-step of ``h`` seconds (RK4, then projection)."""
+        """Advance one sub-step of ``h`` seconds (RK4; an arm beyond a stop is stopped
+        there and the state projected onto the constraints). A stopped plant only lets
+        the time pass."""
         cfg = self.config
         s = self.state
+        if self.fault is not None:
+            s.time += h
+            return
         # exact first-order lag over the sub-step (Eq. IV.6), torque held within it
         if cfg.lag > 0.0:
             k = 1.0 - math.exp(-h / cfg.lag)
@@ -205,21 +258,84 @@ class Plant:
         else:
             s.tau_applied = list(self.command)
         tau = s.tau_applied
-        y = self._pack()
-        k1 = self._deriv(y, tau)
-        hh = 0.5 * h
-        k2 = self._deriv([a + hh * b for a, b in zip(y, k1)], tau)
-        k3 = self._deriv([a + hh * b for a, b in zip(y, k2)], tau)
-        k4 = self._deriv([a + h * b for a, b in zip(y, k3)], tau)
-        h6 = h / 6.0
-        y = [a + h6 * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(y, k1, k2, k3, k4)]
-        self._unpack(y)
+        y0 = y = self._pack()
+        try:
+            k1 = self._deriv(y, tau)
+            hh = 0.5 * h
+            k2 = self._deriv([a + hh * b for a, b in zip(y, k1)], tau)
+            k3 = self._deriv([a + hh * b for a, b in zip(y, k2)], tau)
+            k4 = self._deriv([a + h * b for a, b in zip(y, k3)], tau)
+            h6 = h / 6.0
+            y = [a + h6 * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(y, k1, k2, k3, k4)]
+        except NUMERIC_ERRORS as exc:
+            self._stop(SINGULAR, singular_message(s.q, exc))
+        else:
+            if all(map(math.isfinite, y)):
+                self._unpack(y)
+            else:
+                self._stop(NON_FINITE_STATE, "plant: the state is no longer finite after a "
+                                             f"sub-step from q = {degrees(s.q)}")
         s.time += h
+        if self.fault is None and cfg.arm_stops is not None:
+            hit = clamp_to_stops(s.q, s.qd, cfg.arm_stops)
+            if hit or self.at_stop != _FREE:
+                self._at_stops(hit, y0)
+
+    def _at_stops(self, hit: list[tuple[int, float]], y0: list[float]) -> None:
+        """After a sub-step: record each arm that came to a stop (``hit``: the arms
+        :func:`~.limits.clamp_to_stops` stopped) and let go of each that left its stop;
+        where an arm was stopped, project the state onto the constraints again (the
+        platform follows the arm), or stop the plant at ``y0`` (the state the sub-step
+        began from) if the loops no longer close."""
+        clamped = dict(hit)
+        for i in range(3):
+            stop = clamped.get(i)
+            if stop is not None and self.at_stop[i] != stop:
+                self._record(PlantEvent(MECHANICAL_STOP, stop_message(i, stop),
+                                        self.state.time))
+            self.at_stop[i] = stop
+        if not hit:
+            return
+        s = self.state
+        settled = reproject(self.params, s.q, s.p, s.qd, s.pd, time=s.time)
+        if isinstance(settled, PlantEvent):
+            self._unpack(y0)
+            self._stop(settled.name, settled.message)
+        else:
+            s.p, s.pd = settled
+
+    def _record(self, event: PlantEvent) -> None:
+        """Keep ``event`` (the first :data:`~.limits.MAX_EVENTS`) and count it."""
+        self.event_count += 1
+        if len(self.events) < MAX_EVENTS:
+            self.events.append(event)
+
+    def _stop(self, name: str, message: str) -> None:
+        """Stop the plant on a fault: the state held as it is, every rate zero, the fault
+        named (the first one stays)."""
+        if self.fault is not None:
+            return
+        s = self.state
+        s.qd, s.pd, s.motor_d = [0.0] * 3, [0.0] * 3, [0.0] * 3
+        self.fault = PlantEvent(name, message, s.time)
+        self._record(self.fault)
 
     def project(self) -> None:
-        """Project the state back onto the constraints (positions and velocities)."""
+        """Project the state back onto the constraints (positions and velocities); where
+        that cannot be solved, stop the plant (a singular configuration)."""
+        if self.fault is not None:
+            return
         s = self.state
-        s.p, s.pd = mech.project(self.params, s.q, s.p, s.qd, s.pd)
+        try:
+            p, pd = mech.project(self.params, s.q, s.p, s.qd, s.pd)
+        except NUMERIC_ERRORS as exc:
+            self._stop(SINGULAR, singular_message(s.q, exc))
+            return
+        if not all(map(math.isfinite, p + pd)):
+            self._stop(NON_FINITE_STATE, "plant: the projection onto the constraints left "
+                                         f"no finite platform state at q = {degrees(s.q)}")
+            return
+        s.p, s.pd = p, pd
 
     def step(self) -> None:
         """Advance one control period with the current command (RK4 sub-steps, then one

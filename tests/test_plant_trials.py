@@ -77,6 +77,7 @@ class FakeServer:
         self.spares_applied = 0
         self.rss_warm = -1
         self.depth = 2
+        self.fault = None
 
     def publish_sample(self, span, *, trial=None) -> None:
         self.samples.append(-1 if trial is None else trial[1])  # -1: the run's own

@@ -13,7 +13,7 @@ from typing import Any
 from ..config import EXIT_LINK
 from ..transport.codec import encode, short_text
 from ..transport.node import Event, Node
-from .fault import Fault, role_report
+from .fault import Fault, plant_fault, role_report
 
 ROLE_NAME = re.compile(r"plant|peripheral-[1-9]")
 """What a role that asks for the configuration may be called."""
@@ -53,6 +53,8 @@ class Orders:
         self.role_reports: dict[str, dict] = {}
         """Each role's final report (:func:`~.fault.role_report`), by role name."""
         self.peers_seen: set[str] = set()
+        self.stopping = False
+        """Whether :meth:`stop` has begun: a report naming a plant fault is then only kept."""
 
     def expected_roles(self) -> set[str]:
         """The names of the roles of this unit, the central's aside."""
@@ -75,7 +77,14 @@ class Orders:
     def on_hello(self, data: bytes) -> None:
         """A message on the hello key outside the handshake: a role that missed ``go``
         asks again; a ``bye`` carries a role's final report; a late ``placed`` is no
-        fault; anything else is rejected."""
+        fault; anything else is rejected.
+
+        Raises
+        ------
+        Fault
+            The plant's, with exit code 4, when its report names a plant fault (an arm at
+            its mechanical stop, a singular configuration, ...) before the stop; the
+            report is kept only from its final ``bye``, after the stop order."""
         msg = self.node.decode(data)
         if msg is None:
             return
@@ -89,7 +98,10 @@ class Orders:
             if msg.get("role") not in self.expected_roles() or type(report) is not dict:
                 self.node.reject("bad_value")
                 return
-            self.role_reports[msg["role"]] = role_report(report)
+            kept = role_report(report)
+            if "fault" in kept and msg["role"] == "plant" and not self.stopping:
+                raise plant_fault(kept)
+            self.role_reports[msg["role"]] = kept
         elif stage != "placed":  # a late acknowledgement of a place order is no fault
             self.node.reject("bad_stage")
 
@@ -190,6 +202,7 @@ class Orders:
         """Tell every role to stop, the plant to hold ``hold`` while it makes its safe
         stop, and collect their reports for up to ``wait`` seconds."""
         expected = self.expected_roles()
+        self.stopping = True
         deadline = time.monotonic() + wait
         # a fault's message is long; whole, it made the order undecodable (the roles then
         # ran on, and the plant made no safe stop, until the launcher ended them)

@@ -5,6 +5,11 @@ sample, the plant's compute span) and takes commands (three torques and the cycl
 answer). A command is rejected and counted when it is malformed (NaN, inf, wrong length
 or type), stale or from the future; the last valid command stays applied.
 
+Plant faults: when an arm reaches a mechanical stop, or the simulated robot stops on a
+singular or unreachable configuration (plant/limits.py), the plant stops ticking, sends
+its report with the ``fault`` by name at once (the central stops the unit on it), waits
+for the stop order, makes its safe stop and exits with code 4.
+
 Clocks
 ------
 ``delay`` is the number of periods from sample k to the start of the period in which the
@@ -37,11 +42,11 @@ from ...plant.simulator import Plant, PlantConfig
 from ..compute.controller import initial_angles, initial_command
 from ..compute.setup import Setup
 from ..compute.stride import StrideSchedule
-from ..config import EXIT_LINK, EXIT_OK
+from ..config import EXIT_LINK, EXIT_OK, EXIT_PLANT
 from ..host import sched
 from ..transport.codec import BadMessage, check_vector, encode
 from ..transport.node import WARM_RSS_AT, Node, control_order, cpu_used, is_stop, rss_kb, say_bye
-from .plant_orders import STOP_ORDER_WAIT_S, safe_stop, trial_order, wait_for_stop
+from .plant_orders import STOP_ORDER_WAIT_S, announce_fault, safe_stop, trial_order, wait_for_stop
 from .stopping import stop_of, stop_signals
 
 SLEEP_SLICE_S = 0.02
@@ -78,6 +83,10 @@ class PlantServer:
         periods), runtime/compute/stride.py."""
         self.next_trial: tuple[float, int, int] | None = None
         """A trial order that came during a trial: it ends that trial and runs next."""
+        self.fault: dict[str, Any] | None = None
+        """The plant fault that ends the run (``name``, ``message``, ``time``): the first
+        arm that reached its mechanical stop (a real robot hit its end stop), or the fault
+        that stopped the simulated robot (plant/limits.py)."""
 
     def take_command(self, data: bytes) -> None:
         msg = self.node.decode(data)
@@ -168,8 +177,8 @@ class PlantServer:
         self.plant.step()
         t1 = time.monotonic_ns()
         self.busy_ns += t1 - t0
-        if not all(math.isfinite(x) for x in self.plant.state.q):
-            raise FloatingPointError("plant state is no longer finite")
+        if self.plant.event_count:  # the first: an arm at its stop, or a fault that stopped
+            self.fault = self.plant.events[0].as_dict()  # the robot (plant/limits.py)
         return t0, t1
 
 
@@ -201,10 +210,9 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
     t_start = time.monotonic_ns()
     server.publish_sample((t_start, t_start))
     span = server.simulate() if causal else (t_start, t_start)  # the state at T, ahead
-    exit_reason = "done"
     tick_ns = int(period * 1e9)
     next_tick = time.monotonic_ns() + tick_ns
-    while server.sample_no < cycles:
+    while server.sample_no < cycles and server.fault is None:  # a fault: the robot stopped
         if clock == "lockstep":
             due = server.sample_no - delay
             if due >= 0:
@@ -241,8 +249,9 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
                 server.publish_sample(span)
             if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
                 return _result(server, "watchdog", t_start)
-    # keep answering until the central says stop (it may still be finishing)
-    deadline = time.monotonic() + watchdog
+    # keep answering until the central says stop (it may still be finishing); a fault
+    # is reported at once (run_plant)
+    deadline = time.monotonic() + (0.0 if server.fault else watchdog)
     while time.monotonic() < deadline:
         try:
             ev = node.events.get(timeout=0.1)
@@ -252,7 +261,7 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
             break
         if ev.kind == "command":
             server.take_command(ev.data)
-    return _result(server, exit_reason, t_start)
+    return _result(server, "fault" if server.fault else "done", t_start)
 
 
 def sleep_to_tick(node: Node, server: PlantServer, tick_ns: int, *,
@@ -335,7 +344,7 @@ def _result(server: PlantServer, reason: str, t_start: int) -> dict[str, Any]:
             "rejected": dict(server.node.rejected), "commands": server.commands_taken,
             "spares": server.spares_applied,
             "rss_kb": {"warm": server.rss_warm, "end": rss_kb()},
-            "cpu_s": cpu_used(server.node)}
+            "cpu_s": cpu_used(server.node)} | ({"fault": server.fault} if server.fault else {})
 
 
 def run_plant(setup: Setup, conf: Any) -> int:
@@ -374,6 +383,9 @@ def run_plant(setup: Setup, conf: Any) -> int:
             code, _ = stop_of(exc)  # the robot brakes all the same
             res = _result(server, "interrupted", t_serve)
             wait_for_stop(node, STOP_ORDER_WAIT_S)
+        if res["exit"] == "fault":  # named at once; the central's stop order brings the hold
+            announce_fault(node, res)
+            wait_for_stop(node, STOP_ORDER_WAIT_S)
         hold = (node.stop_msg or {}).get("hold")
         if isinstance(hold, list) and len(hold) == 3 and all(
                 isinstance(x, float) and math.isfinite(x) for x in hold):
@@ -383,4 +395,6 @@ def run_plant(setup: Setup, conf: Any) -> int:
         say_bye(node, res)
         if code != EXIT_OK:
             return code
+        if res["exit"] == "fault":
+            return EXIT_PLANT
         return EXIT_OK if res["exit"] in ("stop", "done") else EXIT_LINK

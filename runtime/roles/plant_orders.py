@@ -1,6 +1,7 @@
 """What the plant takes from the central outside its ticks (:mod:`.plant_node`): an
 admission trial's order, checked; the stop order, waited for when a signal of its own
-stopped the plant; and the safe stop it then makes (docs/faults-and-errors.md)."""
+stopped the plant; the safe stop it then makes; and the report that names a plant fault
+at once (docs/faults-and-errors.md)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import time
 from typing import Any
 
 from ...plant.simulator import Plant
+from ..transport.codec import encode
 from ..transport.node import Node, is_stop
 
 TRIAL_MAX_S = 60.0
@@ -22,6 +24,14 @@ torques to hold (gravity compensation at the central's estimate); the last comma
 carries the path's inertial torques, and braking on it left the platform at 0.47 m/s
 instead of under 2 mm/s. A signal to the whole job reaches the central too, whose order
 follows within milliseconds; a plant run by hand and stopped alone waits it out."""
+
+
+def announce_fault(node: Node, report: dict[str, Any]) -> None:
+    """Send the plant's report naming its fault at once, once (the central stops the
+    unit on it and then waits for the final report, sent after the safe stop; copies of
+    this one, as ``say_bye`` sends, could stand in for that one)."""
+    node.publisher(node.keys.hello).put(
+        encode(node.unit, 0, "bye", role=node.role, report=report))
 
 
 def trial_order(node: Node, ev: Any) -> tuple[float, int, int] | None:
@@ -83,4 +93,5 @@ def safe_stop(plant: Plant, *, hold_s: float = 0.05, damping: float = 5.0,
             "speed_m_s": math.hypot(*plant.state.pd)}
 
 
-__all__ = ["STOP_ORDER_WAIT_S", "TRIAL_MAX_S", "safe_stop", "trial_order", "wait_for_stop"]
+__all__ = ["STOP_ORDER_WAIT_S", "TRIAL_MAX_S", "announce_fault", "safe_stop", "trial_order",
+           "wait_for_stop"]
