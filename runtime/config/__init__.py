@@ -238,9 +238,10 @@ class RunConfig:
         from ..transport.security import check_credentials, weakest
 
         t = self.transport
+        links = self.links(central=central)  # the link rule first: it needs no file
         if check_files and t.keys is not None:
             check_credentials(t.keys, roles)
-        return weakest(self.links(central=central), keys=t.keys)
+        return weakest(links, keys=t.keys)
 
     def links(self, *, central: str | None = None) -> list[dict[str, str]]:
         """Every link of this run with what protects it (runtime/transport/security.py,

@@ -67,6 +67,17 @@ def live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
     return view
 
 
+def observers_view(rc: RunConfig, setup: Setup, node: Any) -> Any:
+    """The observers' view on ``ctrlunit/<unit>/view/`` (runtime/observe/zview.py) in the
+    central's session ``node``: built only while someone subscribes."""
+    from ..observe.viewer import LiveView
+    from ..observe.zview import ZenohSink
+
+    return LiveView(sink=ZenohSink(node.session, node.keys), task=view_task(rc, setup),
+                    period_s=rc.schedule.period, cycles=setup.cycles,
+                    rate_hz=rc.run.foxglove_rate)
+
+
 def view_task(rc: RunConfig, setup: Setup) -> Any:
     """The reference the live view draws (none in freerun)."""
     return setup.task if rc.schedule.clock != "freerun" else None
@@ -132,5 +143,5 @@ def report_extras(rc: RunConfig, setup: Setup, central: Central, *, cores: int |
     return out
 
 
-__all__ = ["STOP_REPORTS_WAIT_S", "chain", "child_names", "live_view", "report_extras",
-           "status_writer", "supervision", "view_task"]
+__all__ = ["STOP_REPORTS_WAIT_S", "chain", "child_names", "live_view", "observers_view",
+           "report_extras", "status_writer", "supervision", "view_task"]

@@ -39,11 +39,15 @@ from .run_parts import (
     chain,
     child_names,
     live_view,
+    observers_view,
     report_extras,
     status_writer,
     supervision,
     view_task,
 )
+
+OBSERVERS_JOIN_S = 0.5
+"""How long the end of a run waits for the observers' view to send its last messages."""
 
 
 class UnitStart:
@@ -138,6 +142,7 @@ class UnitStart:
             os.sched_setaffinity(0, self.cpus[0])  # before zenoh.open: its threads inherit it
         self.node = self._central_node()
         self.guard = self._busy_guard()
+        self.observers = observers_view(rc, setup, self.node)
         self.recorder = None
         if rc.run.record:
             from ..recording.recorder import Recorder
@@ -147,7 +152,8 @@ class UnitStart:
         self.central = Central(
             self.node, rc, engine, setup.controller(engine), setup.cycles,
             on_cycle=chain(self.recorder.on_cycle if self.recorder else None, self.progress,
-                           self.viewer, status_writer(rc.run.status_file), self.guard),
+                           self.viewer, self.observers, status_writer(rc.run.status_file),
+                           self.guard),
             on_message=self.recorder.on_message if self.recorder else None,
             supervision=supervision(self.children, self.pids, child_names(rc, setup))
             if self.spawn else Supervision())
@@ -259,6 +265,7 @@ class UnitStart:
                          wait=5.0 if self.fault is None else STOP_REPORTS_WAIT_S)
         finally:
             end_children(self.children, grace=0.3 if interrupted else 1.0)
+            self.observers.close(join_s=OBSERVERS_JOIN_S)
             self.node.close()
             if self.recorder is not None:
                 self.recorder.close(central)
@@ -307,6 +314,10 @@ class UnitStart:
         if self.viewer is not None:
             report["live_view"] = {"url": self.viewer.url, "sent": self.viewer.sent,
                                    "dropped": self.viewer.dropped}
+        report["observers"] = {"keys": self.observers.url, "sent": self.observers.sent,
+                               "dropped": self.observers.dropped}
+        if self.node.close_error is not None:
+            report["zenoh"]["close_error"] = self.node.close_error
         return report
 
 

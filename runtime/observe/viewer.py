@@ -82,13 +82,63 @@ RUNNING_SCHEMA: dict[str, Any] = {
 }
 
 
+class FoxgloveSink:
+    """A Foxglove WebSocket server (the ``foxglove-sdk`` package) with the view's two JSON
+    channels. Raises ``OSError`` naming the address when it cannot listen there."""
+
+    listening = True
+    """The server keeps what it is sent for the viewers that connect later."""
+
+    def __init__(self, *, host: str, port: int, name: str) -> None:
+        import foxglove  # only a run with --foxglove pays for the import
+
+        self._ctx = foxglove.Context()
+        try:
+            self._server = foxglove.start_server(
+                name=name, host=host, port=port, context=self._ctx,
+                message_backlog_size=BACKLOG)
+        except Exception as exc:  # the SDK raises its own error type
+            raise OSError(f"--foxglove {host}:{port}: cannot listen there ({exc})") from None
+        self.host, self.port = host, self._server.port
+        self._state = self._channel(foxglove, STATE_TOPIC, SIGNALS_SCHEMA)
+        self._running = self._channel(foxglove, RUNNING_TOPIC, RUNNING_SCHEMA)
+
+    def _channel(self, foxglove: Any, topic: str, schema: dict) -> Any:
+        return foxglove.Channel(
+            topic, message_encoding="json", context=self._ctx,
+            schema=foxglove.Schema(name=schema["title"], encoding="jsonschema",
+                                   data=json.dumps(schema).encode()))
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def state(self, payload: bytes, log_time: int) -> None:
+        self._state.log(payload, log_time=log_time)
+
+    def running(self, payload: bytes, log_time: int) -> None:
+        self._running.log(payload, log_time=log_time)
+
+    def close(self) -> None:
+        """Stop the server: its stop waits for its clients to take a close frame, and one
+        that stopped reading holds it for ~50 s; the run does not wait (the thread ends
+        with it)."""
+        stopper = threading.Thread(target=self._server.stop, name="ctrlunit-foxglove-stop",
+                                   daemon=True)
+        stopper.start()
+        stopper.join(timeout=STOP_WAIT_S)
+
+
 class LiveView:
-    """The Foxglove server of one run; the central's ``on_cycle`` callback.
+    """The live view of one run; the central's ``on_cycle`` callback.
 
     Parameters
     ----------
-    host, port : where the WebSocket server listens (port 0: any free port; see
-        :attr:`port`).
+    sink : where the messages go: ``state(payload, log_time)``, ``running(payload,
+        log_time)``, ``listening`` (nothing is built while it is false), ``url`` and
+        ``close()``; by default a :class:`FoxgloveSink` on ``host``, ``port`` (port 0: any
+        free port) named ``name``; runtime/observe/zview.py's ``ZenohSink`` for the
+        observers' keys.
     task : the task whose ``sample(t)[0]`` is the reference (``None`` in freerun).
     period_s : the nominal period (s).
     cycles : intervals planned.
@@ -100,21 +150,12 @@ class LiveView:
     address when the server cannot listen there.
     """
 
-    def __init__(self, *, host: str, port: int, task: Any | None, period_s: float,
-                 cycles: int, rate_hz: float = RATE_HZ, name: str = "ctrlunit") -> None:
-        import foxglove  # only a run with --foxglove pays for the import
-
+    def __init__(self, *, task: Any | None, period_s: float, cycles: int,
+                 rate_hz: float = RATE_HZ, host: str = "127.0.0.1", port: int = 0,
+                 name: str = "ctrlunit", sink: Any | None = None) -> None:
         self.task, self.period_s, self.cycles = task, period_s, cycles
-        self._ctx = foxglove.Context()
-        try:
-            self._server = foxglove.start_server(
-                name=name, host=host, port=port, context=self._ctx,
-                message_backlog_size=BACKLOG)
-        except Exception as exc:  # the SDK raises its own error type
-            raise OSError(f"--foxglove {host}:{port}: cannot listen there ({exc})") from None
-        self.host, self.port = host, self._server.port
-        self._state = self._channel(foxglove, STATE_TOPIC, SIGNALS_SCHEMA)
-        self._running = self._channel(foxglove, RUNNING_TOPIC, RUNNING_SCHEMA)
+        self.sink = sink if sink is not None else FoxgloveSink(host=host, port=port,
+                                                                 name=name)
         self._queue: collections.deque[Interval] = collections.deque(maxlen=QUEUE_INTERVALS)
         self.appended = 0
         self.sent = 0
@@ -131,15 +172,15 @@ class LiveView:
                                         daemon=True)
         self._thread.start()
 
-    def _channel(self, foxglove: Any, topic: str, schema: dict) -> Any:
-        return foxglove.Channel(
-            topic, message_encoding="json", context=self._ctx,
-            schema=foxglove.Schema(name=schema["title"], encoding="jsonschema",
-                                   data=json.dumps(schema).encode()))
-
     @property
     def url(self) -> str:
-        return f"ws://{self.host}:{self.port}"
+        """Where the view is read (the sink's address)."""
+        return str(self.sink.url)
+
+    @property
+    def port(self) -> int:
+        """The Foxglove server's port."""
+        return int(self.sink.port)
 
     # -- the central's thread ----------------------------------------------------------
 
@@ -147,6 +188,8 @@ class LiveView:
         """``on_cycle``: note the interval if it is due to be shown (a tuple into a bounded
         deque; nothing waits)."""
         self._central = central
+        if not self.sink.listening:
+            return  # nobody reads: nothing is built
         t = central.log.cmd_ns[-1]
         if self._due_ns is not None and t < self._due_ns:
             return
@@ -171,7 +214,7 @@ class LiveView:
                 break
             msg = state_message(iv, period_s=self.period_s, task=self.task,
                                 previous_cmd_ns=iv.previous_cmd_ns)
-            self._state.log(orjson.dumps(msg), log_time=iv.cmd_ns + self._wall_offset_ns)
+            self.sink.state(orjson.dumps(msg), iv.cmd_ns + self._wall_offset_ns)
             self.sent += 1
             # hand the GIL back often: the central's thread, returning from a wait in
             # Zenoh, would otherwise wait for it up to the switch interval (5 ms); a yield
@@ -206,7 +249,7 @@ class LiveView:
                 "dropped": self.dropped}
 
     def _send_running(self) -> None:
-        self._running.log(json.dumps(self.running()).encode(), log_time=time.time_ns())
+        self.sink.running(json.dumps(self.running()).encode(), time.time_ns())
 
     def _run(self) -> None:
         next_running = time.monotonic() + RUNNING_EVERY_S
@@ -237,21 +280,18 @@ class LiveView:
 
     # -- end ---------------------------------------------------------------------------
 
-    def close(self, *, linger_s: float = 0.0) -> None:
+    def close(self, *, linger_s: float = 0.0, join_s: float = 5.0) -> None:
         """Send what is left and the last running figures, keep serving ``linger_s``
-        seconds (so that a viewer sees the end), then stop the server."""
+        seconds (so that a viewer sees the end), then close the sink. Waits at most
+        ``join_s`` for the view's thread (one held in a send by a reader that stopped
+        reading is left behind: it ends with the process)."""
         if self._stop.is_set():
             return
         self._stop.set()
-        self._thread.join(timeout=5.0)
+        self._thread.join(timeout=join_s)
         if linger_s > 0:
             time.sleep(linger_s)
-        # the server's stop waits for its clients to take a close frame: one that stopped
-        # reading holds it for ~50 s; the run does not wait (the thread ends with it)
-        stopper = threading.Thread(target=self._server.stop, name="ctrlunit-foxglove-stop",
-                                   daemon=True)
-        stopper.start()
-        stopper.join(timeout=STOP_WAIT_S)
+        self.sink.close()
 
     def __enter__(self) -> LiveView:
         return self

@@ -214,10 +214,13 @@ class Node:
         self.events.route(key, kind, index)
 
     def publisher(self, key: str) -> zenoh.Publisher:
-        """A publisher that never drops: every exchange of the interval must arrive (Zenoh's
-        default congestion control for publications is DROP)."""
+        """A publisher that never waits for a reader that stops reading: under DROP
+        congestion control a peer whose transmit queue is full loses the message, the
+        others get it (runtime/transport/zsession.py, ``closed_links``). The unit's roles
+        read as fast as they are sent to: a role whose queue fills is silent past its
+        limit long before (the silence watch names it)."""
         return self.session.declare_publisher(
-            key, congestion_control=zenoh.CongestionControl.BLOCK)
+            key, congestion_control=zenoh.CongestionControl.DROP)
 
     def decode(self, data: bytes) -> dict[str, Any] | None:
         """Decode a message for this unit, or count and drop it."""
@@ -231,8 +234,18 @@ class Node:
         self.rejected[reason] += 1
 
     def close(self) -> None:
+        """End the inbox and the session. A session that cannot close (Zenoh gives up after
+        its own time-out, e.g. while a peer that stopped reading holds a link) is left to
+        the process's end: what the run measured is written all the same; the reason is
+        kept in :attr:`close_error`."""
         self.events.close()
-        self.session.close()
+        try:
+            self.session.close()
+        except Exception as exc:  # zenoh.ZError
+            self.close_error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+    close_error: str | None = None
+    """Why the session did not close, if it did not."""
 
     def __enter__(self) -> Node:
         return self

@@ -13,8 +13,10 @@ is refused), and each role's session carries the same access-control policy
 - only the central publishes into the plant's and the peripherals' inboxes (requests,
   commands, orders);
 - the unit's roles say hello and bye to the central;
-- every authenticated peer, a viewer included, may subscribe and be sent what the
-  central publishes; a viewer may publish nothing.
+- each role may subscribe to, and be sent, its own inbox alone; a viewer the observers'
+  keys (``view/``) alone, and it may publish nothing. A reader that stops reading can
+  then hold back no put of the control path (runtime/transport/zsession.py,
+  ``closed_links``).
 
 Zenoh drops a message the policy denies before the role sees it. Before anything starts,
 :func:`check_credentials` checks the files of the roles a run uses (they parse, each key
@@ -34,6 +36,8 @@ from .keycheck import CA_CERT, CA_KEY
 from .keycheck import check_credentials as check_credentials  # the checks live apart
 
 VIEWER = "viewer"
+VIEWER_KEYS = "view"
+"""The observers' key space, ``ctrlunit/<unit>/view/``: all a viewer may read."""
 MAX_PERIPHERALS = 3
 VALID_DAYS = 365
 
@@ -85,22 +89,34 @@ def _rule(rid: str, messages: list[str], keys: list[str], flows: list[str]) -> d
 
 def access_control(peripherals: int = MAX_PERIPHERALS) -> dict[str, Any]:
     """The unit's access-control policy (Zenoh's ``access_control`` section), the same on
-    every role's session; subjects are certificate common names (module notes)."""
+    every role's session; subjects are certificate common names (module notes). Each
+    subject may subscribe to, and be sent, its own inbox alone (the central ``central/``,
+    the plant ``plant/``, every peripheral ``peripheral/``) and a viewer the observers'
+    keys ``view/`` alone: no reader but the roles an interval needs gets the control
+    path's messages, so none can hold back a put on it."""
     unit = "ctrlunit/*"
     roles = role_names(peripherals)
     units = [r for r in roles if r != VIEWER]
+    inbox = {"central": "central", "plant": "plant", VIEWER: VIEWER_KEYS,
+             **{f"peripheral-{k}": "peripheral" for k in range(1, peripherals + 1)}}
     rules = [
-        _rule("subscribe", ["declare_subscriber"], ["ctrlunit/**"], ["ingress", "egress"]),
-        _rule("send", ["put"], ["ctrlunit/**"], ["egress"]),
+        # a unit's role learns the others' subscriptions (where to send)
+        _rule("learn", ["declare_subscriber"], ["ctrlunit/**"], ["egress"]),
+        *(rule for p in sorted(set(inbox.values())) for rule in (
+            _rule(f"sub-{p}", ["declare_subscriber"], [f"{unit}/{p}/**"], ["ingress"]),
+            _rule(f"to-{p}", ["put"], [f"{unit}/{p}/**"], ["egress"]))),
         _rule("hello", ["put"], [f"{unit}/central/hello"], ["ingress"]),
         _rule("sample", ["put"], [f"{unit}/central/sample"], ["ingress"]),
-        _rule("orders", ["put"], [f"{unit}/plant/**", f"{unit}/peripheral/**"], ["ingress"]),
+        _rule("orders", ["put"], [f"{unit}/plant/**", f"{unit}/peripheral/**",
+                                  f"{unit}/{VIEWER_KEYS}/**"], ["ingress"]),
         *(_rule(f"reply-{k}", ["put"], [f"{unit}/central/reply/{k}"], ["ingress"])
           for k in range(1, peripherals + 1)),
     ]
     subjects = [{"id": r, "cert_common_names": [r]} for r in roles]
     policies = [
-        {"id": "everyone", "rules": ["subscribe", "send"], "subjects": roles},
+        {"id": "units", "rules": ["learn"], "subjects": units},
+        *({"id": f"inbox-{r}", "rules": [f"sub-{inbox[r]}", f"to-{inbox[r]}"],
+           "subjects": [r]} for r in roles),
         {"id": "roles", "rules": ["hello"], "subjects": [r for r in units if r != "central"]},
         {"id": "plant", "rules": ["sample"], "subjects": ["plant"]},
         {"id": "central", "rules": ["orders"], "subjects": ["central"]},

@@ -170,19 +170,27 @@ class Keys:
         """Central -> plant: the torques of one interval."""
         return f"{self.root}/plant/command"
 
+    def view(self, name: str) -> str:
+        """Central -> observers: ``view/state``, ``view/running`` (runtime/observe/zview.py);
+        the only keys a viewer may read with keys."""
+        return f"{self.root}/view/{name}"
+
     def control(self, role: str) -> str:
         """Central -> ``role`` (peripheral or plant): go, start, stop."""
         return f"{self.root}/{role}/control"
 
 
 ZENOH_RUNTIME = ("(rx: (handover: app), tx: (handover: app), acc: (handover: app), "
-                 "net: (handover: app), app: (worker_threads: 1))")
+                 "net: (handover: app), app: (worker_threads: 2))")
 """Zenoh's asynchronous runtimes (receive, transmit, accept, network, application) as
-one worker thread per process, unless the environment already sets ``ZENOH_RUNTIME``.
-By default each is a pool of its own, and a message crosses threads on its way between
-the socket and the role's inbox. Measured side by side (docs/message-costs.md): a round
-trip between two processes 30-50 % faster at the median and 35-45 %
-less CPU; the main job at a fixed 2 ms, 3-12 % less CPU per interval, misses no worse."""
+one pool of two worker threads per process, unless the environment already sets
+``ZENOH_RUNTIME``. By default each is a pool of its own, and a message crosses threads on
+its way between the socket and the role's inbox. Measured side by side
+(docs/message-costs.md): a round trip between two processes 30-50 % faster at the median
+and 35-45 % less CPU; the main job at a fixed 2 ms, 3-12 % less CPU per interval, misses
+no worse; one worker and two alike. Two, because a link Zenoh closes while its peer has
+stopped reading holds the worker that closes it: with one, no other link's message was
+received until the run faulted (docs/measurements/2026-11-27-observers.md)."""
 
 
 @functools.cache
@@ -197,11 +205,31 @@ def zenoh_log() -> bool:
     return True
 
 
+WAIT_BEFORE_DROP_US = 100
+"""How long a put waits for room in a peer's full transmit queue before it drops the
+message for that peer (Zenoh's default: 1000 us). Only a peer that stops reading fills
+its queue (two batches of 64 KB per priority, behind its socket's buffer); once full,
+Zenoh drops at once until it drains."""
+
+
+def closed_links(endpoints: list[str], *, keys: str | None) -> bool:
+    """Whether only the unit's roles can read its control keys over these links: every
+    link a unix socket (in the run's directory, its user's alone), or the unit's keys (its
+    access control gives each role its own inbox and an observer the ``view`` keys
+    alone: runtime/transport/security.py). There the roles use Zenoh's low-latency
+    transport, whose put writes to each subscriber's socket itself and so waits for one
+    that stops reading (docs/message-costs.md). Elsewhere (TCP without keys: any process
+    on the host may subscribe to anything) they use the default transport, whose put
+    hands each peer's copy to that peer's queue and, under DROP congestion control
+    (:meth:`~.node.Node.publisher`), drops it there when that queue is full."""
+    return keys is not None or all(e.startswith("unixsock") for e in endpoints)
+
+
 def make_config(
     *,
     listen: list[str] | None = None,
     connect: list[str] | None = None,
-    lowlatency: bool = True,
+    lowlatency: bool | None = None,
     config_file: str | None = None,
     keys: str | None = None,
     role: str = "central",
@@ -211,7 +239,8 @@ def make_config(
     Parameters
     ----------
     listen, connect : endpoints (``tcp/127.0.0.1:7447``, ``unixsock-stream/PATH``, ...).
-    lowlatency : use the low-latency transport (QoS off).
+    lowlatency : use the low-latency transport (QoS off); None: where only the unit's
+        roles can read its control keys (:func:`closed_links`).
     config_file : a Zenoh JSON5 configuration passed through (``--zenoh-config``): the
         role listens on ``listen`` and the file's listen endpoints, and connects to
         ``connect`` if given, else to the file's; multicast scouting and gossip stay off
@@ -244,9 +273,14 @@ def make_config(
         conf.insert_json5("mode", '"peer"')
         conf.insert_json5("scouting/multicast/enabled", "false")
         conf.insert_json5("scouting/gossip/enabled", "false")
+        if lowlatency is None:
+            lowlatency = closed_links([*(listen or []), *(connect or [])], keys=keys)
         if lowlatency:
             conf.insert_json5("transport/unicast/lowlatency", "true")
             conf.insert_json5("transport/unicast/qos/enabled", "false")
+        else:  # a reader that stops reading fills only its own queue, then loses messages
+            conf.insert_json5("transport/link/tx/queue/congestion_control/drop/"
+                              "wait_before_drop", str(WAIT_BEFORE_DROP_US))
     # listen only where asked (Zenoh's default would open a port on every interface)
     conf.insert_json5("listen/endpoints", json.dumps(listen or []))
     if connect is not None:

@@ -1,0 +1,168 @@
+"""Observers never hold back control: a reader that stops reading (its Zenoh receive
+thread blocked on a full channel, so its socket fills and its keep-alives stop) costs the
+commands nothing, with keys (a viewer's certificate: the observers' keys ``view/`` alone)
+and without them (a loopback TCP listener, where any local process may subscribe to the
+control path). docs/measurements/2026-11-27-observers.md has the figures."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+from ctrlunit.runtime.transport.zsession import Keys
+from runner import kill_unit, start_json, unit_id
+from test_fuzz import free_port
+
+pytestmark = pytest.mark.zenoh
+
+READER = str(Path(__file__).with_name("frozen_reader.py"))
+
+
+@pytest.fixture(scope="module")
+def unit_keys(tmp_path_factory):
+    from ctrlunit.runtime.transport.security import make_keys
+
+    d = tmp_path_factory.mktemp("keys") / "unit"
+    make_keys(d, peripherals=3)
+    return d
+
+
+def _reader(endpoint: str, key: str, seconds: float, keys: Path | None
+            ) -> subprocess.Popen:
+    args = [sys.executable, READER, endpoint, key, str(seconds)]
+    if keys is not None:
+        args += [str(keys), "viewer"]
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=os.environ | {"PYTHONPATH": str(Path(__file__).parent)})
+
+
+def run_with_readers(tmp_path: Path, tag: str, readers: list[str], *options: str,
+                     keys: Path | None = None, after: int = 200, timeout: float = 240
+                     ) -> tuple[int, dict, str, list[str]]:
+    """``ctrlunit start`` listening on a loopback TCP port (TLS with ``keys``) and, once
+    ``after`` intervals are done, one frozen reader per key suffix of ``readers``
+    (``**``: everything of the unit). Returns the run's exit code, report and output, and
+    each reader's output (``got 1``: it took a message before it froze)."""
+    port, unit = free_port(), unit_id(tag)
+    report, status = tmp_path / f"{tag}.json", tmp_path / f"{tag}.status"
+    cmd = [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
+           "--listen", f"tcp/127.0.0.1:{port}", "--report", str(report),
+           "--status-file", str(status), *options]
+    if keys is not None:
+        cmd += ["--keys", str(keys)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    procs: list[subprocess.Popen] = []
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            if status.exists() and int(status.read_text() or 0) >= after:
+                break
+            time.sleep(0.02)
+        endpoint = f"{'tls' if keys else 'tcp'}/127.0.0.1:{port}"
+        procs = [_reader(endpoint, f"ctrlunit/{unit}/{r}", timeout, keys) for r in readers]
+        out, _ = proc.communicate(timeout=timeout)
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+        outs = []
+        for p in procs:
+            p.kill()
+            outs.append(p.communicate(timeout=10)[0])
+    rep = json.loads(report.read_text()) if report.exists() else {}
+    return proc.returncode, rep, out, outs
+
+
+def test_a_viewer_reads_the_observers_keys_and_nothing_else(tmp_path, unit_keys):
+    """With keys, a viewer's subscription to the observers' keys gets the run's states
+    and running figures; its subscription to the whole unit is denied (nothing of the
+    control path reaches it); the commands are those of a run without it."""
+    _, clean, _ = start_json(tmp_path, "--clock", "lockstep", "--cycles", "1500",
+                             "--peripherals", "3", "--pipeline", "2", tag="obsclean")
+    port, unit = free_port(), unit_id("obs")
+    report, status = tmp_path / "obs.json", tmp_path / "obs.status"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--listen",
+         f"tcp/127.0.0.1:{port}", "--keys", str(unit_keys), "--clock", "lockstep",
+         "--cycles", "1500", "--peripherals", "3", "--pipeline", "2", "--foxglove-rate", "0",
+         "--report", str(report), "--status-file", str(status)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    from ctrlunit.runtime.transport.zsession import make_config
+
+    views: list[bytes] = []
+    control: list[str] = []
+    try:
+        conf = make_config(connect=[f"tls/127.0.0.1:{port}"], keys=str(unit_keys),
+                           role="viewer")
+        with zenoh.open(conf) as peer:
+            root = Keys(unit).root
+            peer.declare_subscriber(f"{root}/view/**",
+                                    lambda s: views.append(s.payload.to_bytes()))
+            peer.declare_subscriber(f"{root}/**", lambda s: control.append(str(s.key_expr)))
+            out, _ = proc.communicate(timeout=240)
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+    rep = json.loads(report.read_text())
+    assert proc.returncode == 0, out[-1500:]
+    assert rep["command_digest"] == clean["command_digest"]
+    states = [json.loads(v) for v in views if b'"tracking_error' in v or b'"q"' in v]
+    assert views and rep["observers"]["sent"] > 0, (rep.get("observers"), out[-800:])
+    assert states, views[:2]
+    # the whole unit's key space was denied: only what the view key space also matches
+    assert all("/view/" in k for k in control), sorted(set(control))[:5]
+
+
+@pytest.mark.slow
+def test_a_frozen_viewer_costs_a_keyed_run_nothing(tmp_path, unit_keys):
+    """A viewer that subscribes to the observers' keys and to the whole unit, then stops
+    reading for the rest of a 20 s realtime run: the run ends normally at its period;
+    the viewer got the view, never the control path. Before, the central's puts waited
+    for such a reader, and when Zenoh closed its link (its keep-alives stopped) the
+    worker that closed it was the central's only one: no reply came, and the run faulted
+    about 10 s after the reader froze."""
+    code, rep, out, readers = run_with_readers(
+        tmp_path, "frozenkeyed", ["view/**", "**"], "--peripherals", "3", "--pipeline", "2",
+        "--duration", "20s", keys=unit_keys)
+    print(f"exit {code}, misses {rep.get('deadline_misses')} of {rep.get('periods')}, "
+          f"observers {rep.get('observers')}, readers {readers}")
+    assert code == 0, out[-2000:]
+    assert "got 1" in readers[0], readers  # it read the view, then froze
+    assert "got 1" not in readers[1], readers  # denied the control path: nothing came
+    assert rep["periods"] == round(20 / rep["nominal_period_s"])
+
+
+@pytest.mark.slow
+def test_a_frozen_loopback_reader_costs_a_run_without_keys_nothing(tmp_path):
+    """Without keys on a loopback TCP port any local process may subscribe to the whole
+    unit: the roles then use Zenoh's default transport, whose put leaves each peer's copy
+    in that peer's queue and drops it there when the queue is full. A reader that stops
+    reading for the rest of a 20 s realtime run costs the commands nothing."""
+    code, rep, out, readers = run_with_readers(
+        tmp_path, "frozenopen", ["**"], "--peripherals", "3", "--pipeline", "2",
+        "--duration", "20s")
+    print(f"exit {code}, misses {rep.get('deadline_misses')} of {rep.get('periods')}, "
+          f"readers {readers}")
+    assert code == 0, out[-2000:]
+    assert "got 1" in readers[0], readers  # it read, then froze
+    assert rep["periods"] == round(20 / rep["nominal_period_s"])
+
+
+def test_lockstep_commands_are_bit_identical_with_a_frozen_reader(tmp_path):
+    """In virtual time a frozen reader of the whole unit (without keys, on a loopback TCP
+    port) changes no command: the run's digest is that of the same run without it."""
+    args = ("--clock", "lockstep", "--cycles", "4000", "--peripherals", "3", "--pipeline", "2")
+    _, clean, _ = start_json(tmp_path, *args, tag="lockclean")
+    code, rep, out, readers = run_with_readers(tmp_path, "lockfrozen", ["**"], *args,
+                                               after=100)
+    assert code == 0, out[-2000:]
+    assert "got 1" in readers[0], readers
+    assert rep["command_digest"] == clean["command_digest"]
