@@ -197,6 +197,10 @@ class Node:
         self.role = role
         self.keys = Keys(unit)
         self.rejected: Counter[str] = Counter()
+        self.rejects = 0
+        """Every rejection counted so far (the central's flood rule looks at its change)."""
+        self.last_reject = ""
+        """The last rejection's reason and detail (``too_large: 1048590 bytes``)."""
         self.session = zenoh.open(conf)
         self.inbox_name = inbox or role.split("-")[0]
         self.events = Inbox(self.session, self.keys.inbox(self.inbox_name),
@@ -227,11 +231,15 @@ class Node:
         try:
             return decode(data, self.unit)
         except BadMessage as exc:
-            self.rejected[exc.reason] += 1
+            self.reject(exc.reason, str(exc))
             return None
 
-    def reject(self, reason: str) -> None:
+    def reject(self, reason: str, detail: str = "") -> None:
+        """Count a message dropped for ``reason`` (``detail``: the reason with what was
+        wrong, kept as :attr:`last_reject`)."""
         self.rejected[reason] += 1
+        self.rejects += 1
+        self.last_reject = detail or reason
 
     def close(self) -> None:
         """End the inbox and the session. A session that cannot close (Zenoh gives up after
