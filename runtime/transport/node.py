@@ -197,10 +197,6 @@ class Node:
         self.role = role
         self.keys = Keys(unit)
         self.rejected: Counter[str] = Counter()
-        self.rejects = 0
-        """Every rejection counted so far (the central's flood rule looks at its change)."""
-        self.last_reject = ""
-        """The last rejection's reason and detail (``too_large: 1048590 bytes``)."""
         self.session = zenoh.open(conf)
         self.inbox_name = inbox or role.split("-")[0]
         self.events = Inbox(self.session, self.keys.inbox(self.inbox_name),
@@ -254,6 +250,11 @@ class Node:
 
     close_error: str | None = None
     """Why the session did not close, if it did not."""
+
+    rejects: int = 0
+    """Every rejection counted so far (the central's flood rule looks at its change)."""
+    last_reject: str = ""
+    """The last rejection's reason and detail (``too_large: 1048590 bytes``)."""
 
     def __enter__(self) -> Node:
         return self
