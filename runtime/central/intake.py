@@ -89,7 +89,7 @@ class Intake:
         try:
             s = check_sample(msg)
         except BadMessage as exc:
-            self.node.reject(exc.reason)
+            self.node.reject(exc.reason, str(exc))
             return None
         if not on_grid(s.cycle):
             return None  # the rate is halved and the plant has yet to hear it: not taken
@@ -123,7 +123,7 @@ class Intake:
         try:
             return msg, parts_of(msg)
         except BadMessage as exc:
-            self.node.reject(exc.reason)
+            self.node.reject(exc.reason, str(exc))
             return None
 
     def reply_part(self, part: dict[str, Any], recv: Any, axes: int
@@ -136,7 +136,7 @@ class Intake:
                 raise BadMessage("bad_value", "trace")
             return vals, check_span(part.get("span"))
         except BadMessage as exc:
-            self.node.reject(exc.reason)
+            self.node.reject(exc.reason, str(exc))
             return None
 
     def reject(self, reason: str) -> None:

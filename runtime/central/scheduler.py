@@ -32,6 +32,7 @@ from ..config import RunConfig
 from ..config.handed import config_message
 from ..transport.node import Event, Node, rss_kb
 from .excuse import UNSUPERVISED, Supervision
+from .flood import FloodWatch
 from .intake import Intake
 from .intervals import Intervals
 from .late import LateData
@@ -97,6 +98,7 @@ class Central:
         self.log = CycleLog()
         self.meters = Meters(n, keep_cycle_spans=on_cycle is not None)
         self.intake = Intake(node, trial=trial)
+        self.flood = FloodWatch(node, limit=rc.transport.reject_limit)
         realtime = sch.clock == "realtime"
         self.silence = SilenceWatch(
             peripherals=n, realtime=realtime, period_s=sch.period,
@@ -174,19 +176,14 @@ class Central:
         choice at warm-up), without starting it again: every peripheral is told the
         blocks the central now runs, rebuilds its plan and says ``placed``; this returns
         once each has, and then runs the new plan itself. Warm up again before measuring.
-
-        Raises
-        ------
-        Fault
-            If a peripheral does not confirm within the start-up timeout.
-        """
+        Raises :class:`~.fault.Fault` if a peripheral does not confirm in the start-up
+        timeout."""
         self.orders.place(sorted(engine.plan.placement.central_blocks))
         self.rc = rc
         self.use(engine, controller)
 
     def hold_torques(self) -> list[float]:
-        """Gravity-holding torques at the last estimated position (the first stage of the
-        safe stop); zeros if that position is not usable."""
+        """Gravity-holding torques at the last estimate (the safe stop's first stage)."""
         return hold_torques(self.engine.cfg.params, self.ctl.est[0])
 
     def stop(self, *, reason: str = "done", wait: float = 1.0) -> None:
@@ -284,8 +281,10 @@ class Central:
 
     def handle(self, ev: Event) -> None:
         """Take one event of the inbox: a reply, a sample, or a message on the hello key
-        (:meth:`Orders.on_hello`)."""
+        (:meth:`Orders.on_hello`); a malformed one counts against its sender (raises
+        :class:`~.fault.Fault` past its bound: :class:`~.flood.FloodWatch`)."""
         kind, index, data, rx = ev
+        before = self.node.rejects
         if kind == "reply":
             self._on_reply(index, data, rx)
         elif kind == "sample":
@@ -294,6 +293,7 @@ class Central:
             self.orders.on_hello(data)
         else:
             self.intake.reject("unexpected_key")
+        self.flood.check(kind, index, rx, before)
 
     def _on_sample(self, data: bytes, rx: int) -> None:
         s = self.intake.sample(data, first=self.next_cycle,

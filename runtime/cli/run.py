@@ -166,6 +166,7 @@ def _role_setup(kw: dict[str, Any], *, role: str,
     from ..compute.setup import make_setup
     from ..host.idle import IdlePermissionError, idle_request
     from ..host.sched import RtPermissionError, apply_choice
+    from ..transport.limits import Limits
     from ..transport.zsession import make_config, pin_cpus
 
     check = kw.pop("check", False)
@@ -204,7 +205,7 @@ def _role_setup(kw: dict[str, Any], *, role: str,
     try:
         conf = make_config(listen=rc.transport.listen, connect=rc.transport.connect,
                            config_file=rc.transport.zenoh_config, keys=rc.transport.keys,
-                           role=name)
+                           role=name, limits=Limits.of(rc.transport))
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc), EXIT_CONFIG)
     return setup, conf, held
@@ -239,13 +240,14 @@ def _unit_config(own: Any, name: str, given: set[str]) -> Any:
     hold here."""
     from ..compute.setup import make_setup
     from ..config.handed import handed
+    from ..transport.limits import Limits
     from ..transport.node import Node
     from ..transport.zsession import make_config
 
     t = own.transport
     try:
         conf = make_config(listen=t.listen, connect=t.connect, config_file=t.zenoh_config,
-                           keys=t.keys, role=name)
+                           keys=t.keys, role=name, limits=Limits.of(t))
         with Node(conf, t.unit, name) as node:
             msg = node.ask_config(timeout=t.startup_timeout)
     except (FileNotFoundError, ValueError) as exc:

@@ -21,15 +21,17 @@ from . import FLAT, ConfigError, RunConfig
 from .sections import SECTIONS
 
 ROLE_OWN = frozenset({"unit", "listen", "connect", "zenoh_config", "keys", "insecure",
-                      "startup_timeout", "pin", "status_file"})
+                      "startup_timeout", "pin", "status_file", "max_message_size",
+                      "max_sessions", "accept_pending", "accept_timeout"})
 """Settings by flat name that a role started by hand keeps from its own command line:
-which unit, how it reaches the central, its credentials and its host's CPUs."""
+which unit, how it reaches the central, its credentials, what its own Zenoh accepts
+from its links and its host's CPUs."""
 
 FILE_SETTINGS = ("task", "params", "placement")
 """Settings by flat name that may name a file on the host that reads them."""
 
-CENTRAL_ONLY = frozenset({"record", "report", "foxglove"})
-"""Settings only the central uses (its outputs): not sent."""
+CENTRAL_ONLY = frozenset({"record", "report", "foxglove", "reject_limit"})
+"""Settings only the central uses (its outputs, its flood rule): not sent."""
 
 SENT = frozenset(FLAT) - ROLE_OWN - CENTRAL_ONLY
 """The settings the ``config`` message carries, by flat name: every one a role reads."""

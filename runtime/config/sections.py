@@ -21,6 +21,7 @@ from ...plant.simulator import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S
 from ...topology.graph import LAWS, MODEL_STATES
 from ...topology.pipeline import HOLD_RULES
 from ..host.idle import IDLE_CHOICES
+from ..transport import limits as lim
 from .choices import (
     CLOCKS,
     COMMAND_DELAYS,
@@ -240,6 +241,30 @@ class TransportConfig:
     startup_timeout: float = setting(
         30.0, bounds=(0.1, 3600.0), allowed="0.1 to 3600 s",
         help="How long, in seconds, the roles may take to say hello or confirm an order.")
+    max_message_size: int = setting(
+        lim.MAX_MESSAGE_SIZE, bounds=(lim.MAX_MESSAGE_SIZE_MIN, 2**30),
+        allowed=f"{lim.MAX_MESSAGE_SIZE_MIN} to 1073741824 bytes",
+        help="Largest message in bytes this process's Zenoh takes from a link (Zenoh's "
+        "transport/link/rx/max_message_size; the unit's largest is 1-2 KB, and its codec "
+        "drops anything over 65536 whatever Zenoh delivers). Zenoh 1.10.2 drops only some "
+        "messages over it (docs/faults-and-errors.md, Security).")
+    max_sessions: int = setting(
+        lim.MAX_SESSIONS, bounds=(5, 1000), allowed="5 to 1000 peers",
+        help="Most Zenoh peers this process holds at once (transport/unicast/max_sessions): "
+        "the plant, the peripherals and a few observers.")
+    accept_pending: int = setting(
+        lim.ACCEPT_PENDING, bounds=(1, 1000), allowed="1 to 1000 handshakes",
+        help="Most Zenoh handshakes under way at once on this process's listeners "
+        "(transport/unicast/accept_pending).")
+    accept_timeout: float = setting(
+        lim.ACCEPT_TIMEOUT_S, bounds=(0.1, 60.0), allowed="0.1 to 60 s",
+        help="Seconds a peer may take to complete its Zenoh handshake before it is dropped "
+        "(transport/unicast/accept_timeout).")
+    reject_limit: int = setting(
+        lim.REJECT_LIMIT, bounds=(1, 10**6), allowed="1 to 1000000 messages a second",
+        help="The central: a peripheral or the plant that sends more than this many "
+        "malformed messages (too large, undecodable, ill-formed) on its own key within a "
+        "second is a fault by name (exit 3 or 4); a role of the unit sends none.")
 
 
 @dataclass(frozen=True)

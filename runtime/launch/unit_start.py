@@ -31,6 +31,7 @@ from ..host.busy_guard import BusyGuard
 from ..observe.report import finish_report
 from ..roles.stopping import STOP_SIGNALS, not_ignored, stop_of, stopped_by_user
 from ..roles.supervise import end_children, role_cpus, spawn_role, unit_cores
+from ..transport.limits import Limits
 from ..transport.node import Node, freeze_heap
 from ..transport.zsession import default_endpoint, loopback_endpoint, make_config
 from .admission import Unsustainable, admit
@@ -169,7 +170,8 @@ class UnitStart:
             self.endpoint = t.listen[0] if t.listen else loopback_endpoint("tls") \
                 if t.keys else default_endpoint(self.run_dir)
             conf = make_config(listen=[self.endpoint], connect=t.connect,
-                               config_file=t.zenoh_config, keys=t.keys, role="central")
+                               config_file=t.zenoh_config, keys=t.keys, role="central",
+                               limits=Limits.of(t))
             try:
                 return Node(conf, t.unit, "central")
             except Exception:  # ZError: the port was taken meanwhile

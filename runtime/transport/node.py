@@ -227,11 +227,15 @@ class Node:
         try:
             return decode(data, self.unit)
         except BadMessage as exc:
-            self.rejected[exc.reason] += 1
+            self.reject(exc.reason, str(exc))
             return None
 
-    def reject(self, reason: str) -> None:
+    def reject(self, reason: str, detail: str = "") -> None:
+        """Count a message dropped for ``reason`` (``detail``: the reason with what was
+        wrong, kept as :attr:`last_reject`)."""
         self.rejected[reason] += 1
+        self.rejects += 1
+        self.last_reject = detail or reason
 
     def close(self) -> None:
         """End the inbox and the session. A session that cannot close (Zenoh gives up after
@@ -246,6 +250,11 @@ class Node:
 
     close_error: str | None = None
     """Why the session did not close, if it did not."""
+
+    rejects: int = 0
+    """Every rejection counted so far (the central's flood rule looks at its change)."""
+    last_reject: str = ""
+    """The last rejection's reason and detail (``too_large: 1048590 bytes``)."""
 
     def __enter__(self) -> Node:
         return self

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import zenoh
 
+from .limits import Limits
+
 UNIT_ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 
@@ -233,6 +235,7 @@ def make_config(
     config_file: str | None = None,
     keys: str | None = None,
     role: str = "central",
+    limits: Limits | None = None,
 ) -> zenoh.Config:
     """A Zenoh configuration for one role.
 
@@ -250,6 +253,9 @@ def make_config(
         ones, authenticated both ways as ``role`` (``central``, ``plant``,
         ``peripheral-K``, ``viewer``), under the unit's access control
         (runtime/transport/security.py).
+    limits : what the session accepts from its links (runtime/transport/limits.py; the
+        run's ``transport`` settings); None: the defaults. They apply over a
+        ``config_file``'s own.
     """
     links = file_links(config_file) if config_file else None
     if links is not None:
@@ -285,6 +291,7 @@ def make_config(
     conf.insert_json5("listen/endpoints", json.dumps(listen or []))
     if connect is not None:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
+    (limits or Limits()).apply(conf)
     if keys is not None:
         from .security import secure
 

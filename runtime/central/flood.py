@@ -1,0 +1,84 @@
+"""The central's flood rule: a peripheral or the plant that keeps sending malformed
+messages on its own key is a fault by name.
+
+A role of the unit sends no malformed message: its codec writes what the central's
+checks read. A sender that floods its key (1 MB puts on a reply key, issue 56) costs the
+central the receiving and the rejecting of each; counted and dropped one by one they once
+starved it until the run faulted on its tracking error, naming no one. Past
+``transport.reject_limit`` malformed messages within a second the sender is the fault
+(exit 3 for a peripheral, 4 for the plant), its message saying what it sent.
+
+Which role sent a message is known by its key: with the unit's keys only peripheral K may
+publish on its reply key and only the plant on the sample key (runtime/transport/
+security.py); without keys any process that reaches the unit's links may publish there
+(docs/faults-and-errors.md, Security), and the fault names the role whose key it was.
+Messages on the hello key, which every role shares, are counted (``rejected_messages``)
+and not attributed.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from ..config import EXIT_PERIPHERAL, EXIT_PLANT
+from ..transport.node import Node
+from .fault import Fault
+from .silence import role_of
+
+MALFORMED = frozenset({"too_large", "undecodable", "not_a_map", "schema_version",
+                       "foreign_unit", "bad_cycle", "bad_stage", "bad_parts", "bad_value",
+                       "bad_vals"})
+"""The rejection reasons (runtime/transport/codec.py, runtime/central/intake.py) that
+only a malformed message earns. A late, stale or unexpected reply or sample is no flood:
+a role of the unit sends those when it or the central was slow."""
+
+WINDOW_NS = 1_000_000_000
+"""The span over which malformed messages are counted: one second."""
+
+
+class FloodWatch:
+    """Counts each sender's malformed messages and raises past the bound.
+
+    Parameters
+    ----------
+    node : the central's node (its :attr:`~.node.Node.rejects` and
+        :attr:`~.node.Node.last_reject` say whether and why an event was rejected).
+    limit : how many malformed messages a sender may send within :data:`WINDOW_NS`.
+    """
+
+    def __init__(self, node: Node, *, limit: int) -> None:
+        self.node = node
+        self.limit = limit
+        self._times: dict[tuple[str, int], deque[int]] = {}
+
+    def check(self, kind: str, index: int, rx: int, before: int) -> None:
+        """After an event of ``kind`` (``reply`` of peripheral ``index``, ``sample``)
+        received at ``rx`` (monotonic ns) was handled: if it was rejected as malformed
+        (the node counted a rejection since ``before``), count it against its sender.
+
+        Raises
+        ------
+        Fault
+            Naming the sender (exit 3 for a peripheral, 4 for the plant) once more than
+            ``limit`` of its messages within a second were malformed."""
+        node = self.node
+        if node.rejects == before or node.last_reject.split(":", 1)[0] not in MALFORMED:
+            return
+        if kind == "reply":
+            who, code, where = role_of(index), EXIT_PERIPHERAL, "its reply key"
+        elif kind == "sample":
+            who, code, where = "plant", EXIT_PLANT, "the sample key"
+        else:
+            return
+        times = self._times.get((kind, index))
+        if times is None:
+            times = self._times[(kind, index)] = deque(maxlen=self.limit + 1)
+        times.append(rx)
+        if len(times) > self.limit and rx - times[0] <= WINDOW_NS:
+            raise Fault(f"{who} sent {len(times)} malformed messages on {where} within "
+                        f"{(rx - times[0]) / 1e9:.2f} s, more than the {self.limit} a second "
+                        f"allowed (transport.reject_limit); the last: {node.last_reject}",
+                        process=who, code=code)
+
+
+__all__ = ["MALFORMED", "WINDOW_NS", "FloodWatch"]
