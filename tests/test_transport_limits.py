@@ -87,13 +87,23 @@ def keyed_run(tmp_path, tag: str, keys_dir, cycles: str, attack: Callable[[int, 
     return proc.returncode, rep, out
 
 
-def flood(port: int, keys_dir, role: str, key: str, n: int) -> float:
-    """``n`` 1 MB puts as ``role`` on ``key``; returns how long they took (s)."""
+def unit_alive(unit: str) -> bool:
+    """Whether a process of ``unit`` (named in its command line) is still running."""
+    return subprocess.run(["pgrep", "-f", "--", f"--unit {unit}"],
+                          capture_output=True).returncode == 0
+
+
+def flood(port: int, keys_dir, role: str, key: str, n: int,
+          until: Callable[[], bool] | None = None) -> float:
+    """``n`` 1 MB puts as ``role`` on ``key`` (sooner once ``until()``, at most 60 s);
+    returns how long they took (s)."""
     with zenoh.open(attacker(port, keys_dir, role)) as peer:
         time.sleep(0.3)
         pub = peer.declare_publisher(key)
         t0 = time.monotonic()
         for _ in range(n):
+            if (until is not None and until()) or time.monotonic() - t0 > 60:
+                break
             pub.put(b"\xc1" * BIG)  # not even msgpack
         took = time.monotonic() - t0
         time.sleep(0.3)
@@ -107,10 +117,12 @@ def test_a_peripheral_flooding_its_reply_key_is_a_fault_by_its_name(tmp_path, un
     took = []
 
     def attack(port: int, unit: str) -> None:
-        took.append(flood(port, unit_keys, "peripheral-1", Keys(unit).reply(1), 200))
+        # until the unit stops (a loaded machine sends them slower than an idle one)
+        took.append(flood(port, unit_keys, "peripheral-1", Keys(unit).reply(1), 2000,
+                          until=lambda: not unit_alive(unit)))
 
-    code, rep, out = keyed_run(tmp_path, "floodp1", unit_keys, "20000", attack)
-    print(f"200 puts of 1 MB in {took[0]:.2f} s: exit {code}, fault {rep.get('fault')}")
+    code, rep, out = keyed_run(tmp_path, "floodp1", unit_keys, "40000", attack)
+    print(f"puts of 1 MB for {took[0]:.2f} s: exit {code}, fault {rep.get('fault')}")
     assert code == 3, out
     fault = rep["fault"]
     assert fault["process"] == "peripheral-1" and fault["code"] == 3
