@@ -452,3 +452,16 @@ def test_a_unit_run_inside_a_longer_process_leaves_its_policy_as_it_was() -> Non
     assert got["during"] == {"central": "SCHED_FIFO 10", "peripheral_1": "SCHED_FIFO 10"}
     assert got["threads"] > 3  # Zenoh's threads are still there, and back to normal
     assert got["after"] == ["SCHED_OTHER"]
+
+
+def test_auto_keeps_the_default_policy_for_pinned_roles():
+    """Pinned, a role's threads share one CPU and at one FIFO priority do not time-slice
+    (docs/measurements/2026-11-27-starvation.md): auto keeps the default policy and says
+    why; a number is still taken as it is."""
+    from ctrlunit.runtime.host.sched import AUTO, choose
+
+    free = choose(AUTO, clock="realtime", admission=True, budget=0.95)
+    assert free[0] == 10
+    pinned = choose(AUTO, clock="realtime", admission=True, budget=0.95, pinned=True)
+    assert pinned[0] == 0 and "pinned" in (pinned[1] or "")
+    assert choose(10, clock="realtime", admission=True, budget=0.95, pinned=True) == (10, None)

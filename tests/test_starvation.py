@@ -1,53 +1,157 @@
 """A process the machine keeps from a CPU is not a failed process: the main job rides
-out a CPU taken away for 10 ms at a time (docs/measurements/2026-11-26-realtime.md)."""
+out a CPU taken away for 10 ms at a time by a foreign real-time task
+(docs/measurements/2026-11-27-starvation.md).
+
+The test makes its own premise: once the motion has begun, a hog on one CPU, at a
+real-time priority above any of the unit's, takes that CPU for 10 ms each time it sees a
+thread of the unit running there (or waiting for it), and writes down which; the test
+counts the bursts that fell inside the motion. A burst that finds none of the unit on its
+CPU is not made. (With the roles pinned, ``--cpus split``, and the CPU of the plant and
+the peripherals taken, the unit faults: docs/measurements/2026-11-27-starvation.md.)"""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import pytest
 from ctrlunit.runtime.host.sched import fifo_permitted
-from runner import start_json
+from runner import kill_unit, unit_id
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 
 HOG = """
-import os, random, sys, time
-os.sched_setaffinity(0, {int(sys.argv[1])})
+import ctypes, json, os, random, sys, time
+libc = ctypes.CDLL(None)
+cpu, seconds, out, unit = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3], sys.argv[4]
+os.sched_setaffinity(0, {cpu})
 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
-end_all = time.monotonic() + float(sys.argv[2])
-time.sleep(3)  # past the handshake and the warm-up
+assert os.sched_getaffinity(0) == {cpu} and os.sched_getscheduler(0) == os.SCHED_FIFO
+
+def unit_pids():
+    pids = []
+    for pid in os.listdir("/proc"):
+        if pid.isdigit():
+            try:
+                with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                    if f"--unit\\0{unit}\\0".encode() in fh.read():
+                        pids.append(pid)
+            except OSError:
+                pass
+    return pids
+
+def running_here(pids):
+    # a thread of the unit running on this CPU, or waiting for it (state R)
+    for pid in pids:
+        try:
+            tids = os.listdir(f"/proc/{pid}/task")
+        except OSError:
+            continue
+        for tid in tids:
+            try:
+                with open(f"/proc/{pid}/task/{tid}/stat") as fh:
+                    st = fh.read()
+            except OSError:
+                continue
+            f = st[st.rindex(")") + 2:].split()
+            if f[0] == "R" and int(f[36]) == cpu:
+                return st[st.index("(") + 1:st.rindex(")")] + f" (pid {pid})"
+    return None
+
+bursts = []
+pids = unit_pids()
+end_all = time.monotonic() + seconds
 while time.monotonic() < end_all:
     time.sleep(random.uniform(0.25, 0.75))
-    end = time.monotonic() + 0.010
+    caught = None
+    look_until = time.monotonic() + 0.5
+    while caught is None and time.monotonic() < look_until:
+        caught = running_here(pids)
+        if caught is None:
+            time.sleep(0.0002)
+    if caught is None:
+        pids = unit_pids()
+        continue
+    begin = time.monotonic()
+    end = begin + 0.010
     while time.monotonic() < end:
         pass
+    bursts.append((begin, time.monotonic(), libc.sched_getcpu(), caught))
+    with open(out + ".tmp", "w") as fh:
+        json.dump(bursts, fh)
+    os.replace(out + ".tmp", out)
 """
-"""Takes one CPU at a real-time priority above the unit's for 10 ms every 0.25-0.75 s,
-for at most ``argv[2]`` seconds."""
+"""Takes CPU ``argv[1]`` at FIFO 50 (above the unit's 10) for 10 ms at a moment when a
+thread of unit ``argv[4]`` runs there (or waits for it), every 0.25-0.75 s, for at most
+``argv[2]`` seconds, writing ``[begin, end, cpu, thread]`` of each burst to ``argv[3]``."""
+
+SECONDS = 12
 
 
-def test_the_main_job_rides_out_a_cpu_taken_for_10_ms_at_a_time(tmp_path):
+def run_starved(tmp_path: Path, *options: str, tag: str) -> tuple[int, dict, str, list, int]:
+    """The main job for :data:`SECONDS` as a user starts it and, from its 200th interval
+    on, the hog on the highest CPU; returns the run's exit code, report and output, the
+    bursts that began and ended while it moved, and the central's process id."""
+    unit, bursts_file = unit_id(tag), tmp_path / f"{tag}-bursts.json"
+    report, status = tmp_path / f"{tag}.json", tmp_path / f"{tag}.status"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
+         "--peripherals", "3", "--pipeline", "2", "--duration", f"{SECONDS}s",
+         "--report", str(report), "--status-file", str(status), *options],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    hog = None
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            if status.exists() and int(status.read_text() or 0) >= 200:
+                break
+            time.sleep(0.01)
+        t0 = time.monotonic()
+        hog = subprocess.Popen([sys.executable, "-c", HOG, str(max(os.sched_getaffinity(0))),
+                                str(SECONDS + 60), str(bursts_file), unit])
+        out, _ = proc.communicate(timeout=180)
+        t1 = time.monotonic()
+    finally:
+        if hog is not None:
+            hog.kill()
+            hog.wait(timeout=5)
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+    rep = json.loads(report.read_text()) if report.exists() else {}
+    bursts = json.loads(bursts_file.read_text()) if bursts_file.exists() else []
+    inside = [b for b in bursts if t0 <= b[0] and b[1] <= t1 - 0.3]
+    return proc.returncode, rep, out, inside, proc.pid
+
+
+OPEN = ("a burst on the CPU of a Zenoh worker thread of the unit holds the messages that "
+        "worker carries for the whole burst while their sender sleeps, and the silence rule "
+        "does not excuse it: on 2026-11-27 the main job rode out such bursts in 2 of 4 "
+        "runs under SCHED_FIFO 10 and 2 of 3 under the default policy (open; "
+        "docs/measurements/2026-11-27-starvation.md)")
+
+
+@pytest.mark.xfail(reason=OPEN, strict=False)
+def test_the_main_job_rides_out_a_cpu_taken_from_its_roles_for_10_ms_at_a_time(tmp_path):
+    """The main job as a user starts it (``--rt-priority auto``: SCHED_FIFO 10 where
+    permitted). Marked as an expected failure while the finding above is open: the
+    premise now meets the unit at every burst, and the unit does not yet ride them all
+    out."""
     if len(os.sched_getaffinity(0)) < 2 or not fifo_permitted():
         pytest.skip("needs SCHED_FIFO and two CPUs")
-    cpu = max(os.sched_getaffinity(0))
-    # about 25 bursts: on 2026-11-26 one run of 8 s (about 10) caught no role of the unit
-    # (a burst that finds none of it on that CPU costs it nothing)
-    hog = subprocess.Popen([sys.executable, "-c", HOG, str(cpu), "30"])
-    try:
-        code, report, out = start_json(
-            tmp_path, "--peripherals", "3", "--pipeline", "2", "--period", "1ms",
-            "--no-admission", "--rt-priority", "10", "--duration", "15s", tag="starve",
-            timeout=120)
-    finally:
-        hog.kill()
-        hog.wait(timeout=5)
-    print(f"exit {code}, silences excused {report.get('silences_excused')}, misses "
-          f"{report.get('deadline_misses')} of {report.get('periods')}")
-    assert code == 0, out[-1500:]
-    # the bursts did catch the unit (a silence past its limit, ridden out), and the run
-    # went on to its end at its period
-    assert report["silences_excused"] >= 1, out[-1500:]
-    assert report["periods"] == 15000
+    code, rep, out, bursts, central = run_starved(tmp_path, tag="starve")
+    period = rep.get("nominal_period_s") or 0.0
+    others = [b for b in bursts if f"(pid {central})" not in b[3]]
+    print(f"exit {code}, period {period * 1e3:g} ms, bursts {len(bursts)} ({len(others)} on a "
+          f"role other than the central), silences excused {rep.get('silences_excused')}, "
+          f"misses {rep.get('deadline_misses')} of {rep.get('periods')}, tracking max "
+          f"{rep.get('tracking_error_m', {}).get('max')}, {rep.get('scheduling')}")
+    # the premise, made here: each burst took the CPU from a thread of the unit on it
+    assert len(bursts) >= 8, bursts
+    assert all(b[3] for b in bursts)
+    assert code == 0, out[-2000:]
+    assert rep["periods"] >= round(SECONDS / period)

@@ -172,16 +172,24 @@ def fifo_in_force(tid: int = 0) -> bool:
 
 
 def choose(asked: int | str, *, clock: str, admission: bool, budget: float | None,
-           guarded: bool = True) -> tuple[int, str | None]:
+           guarded: bool = True, pinned: bool = False) -> tuple[int, str | None]:
     """The FIFO priority to try for ``--rt-priority asked`` (0: the policy as it is) and,
     for ``auto``, why (module notes). A number is taken as it is (no reason).
     ``guarded``: the unit's processes are watched by a :class:`BusyGuard` (``ctrlunit
-    start``; a role started on its own is not)."""
+    start``; a role started on its own is not). ``pinned``: the roles are pinned to CPUs
+    (``--cpus``, ``--pin``): there ``auto`` keeps the default policy, since at one FIFO
+    priority the threads of a role pinned to one CPU (its own thread and Zenoh's) wait
+    behind each other, and after a CPU was taken from them for 10 ms the unit faulted
+    within one to three such stalls where the default policy rode out twenty
+    (docs/measurements/2026-11-27-starvation.md)."""
     check_priority(asked)
     if asked != AUTO:
         return int(asked), None
     if not guarded:
         return 0, "a role started on its own: only ctrlunit start guards the unit's load"
+    if pinned:
+        return 0, ("the roles are pinned to CPUs (--cpus, --pin): under FIFO at one "
+                   "priority a pinned role's threads wait behind each other")
     if clock != "realtime":
         return 0, f"the {clock} clock has no deadlines to keep"
     if not admission:
@@ -195,7 +203,7 @@ def choose(asked: int | str, *, clock: str, admission: bool, budget: float | Non
 
 
 def apply_choice(asked: int | str, *, clock: str, admission: bool,
-                 guarded: bool = True) -> tuple[str, dict[str, Any]]:
+                 guarded: bool = True, pinned: bool = False) -> tuple[str, dict[str, Any]]:
     """:func:`choose`, then :func:`apply_rt`; ``auto`` falls back to the policy as it is
     where FIFO is not permitted. Returns the policy in force and the choice for the report
     (``asked``, ``priority``, ``why``, ``budget``).
@@ -207,7 +215,7 @@ def apply_choice(asked: int | str, *, clock: str, admission: bool,
     """
     budget = rt_budget()
     priority, why = choose(asked, clock=clock, admission=admission, budget=budget,
-                           guarded=guarded)
+                           guarded=guarded, pinned=pinned)
     try:
         policy = apply_rt(priority)
     except RtPermissionError:

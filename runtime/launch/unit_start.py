@@ -122,7 +122,8 @@ class UnitStart:
             # before zenoh.open and the children: Zenoh's threads and the roles inherit it
             self.sched_choice = sched.apply_choice(
                 rc.schedule.rt_priority, clock=rc.schedule.clock,
-                admission=rc.schedule.admission or rc.schedule.trial_only)[1]
+                admission=rc.schedule.admission or rc.schedule.trial_only,
+                pinned=bool(rc.schedule.cpus or rc.schedule.pin))[1]
         except (ConfigError, ValueError, OSError, sched.RtPermissionError) as exc:
             return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
                                            "code": EXIT_CONFIG}, "idle": self.idle}
