@@ -240,3 +240,9 @@ def test_the_flood_rule_counts_malformed_messages_per_sender():
         one("sample", 0, 10, "undecodable")
     assert exc.value.process == "plant" and exc.value.code == 4
     assert "plant sent 4 malformed messages on the sample key" in str(exc.value)
+    # without the unit's keys a key does not name its sender: counted, never a fault
+    blind = FloodWatch(node, limit=3, authenticated=False)  # type: ignore[arg-type]
+    for i in range(10):
+        before = node.rejects
+        node.reject("undecodable", "undecodable: detail")
+        blind.check("sample", 0, i, before)

@@ -8,17 +8,19 @@ starved it until the run faulted on its tracking error, naming no one. Past
 ``transport.reject_limit`` malformed messages within a second the sender is the fault
 (exit 3 for a peripheral, 4 for the plant), its message saying what it sent.
 
-Which role sent a message is known by its key: with the unit's keys only peripheral K may
-publish on its reply key and only the plant on the sample key (runtime/transport/
-security.py); without keys any process that reaches the unit's links may publish there
-(docs/faults-and-errors.md, Security), and the fault names the role whose key it was.
-Messages on the hello key, which every role shares, are counted (``rejected_messages``)
-and not attributed.
+Which role sent a message is known by its key only with the unit's keys: then only
+peripheral K may publish on its reply key and only the plant on the sample key
+(runtime/transport/security.py). Without keys any process that reaches the unit's links
+may publish there (docs/faults-and-errors.md, Security): a fault would name a role that
+sent nothing, and let any such process stop the unit with a few bytes, so there the
+malformed messages are counted and dropped, as every other. Messages on the hello key,
+which every role shares, are counted (``rejected_messages``) and not attributed.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from typing import Any
 
 from ..config import EXIT_PERIPHERAL, EXIT_PLANT
 from ..transport.node import Node
@@ -44,12 +46,21 @@ class FloodWatch:
     node : the central's node (its :attr:`~.node.Node.rejects` and
         :attr:`~.node.Node.last_reject` say whether and why an event was rejected).
     limit : how many malformed messages a sender may send within :data:`WINDOW_NS`.
+    authenticated : whether a key's sender is known (the unit's keys); if not, nothing is
+        a fault (module notes).
     """
 
-    def __init__(self, node: Node, *, limit: int) -> None:
+    def __init__(self, node: Node, *, limit: int, authenticated: bool = True) -> None:
         self.node = node
         self.limit = limit
+        self.authenticated = authenticated
         self._times: dict[tuple[str, int], deque[int]] = {}
+
+    @classmethod
+    def of(cls, node: Node, transport: Any) -> FloodWatch:
+        """The watch of a run's transport settings: its ``reject_limit``, authenticated
+        where it has the unit's ``keys``."""
+        return cls(node, limit=transport.reject_limit, authenticated=bool(transport.keys))
 
     def check(self, kind: str, index: int, rx: int, before: int) -> None:
         """After an event of ``kind`` (``reply`` of peripheral ``index``, ``sample``)
@@ -62,7 +73,8 @@ class FloodWatch:
             Naming the sender (exit 3 for a peripheral, 4 for the plant) once more than
             ``limit`` of its messages within a second were malformed."""
         node = self.node
-        if node.rejects == before or node.last_reject.split(":", 1)[0] not in MALFORMED:
+        if not self.authenticated or node.rejects == before \
+                or node.last_reject.split(":", 1)[0] not in MALFORMED:
             return
         if kind == "reply":
             who, code, where = role_of(index), EXIT_PERIPHERAL, "its reply key"

@@ -98,7 +98,7 @@ class Central:
         self.log = CycleLog()
         self.meters = Meters(n, keep_cycle_spans=on_cycle is not None)
         self.intake = Intake(node, trial=trial)
-        self.flood = FloodWatch(node, limit=rc.transport.reject_limit)
+        self.flood = FloodWatch.of(node, rc.transport)
         realtime = sch.clock == "realtime"
         self.silence = SilenceWatch(
             peripherals=n, realtime=realtime, period_s=sch.period,
