@@ -215,16 +215,17 @@ Zenoh drops at once until it drains."""
 
 
 def closed_links(endpoints: list[str], *, keys: str | None) -> bool:
-    """Whether only the unit's roles can read its control keys over these links: every
-    link a unix socket (in the run's directory, its user's alone), or the unit's keys (its
-    access control gives each role its own inbox and an observer the ``view`` keys
-    alone: runtime/transport/security.py). There the roles use Zenoh's low-latency
-    transport, whose put writes to each subscriber's socket itself and so waits for one
-    that stops reading (docs/message-costs.md). Elsewhere (TCP without keys: any process
-    on the host may subscribe to anything) they use the default transport, whose put
-    hands each peer's copy to that peer's queue and, under DROP congestion control
-    (:meth:`~.node.Node.publisher`), drops it there when that queue is full."""
-    return keys is not None or all(e.startswith("unixsock") for e in endpoints)
+    """Whether no one but the unit's own user can connect to these links: every link a
+    unix socket (in the run's directory, its user's alone) and no keys (with keys every
+    link is TLS). There the roles use Zenoh's low-latency transport, whose put writes to
+    each subscriber's socket itself on the caller's thread (docs/message-costs.md), and
+    so waits for one that stops reading, holding that link (Zenoh's own threads then
+    wait on it too: docs/measurements/2026-11-27-observers.md). Elsewhere, where another
+    user or host may connect (TCP, TLS: even a keyed viewer reads the observers' keys),
+    they use the default transport, whose put hands each peer's copy to that peer's
+    queue and, under DROP congestion control (:meth:`~.node.Node.publisher`), drops it
+    there when that queue is full."""
+    return keys is None and all(e.startswith("unixsock") for e in endpoints)
 
 
 def make_config(
@@ -242,8 +243,8 @@ def make_config(
     Parameters
     ----------
     listen, connect : endpoints (``tcp/127.0.0.1:7447``, ``unixsock-stream/PATH``, ...).
-    lowlatency : use the low-latency transport (QoS off); None: where only the unit's
-        roles can read its control keys (:func:`closed_links`).
+    lowlatency : use the low-latency transport (QoS off); None: where no one but the
+        unit's own user can connect (:func:`closed_links`).
     config_file : a Zenoh JSON5 configuration passed through (``--zenoh-config``): the
         role listens on ``listen`` and the file's listen endpoints, and connects to
         ``connect`` if given, else to the file's; multicast scouting and gossip stay off
