@@ -22,7 +22,7 @@ import numpy as np
 
 from ..runtime.compute.timing import warm_intervals
 from ..runtime.observe.report import gantt_window
-from .floor import floor
+from .floor import floor, zenoh_round_trip
 from .placement import balance_stage, target_stage
 from .realtime import realtime_stage, stage_steps
 from .runs import (
@@ -95,6 +95,25 @@ def _sweep(configs: list[Config], repeats: int, *, quick: bool, out: Path,
     return done
 
 
+REFERENCE_ROUND_S = 172e-6
+"""The unit's own floor on the reference host: one scatter/gather round of 3 over Zenoh,
+p50 (docs/message-costs.md: 168-176 us)."""
+
+
+def host_scale(scale: float, *, rounds: int = 400) -> tuple[float, dict[str, float]]:
+    """The thesis runs' T-800 cost scale on this host: ``scale`` times this host's round
+    (measured now, :func:`.floor.zenoh_round_trip`, p50) over :data:`REFERENCE_ROUND_S`,
+    kept within 1 to 4 times ``scale``. The scale makes arithmetic outweigh an exchange as
+    it did on the Transputers (bench/thesis.py); on a slower host an exchange costs more
+    and a fixed scale no longer does: on 2026-11-27, with rounds about twice as slow, the
+    head of the day before measured a kinematics efficiency of 45.5 % where it had 50-53 %
+    (docs/measurements/2026-11-27-observers.md). Returns the scale and what it came from."""
+    rtt = statistics.median(zenoh_round_trip(3, rounds=rounds, warmup=100))
+    factor = min(4.0, max(1.0, rtt / REFERENCE_ROUND_S))
+    return scale * factor, {"round_s": rtt, "reference_round_s": REFERENCE_ROUND_S,
+                            "scale": scale * factor}
+
+
 def bench(out_dir: str | Path, *, stages: tuple[str, ...] = STAGES, quick: bool = False,
           repeats: int | None = None, realtime_periods: list[float] | None = None,
           scale: float = 30.0, realtime_runs: int | None = None,
@@ -139,6 +158,8 @@ def bench(out_dir: str | Path, *, stages: tuple[str, ...] = STAGES, quick: bool 
                   progress=progress, done=done, total=total)
     report["runs"] = [summarise(results[c.key], c) for c in configs]
     if "thesis" in stages:
+        scale, report["thesis_host"] = host_scale(scale)
+        report["cost_scale_thesis_runs"] = scale
         th = thesis_stage(scale=scale, repeats=pairs, cycles=thesis_cycles(quick),
                           run=lambda cfg, n: _run_kept(cfg, n, out, gantt), config=Config,
                           progress=progress, done=done, total=total)
