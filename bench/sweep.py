@@ -104,9 +104,8 @@ def host_scale(scale: float, *, rounds: int = 400) -> tuple[float, dict[str, flo
     """The thesis runs' T-800 cost scale on this host: ``scale`` times this host's round
     (measured now, :func:`.floor.zenoh_round_trip`, p50) over :data:`REFERENCE_ROUND_S`,
     kept within 1 to 4 times ``scale``. The scale makes arithmetic outweigh an exchange as
-    it did on the Transputers (bench/thesis.py); on a slower host an exchange costs more
-    and a fixed scale no longer does: on 2026-11-27, with rounds about twice as slow, the
-    head of the day before measured a kinematics efficiency of 45.5 % where it had 50-53 %
+    it did on the Transputers (bench/thesis.py); on a slower host an exchange costs more,
+    and a fixed scale would lower the efficiencies for the host's sake, not the code's
     (docs/measurements/2026-11-27-observers.md). Returns the scale and what it came from."""
     rtt = statistics.median(zenoh_round_trip(3, rounds=rounds, warmup=100))
     factor = min(4.0, max(1.0, rtt / REFERENCE_ROUND_S))
