@@ -49,8 +49,8 @@ class Config:
 
 
 def thesis_cycles(quick: bool) -> int:
-    """Intervals of each thesis run: at T-800 x 30 an interval takes 12-50 ms."""
-    return 40 if quick else 80
+    """Intervals of each thesis run: at T-800 x 60 an interval takes 25-100 ms."""
+    return 24 if quick else 60
 
 
 def thesis_pairs(quick: bool, repeats: int | None) -> int:

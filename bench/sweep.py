@@ -35,7 +35,7 @@ from .runs import (
     thesis_cycles,
     thesis_pairs,
 )
-from .thesis import THESIS, thesis_stage
+from .thesis import THESIS, THESIS_SCALE, thesis_stage
 
 STAGES = ("floor", "sweep", "recording", "thesis", "balance", "target", "realtime")
 """The bench's stages, in the order they run (``ctrlunit bench --stages``)."""
@@ -115,7 +115,7 @@ def host_scale(scale: float, *, rounds: int = 400) -> tuple[float, dict[str, flo
 
 def bench(out_dir: str | Path, *, stages: tuple[str, ...] = STAGES, quick: bool = False,
           repeats: int | None = None, realtime_periods: list[float] | None = None,
-          scale: float = 30.0, realtime_runs: int | None = None,
+          scale: float = THESIS_SCALE, realtime_runs: int | None = None,
           realtime_long_s: float | None = None,
           progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
     """Run the ``stages`` asked (:data:`STAGES`) and write the reports into ``out_dir``.

@@ -35,6 +35,13 @@ THESIS: dict[str, Any] = {
 }
 """The 1994 unit's figures (Table IV.5 and § IV.7.3; docs/thesis-notes.md)."""
 
+THESIS_SCALE = 60.0
+"""The T-800 cost scale of the thesis runs at the reference round (bench/sweep.py
+``host_scale`` follows the host): an exchange then costs about 6 % of the arithmetic on the
+kinematics' critical path, the Transputer links about 2 %. At x 30 it cost 12 % and the
+kinematics' efficiency sat within a point or two of its bound on a slow host
+(docs/measurements/2026-11-27-thesis-scale.md)."""
+
 WHOLE = "resolved-acceleration"
 KINEMATICS = "kinematics"
 

@@ -1,8 +1,10 @@
 """Endurance: many freerun intervals at n = 3, depth 2, no deadlock, bounded memory.
 
-CI runs a bounded version (CTRLUNIT_SOAK_CYCLES, default 20 000: past the central's exact
-window, so its log folds); the full soak of a million intervals (228 s here; docs/measurements/) is
-``python -m pytest -m slow tests/test_endurance.py``.
+The fast suite runs a bounded version (CTRLUNIT_SOAK_CYCLES, default 20 000: past the
+central's exact window, so its log folds); the long suite (``pytest -m slow``) runs 250 000
+intervals (CTRLUNIT_LONG_SOAK_CYCLES; 60-150 s on the 2-core reference host), and
+``CTRLUNIT_LONG_SOAK_CYCLES=1000000 python -m pytest -m slow tests/test_endurance.py`` the
+soak of a million intervals (228-603 s there; docs/measurements/), too long for CI's budget.
 """
 
 from __future__ import annotations
@@ -47,6 +49,6 @@ def test_bounded_soak_has_no_deadlock_and_flat_memory(tmp_path):
 
 
 @pytest.mark.slow
-def test_full_soak_a_million_intervals(tmp_path):
-    rep = soak(tmp_path, 1_000_000)
+def test_long_soak_keeps_memory_flat(tmp_path):
+    rep = soak(tmp_path, int(os.environ.get("CTRLUNIT_LONG_SOAK_CYCLES", "250000")))
     print("central RSS series (interval, kB):", rep["memory_kb"]["central"]["series"])

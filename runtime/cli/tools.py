@@ -23,7 +23,7 @@ from .base import _fail, _json_safe, _rt_priority, cli
 @click.option("--repeats", type=click.IntRange(1, 20), default=None)
 @click.option("--realtime-period", "rt_periods", multiple=True, default=("3ms",),
               show_default=True, help="Realtime periods to include (repeatable).")
-@click.option("--thesis-scale", type=click.FloatRange(1.0, 1000.0), default=30.0,
+@click.option("--thesis-scale", type=click.FloatRange(1.0, 1000.0), default=60.0,
               show_default=True, help="T-800 time scale of the runs compared with 1994: "
               "large enough that an exchange weighs on the arithmetic about as a "
               "Transputer link did (README, bench).")

@@ -313,7 +313,7 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         return t1_engines[-1]
 
     if central.meters.t1_inputs:
-        inputs = central.meters.t1_inputs[: (50 if rc.control.cost_model == "t800" else None)]
+        inputs = central.meters.t1_inputs[: (20 if rc.control.cost_model == "t800" else None)]
         t1, per_block = measure_t1(t1_engine, inputs)
     cost_err = None
     if rc.control.cost_model == "t800":
