@@ -28,6 +28,7 @@ from ..compute.setup import make_setup
 from ..config import EXIT_CONFIG, EXIT_OK, EXIT_UNSUSTAINABLE, ConfigError, RunConfig
 from ..host import sched
 from ..host.busy_guard import BusyGuard
+from ..host.unit_load import UnitLoad
 from ..observe.report import finish_report
 from ..roles.stopping import STOP_SIGNALS, not_ignored, stop_of, stopped_by_user
 from ..roles.supervise import end_children, role_cpus, spawn_role, unit_cores
@@ -76,6 +77,7 @@ class UnitStart:
         self.fault: dict[str, Any] | None = None
         self.decided: dict[str, Any] = {}
         """What the start decided on the way: admission, placement choice, Zenoh ids."""
+        self.unit_load: UnitLoad | None = None
 
     def __call__(self) -> tuple[int, dict]:
         refused = self.configure()
@@ -181,14 +183,20 @@ class UnitStart:
         raise AssertionError("unreachable")
 
     def _busy_guard(self) -> BusyGuard | None:
-        """Under FIFO: back to the default policy before the kernel throttles."""
+        """Under FIFO: back to the default policy before the kernel throttles. The guard
+        and the admission judge the unit's own CPU time (runtime/host/unit_load.py), read
+        by a thread of its own, not the machine's."""
         choice = self.sched_choice
         if not (sched.fifo_in_force() and choice["budget"] is not None):
             return None
         children = self.children
-        return BusyGuard(
-            lambda: [os.getpid()] + [p.pid for p in children if p.poll() is None],
-            choice["budget"], priority=choice["priority"], say=self.echo)
+
+        def pids() -> list[int]:
+            return [os.getpid()] + [p.pid for p in children if p.poll() is None]
+
+        self.unit_load = UnitLoad(pids).__enter__()
+        return BusyGuard(pids, choice["budget"], priority=choice["priority"], say=self.echo,
+                         read=self.unit_load.cpu_times)
 
     def activate(self) -> None:
         """Start the roles' processes, then the handshake, the warm-up, the reply mode,
@@ -202,7 +210,8 @@ class UnitStart:
                 and self.setup.placement.peripherals):
             self._place()
         if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
-            self.decided["admission"] = admit(central)
+            self.decided["admission"] = admit(
+                central, unit_cpu=self.unit_load.sample if self.unit_load else None)
 
     def _spawn(self) -> None:
         if not self.spawn:
@@ -268,6 +277,8 @@ class UnitStart:
                          wait=5.0 if self.fault is None else STOP_REPORTS_WAIT_S)
         finally:
             end_children(self.children, grace=0.3 if interrupted else 1.0)
+            if self.unit_load is not None:
+                self.unit_load.close()
             self.observers.close(join_s=OBSERVERS_JOIN_S)
             self.node.close()
             if self.recorder is not None:
