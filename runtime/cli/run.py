@@ -15,7 +15,7 @@ from ..config import (
     ConfigError,
     RunConfig,
 )
-from .base import _emit, _fail, _json_safe, cli
+from .base import FilePath, _emit, _fail, _json_safe, cli
 from .options import given_settings, make_rc, role_options, run_options
 
 
@@ -27,7 +27,7 @@ from .options import given_settings, make_rc, role_options, run_options
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 @click.option("--progress/--no-progress", default=None, hidden=True,
               help="Progress display (default: when stdout is a terminal).")
-@click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None,
+@click.option("--plot", "plot_dir", type=FilePath(file_okay=False), default=None,
               help="At the end, draw the run into DIR (as ctrlunit plot does); records it "
               "to DIR/run.mcap unless --record is given.")
 def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: bool,
@@ -60,7 +60,7 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     finally:
         finish()
     if "cycles" not in report:
-        _fail(report["fault"]["message"], code)
+        _fail(report["fault"]["message"] + _kept(report), code)
         return
     if rc.run.report:
         with open(rc.run.report, "w") as fh:
@@ -73,7 +73,16 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     if code:
         f = report.get("fault") or {}
         click.echo(f"ctrlunit: fault in {f.get('process')}: {f.get('message')}", err=True)
+    if report.get("logs_kept"):
+        click.echo(f"ctrlunit: the roles' logs are kept in {report['logs_kept']}", err=True)
     sys.exit(code)
+
+
+def _kept(report: dict[str, Any]) -> str:
+    """Where the run directory of a faulted run was kept (its spec and the roles' logs),
+    as the end of a line."""
+    kept = report.get("logs_kept")
+    return f"; the roles' logs are kept in {kept}" if kept else ""
 
 
 def _check(rc: RunConfig, as_json: bool) -> None:
@@ -314,7 +323,9 @@ def central(as_json: bool, **kw: Any) -> None:
                 json.dump(_json_safe(report), fh, indent=2)
         click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     else:
-        _fail(report["fault"]["message"], code)
+        _fail(report["fault"]["message"] + _kept(report), code)
+    if report.get("logs_kept"):
+        click.echo(f"ctrlunit: the roles' logs are kept in {report['logs_kept']}", err=True)
     sys.exit(code)
 
 

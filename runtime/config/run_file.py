@@ -18,13 +18,15 @@ from .sections import SECTIONS
 from .value_types import has_type, type_name
 
 PROFILES: dict[str, dict[str, Any]] = {
-    "main-job": {},
+    "main-job": {"peripherals": 3, "pipeline": 2},
     "thesis": {"model_state": "sample", "placement_auto": False, "observer": "previous"},
 }
-"""Settings of each profile by flat name. ``main-job``: the defaults (realtime at the
-period the admission holds, the model foreseen, placement auto). ``thesis``: the thesis's
-graph (the model at the sample, the axes placement, the observer from the previous
-estimate with two Newton-Raphson iterations), as the 1994 comparison runs it."""
+"""Settings of each profile by flat name, over the defaults. ``main-job``: README's main
+job, ``ctrlunit start --peripherals 3 --pipeline 2`` (realtime at the period the
+admission holds, the model foreseen, placement auto). ``thesis``: the thesis's graph (the
+model at the sample, the axes placement, the observer from the previous estimate with two
+Newton-Raphson iterations), as the 1994 comparison runs it. Without ``--profile`` a run
+has the defaults alone."""
 
 
 def _flat(section: str, key: str, where: str) -> str:

@@ -75,6 +75,7 @@ class UnitStart:
         self.pids: dict[str, int] = {}  # the roles' processes, once started
         self.code = EXIT_OK
         self.fault: dict[str, Any] | None = None
+        self.kept: Path | None = None  # the run directory, kept after a fault
         self.decided: dict[str, Any] = {}
         """What the start decided on the way: admission, placement choice, Zenoh ids."""
         self.unit_load: UnitLoad | None = None
@@ -102,7 +103,10 @@ class UnitStart:
         if ctrl_c and not stopped_by_user({"fault": self.fault}):
             self.code, self.fault = stop_of(ctrl_c[0])
         self.leave()
-        return self.code, self.report()
+        report = self.report()
+        if self.kept is not None:  # after the recording's copy: a path on this host only
+            report["logs_kept"] = str(self.kept)
+        return self.code, report
 
     # -- configure --------------------------------------------------------------------
 
@@ -292,16 +296,18 @@ class UnitStart:
     def leave(self) -> None:
         """Say which role exited with an error, and remove the run directory unless
         the run failed (its spec, socket and the roles' logs diagnose a fault; a refusal's
-        figures are all in the report's admission)."""
+        figures are all in the report's admission, and a stop the user asked for is no
+        fault). A directory kept is the report's ``logs_kept``, which ``ctrlunit start``
+        names after the summary."""
         for p, name in zip(self.children, child_names(self.rc, self.setup), strict=False):
             if (p.returncode not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM)
                     and self.fault is None):
                 log = (self.run_dir / f"{name}.log").read_text(errors="replace")[-2000:]
                 self.echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
-        if self.code in (EXIT_OK, EXIT_UNSUSTAINABLE):
+        if self.code in (EXIT_OK, EXIT_UNSUSTAINABLE) or stopped_by_user({"fault": self.fault}):
             shutil.rmtree(self.run_dir, ignore_errors=True)
         else:
-            self.echo(f"ctrlunit: the roles' logs are kept in {self.run_dir}")
+            self.kept = self.run_dir
 
     # -- report -----------------------------------------------------------------------
 
