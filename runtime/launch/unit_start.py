@@ -78,7 +78,6 @@ class UnitStart:
         self.kept: Path | None = None  # the run directory, kept after a fault
         self.decided: dict[str, Any] = {}
         """What the start decided on the way: admission, placement choice, Zenoh ids."""
-        self.unit_load: UnitLoad | None = None
 
     def __call__(self) -> tuple[int, dict]:
         refused = self.configure()
@@ -198,9 +197,8 @@ class UnitStart:
         def pids() -> list[int]:
             return [os.getpid()] + [p.pid for p in children if p.poll() is None]
 
-        self.unit_load = UnitLoad(pids).__enter__()
         return BusyGuard(pids, choice["budget"], priority=choice["priority"], say=self.echo,
-                         read=self.unit_load.cpu_times)
+                         load=UnitLoad(pids).__enter__())
 
     def activate(self) -> None:
         """Start the roles' processes, then the handshake, the warm-up, the reply mode,
@@ -215,7 +213,8 @@ class UnitStart:
             self._place()
         if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
             self.decided["admission"] = admit(
-                central, unit_cpu=self.unit_load.sample if self.unit_load else None)
+                central, unit_cpu=self.guard.load.sample if self.guard and self.guard.load
+                else None)
 
     def _spawn(self) -> None:
         if not self.spawn:
@@ -281,8 +280,8 @@ class UnitStart:
                          wait=5.0 if self.fault is None else STOP_REPORTS_WAIT_S)
         finally:
             end_children(self.children, grace=0.3 if interrupted else 1.0)
-            if self.unit_load is not None:
-                self.unit_load.close()
+            if self.guard is not None:
+                self.guard.close()
             self.observers.close(join_s=OBSERVERS_JOIN_S)
             self.node.close()
             if self.recorder is not None:
