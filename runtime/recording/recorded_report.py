@@ -19,6 +19,7 @@ from ..observe.report import (
     overload_figures,
     tracking_errors,
 )
+from .plot_data import commands
 from .reader import Recording
 from .replay import recorded_inputs, stride_grid
 
@@ -33,18 +34,9 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     rc = RunConfig.from_recording(cfg).replace(record=None, report=None)
     setup = make_setup(rc)
     samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
-    cmd_ns: list[int] = []
-    sample_ns: list[int] = []
-    commands: list[float] = []  # the torques of every command, one after the other
+    sent = commands(rec, samples)
+    cmd_ns, sample_ns, tau = sent["cmd_ns"], sent["sample_ns"], sent["tau"]
     true_p: dict[int, tuple[float, float, float]] = {}
-    for t, m in rec.decoded("/plant/command"):
-        k = m["cycle"]
-        s = samples.get(k)
-        if s is None:
-            continue
-        cmd_ns.append(t)
-        sample_ns.append(s["t_ns"])
-        commands.extend(float(x) for x in m["tau"])
     for k, s in samples.items():
         if "p" in s and k < setup.cycles:  # as live: the run's samples only
             p = s["p"]
@@ -84,8 +76,8 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     task = setup.task
     rep = build_report(
         rc=rc, plan=setup.plan, task=task, timing=timing_figures(cmd_ns, sample_ns),
-        digest=command_digest(commands),
-        torque_max=max((abs(x) for x in commands), default=math.nan),
+        digest=command_digest(tau),
+        torque_max=max((abs(x) for x in tau), default=math.nan),
         tracking=error_stats(tracking_errors(task, rc.schedule.period, true_p)), business=business,
         deadline_misses=misses,
         skipped=skipped, rejected=rejected, t1_s=t1, per_block_s=per_block, fault=fault,
