@@ -13,6 +13,7 @@ from ..compute.timing import timing_figures
 from ..config import RunConfig
 from ..observe.report import (
     CPU_KEYS,
+    RESULT_KEYS,
     build_report,
     command_digest,
     error_stats,
@@ -85,6 +86,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     )
     cpu = json.loads(result.get("cpu", "{}") or "{}")  # per process: only the run knew
     rep.update({k: cpu.get(k) for k in CPU_KEYS if k in cpu})
+    _live_facts(rep, rec, rc, cpu_known=bool(cpu))
     grid = stride_grid(rec)
     last = max((m["cycle"] for _, m in rec.decoded("/plant/command")), default=-1)
     rep["periods"] = last + grid.hold_of(last) if last >= 0 else 0
@@ -95,3 +97,37 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     rep["overload"] = overload_figures(changes, rc.halves_on_overload, grid,
                                        end=rep["periods"])
     return rep
+
+
+def _live_facts(rep: dict[str, Any], rec: Recording, rc: RunConfig, *, cpu_known: bool
+                ) -> None:
+    """Into ``rep``: what only the live run knew (:data:`RESULT_KEYS`), from the result
+    record; without it (a recording cut off before the end, or made before ctrlunit kept
+    them), ``not_recorded``: the summary lines this run would have had that the file
+    cannot give, and why."""
+    result = rec.metadata.get("ctrlunit.result")
+    live = (result or {}).get("live")
+    if live is not None:
+        rep.update(json.loads(live))
+        return
+    rep.pop("link_list", None)  # the configuration's links, without the central's endpoint
+    sch, n = rc.schedule, rep["peripherals"]
+    relevant = {
+        "exchanges_per_interval": n > 0, "replies": n > 0,
+        "late": sch.clock == "realtime", "late_intervals": sch.clock == "realtime" and n > 0,
+        "idle": sch.clock == "realtime" or sch.idle == "poll",
+        "admission": sch.clock == "realtime" and sch.admission,
+        "scheduling_fallback": sch.clock == "realtime",
+        "placement_choice": sch.placement_auto and n > 0,
+        "plant_spares": sch.clock == "realtime", "silences_excused": sch.clock == "realtime",
+        "safe_stop": bool(rep.get("fault")) and sch.clock != "freerun",
+        "links": False,  # the weakest protection: the configuration's, rebuilt
+    }
+    lines = [] if cpu_known else ["CPU / interval"]
+    for key, line in RESULT_KEYS.items():
+        if relevant.get(key, True) and line not in lines:
+            lines.append(line)
+    why = ("the recording was cut off before the run's end, where they are written"
+           if rec.salvaged or result is None else
+           "the recording was made by a ctrlunit that kept them in the live report only")
+    rep["not_recorded"] = {"lines": lines, "why": why}
