@@ -69,10 +69,15 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
 
     click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     if plot_dir:
-        _plot_run(rc.run.record, plot_dir, summary(report))
+        # a run longer than the exact window has histogram quantiles: the index then
+        # shows the recording's summary, exact as the plots are
+        _plot_run(rc.run.record, plot_dir, summary(report)
+                  if (report.get("timing") or {}).get("exact", True) else None)
     if code:
         f = report.get("fault") or {}
-        click.echo(f"ctrlunit: fault in {f.get('process')}: {f.get('message')}", err=True)
+        click.echo(f"ctrlunit: stopped on request: {f.get('message')} (exit {code})"
+                   if f.get("process") == "user" else
+                   f"ctrlunit: fault in {f.get('process')}: {f.get('message')}", err=True)
     sys.exit(code)
 
 
@@ -113,7 +118,7 @@ def _check(rc: RunConfig, as_json: bool) -> None:
           + ":\n    " + plan.describe().replace("\n", "\n    "))
 
 
-def _plot_run(record: str | None, plot_dir: str, text: str) -> None:
+def _plot_run(record: str | None, plot_dir: str, text: str | None) -> None:
     """``start --plot``: the run's figures, from its recording (salvaged if it was cut)."""
     from ..recording.plots import plot_recording
     from ..recording.reader import read
