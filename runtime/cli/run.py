@@ -69,10 +69,18 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
 
     click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     if plot_dir:
-        _plot_run(rc.run.record, plot_dir, summary(report))
+        # a run longer than the exact window has histogram quantiles: the index then
+        # shows the recording's summary, exact as the plots are
+        _plot_run(rc.run.record, plot_dir, summary(report)
+                  if (report.get("timing") or {}).get("exact", True) else None)
     if code:
         f = report.get("fault") or {}
-        click.echo(f"ctrlunit: fault in {f.get('process')}: {f.get('message')}", err=True)
+        what = (f"stopped on request: {f.get('message')}" if f.get("process") == "user"
+                else f"fault in {f.get('process')}")
+        # the summary on stdout has the whole message; with --json stderr gives it
+        click.echo(f"ctrlunit: {what}" + (f": {f.get('message')}" if as_json and
+                                          f.get("process") != "user" else "")
+                   + f" (exit {code})", err=True)
     if report.get("logs_kept"):
         click.echo(f"ctrlunit: the roles' logs are kept in {report['logs_kept']}", err=True)
     sys.exit(code)
@@ -122,7 +130,7 @@ def _check(rc: RunConfig, as_json: bool) -> None:
           + ":\n    " + plan.describe().replace("\n", "\n    "))
 
 
-def _plot_run(record: str | None, plot_dir: str, text: str) -> None:
+def _plot_run(record: str | None, plot_dir: str, text: str | None) -> None:
     """``start --plot``: the run's figures, from its recording (salvaged if it was cut)."""
     from ..recording.plots import plot_recording
     from ..recording.reader import read

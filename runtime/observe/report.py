@@ -30,6 +30,29 @@ and the thesis stage's take 100-200 ms each."""
 them; a recording keeps them for ``ctrlunit report``."""
 
 
+RESULT_KEYS: dict[str, str] = {
+    "exchanges_per_interval": "exchanges per interval",
+    "replies": "replies per round",
+    "silences_excused": "silences excused",
+    "plant_spares": "misses covered by an extrapolated command",
+    "late": "late data",
+    "late_intervals": "late intervals",
+    "scheduling": "scheduling",
+    "scheduling_choice": "scheduling",
+    "scheduling_fallback": "scheduling fallback",
+    "idle": "idle CPUs",
+    "placement_choice": "placement",
+    "admission": "admission",
+    "link_list": "the links' endpoints",
+    "links": "the links' endpoints",
+    "safe_stop": "safe stop",
+}
+"""Report keys the summary reads that only the live run knows (what it decided, what the
+central counted, the roles' own reports), each with the summary line it feeds: a
+recording keeps them for ``ctrlunit report`` (runtime/recording/recorder.py), so that
+it prints every line of the live summary."""
+
+
 def quoted(name: str) -> str:
     """A user-given name (a task file's ``name``) as it appears in a human summary: in
     double quotes, with quotes, backslashes and unprintable characters escaped, so that
