@@ -92,12 +92,12 @@ def _run(args: list[str], *, tty: bool, unit: str) -> str:
 
 @pytest.mark.zenoh
 def test_the_live_line_shows_on_a_terminal_and_is_quiet_in_a_pipe():
-    args = ["--clock", "lockstep", "--peripherals", "1", "--cycles", "400"]
+    args = ["--clock", "lockstep", "--peripherals", "1", "--cycles", "3000"]
     on_tty = _run(args, tty=True, unit=unit_id("livetty"))
     assert "period p50" in on_tty and "misses 0" in on_tty and "interval " in on_tty
     piped = _run(args, tty=False, unit=unit_id("livepipe"))
     assert "period p50" not in piped and "\x1b[" not in piped
-    assert "400 intervals" in piped  # the summary itself
+    assert "3000 intervals" in piped  # the summary itself
 
 
 def _drawn(out: str) -> list[str]:
@@ -123,7 +123,16 @@ def test_terminal_line_writes_the_newest_line_last_and_cuts_it_to_the_width():
             line.show(f"interval {k}/200 " + "x" * 50, k, 200)
     drawn = _drawn(out.getvalue())
     assert 1 <= len(drawn) <= 200 and all(len(d) <= 49 for d in drawn)
-    assert drawn[-1].startswith("ctrlunit [########################] 100%")
+    # too narrow for the bar and the text: the bar goes first, the text is cut last
+    assert drawn[-1].startswith("ctrlunit 100%  interval 200/200 x")
+
+
+def test_the_bar_narrows_before_the_figures_are_cut():
+    text = "interval 9/10  period p50 866 us  p99 1623 us  misses 0  skipped 0"
+    assert TerminalLine.fit(1.0, text, 200) == f"ctrlunit [{'#' * 24}] 100%  {text}"
+    narrow = TerminalLine.fit(0.5, text, 100)
+    assert narrow.endswith(text) and len(narrow) == 99 and "[########-------]" in narrow
+    assert TerminalLine.fit(0.5, text, 80) == f"ctrlunit  50%  {text}"
 
 
 def test_a_message_during_the_run_is_written_on_a_cleared_line():

@@ -170,7 +170,7 @@ class TerminalLine:
         self._width = width
         self._cond = threading.Condition()  # the newest line: never held while writing
         self._write = threading.Lock()  # the stream
-        self._pending: str | None = None
+        self._pending: tuple[float, str] | None = None  # (done's share, the text)
         self._drawn = False
         self._closed = False
         self._t0: float | None = None
@@ -184,14 +184,24 @@ class TerminalLine:
         if self._t0 is None:
             self._t0 = now
         frac = min(max(done / total, 0.0), 1.0) if total > 0 else 0.0
-        full = round(frac * self.BAR)
         left = ""
         if 0 < done < total:
             left = f"  {(now - self._t0) * (total - done) / done:.0f} s left"
-        line = f"ctrlunit [{'#' * full}{'-' * (self.BAR - full)}] {frac:4.0%}  {text}{left}"
         with self._cond:
-            self._pending = line
+            self._pending = (frac, text + left)
             self._cond.notify()
+
+    @classmethod
+    def fit(cls, frac: float, text: str, cols: int) -> str:
+        """The line in ``cols - 1`` columns: the bar narrows, then goes, before the text
+        (the misses and the error come after the period) is cut."""
+        room = max(cols - 1, 1)
+        head = f"] {frac:4.0%}  "
+        bar = min(cls.BAR, room - len("ctrlunit [") - len(head) - len(text))
+        if bar >= 6:
+            full = round(frac * bar)
+            return f"ctrlunit [{'#' * full}{'-' * (bar - full)}{head}{text}"
+        return f"ctrlunit {frac:4.0%}  {text}"[:room]
 
     def above(self, message: str, stream: TextIO) -> None:
         """Write ``message`` (and a newline) on ``stream`` with the line cleared first; the
@@ -236,11 +246,11 @@ class TerminalLine:
             with self._cond:
                 while self._pending is None and not self._closed:
                     self._cond.wait(0.5)
-                line, self._pending, closed = self._pending, None, self._closed
-            if line is not None:
+                pending, self._pending, closed = self._pending, None, self._closed
+            if pending is not None:
                 cols = self._width or shutil.get_terminal_size((100, 24)).columns
                 with self._write:
-                    self._stream.write("\r\x1b[2K" + line[:max(cols - 1, 1)])
+                    self._stream.write("\r\x1b[2K" + self.fit(*pending, cols))
                     self._stream.flush()
                     self._drawn = True
             if closed:
