@@ -132,7 +132,7 @@ def test_the_bar_narrows_before_the_figures_are_cut():
     assert TerminalLine.fit(1.0, text, 200) == f"ctrlunit [{'#' * 24}] 100%  {text}"
     narrow = TerminalLine.fit(0.5, text, 100)
     assert narrow.endswith(text) and len(narrow) == 99 and "[########-------]" in narrow
-    assert TerminalLine.fit(0.5, text, 80) == f"ctrlunit  50%  {text}"
+    assert TerminalLine.fit(0.5, text, 90) == f"ctrlunit  50%  {text}"
 
 
 def test_a_message_during_the_run_is_written_on_a_cleared_line():
