@@ -15,6 +15,7 @@ from ..config import (
     ConfigError,
     RunConfig,
 )
+from ..config.spellings import user_view
 from .base import _emit, _fail, _json_safe, cli
 from .options import given_settings, make_rc, role_options, run_options
 
@@ -96,7 +97,8 @@ def _check(rc: RunConfig, as_json: bool) -> None:
             "placement": setup.placement.to_dict(), "round_trips": plan.round_trips,
             "placement_auto": rc.schedule.placement_auto,
             "command_delay_periods": rc.delay_periods,
-            "overload": "halve" if rc.halves_on_overload else "continue"}
+            "overload": "halve" if rc.halves_on_overload else "continue",
+            "settings": user_view(rc.to_dict())}
     period = "auto" if rc.schedule.period_auto else f"{rc.schedule.period * 1e3:g} ms"
     overload = (f"  on overload: halve the control rate (--overload {rc.schedule.overload})\n"
                 if rc.halves_on_overload else "")
@@ -344,7 +346,7 @@ def config_cmd(check: bool, table: bool, **kw: Any) -> None:
         ctx = click.get_current_context()
         flags = {p.name: p.process_value(ctx, p.get_default(ctx)) for p in ctx.command.params
                  if p.name in kw and p.expose_value}
-        defaults = make_rc(flags).to_dict() | {"unit": None}
+        defaults = user_view(make_rc(flags).to_dict()) | {"unit": None}
         click.echo(settings_table(defaults), nl=False)
         return
     asked_unit = "unit" in _given(kw)
