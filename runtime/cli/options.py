@@ -22,7 +22,7 @@ def _read(_ctx: Any, param: click.Parameter, value: Any) -> Any:
     (runtime/config/spellings.py): ``2ms``, ``0.002``, ``auto`` where the setting takes it."""
     flat = "late" if param.name == "late_items" else str(param.name)
     try:
-        return read_setting(flat, value, f"--{param.opts[0].lstrip('-')}")
+        return read_setting(flat, value, f"--{param.opts[0].lstrip('-')}", ranged=False)
     except ConfigError as exc:
         raise click.BadParameter(str(exc)) from None
 

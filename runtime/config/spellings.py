@@ -124,7 +124,7 @@ def _read_kind(flat: str, a: About, value: Any, where: str) -> Any:
     return value
 
 
-def read_setting(flat: str, value: Any, where: str) -> Any:
+def read_setting(flat: str, value: Any, where: str, *, ranged: bool = True) -> Any:
     """A user's value of setting ``flat`` in any spelling it accepts -> the value as
     :func:`fields_of` takes it, checked against the setting's type, choices and bounds.
 
@@ -134,6 +134,8 @@ def read_setting(flat: str, value: Any, where: str) -> Any:
     value : as given: the flag's text, ``--set``'s TOML value or bare word, the run
         file's TOML value.
     where : how the user gave it, for the error (``--set schedule.period``).
+    ranged : check the choices and bounds too (a flag's value: ``RunConfig.validate``
+        does, with the same message).
 
     Raises
     ------
@@ -158,7 +160,7 @@ def read_setting(flat: str, value: Any, where: str) -> Any:
     if a.kind in ("period", "priority", "placement") and isinstance(value, str):
         return value  # auto, or what validate checks (a priority, a file)
     tp = _FLAT_TYPES[flat]
-    if not has_type(value, tp) or out_of_range(a, value):
+    if not has_type(value, tp) or (ranged and out_of_range(a, value)):
         raise _bad(where, value if isinstance(value, int | float) else given,
                    user_allowed(a) if a.choices or a.bounds or a.allowed else type_name(tp))
     return float(value) if base is float and value is not None else value
