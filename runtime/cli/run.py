@@ -99,7 +99,11 @@ def _check(rc: RunConfig, as_json: bool) -> None:
             "command_delay_periods": rc.delay_periods,
             "overload": "halve" if rc.halves_on_overload else "continue",
             "settings": user_view(rc.to_dict())}
-    period = "auto" if rc.schedule.period_auto else f"{rc.schedule.period * 1e3:g} ms"
+    period = f"{rc.schedule.period * 1e3:g} ms"
+    if rc.schedule.period_auto:  # what will run: the admission chooses only in realtime
+        period = (f"auto (the shortest from {period} up that the admission's trial holds)"
+                  if rc.schedule.clock == "realtime" and rc.schedule.admission
+                  else f"{period} (auto)")
     overload = (f"  on overload: halve the control rate (--overload {rc.schedule.overload})\n"
                 if rc.halves_on_overload else "")
     _emit(data, as_json,
@@ -110,9 +114,17 @@ def _check(rc: RunConfig, as_json: bool) -> None:
           f"intervals, {rc.control.law} + {rc.control.model} model\n"
           + overload +
           f"  {plan.round_trips} round trip(s) per interval"
-          + (" (placement auto: the warm-up may move a round to the central)"
-             if rc.schedule.placement_auto and setup.placement.peripherals else "")
+          + _placement_note(rc, setup.placement.peripherals)
           + ":\n    " + plan.describe().replace("\n", "\n    "))
+
+
+def _placement_note(rc: RunConfig, peripherals: int) -> str:
+    """Which placement ``--check`` shows: auto, axes or the file's."""
+    if not peripherals:
+        return ""
+    if rc.schedule.placement_auto:
+        return " (placement auto: the warm-up may move a round to the central)"
+    return f" (placement {rc.schedule.placement or 'axes'})"
 
 
 def _plot_run(record: str | None, plot_dir: str, text: str) -> None:
