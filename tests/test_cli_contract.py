@@ -576,7 +576,7 @@ def test_bench_keeps_the_contract(work, periods, repeats, scale, quick, stages):
     check_contract(res, tuple(args))
     if res.exit_code == 0:
         assert not (work / "bench-out").exists()
-        assert "configurations" in res.stdout or "realtime stage" in res.stdout
+        assert res.stdout.rstrip().endswith("nothing was run")
     if stages in ("thesis,bogus", ","):
         assert res.exit_code in (1, 2)  # 2: another option was refused first
 

@@ -202,3 +202,41 @@ def test_a_central_that_cannot_read_its_roles_grants_nothing_and_notes_nothing()
     assert grant(m, ex, now=4 * MS)
     assert ex.granted["peripheral-1"].times is None
     assert not renew(m, ex, 7 * MS)
+
+
+# -- the first excuse from the pressure since the silence began ------------------------
+
+
+def test_a_sleeping_peripheral_is_excused_when_tasks_waited_since_its_silence_began():
+    """A burst of another real-time task held what was in transit and ended before the
+    central looked: at that instant nothing is runnable, but the machine's pressure since
+    the last note before the silence shows the wait (docs/measurements/
+    2026-11-27-starvation.md)."""
+    from ctrlunit.runtime.central.excuse import FIRST_PRESSURE_SHARE, MARK_EVERY_NS
+
+    m = Machine()
+    m.state |= {"peripheral-1": "sleeping", "central": "sleeping"}
+    ex = m.excuses()
+    ex.mark(0, read=lambda: 1_000 * MS)
+    ex.mark(MARK_EVERY_NS - 1, read=lambda: 0)  # too soon after the last note: not noted
+    assert ex.marks == type(ex.marks)([(0, 1_000 * MS)])
+    since, now = MS, 9 * MS
+    m.pressure = 1_000 * MS + int(FIRST_PRESSURE_SHARE * now) - 1  # a hair under the share
+    assert not grant(m, ex, since=since, now=now)
+    m.pressure += 1
+    assert grant(m, ex, since=since, now=now)
+    assert ex.granted["peripheral-1"].runnable is False
+
+
+def test_no_note_before_the_silence_or_no_pressure_is_no_evidence():
+    m = Machine()
+    m.state |= {"peripheral-1": "sleeping", "central": "sleeping"}
+    ex = m.excuses()
+    ex.mark(5 * MS, read=lambda: 0)  # noted after the silence began
+    m.pressure = 100 * MS
+    assert not grant(m, ex, since=MS, now=9 * MS)
+    ex.mark(8 * MS, read=lambda: None)  # the kernel keeps no pressure: nothing noted
+    assert list(ex.marks) == [(5 * MS, 0)]
+    unsupervised = Excuses(Supervision(), own_stall=lambda since, now: 0)
+    unsupervised.mark(0, read=lambda: 0)
+    assert not unsupervised.marks  # roles not started here: nothing read

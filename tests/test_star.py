@@ -86,11 +86,12 @@ def test_realtime_at_1ms_reports_misses(tmp_path, depth):
     # (with the default 3 periods they stop the unit first, tests/test_faults.py).
     assert code in (0, 5), out
     assert isinstance(rep["deadline_misses"], int)
-    # the clock imposes the period: Eq. IV.23 on the traversal, and the summary says so
+    # the clock imposes the period: Eq. IV.23 on the traversal in the report; on native
+    # costs the summary shows no efficiency, and says why
     assert rep["t_parallel_s"] == rep["traversal_s"]["p50"] != rep["period_mean_s"]
     assert rep["efficiency"] == pytest.approx(
         rep["t1_s"] / (rep["traversal_s"]["p50"] * rep["processors"]), rel=1e-12)
-    assert "t_parallel = traversal p50; the realtime clock imposes the period)" in out
+    assert "efficiency  not measured here: the realtime clock sets the pace" in out
     if code == 0:
         assert rep["cycles"] + rep["skipped_samples"] >= 600 - 5
     else:

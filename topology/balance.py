@@ -215,6 +215,7 @@ def analyse(report: Any, *, source: str = "report") -> dict[str, Any]:
     return {
         "law": graph.law, "model": graph.model, "observer": graph.observer,
         "model_state": graph.model_state, "peripherals": n, "pipeline": depth,
+        "run": report["run"] | {"replies": asked},
         "block_cost_s": dict(block), "t_s_s": t_s, "t_p_s": t_p, "business": business,
         "central_arithmetic_share": arithmetic,
         "model_costs_s": {"send": costs.send_s, "reply": costs.reply_s,

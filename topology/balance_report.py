@@ -101,6 +101,35 @@ def read_report(doc: Any, *, source: str = "report") -> dict[str, Any]:
         "pipeline": depth,
         "placement": placement.to_dict(), "block_cost_s": block,
         **_cost_fields(doc, source), **_measured_fields(doc, source),
+        "run": _run_fields(doc, source),
+    }
+
+
+def _run_fields(doc: dict[str, Any], source: str) -> dict[str, Any]:
+    """How the run was made beyond its graph and placement, which its figures (and so a
+    model calibrated on them) depend on: the clock, its period, the cost model, the
+    replies and lone rounds asked, its length. A report that does not say: freerun, the
+    native costs, auto, the task's length."""
+    scale = doc.get("cost_scale")
+    if scale is None:
+        scale = 1.0
+    if not _is_number(scale) or not math.isfinite(scale) or not 0.01 <= scale <= 1000:
+        raise _bad(source, "cost_scale", scale, "a number in [0.01, 1000]")
+    cycles = doc.get("cycles")
+    if cycles is not None and (not isinstance(cycles, int) or isinstance(cycles, bool)
+                               or not 1 <= cycles <= 10**9):
+        raise _bad(source, "cycles", cycles, "an integer in [1, 1e9] or null")
+    hold = _mapping(source, "hold_rounds", doc.get("hold_rounds"))
+    return {
+        "clock": _choice(source, "clock", doc.get("clock"),
+                         ("freerun", "lockstep", "realtime"), "freerun"),
+        "period_s": _seconds(source, "nominal_period_s", doc.get("nominal_period_s"),
+                             positive=True),
+        "cost_model": _choice(source, "cost_model", doc.get("cost_model"),
+                              ("native", "t800"), "native"),
+        "cost_scale": float(scale), "cycles": cycles,
+        "hold_rounds": _choice(source, "hold_rounds.asked", hold.get("asked"),
+                               ("auto", "always", "never"), "auto"),
     }
 
 

@@ -8,10 +8,11 @@ process, is slow (docs/faults-and-errors.md, the silence rule's third step).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from typing import NamedTuple
 
-from ..roles.supervise import MachineLoad, ThreadTimes, cpu_denied
+from ..roles.supervise import MachineLoad, ThreadTimes, cpu_denied, cpu_pressure_ns
 from . import silence_rule
 
 
@@ -40,6 +41,18 @@ EXCUSED_LIMITS = 8
 threads) from a CPU, its silence is a fault once it lasts this many limits (24 ms at 1 ms
 and ``--fault-periods 3``; the reference machine's stalls ran 6-26 ms). The robot's
 tracking is watched all along (``--max-error``)."""
+
+
+MARK_EVERY_NS = 2_000_000
+"""How often, at most, the central notes the machine's CPU pressure as it sends a request
+(:meth:`Excuses.mark`, 10-40 us a reading): a silence's first excuse reads the pressure
+since the last note before the silence began."""
+
+FIRST_PRESSURE_SHARE = 0.25
+"""A silent process asleep is excused the first time when tasks waited for a CPU for at
+least this share of the time since the silence began: a burst of another real-time task
+on one CPU of two shows as half its length in the machine's pressure when the other CPU
+is busy (the kernel weighs each CPU's stalls by its busy time)."""
 
 
 class Excuse(NamedTuple):
@@ -82,6 +95,30 @@ class Excuses:
         """The excuse of each role's silence, by role (until it answers)."""
         self.count = 0
         """Excuses granted or renewed."""
+        self.marks: deque[tuple[int, int]] = deque(maxlen=64)
+        """``(when, CPU pressure ns)``, noted as requests are sent (:meth:`mark`)."""
+
+    def mark(self, now: int, *, read: Callable[[], int | None] = cpu_pressure_ns) -> None:
+        """Note the machine's CPU pressure at ``now`` (a request was sent), at most once per
+        :data:`MARK_EVERY_NS`, where this central supervises its roles."""
+        if self.supervision.role_state is None:
+            return
+        if self.marks and now - self.marks[-1][0] < MARK_EVERY_NS:
+            return
+        pressure = read()
+        if pressure is not None:
+            self.marks.append((now, pressure))
+
+    def waited_since(self, since: int, now: int, pressure: int | None) -> bool:
+        """Whether tasks waited for a CPU for :data:`FIRST_PRESSURE_SHARE` of the time from
+        the last note at or before ``since`` to ``now`` (``pressure``: read at ``now``)."""
+        if pressure is None:
+            return False
+        before = [m for m in self.marks if m[0] <= since]
+        if not before:
+            return False
+        at, then = before[-1]
+        return now > at and pressure - then >= FIRST_PRESSURE_SHARE * (now - at)
 
     def of(self, role: str, answered: int) -> Excuse | None:
         """The excuse of the silence ``role`` is in: one granted or renewed since it last
@@ -101,13 +138,16 @@ class Excuses:
         """Whether the silence of ``role`` since ``since``, past its limit (which ends at
         ``limit_end()``), is excused now. The first time, for one more limit, while the
         silent process is runnable (running or waiting for a CPU), or while it sleeps and
-        one of the central's own Zenoh threads is runnable or the machine has more
-        runnable tasks than CPUs (the silent process is working through what it was sent,
-        or what is in transit waits for a CPU). The plant is excused while it sleeps too:
-        it samples on its own clock and waits for nothing in transit, so a plant asleep
-        past its tick is a timer the machine has not served yet. Then, a limit at a time,
-        while the kernel's accounting shows that the machine kept the silent process or
-        the central's Zenoh threads from a CPU, or kept its own tasks waiting for one, for
+        one of the central's own Zenoh threads is runnable, the machine has more runnable
+        tasks than CPUs, or tasks waited for a CPU for a quarter of the silence so far
+        (:meth:`waited_since`: a burst of another task that held what is in transit and
+        has ended by the time the central looks; the silent process is working through
+        what it was sent, or what is in transit waits for a CPU). The plant is excused
+        while it sleeps too: it samples on its own clock and waits for nothing in transit,
+        so a plant asleep past its tick is a timer the machine has not served yet. Then, a
+        limit at a time, while the kernel's accounting shows that the machine kept the
+        silent process or the central's Zenoh threads from a CPU, or kept its own tasks
+        waiting for one, for
         at least half of the last limit (:meth:`_renew`), up to :data:`EXCUSED_LIMITS` in
         all. A stopped or exited process is never excused, a sleeping peripheral with
         nothing in transit neither, and one that ran but did not answer while the machine
@@ -122,7 +162,7 @@ class Excuses:
         load = self._machine()
         if not (state == "runnable" or (state == "sleeping" and (
                 role == "plant" or role_state("central") == "runnable"
-                or load.waiting))):
+                or load.waiting or self.waited_since(since, now, load.pressure_ns)))):
             return False
         self.granted[role] = Excuse(since, limit_end() + limit_ns, now,
                                     self._times(role, load), state == "runnable")

@@ -95,6 +95,8 @@ class SilenceWatch:
         for k in range(len(self.asked_ns)):
             if self.asked_ns[k] <= self.last_reply_ns[k]:
                 self.asked_ns[k] = now
+        if self.realtime:
+            self.excuse.mark(now)
 
     def woke(self, meant_ns: int, now: int, *, slept_from: int | None = None) -> None:
         """The central meant to be awake again by ``meant_ns`` and woke at ``now``: more

@@ -1,9 +1,11 @@
 """The ``ctrlunit`` command group and what its commands share: the error and output
-helpers and the ``--params`` option.
+helpers, the file arguments and the ``--params`` option.
 
-Every command prints a human summary, or JSON on stdout with ``--json``; errors are one
-line on stderr (``ctrlunit: error: ...``) with a non-zero exit code
-(docs/faults-and-errors.md).
+Every command prints a human summary, or JSON on stdout with ``--json``; warnings and
+notes go to stderr (``ctrlunit: warning: ...``); errors are one line on stderr
+(``ctrlunit: error: ...``) with the exit code of their class, the same for every command
+(docs/faults-and-errors.md): 2 for a command line that does not parse (click's usage
+error), 1 for input the command refuses, a file that is missing or unreadable among it.
 """
 
 from __future__ import annotations
@@ -34,6 +36,26 @@ def one_line(text: str) -> str:
 def _fail(msg: str, code: int = 1) -> None:
     click.echo(f"ctrlunit: error: {one_line(msg)}", err=True)
     sys.exit(code)
+
+
+def warn(msg: str) -> None:
+    """A warning: one line on stderr, so that stdout holds only the answer."""
+    click.echo(f"ctrlunit: warning: {one_line(msg)}", err=True)
+
+
+class FilePath(click.Path):
+    """:class:`click.Path` whose refusal (a file that does not exist, a directory given
+    for a file or the reverse, no permission) is an input error, exit 1 like any other
+    file the commands cannot read, rather than click's usage error (exit 2)."""
+
+    def fail(self, message: str, param: click.Parameter | None = None,
+             ctx: click.Context | None = None) -> Any:
+        from ..config import ConfigError
+
+        where = (param.opts[0] if isinstance(param, click.Option) and param.opts
+                 else param.human_readable_name if param is not None else "path")
+        text = message.rstrip(".")
+        raise ConfigError(f"{where}: {text[:1].lower()}{text[1:]}")
 
 
 def _rt_priority(_ctx: Any, _param: click.Parameter, value: str | int) -> str | int:
@@ -73,7 +95,7 @@ def _json_safe(x: Any) -> Any:
 
 
 params_option = click.option(
-    "--params", "params_file", type=click.Path(dir_okay=False), default=None,
+    "--params", "params_file", type=FilePath(dir_okay=False), default=None,
     help="TOML file of Delta parameters (default: the Delta-IA of the thesis).",
 )
 

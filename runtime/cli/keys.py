@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from ..config import EXIT_CONFIG
-from .base import _fail, cli
+from .base import FilePath, _fail, cli
 
 
 @cli.group()
@@ -14,8 +14,8 @@ def keys() -> None:
 
 
 @keys.command("init")
-@click.argument("directory", type=click.Path(file_okay=False))
-@click.option("--authority", type=click.Path(file_okay=False), default=None,
+@click.argument("directory", type=FilePath(file_okay=False))
+@click.option("--authority", type=FilePath(file_okay=False), default=None,
               help="Where the authority's private key ca.key goes, apart from the roles' "
               "keys (made 0700)  [default: DIRECTORY-authority beside DIRECTORY]")
 @click.option("--peripherals", type=click.IntRange(0, 3), default=3, show_default=True,

@@ -11,7 +11,7 @@ import click
 import numpy as np
 
 from ...kernels.params import DeltaParams, ParameterError
-from .base import NUMERIC, _emit, _fail, _params, cli, params_option
+from .base import NUMERIC, FilePath, _emit, _fail, _params, cli, params_option, warn
 
 
 @cli.command(context_settings=NUMERIC, short_help="Inverse kinematics: joint angles of a point.")
@@ -36,10 +36,9 @@ def ik(x: float, y: float, z: float, deg: bool, as_json: bool, params_file: str 
     qo = np.degrees(q) if deg else q
     unit = "deg" if deg else "rad"
     data = {"q": qo.tolist(), "unit": unit, "usable": chk.ok, "min_eig": chk.min_eig}
-    text = "q = [" + ", ".join(f"{v:.9g}" for v in qo) + f"] {unit}"
-    if not chk.ok:
-        text += f"\nwarning: {chk.reason}"
-    _emit(data, as_json, text)
+    _emit(data, as_json, "q = [" + ", ".join(f"{v:.9g}" for v in qo) + f"] {unit}")
+    if not chk.ok:  # an answer all the same (exit 0); --json says it as "usable": false
+        warn(chk.reason)
 
 
 @cli.command(context_settings=NUMERIC,
@@ -152,7 +151,7 @@ def trajectory(name: str, as_json: bool, params_file: str | None) -> None:
 
 
 @cli.command(short_help="Workspace maps (Fig. 28-29) and the usable workspace.")
-@click.option("--png", type=click.Path(dir_okay=False), default=None, help="Write the maps.")
+@click.option("--png", type=FilePath(dir_okay=False), default=None, help="Write the maps.")
 @click.option("--json", "as_json", is_flag=True, help="JSON on stdout.")
 @click.option("--grid", type=click.IntRange(11, 401), default=61, show_default=True,
               help="Grid points per side of each slice.")

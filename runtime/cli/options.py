@@ -11,10 +11,12 @@ import click
 
 from ..config import FLAT, ConfigError, RunConfig
 from ..config.handed import FILE_SETTINGS, ROLE_OWN
+from ..config.run_file import PROFILES
 from ..config.sections import SECTIONS
 from ..config.setting import About
 from ..config.settings_doc import settings_of
 from ..config.spellings import DERIVED, read_setting, to_fields
+from .base import FilePath
 
 
 def _read(_ctx: Any, param: click.Parameter, value: Any) -> Any:
@@ -91,9 +93,9 @@ def _click_type(flat: str, a: About) -> Any:
     fl = a.flag
     assert fl is not None
     if fl.kind == "file":
-        return click.Path(dir_okay=False)
+        return FilePath(dir_okay=False)
     if fl.kind == "dir":
-        return click.Path(file_okay=False)
+        return FilePath(file_okay=False)
     if fl.kind != "value":
         return None  # read by the callback
     if a.choices is not None:
@@ -125,13 +127,14 @@ def _run_file(*, role: bool = False) -> list[Any]:
         click.option("--check", is_flag=True,
                      help="Check the options and files (task, placement, parameters, Zenoh "
                      "configuration) and exit: nothing is started."),
-        click.option("--spec", type=click.Path(dir_okay=False), default=None, hidden=True,
+        click.option("--spec", type=FilePath(dir_okay=False), default=None, hidden=True,
                      help="Run configuration written by ctrlunit start (internal)."),
-        click.option("--profile", type=click.Choice(["main-job", "thesis"]),
-                     default="main-job", show_default=True, hidden=role,
-                     help="Settings for an intent: the realtime main job, or the thesis's "
-                     "graph (model at the sample, axes placement, observer previous)."),
-        click.option("--config", "config_file", type=click.Path(dir_okay=False),
+        click.option("--profile", type=click.Choice(list(PROFILES)), default=None,
+                     hidden=role,
+                     help="Settings over the defaults: main-job is README's main job "
+                     "(--peripherals 3 --pipeline 2), thesis the thesis's graph (model "
+                     "at the sample, axes placement, observer previous)."),
+        click.option("--config", "config_file", type=FilePath(dir_okay=False),
                      default=None, hidden=role, help="A run file (TOML, the sections "
                      "ctrlunit config prints) over the profile."),
         click.option("--set", "set_items", multiple=True, metavar="SECTION.KEY=VALUE",
@@ -188,7 +191,8 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
     settings once merged."""
     from ..config.run_file import parse_set, profile, read_run_file
 
-    layered: dict[str, Any] = profile(kw.pop("profile", None) or "main-job")
+    name = kw.pop("profile", None)
+    layered: dict[str, Any] = profile(name) if name else {}
     config_file = kw.pop("config_file", None)
     if config_file:
         layered |= read_run_file(config_file)

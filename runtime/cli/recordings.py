@@ -8,7 +8,7 @@ from typing import Any
 import click
 
 from ..config import EXIT_CONFIG
-from .base import _fail, _json_safe, cli
+from .base import FilePath, _fail, _json_safe, cli
 
 
 def _cycle_range(_ctx: Any, _param: Any, value: str | None) -> tuple[int, int] | None:
@@ -37,11 +37,11 @@ def _open_recording(path: str) -> Any:
 
 
 @cli.command()
-@click.argument("file", type=click.Path(exists=True, dir_okay=False))
+@click.argument("file", type=FilePath(exists=True, dir_okay=False))
 @click.option("--verify", is_flag=True, help="Re-execute every block and bit-compare.")
 @click.option("--cycles", "cycle_range", default=None, callback=_cycle_range,
               help="Intervals A:B only.")
-@click.option("--csv", "csv_dir", type=click.Path(file_okay=False), default=None,
+@click.option("--csv", "csv_dir", type=FilePath(file_okay=False), default=None,
               help="Export the signals as CSV into DIR.")
 @click.option("--rate", type=click.FloatRange(min=1e-3, max=1e3), default=1.0,
               show_default=True, help="Republish speed factor.")
@@ -123,9 +123,9 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
 
 
 @cli.command("report")
-@click.argument("file", type=click.Path(exists=True, dir_okay=False))
+@click.argument("file", type=FilePath(exists=True, dir_okay=False))
 @click.option("--json", "as_json", is_flag=True)
-@click.option("--report", "report_file", type=click.Path(dir_okay=False), default=None,
+@click.option("--report", "report_file", type=FilePath(dir_okay=False), default=None,
               help="Write the report as JSON.")
 def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
     """Regenerate the run's report from a recording alone."""
@@ -141,8 +141,8 @@ def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
 
 
 @cli.command("plot")
-@click.argument("file", type=click.Path(exists=True, dir_okay=False))
-@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+@click.argument("file", type=FilePath(exists=True, dir_okay=False))
+@click.option("--out", "out_dir", type=FilePath(file_okay=False), default=None,
               help="Directory for the PNGs and index.html (default: FILE without .mcap, "
                    "plus -plots).")
 @click.option("--cycles", "cycle_range", default=None, callback=_cycle_range,
@@ -171,6 +171,6 @@ def plot_cmd(file: str, out_dir: str | None, cycle_range: tuple[int, int] | None
         click.echo(json.dumps(data))
         return
     for n in plots.notes:
-        click.echo(f"note: {n}")
+        click.echo(f"ctrlunit: note: {n}", err=True)
     click.echo(f"{len(plots.images)} figures and index.html in {out}/ (open "
                f"{plots.index})")

@@ -16,7 +16,7 @@ from ..config import (
     RunConfig,
 )
 from ..config.spellings import user_view
-from .base import _emit, _fail, _json_safe, cli
+from .base import FilePath, _emit, _fail, _json_safe, cli
 from .options import given_settings, make_rc, role_options, run_options
 
 
@@ -28,7 +28,7 @@ from .options import given_settings, make_rc, role_options, run_options
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 @click.option("--progress/--no-progress", default=None, hidden=True,
               help="Progress display (default: when stdout is a terminal).")
-@click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None,
+@click.option("--plot", "plot_dir", type=FilePath(file_okay=False), default=None,
               help="At the end, draw the run into DIR (as ctrlunit plot does); records it "
               "to DIR/run.mcap unless --record is given.")
 def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: bool,
@@ -61,7 +61,7 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     finally:
         finish()
     if "cycles" not in report:
-        _fail(report["fault"]["message"], code)
+        _fail(report["fault"]["message"] + _kept(report), code)
         return
     if rc.run.report:
         with open(rc.run.report, "w") as fh:
@@ -70,11 +70,28 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
 
     click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     if plot_dir:
-        _plot_run(rc.run.record, plot_dir, summary(report))
+        # a run longer than the exact window has histogram quantiles: the index then
+        # shows the recording's summary, exact as the plots are
+        _plot_run(rc.run.record, plot_dir, summary(report)
+                  if (report.get("timing") or {}).get("exact", True) else None)
     if code:
         f = report.get("fault") or {}
-        click.echo(f"ctrlunit: fault in {f.get('process')}: {f.get('message')}", err=True)
+        what = (f"stopped on request: {f.get('message')}" if f.get("process") == "user"
+                else f"fault in {f.get('process')}")
+        # the summary on stdout has the whole message; with --json stderr gives it
+        click.echo(f"ctrlunit: {what}" + (f": {f.get('message')}" if as_json and
+                                          f.get("process") != "user" else "")
+                   + f" (exit {code})", err=True)
+    if report.get("logs_kept"):
+        click.echo(f"ctrlunit: the roles' logs are kept in {report['logs_kept']}", err=True)
     sys.exit(code)
+
+
+def _kept(report: dict[str, Any]) -> str:
+    """Where the run directory of a faulted run was kept (its spec and the roles' logs),
+    as the end of a line."""
+    kept = report.get("logs_kept")
+    return f"; the roles' logs are kept in {kept}" if kept else ""
 
 
 def _check(rc: RunConfig, as_json: bool) -> None:
@@ -127,7 +144,7 @@ def _placement_note(rc: RunConfig, peripherals: int) -> str:
     return f" (placement {rc.schedule.placement or 'axes'})"
 
 
-def _plot_run(record: str | None, plot_dir: str, text: str) -> None:
+def _plot_run(record: str | None, plot_dir: str, text: str | None) -> None:
     """``start --plot``: the run's figures, from its recording (salvaged if it was cut)."""
     from ..recording.plots import plot_recording
     from ..recording.reader import read
@@ -328,7 +345,9 @@ def central(as_json: bool, **kw: Any) -> None:
                 json.dump(_json_safe(report), fh, indent=2)
         click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
     else:
-        _fail(report["fault"]["message"], code)
+        _fail(report["fault"]["message"] + _kept(report), code)
+    if report.get("logs_kept"):
+        click.echo(f"ctrlunit: the roles' logs are kept in {report['logs_kept']}", err=True)
     sys.exit(code)
 
 

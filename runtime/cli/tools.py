@@ -1,4 +1,4 @@
-"""``ctrlunit bench`` and ``ctrlunit balance``: the one place that runs the benchmarks."""
+"""``ctrlunit bench``, the one place that runs the benchmarks, and ``ctrlunit latency``."""
 
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ import click
 from ..config import EXIT_CONFIG, parse_duration
 from ..host.idle import IDLE_CHOICES
 from ..roles.stopping import raise_if_stopped, stop_signals
-from .base import _fail, _json_safe, _rt_priority, cli
+from .base import FilePath, _fail, _json_safe, _rt_priority, cli
 
 
 @cli.command()
-@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="bench-out",
+@click.option("--out", "out_dir", type=FilePath(file_okay=False), default="bench-out",
               show_default=True, help="Directory for report.md, report.json and figures.")
 @click.option("--quick", is_flag=True, help="One repeat, short runs (under 3 minutes).")
 @click.option("--repeats", type=click.IntRange(1, 20), default=None)
@@ -46,8 +46,7 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
 
     Exits 1 when a figure of the thesis stage leaves its guarded range (report.md lists
     them)."""
-    from ...bench.runs import cycles_for, thesis_cycles, thesis_pairs
-    from ...bench.sweep import STAGES, plan_configs
+    from ...bench.sweep import STAGES
     from ...bench.sweep import bench as run_bench
     from ...bench.thesis import guard_lines
 
@@ -67,29 +66,14 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
         return
     runs_rt = realtime_runs if realtime_runs is not None else (2 if quick else 20)
     long_rt = long_s if long_s is not None else (0.0 if quick else 60.0)
+    if check:
+        click.echo("\n".join(_bench_plan(
+            stages, quick=quick, repeats=repeats, periods=periods, scale=thesis_scale,
+            runs_rt=runs_rt, long_rt=long_rt, out_dir=out_dir)))
+        return
     if stages == ("realtime",):
-        if check:
-            click.echo(f"realtime stage: {runs_rt} main-job runs, each with its baseline"
-                       + (f", then {long_rt:g} s of the main job" if long_rt else ""))
-            return
         with stop_signals():  # SIGTERM / SIGHUP end the stage as Ctrl-C does
             _realtime_only(out_dir, runs_rt, long_rt)
-        return
-    if check:
-        configs = plan_configs(quick=quick, realtime_periods=periods, scale=thesis_scale,
-                               stages=stages)
-        runs = repeats or (1 if quick else 3)
-        for c in configs:
-            click.echo(f"  {c.key}  {cycles_for(c, quick)} intervals x {runs}")
-        if "thesis" in stages:
-            click.echo(f"  thesis: {thesis_pairs(quick, repeats)} alternated pairs of 3 runs, "
-                       f"{thesis_cycles(quick)} intervals each, t800 x {thesis_scale:g}")
-        click.echo(f"{len(configs)} configurations x {runs} repeat(s); stages "
-                   f"{', '.join(stages)}"
-                   + (f" (realtime: {runs_rt} main-job runs"
-                      + (f", {long_rt:g} s long run" if long_rt else "") + ")"
-                      if "realtime" in stages else "")
-                   + f"; reports into {out_dir}/")
         return
     with stop_signals(), _ticker("bench") as tick:
         rep = run_bench(out_dir, stages=stages, quick=quick, repeats=repeats,
@@ -105,6 +89,40 @@ def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str,
         if failed:
             _fail(f"guarded figures out of range: {', '.join(failed)} ({out_dir}/report.md)",
                   EXIT_CONFIG)
+
+
+def _bench_plan(stages: tuple[str, ...], *, quick: bool, repeats: int | None,
+                periods: list[float], scale: float, runs_rt: int, long_rt: float,
+                out_dir: str) -> list[str]:
+    """``bench --check``: what each stage asked would run, stage by stage."""
+    from ...bench.runs import cycles_for, thesis_cycles, thesis_pairs
+    from ...bench.sweep import plan_configs
+
+    runs = repeats or (1 if quick else 3)
+    configs = plan_configs(quick=quick, realtime_periods=periods, scale=scale, stages=stages)
+    lines = []
+    if "floor" in stages:
+        lines.append(f"  floor: {500 if quick else 3000} scatter/gather rounds to 1, 2 and 3 "
+                     f"peripherals over pipes and over Zenoh, then {300 if quick else 3000} "
+                     "rounds paced at 1 ms over each")
+    lines += [f"  {c.key}  {cycles_for(c, quick)} intervals x {runs}" for c in configs]
+    if "thesis" in stages:
+        lines.append(f"  thesis: {thesis_pairs(quick, repeats)} alternated pairs of 3 runs, "
+                     f"{thesis_cycles(quick)} intervals each, t800 x {scale:g}")
+    if "balance" in stages:
+        lines.append(f"  balance: balance's placement for the n = 3 runs of each depth, "
+                     f"re-run alternately with the default one ({4 * runs} runs)")
+    if "target" in stages:
+        lines.append(f"  target: the freerun period at n = 3, depth 2 against 0.5 ms, the "
+                     "default and balance's placement, each under the default policy and "
+                     f"under SCHED_FIFO where permitted (up to {4 * runs} runs)")
+    if "realtime" in stages:
+        lines.append(f"  realtime: {runs_rt} main-job runs, each with its baseline"
+                     + (f", then {long_rt:g} s of the main job" if long_rt else ""))
+    lines.append(f"stages {', '.join(stages)}"
+                 + (f": {len(configs)} configurations x {runs} repeat(s)" if configs else "")
+                 + f"; reports into {out_dir}/; nothing was run")
+    return lines
 
 
 def _stages(text: str, allowed: tuple[str, ...]) -> tuple[str, ...] | None:
@@ -161,124 +179,6 @@ def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
     click.echo(text)
 
 
-@cli.command(short_help="Where the time goes; recommend and write a placement.")
-@click.argument("source", type=click.Path(exists=True, dir_okay=False))
-@click.option("--write", "out", type=click.Path(dir_okay=False), default="placement.json",
-              show_default=True, help="Placement file to write.")
-@click.option("--compare", "rerun", type=click.Path(exists=True, dir_okay=False),
-              help="Report of a re-run with the written placement: measured against the "
-                   "prediction.")
-@click.option("--figure", type=click.Path(dir_okay=False),
-              help="PNG: measured and predicted Gantt charts side by side.")
-@click.option("--json", "as_json", is_flag=True)
-def balance(source: str, out: str, rerun: str | None, figure: str | None,
-            as_json: bool) -> None:
-    """Block costs, t_s (Eq. IV.24), t_p (Eq. IV.25), business, and the period predicted by
-    a schedule model calibrated on a run (--report JSON or a recording); recommends a
-    placement by the rules of § IV.7.2 and writes it."""
-    from pathlib import Path
-
-    from ...topology.balance import analyse, compare, write_placement
-
-    try:
-        a = analyse(load_report(source), source=source)
-        cmp = compare(a, load_report(rerun), source=rerun) if rerun else None
-    except (ValueError, KeyError, OSError) as exc:
-        _fail(f"balance: {exc}", EXIT_CONFIG)
-        return
-    try:
-        write_placement(a, out)
-    except OSError as exc:
-        _fail(f"balance: --write {out}: {exc.strerror or exc}", EXIT_CONFIG)
-        return
-    if figure:
-        from ..recording.plots import gantt_figure
-
-        d = a["pipeline"]
-        panels = {f"depth {d}, measured": a["measured"]["gantt_ms"],
-                  f"depth {d}, model of the same run": a["current"]["gantt_ms"],
-                  f"depth {d}, predicted with the new placement": a["predicted"]["gantt_ms"]}
-        if cmp is not None:
-            panels[f"depth {cmp['depth']}, re-run with the new placement (measured)"] = \
-                cmp["gantt_ms"]
-        try:
-            gantt_figure(Path(figure), panels)
-        except OSError as exc:
-            _fail(f"balance: --figure {figure}: {exc.strerror or exc}", EXIT_CONFIG)
-            return
-    if as_json:
-        click.echo(json.dumps(_json_safe(a | ({"compare": cmp} if cmp else {}))))
-        return
-
-    click.echo(_balance_text(a, cmp, source=source, out=out, figure=figure))
-
-
-def _balance_text(a: dict[str, Any], cmp: dict[str, Any] | None, *, source: str, out: str,
-                  figure: str | None) -> str:
-    """``ctrlunit balance``'s printed analysis ``a`` (and the re-run's comparison)."""
-
-    def us(x: float | None) -> str:
-        return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:.0f} us"
-
-    mc = a["model_costs_s"]
-    d = a["pipeline"]
-    lines = [f"balance of {source} ({a['law']}, n = {a['peripherals']}, depth {d})",
-             "  block costs (3 axes):"]
-    for k, v in sorted(a["block_cost_s"].items(), key=lambda kv: -kv[1]):
-        lines.append(f"    {k:16s} {v * 1e6:8.1f} us")
-    lines += [
-        f"  t_s (Eq. IV.24) {us(a['t_s_s'])}   t_p (Eq. IV.25) {us(a['t_p_s'])}",
-        "  business " + ", ".join(f"{k} {v * 100:.0f} %" for k, v in a["business"].items()),
-        f"  model: central {us(mc['send'])} per request, {us(mc['reply'])} per reply, "
-        f"{us(mc['step'])} per run of steps, {us(mc['start'])} + {us(mc['finish'])} to start "
-        f"and finish an interval; latency {us(mc['latency'])} one way (fitted)",
-        f"  now: measured period {us(a['measured']['period_s'])} (mean); model depth 1 "
-        f"{us(a['current']['depth1']['period_s'])}, depth 2 "
-        f"{us(a['current']['depth2']['period_s'])}",
-    ]
-    cpu = a.get("cpu") or {}
-    if cpu.get("bound_period_s"):
-        per = cpu["per_interval_s"]
-        lines.append(
-            f"  CPU: {us(per.get('total'))} per interval (central {us(per.get('central'))}) "
-            f"on {cpu['cores']} core(s): no period below {us(cpu['bound_period_s'])}, the "
-            f"measured mean is {a['measured']['period_s'] / cpu['bound_period_s']:.2f}x that "
-            "(the model does not charge the cores the processes share)")
-    for c in a["candidates"][:6]:
-        lines.append(f"  candidate: {c['why']}: {us(c['period_s'])}")
-    lines += [f"  recommendation: {r}" for r in a["recommendations"]]
-    lines.append(f"  with the new placement: predicted period depth 1 "
-                 f"{us(a['predicted']['depth1']['period_s'])}, depth 2 "
-                 f"{us(a['predicted']['depth2']['period_s'])}; written to {out} "
-                 f"(ctrlunit start --peripherals {a['placement']['peripherals']} "
-                 f"--placement {out})")
-    if cmp is not None:
-        lines.append(f"  re-run (depth {cmp['depth']}): measured {us(cmp['measured_period_s'])} "
-                     f"against {us(cmp['predicted_period_s'])} predicted "
-                     f"({cmp['error'] * 100:+.1f} %); before {us(cmp['before_period_s'])} "
-                     f"(gain {cmp['gain'] * 100:+.1f} %)")
-    if figure:
-        lines.append(f"  Gantt charts: {figure}")
-    return "\n".join(lines)
-
-
-def load_report(path: str) -> dict[str, Any]:
-    """A run's report from ``--report`` JSON or from a recording."""
-    from pathlib import Path
-
-    if Path(path).suffix == ".mcap":
-        from ..recording.reader import read
-        from ..recording.recorded_report import report_from_recording
-
-        return report_from_recording(read(path))
-    try:
-        return json.loads(Path(path).read_text())
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: not a JSON report (not UTF-8 text)") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not a JSON report ({exc})") from None
-
-
 @cli.command(short_help="This machine's wake-up latency; with --unit the unit's traversal.")
 @click.option("--period", default="1ms", show_default=True, help="Tick period.")
 @click.option("--duration", default="10s", show_default=True, help="How long to measure.")
@@ -287,8 +187,8 @@ def load_report(path: str) -> dict[str, Any]:
               "traversal at the period, and the shortest period it holds.")
 @click.option("--peripherals", type=click.IntRange(0, 3), default=3, show_default=True)
 @click.option("--pipeline", type=click.IntRange(1, 2), default=2, show_default=True)
-@click.option("--plot", type=click.Path(dir_okay=False), default="latency.png",
-              show_default=True, help="Histogram of the wake-up latencies (PNG).")
+@click.option("--plot", type=FilePath(dir_okay=False), default=None,
+              help="Draw the histogram of the wake-up latencies into this PNG file.")
 @click.option("--rt-priority", default="auto", show_default=True, callback=_rt_priority,
               metavar="auto|0-99",
               help="Scheduling of the wake-up test, as for ctrlunit start: auto is the "
@@ -301,7 +201,7 @@ def load_report(path: str) -> dict[str, Any]:
               "deeper idle state exists; default: leave them alone.")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
 def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipeline: int,
-            plot: str, rt_priority: str | int, idle: str, as_json: bool) -> None:
+            plot: str | None, rt_priority: str | int, idle: str, as_json: bool) -> None:
     """Measure how late this machine wakes a process at each tick of PERIOD (the realtime
     plant's own sleep), as LinuxCNC's latency-test does, for DURATION; print p50, p99,
     p99.9 and max and the shortest period of the admission ladder that leaves half of
@@ -319,9 +219,15 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
     except (ConfigError, ValueError, RtPermissionError, IdlePermissionError) as exc:
         _fail(str(exc), EXIT_CONFIG)
         return
-    histogram_png(lat, plot, period_s=period_s,
-                  title=f"wake-up latency at {period_s * 1e3:g} ms, {rep['ticks']} ticks")
-    rep["plot"] = plot
+    if plot:
+        try:
+            histogram_png(lat, plot, period_s=period_s,
+                          title=f"wake-up latency at {period_s * 1e3:g} ms, "
+                                f"{rep['ticks']} ticks")
+        except OSError as exc:
+            _fail(f"--plot {plot}: {exc.strerror or exc}", EXIT_CONFIG)
+            return
+        rep["plot"] = plot
     if with_unit:
         from ..launch.launcher import start
 
@@ -368,5 +274,6 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
                      "trial intervals late")
     lines.append(f"shortest sustainable period ({rep['sustainable_period_from']}): "
                  f"{ms(rep['sustainable_period_s'])}")
-    lines.append(f"histogram: {plot}")
+    if plot:
+        lines.append(f"histogram: {plot}")
     click.echo("\n".join(lines))

@@ -280,15 +280,28 @@ def quantiles(x: np.ndarray) -> dict[str, float]:
             "max": float(x.max())}
 
 
-def timing_figures(cmd_ns: Any, sample_ns: Any) -> dict[str, Any]:
-    """The timing figures of :meth:`IntervalTimes.figures`, exactly, from every interval's
-    command and sample time (ns); the first intervals (start-up) left out."""
+def timing_series(cmd_ns: Any, sample_ns: Any) -> tuple[np.ndarray, np.ndarray, int]:
+    """The series the timing figures are taken from: the periods (command to command)
+    and traversals (sample to command), in s, of every interval's command and sample
+    time (ns) with the first intervals (start-up, :func:`warm_intervals`) left out, and
+    the index of the first interval kept. ``period[i]`` ends at interval ``warm + i + 1``,
+    ``traversal[i]`` is interval ``warm + i``'s. The report and the plots
+    (runtime/recording/plots.py) both draw on it, so their figures agree."""
     cmd = np.asarray(cmd_ns, dtype=np.int64)
     warm = warm_intervals(cmd.size)
     c = cmd[warm:]
     s = np.asarray(sample_ns, dtype=np.int64)[warm:]
     period = np.diff(c) / 1e9 if c.size > 1 else np.array([])
     trav = (c - s) / 1e9 if c.size else np.array([])
+    return period, trav, warm
+
+
+def timing_figures(cmd_ns: Any, sample_ns: Any) -> dict[str, Any]:
+    """The timing figures of :meth:`IntervalTimes.figures`, exactly, from every interval's
+    command and sample time (ns); the first intervals (start-up) left out
+    (:func:`timing_series`)."""
+    cmd = np.asarray(cmd_ns, dtype=np.int64)
+    period, trav, _ = timing_series(cmd, sample_ns)
     return {"cycles": int(cmd.size), "period_s": quantiles(period),
             "period_mean_s": float(period.mean()) if period.size else math.nan,
             "jitter_std_s": float(np.std(period)) if period.size else math.nan,
@@ -326,4 +339,5 @@ class ErrorSeries(BoundedSeries):
 
 
 __all__ = ["BLOCK", "WINDOW", "BoundedSeries", "ErrorSeries", "IntervalTimes",
-           "LogHistogram", "Moments", "quantiles", "timing_figures", "warm_intervals"]
+           "LogHistogram", "Moments", "quantiles", "timing_figures", "timing_series",
+           "warm_intervals"]

@@ -18,14 +18,15 @@ from .sections import SECTIONS
 from .spellings import USER, not_a_setting, read_setting, user_view
 
 PROFILES: dict[str, dict[str, Any]] = {
-    "main-job": {},
+    "main-job": {"peripherals": 3, "pipeline": 2},
     "thesis": {"model_state": "sample", "placement": "axes", "observer": "previous"},
 }
-"""Settings of each profile by flat name, as a user gives them. ``main-job``: the defaults
+"""Settings of each profile by flat name, as a user gives them, over the defaults.
+``main-job``: README's main job, ``ctrlunit start --peripherals 3 --pipeline 2``
 (realtime at the period the admission holds, the model foreseen, placement auto).
 ``thesis``: the thesis's graph (the model at the sample, the axes placement, the observer
 from the previous estimate with two Newton-Raphson iterations), as the 1994 comparison
-runs it."""
+runs it. Without ``--profile`` a run has the defaults alone."""
 
 
 def _flat(section: str, key: str, where: str) -> str:

@@ -10,6 +10,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from .sched import busy_share, cpu_times, demote
+from .unit_load import UnitLoad
 
 DEMOTE_BUSY_SHARE = 0.95
 """Under FIFO, a run that keeps a CPU busier than this share of the real-time budget over
@@ -74,6 +75,8 @@ class BusyGuard:
         windows it reads together (module constants by default).
     restore_share, restore_windows, max_restores : the way back (module constants).
     read, clock : the busy counters and the clock (tests give their own).
+    load : the unit's own CPU time, read by a thread of its own (the kernel throttles
+        real-time time only: other programs' time is not the unit's); it replaces ``read``.
     """
 
     def __init__(self, pids: Callable[[], Iterable[int]], budget: float, *,
@@ -83,7 +86,8 @@ class BusyGuard:
                  restore_windows: int = RESTORE_WINDOWS, max_restores: int = MAX_RESTORES,
                  read: Callable[[], list[tuple[float, float]]] = cpu_times,
                  clock: Callable[[], float] = time.monotonic,
-                 say: Callable[[str], None] | None = None) -> None:
+                 say: Callable[[str], None] | None = None,
+                 load: UnitLoad | None = None) -> None:
         if sustain < 1:
             raise ValueError(f"sustain = {sustain}: allowed 1 or more windows")
         self.pids, self.limit, self.window_s = pids, share * budget, window_s
@@ -91,7 +95,11 @@ class BusyGuard:
         self.priority = priority
         self.restore_limit = restore_share * budget
         self.restore_windows, self.max_restores = restore_windows, max_restores
-        self.read, self.clock, self.say = read, clock, say
+        self.load = load
+        """The unit's own CPU time (runtime/host/unit_load.py), which the guard reads
+        instead of ``read`` where given, and ends at :meth:`close`."""
+        self.read = load.cpu_times if load is not None else read
+        self.clock, self.say = clock, say
         self.event: dict[str, Any] | None = None
         self.changes: list[dict[str, Any]] = []
         """Every change of policy: ``{cycle, busy_share, policy}``, ``policy`` the one
@@ -163,6 +171,11 @@ class BusyGuard:
             self.say(f"ctrlunit: a CPU was {share:.0%} busy over {over:g} s under SCHED_FIFO "
                      f"(limit {limit:.0%}, near the kernel's real-time throttling): every "
                      f"role back under the default policy at interval {cycle}")
+
+    def close(self) -> None:
+        """End the reading of the unit's CPU time, if the guard reads it."""
+        if self.load is not None:
+            self.load.close()
 
     def report(self) -> dict[str, Any] | None:
         """The report's ``scheduling_fallback``: the first fall-back (None if none), with

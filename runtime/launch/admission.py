@@ -35,7 +35,7 @@ import copy
 import math
 import statistics
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -101,7 +101,8 @@ def rung_verdict(traversal_s: np.ndarray, *, skipped: int, budget_s: float,
     skipped : samples skipped because the central was behind.
     budget_s : the command delay's periods: from the sample to the tick it is due at.
     transit_s : one-way time of the command to the plant.
-    busy_share : the busiest CPU's busy share during the trial (every process).
+    busy_share : the busiest CPU's busy share during the trial: the unit's own CPU time
+        (runtime/host/unit_load.py) or, where that is not read, every process's.
     busy_limit : under SCHED_FIFO, the busy share above which the period does not hold
         (runtime/host/sched.py: a run near the kernel's real-time budget would be throttled);
         None: no limit. A share that could not be measured (None) is judged on the
@@ -150,11 +151,17 @@ def ladder_from(period_s: float) -> list[float]:
     return [period_s] + [p for p in LADDER_S if p > period_s * 1.0001]
 
 
-def admit(central: Central) -> dict[str, Any]:
+CpuTimes = Callable[[], list[tuple[float, float]]]
+"""A reading of CPU time per CPU, as :func:`..host.sched.cpu_times` gives the machine's."""
+
+
+def admit(central: Central, *, unit_cpu: CpuTimes | None = None) -> dict[str, Any]:
     """Run the trial from the configured period up :data:`LADDER_S` until a period holds.
     Returns the admission's report when the configured period holds; raises
     :class:`Unsustainable` otherwise (with ``--period auto`` the caller starts again at
-    ``info["sustainable_period_s"]``), before any command has been sent."""
+    ``info["sustainable_period_s"]``), before any command has been sent. ``unit_cpu``
+    reads the unit's own CPU time per CPU (runtime/host/unit_load.py), which the busy
+    limit under FIFO judges; without it, the machine's (every process)."""
     rc = central.rc
     transit = statistics.median(central.warmup.warm_rtt_s) / 2 if central.warmup.warm_rtt_s else 0.0
     asked = rc.schedule.period
@@ -168,13 +175,13 @@ def admit(central: Central) -> dict[str, Any]:
             untrackable = (period, err)
             break
         verdict = trial(central, period, base=TRIAL_BASE + (len(rungs) << 20),
-                        transit_s=transit)
+                        transit_s=transit, unit_cpu=unit_cpu)
         verdict["predicted_tracking_max_m"] = err
         rungs.append(verdict)
         if verdict["one_stall"] and not retried:  # one stall of the host: once more
             retried = True
             verdict = trial(central, period, base=TRIAL_BASE + (len(rungs) << 20),
-                            transit_s=transit)
+                            transit_s=transit, unit_cpu=unit_cpu)
             verdict |= {"predicted_tracking_max_m": err, "retry": True}
             rungs.append(verdict)
         if verdict["held"]:
@@ -212,14 +219,40 @@ def admit(central: Central) -> dict[str, Any]:
         f"{first['intervals']} intervals before any motion, {first['late']} were late and "
         f"the traversal p99 was {first['traversal_p99_s'] * 1e3:.2f} ms of a "
         f"{first['budget_s'] * 1e3:.2f} ms budget ({rc.schedule.pipeline} period(s))"
-        + (f", and a CPU was {first['busy_share']:.0%} busy under SCHED_FIFO (limit "
-           f"{first['busy_limit']:.0%})" if _busy_over(first) else "") + f"; {found}. "
-        + ("" if rc.schedule.period_auto and held_at else "Try "
-           + ("--period auto or " if held_at and not rc.schedule.period_auto else "")
-           + (f"--period {held_at * 1e3:g}ms, " if held_at else "")
-           + ("" if sched.fifo_in_force() else "--rt-priority (as root), ")
-           + "a placement from ctrlunit balance, or fewer --peripherals "
-           "(ctrlunit latency measures this machine)"), info)
+        + _busy_clause(first) + f"; {found}." + _advice(rc.schedule.period_auto, first,
+                                                          held_at), info)
+
+
+def _busy_clause(rung: dict[str, Any]) -> str:
+    """What the busy limit found, if it refused the rung: whose CPU time it judged and the
+    limit as a share of the CPU and of the kernel's real-time budget (README's figure)."""
+    if not _busy_over(rung):
+        return ""
+    whose = ("the unit kept a CPU" if rung.get("busy_of") == "unit"
+             else "a CPU was")
+    return (f", and {whose} {rung['busy_share']:.0%} busy under SCHED_FIFO (limit "
+            f"{rung['busy_limit']:.0%} of the CPU: {ADMIT_BUSY_SHARE:.0%} of the kernel's "
+            "real-time budget)")
+
+
+def _advice(period_auto: bool, first: dict[str, Any], held_at: float | None) -> str:
+    """The refusal's advice: only what the trial showed would help. A period measured to
+    hold; FIFO where the unit ran without it and may use it (other programs then wait for
+    the unit); a lighter placement where the unit's own load was the limit."""
+    if held_at is not None and period_auto:
+        return ""  # the launcher starts again at the period that held
+    tries: list[str] = []
+    if held_at is not None:
+        tries += [f"--period {held_at * 1e3:g}ms (measured to hold)", "--period auto"]
+    if not sched.fifo_in_force() and sched.fifo_permitted():
+        tries.append(f"--rt-priority {sched.AUTO_PRIORITY} (SCHED_FIFO: other programs "
+                     "then wait for the unit)")
+    if _busy_over(first):
+        tries.append("a placement from ctrlunit balance (less of the unit's CPU time)")
+    if not tries:
+        return " ctrlunit latency measures what this machine holds."
+    return (" Try " + "; or ".join(tries)
+            + ". ctrlunit latency measures what this machine holds.")
 
 
 def predicted_tracking(central: Central, period: float) -> float:
@@ -262,12 +295,15 @@ def fifo_busy_limit() -> float | None:
     return ADMIT_BUSY_SHARE * budget
 
 
-def trial(central: Central, period: float, *, base: int, transit_s: float) -> dict[str, Any]:
+def trial(central: Central, period: float, *, base: int, transit_s: float,
+          unit_cpu: CpuTimes | None = None) -> dict[str, Any]:
     """One rung: the plant ticks ``trial_intervals(period)`` trial samples at ``period``; a
     trial central (a :class:`~.central.Central` with ``trial=True`` on the same node and a
     copy of the controller) runs the pipeline on them. A fault during the trial (a silent
     peripheral or plant at this period) means the period does not hold; a dead process is
-    a fault of the run."""
+    a fault of the run. The busy share judged is the unit's own (``unit_cpu``, read before
+    the plant ticks and after the trial) where given, else the machine's; the rung keeps
+    the machine's too (``machine_busy_share``)."""
     from ..central import Central, Fault, Supervision
 
     rc = central.rc
@@ -279,6 +315,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
     probe = Central(central.node, trc, central.engine, ctl, n, trial=True,
                     supervision=Supervision(child_check=child_check),
                     reply_each=central.intervals.reply_each)
+    unit0 = unit_cpu() if unit_cpu is not None else None  # 2-10 ms: before the ticks
     central.orders.say("probe", period=period, ticks=n, base=base)
     t0 = time.monotonic()
     busy0 = sched.cpu_times()
@@ -289,10 +326,12 @@ def trial(central: Central, period: float, *, base: int, transit_s: float) -> di
         if child_check is not None and child_check() is not None:
             raise
         fault = str(exc)
-    busy = sched.busy_share(busy0, sched.cpu_times())
+    machine = sched.busy_share(busy0, sched.cpu_times())
+    busy = machine if unit_cpu is None or unit0 is None else sched.busy_share(unit0, unit_cpu())
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
     trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
-    out: dict[str, Any] = {"period_s": period}
+    out: dict[str, Any] = {"period_s": period, "machine_busy_share": machine,
+                           "busy_of": "machine" if unit_cpu is None else "unit"}
     out |= rung_verdict(trav, skipped=probe.meters.skipped, budget_s=budget, transit_s=transit_s,
                         busy_share=busy, busy_limit=fifo_busy_limit(),
                         skip_marks=probe.meters.skip_marks)

@@ -28,6 +28,7 @@ from ..compute.setup import make_setup
 from ..config import EXIT_CONFIG, EXIT_OK, EXIT_UNSUSTAINABLE, ConfigError, RunConfig
 from ..host import sched
 from ..host.busy_guard import BusyGuard
+from ..host.unit_load import UnitLoad
 from ..observe.report import finish_report
 from ..roles.stopping import STOP_SIGNALS, not_ignored, stop_of, stopped_by_user
 from ..roles.supervise import end_children, role_cpus, spawn_role, unit_cores
@@ -74,6 +75,7 @@ class UnitStart:
         self.pids: dict[str, int] = {}  # the roles' processes, once started
         self.code = EXIT_OK
         self.fault: dict[str, Any] | None = None
+        self.kept: Path | None = None  # the run directory, kept after a fault
         self.decided: dict[str, Any] = {}
         """What the start decided on the way: admission, placement choice, Zenoh ids."""
 
@@ -100,7 +102,10 @@ class UnitStart:
         if ctrl_c and not stopped_by_user({"fault": self.fault}):
             self.code, self.fault = stop_of(ctrl_c[0])
         self.leave()
-        return self.code, self.report()
+        report = self.report()
+        if self.kept is not None:  # after the recording's copy: a path on this host only
+            report["logs_kept"] = str(self.kept)
+        return self.code, report
 
     # -- configure --------------------------------------------------------------------
 
@@ -181,14 +186,19 @@ class UnitStart:
         raise AssertionError("unreachable")
 
     def _busy_guard(self) -> BusyGuard | None:
-        """Under FIFO: back to the default policy before the kernel throttles."""
+        """Under FIFO: back to the default policy before the kernel throttles. The guard
+        and the admission judge the unit's own CPU time (runtime/host/unit_load.py), read
+        by a thread of its own, not the machine's."""
         choice = self.sched_choice
         if not (sched.fifo_in_force() and choice["budget"] is not None):
             return None
         children = self.children
-        return BusyGuard(
-            lambda: [os.getpid()] + [p.pid for p in children if p.poll() is None],
-            choice["budget"], priority=choice["priority"], say=self.echo)
+
+        def pids() -> list[int]:
+            return [os.getpid()] + [p.pid for p in children if p.poll() is None]
+
+        return BusyGuard(pids, choice["budget"], priority=choice["priority"], say=self.echo,
+                         load=UnitLoad(pids).__enter__())
 
     def activate(self) -> None:
         """Start the roles' processes, then the handshake, the warm-up, the reply mode,
@@ -202,7 +212,9 @@ class UnitStart:
                 and self.setup.placement.peripherals):
             self._place()
         if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
-            self.decided["admission"] = admit(central)
+            self.decided["admission"] = admit(
+                central, unit_cpu=self.guard.load.sample if self.guard and self.guard.load
+                else None)
 
     def _spawn(self) -> None:
         if not self.spawn:
@@ -268,6 +280,8 @@ class UnitStart:
                          wait=5.0 if self.fault is None else STOP_REPORTS_WAIT_S)
         finally:
             end_children(self.children, grace=0.3 if interrupted else 1.0)
+            if self.guard is not None:
+                self.guard.close()
             self.observers.close(join_s=OBSERVERS_JOIN_S)
             self.node.close()
             if self.recorder is not None:
@@ -281,16 +295,18 @@ class UnitStart:
     def leave(self) -> None:
         """Say which role exited with an error, and remove the run directory unless
         the run failed (its spec, socket and the roles' logs diagnose a fault; a refusal's
-        figures are all in the report's admission)."""
+        figures are all in the report's admission, and a stop the user asked for is no
+        fault). A directory kept is the report's ``logs_kept``, which ``ctrlunit start``
+        names after the summary."""
         for p, name in zip(self.children, child_names(self.rc, self.setup), strict=False):
             if (p.returncode not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM)
                     and self.fault is None):
                 log = (self.run_dir / f"{name}.log").read_text(errors="replace")[-2000:]
                 self.echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
-        if self.code in (EXIT_OK, EXIT_UNSUSTAINABLE):
+        if self.code in (EXIT_OK, EXIT_UNSUSTAINABLE) or stopped_by_user({"fault": self.fault}):
             shutil.rmtree(self.run_dir, ignore_errors=True)
         else:
-            self.echo(f"ctrlunit: the roles' logs are kept in {self.run_dir}")
+            self.kept = self.run_dir
 
     # -- report -----------------------------------------------------------------------
 

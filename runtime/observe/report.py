@@ -21,8 +21,36 @@ if TYPE_CHECKING:
     from ..compute.setup import Setup
 
 CPU_KEYS = ("cpu_per_interval_s", "cpu_cores", "cpu_bound_period_s")
+
+T1_T800_S = 2.0
+"""Under the T-800 cost model ``t_1`` is measured over as many of the run's first
+intervals as take about this long (10 to 50): every one takes its emulated T-800 time,
+and the thesis stage's take 100-200 ms each."""
 """Report keys of the CPU budget (:func:`cpu_budget`): only the live run measures
 them; a recording keeps them for ``ctrlunit report``."""
+
+
+RESULT_KEYS: dict[str, str] = {
+    "exchanges_per_interval": "exchanges per interval",
+    "replies": "replies per round",
+    "silences_excused": "silences excused",
+    "plant_spares": "misses covered by an extrapolated command",
+    "late": "late data",
+    "late_intervals": "late intervals",
+    "scheduling": "scheduling",
+    "scheduling_choice": "scheduling",
+    "scheduling_fallback": "scheduling fallback",
+    "idle": "idle CPUs",
+    "placement_choice": "placement",
+    "admission": "admission",
+    "link_list": "the links' endpoints",
+    "links": "the links' endpoints",
+    "safe_stop": "safe stop",
+}
+"""Report keys the summary reads that only the live run knows (what it decided, what the
+central counted, the roles' own reports), each with the summary line it feeds: a
+recording keeps them for ``ctrlunit report`` (runtime/recording/recorder.py), so that
+it prints every line of the live summary."""
 
 
 def quoted(name: str) -> str:
@@ -313,8 +341,11 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         return t1_engines[-1]
 
     if central.meters.t1_inputs:
-        inputs = central.meters.t1_inputs[: (20 if rc.control.cost_model == "t800" else None)]
-        t1, per_block = measure_t1(t1_engine, inputs)
+        count = None
+        if rc.control.cost_model == "t800":  # each interval takes its T-800 time: 2 s at most
+            t_single = sum(b.t800_s(rc.control.cost_scale) for b in setup.plan.graph.blocks)
+            count = max(10, min(50, int(T1_T800_S / t_single))) if t_single > 0 else 50
+        t1, per_block = measure_t1(t1_engine, central.meters.t1_inputs[:count])
     cost_err = None
     if rc.control.cost_model == "t800":
         # block costs are the emulated T-800 times; the emulation's error is measured

@@ -142,68 +142,148 @@ def _link_lines(r: dict[str, Any]) -> list[str]:
     return lines
 
 
-def summary(r: dict[str, Any]) -> str:
-    """The human summary printed at the end of a run."""
+def _us(x: float | None) -> str:
+    return "   n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:8.1f} us"
 
-    def us(x: float) -> str:
-        return "   n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:8.1f} us"
 
-    def mm(x: float) -> str:
-        return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e3:.3f} mm"
+def _mm(x: float | None) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e3:.3f} mm"
 
-    lines = [
-        f"ctrlunit: {r['cycles']} intervals, {r['peripherals']} peripheral(s), pipeline depth "
-        f"{r['pipeline']}, clock {r['clock']}, {r['law']} + {r['model']} model, task "
-        f"{quoted(r['task'])}, cost model {r['cost_model']}",
-        *_delay_lines(r),
-        f"  round trips per interval  {r['round_trips']}" + (
-            f" ({r['rounds_ahead']} before the sample, off its path to the command)"
-            if r.get("rounds_ahead") else "") + (
-            f"   exchanges per interval {r['exchanges_per_interval']:.2f}" + (
-                " (rounds of consecutive intervals fused)"
-                if r["exchanges_per_interval"] < r["round_trips"] - 0.01 else "")
-            if r.get("exchanges_per_interval") else "") + (
-            "; replies per round" if (r.get("replies") or {}).get("mode") == "each" else "") + (
-            "; lone rounds go at once" if (r.get("hold_rounds") or {}).get("held") is False
-            else ""),
-        f"  period      p50 {us(r['period_s']['p50'])}  p99 {us(r['period_s']['p99'])}  "
-        f"max {us(r['period_s']['max'])}  mean {us(r.get('period_mean_s', math.nan))}",
-        f"  traversal   p50 {us(r['traversal_s']['p50'])}  p99 {us(r['traversal_s']['p99'])}  "
-        f"max {us(r['traversal_s']['max'])}",
-        f"  jitter      std {us(r['jitter_s']['std'])}",
-        f"  deadline misses {r['deadline_misses']}"
-        + (f" ({r['plant_spares']} covered by the command extrapolated the period before)"
-           if r.get("plant_spares") else "")
-        + f"   skipped samples {r['skipped_samples']}"
-        + (f"   silences excused {r['silences_excused']} (the machine, not the process, was slow)"
-           if r.get("silences_excused") else ""),
-        *_late_lines(r),
-        *_overload_lines(r),
-        "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
-        *_cpu_lines(r),
-        *_sched_lines(r),
-        f"  t_1 (one process, no exchange) {us(r['t1_s'])}   t_s {us(r['t_s_model_s'])}   "
-        f"t_p {us(r['t_p_model_s'])}",
-        f"  efficiency (Eq. IV.23, N = {r['efficiency_n']}, t_parallel = {r['t_parallel_is']}) "
-        f"{r['efficiency'] * 100:.1f} %   speedup {r['speedup']:.2f}"
-        if math.isfinite(r["efficiency"]) else "  efficiency n/a",
-        f"  tracking error max {mm(r['tracking_error_m']['max'])}   rms "
-        f"{mm(r['tracking_error_m']['rms'])}   peak torque {r['torque_nm']['max']:.2f} N m",
+
+def _timing_lines(r: dict[str, Any]) -> list[str]:
+    """Period, traversal and jitter where the clock gives them a meaning: in lockstep
+    (virtual time, no deadline) only the wall time each interval took; in realtime the
+    deadline and the margin the traversal leaves (:func:`_deadline_lines`)."""
+    pq, tq = r["period_s"], r["traversal_s"]
+    if r["clock"] == "lockstep":
+        return [f"  wall time   per interval mean {_us(r.get('period_mean_s')).strip()}, "
+                f"sample to command p50 {_us(tq['p50']).strip()} (lockstep keeps virtual "
+                "time:", "              no deadline; this is how fast the processes ran)"]
+    return [
+        f"  period      p50 {_us(pq['p50'])}  p99 {_us(pq['p99'])}  "
+        f"max {_us(pq['max'])}  mean {_us(r.get('period_mean_s', math.nan))}",
+        f"  traversal   p50 {_us(tq['p50'])}  p99 {_us(tq['p99'])}  max {_us(tq['max'])}",
+        f"  jitter      std {_us(r['jitter_s']['std'])}",
+        *_deadline_lines(r),
     ]
-    if not r["cycles"]:  # refused or failed before the first interval: nothing measured
-        lines = lines[:2] if r.get("command_delay") else lines[:1]
-    choice = r.get("placement_choice")
-    if choice:
-        lines.append(f"  placement   auto: {choice['why']}")
-    lines += _link_lines(r)
+
+
+def _deadline_lines(r: dict[str, Any]) -> list[str]:
+    """Realtime: the time from a sample to the tick its command is due at (the command
+    delay's periods, at least one), and what the traversal's p99 leaves of it."""
+    period, p99 = r.get("nominal_period_s"), r["traversal_s"]["p99"]
+    if r["clock"] != "realtime" or not period or p99 is None or not math.isfinite(p99):
+        return []
+    due = max(int((r.get("command_delay") or {}).get("periods") or 1), 1)
+    budget = due * period
+    margin = budget - p99
+    left = (f"leaves a margin of {margin * 1e6:.1f} us ({margin / budget:.0%})" if margin >= 0
+            else f"passes it by {-margin * 1e6:.1f} us")
+    return [f"  deadline    {budget * 1e6:.1f} us from a sample to its command (due at tick "
+            f"k + {due}): the traversal p99 {left}"]
+
+
+EFFICIENCY_BASIS = ("t_parallel is one interval's time on the N processors: the traversal "
+                    "p50, or the mean period in freerun at depth 2 (two intervals overlap)")
+"""How the summary's efficiency takes t_parallel (runtime/observe/report.py,
+``parallel_time``), the same words in every run that shows it."""
+
+
+def efficiency_unmeasured(r: dict[str, Any]) -> str | None:
+    """Why this run does not measure Eq. IV.23's efficiency, or None when it does.
+
+    Eq. IV.23, ``t_1 / (t_parallel x N)``, compares N processors with one on the same
+    work. It needs N >= 2, and a ``t_parallel`` that is the unit's own time for an
+    interval: in freerun (no plant paces the intervals), or under the T-800 cost model
+    where t_parallel is the traversal (realtime, or depth 1), whose block times the
+    exchanges do not swamp. In lockstep the plant's simulation paces every interval, and
+    in realtime on native costs the clock sets the pace and the traversal is mostly the
+    exchange: there the figure would read as a failure of a run that went well."""
+    if not math.isfinite(r.get("efficiency", math.nan)):
+        return "t_1 was not measured"
+    if r.get("efficiency_n", 1) < 2:
+        return "one processor (--peripherals 0): Eq. IV.23 compares N processors with one"
+    t800 = r.get("cost_model") == "t800"
+    if r["clock"] == "lockstep" and not (t800 and r["pipeline"] == 1):
+        return "lockstep paces every interval by the plant's simulation step"
+    if r["clock"] == "realtime" and not t800:
+        return ("the realtime clock sets the pace, and on native costs the traversal is "
+                "mostly the exchange")
+    return None
+
+
+def _efficiency_lines(r: dict[str, Any]) -> list[str]:
+    """Eq. IV.23's efficiency and the speedup ``t_1 / t_parallel`` where the run measures
+    them (:func:`efficiency_unmeasured`), with their terms and basis; else why not."""
+    why = efficiency_unmeasured(r)
+    if why is not None:
+        return [f"  efficiency  not measured here: {why}"
+                + ("" if why.startswith(("t_1", "one")) else
+                   " (Eq. IV.23 is measured with --clock freerun)")]
+    lines = [f"  efficiency  Eq. IV.23: t_1 / (t_parallel x N) = {r['t1_s'] * 1e6:.1f} us / "
+             f"({r['t_parallel_s'] * 1e6:.1f} us x {r['efficiency_n']}) = "
+             f"{r['efficiency'] * 100:.1f} %   speedup {r['speedup']:.2f}",
+             f"              {EFFICIENCY_BASIS}"]
+    if r["speedup"] < 1:
+        lines.append("              a speedup below 1: the exchanges cost more than the "
+                     "arithmetic they share" + (" (--cost-model t800 gives the blocks the "
+                                                "thesis's costs)"
+                                                if r.get("cost_model") != "t800" else ""))
+    return lines
+
+
+def _misses_lines(r: dict[str, Any]) -> list[str]:
+    """Deadline misses, skipped samples and excused silences: in realtime, and in the
+    other clocks (which have no deadline) only when one of them is not 0."""
+    if r["clock"] != "realtime" and not (r["deadline_misses"] or r["skipped_samples"]
+                                         or r.get("silences_excused")):
+        return []
+    return [f"  deadline misses {r['deadline_misses']}"
+            + (f" ({r['plant_spares']} covered by the command extrapolated the period before)"
+               if r.get("plant_spares") else "")
+            + f"   skipped samples {r['skipped_samples']}"
+            + (f"   silences excused {r['silences_excused']} (the machine, not the process, "
+               "was slow)" if r.get("silences_excused") else "")]
+
+
+def _tracking_line(r: dict[str, Any]) -> str:
+    torque = f"peak torque {r['torque_nm']['max']:.2f} N m"
+    if r["clock"] == "freerun":
+        return f"  {torque} (no tracking error: freerun has no plant)"
+    return (f"  tracking error max {_mm(r['tracking_error_m']['max'])}   rms "
+            f"{_mm(r['tracking_error_m']['rms'])}   {torque}")
+
+
+def _exchange_line(r: dict[str, Any]) -> str:
+    return (f"  round trips per interval  {r['round_trips']}" + (
+        f" ({r['rounds_ahead']} before the sample, off its path to the command)"
+        if r.get("rounds_ahead") else "") + (
+        f"   exchanges per interval {r['exchanges_per_interval']:.2f}" + (
+            " (rounds of consecutive intervals fused)"
+            if r["exchanges_per_interval"] < r["round_trips"] - 0.01 else "")
+        if r.get("exchanges_per_interval") else "") + (
+        "; replies per round" if (r.get("replies") or {}).get("mode") == "each" else "") + (
+        "; lone rounds go at once" if (r.get("hold_rounds") or {}).get("held") is False
+        else ""))
+
+
+def _admission_lines(r: dict[str, Any]) -> list[str]:
     adm = r.get("admission")
-    if adm and adm.get("period_s"):
-        lines.append(f"  admission   {adm['period_s'] * 1e3:g} ms held in a trial of "
-                     f"{adm['rungs'][-1]['intervals']} intervals before motion (asked: "
-                     + ("auto" if adm["asked"] == "auto" else f"{adm['asked'] * 1e3:g} ms")
-                     + ")" + (f"; the first trial at it had one stall ({adm['rungs'][-2]['late']}"
-                              " intervals late), so it ran again"
-                              if adm["rungs"][-1].get("retry") else ""))
+    if not (adm and adm.get("period_s")):
+        return []
+    return [f"  admission   {adm['period_s'] * 1e3:g} ms held in a trial of "
+            f"{adm['rungs'][-1]['intervals']} intervals before motion (asked: "
+            + ("auto" if adm["asked"] == "auto" else f"{adm['asked'] * 1e3:g} ms")
+            + ")" + (f"; the first trial at it had one stall ({adm['rungs'][-2]['late']}"
+                     " intervals late), so it ran again"
+                     if adm["rungs"][-1].get("retry") else "")]
+
+
+def _end_lines(r: dict[str, Any]) -> list[str]:
+    """Messages dropped or refused; how the run ended when not as planned: a stop the
+    user asked for (Ctrl-C, SIGTERM, SIGHUP: not a fault, docs/faults-and-errors.md) or a
+    fault, with the plant's safe stop; and what a recording could not tell."""
+    lines = []
     rejected = dict(r["rejected_messages"])
     late = rejected.pop("late_reply", 0)  # not malformed: a round already held or computed
     if late:
@@ -212,12 +292,52 @@ def summary(r: dict[str, Any]) -> str:
     if rejected:
         lines.append("  rejected messages " + ", ".join(
             f"{k}: {v}" for k, v in sorted(rejected.items())))
-    if r.get("fault"):
-        f = r["fault"]
+    f = r.get("fault")
+    if f:
         code = f" (exit {f['code']})" if f.get("code") is not None else ""
-        lines.append(f"  FAULT in {f['process']}: {f['message']}{code}")
+        if f.get("process") == "user":
+            lines.append(f"  stopped     on request: {f['message']}{code}, after {r['cycles']} "
+                         "intervals (a stop asked for, not a fault)")
+        else:
+            lines.append(f"  FAULT in {f['process']}: {f['message']}{code}")
         if "safe_stop" in r:
             lines.append(_safe_stop_line(r["safe_stop"]))
+    unknown = r.get("not_recorded")
+    if unknown:
+        lines.append(f"  not in the recording: {', '.join(unknown['lines'])} "
+                     f"({unknown['why']})")
+    return lines
+
+
+def summary(r: dict[str, Any]) -> str:
+    """The human summary printed at the end of a run: each figure where the run's clock
+    gives it a meaning (:func:`_timing_lines`, :func:`efficiency_unmeasured`)."""
+    lines = [
+        f"ctrlunit: {r['cycles']} intervals, {r['peripherals']} peripheral(s), pipeline depth "
+        f"{r['pipeline']}, clock {r['clock']}, {r['law']} + {r['model']} model, task "
+        f"{quoted(r['task'])}, cost model {r['cost_model']}",
+        *_delay_lines(r),
+        _exchange_line(r),
+        *_timing_lines(r),
+        *_misses_lines(r),
+        *_late_lines(r),
+        *_overload_lines(r),
+        "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
+        *_cpu_lines(r),
+        *_sched_lines(r),
+        f"  t_1 (one process, no exchange) {_us(r['t1_s'])}   t_s {_us(r['t_s_model_s'])}   "
+        f"t_p {_us(r['t_p_model_s'])}",
+        *_efficiency_lines(r),
+        _tracking_line(r),
+    ]
+    if not r["cycles"]:  # refused or failed before the first interval: nothing measured
+        lines = lines[:2] if r.get("command_delay") else lines[:1]
+    choice = r.get("placement_choice")
+    if choice:
+        lines.append(f"  placement   auto: {choice['why']}")
+    lines += _link_lines(r)
+    lines += _admission_lines(r)
+    lines += _end_lines(r)
     return "\n".join(lines)
 
 
@@ -233,4 +353,4 @@ def _delay_lines(r: dict[str, Any]) -> list[str]:
             f"({d['convention']}){where}"]
 
 
-__all__ = ["LINK_LINES", "summary"]
+__all__ = ["EFFICIENCY_BASIS", "LINK_LINES", "efficiency_unmeasured", "summary"]

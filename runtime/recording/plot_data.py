@@ -64,6 +64,48 @@ def signals(rec: Recording, *, cycles: tuple[int, int] | None = None
     }
 
 
+def commands(rec: Recording, samples: dict[int, dict[str, Any]] | None = None
+             ) -> dict[str, list]:
+    """Every recorded command whose sample is recorded, in file order: ``cycle``,
+    ``cmd_ns`` (when it left, its log time), ``sample_ns`` (when its sample was taken) and
+    ``tau`` (its values, one command after the other). The report from a recording
+    (:mod:`.recorded_report`) and the timing plot take their times from here.
+
+    ``samples`` : the ``/central/sample`` messages by cycle, if already decoded."""
+    if samples is None:
+        samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
+    out: dict[str, list] = {"cycle": [], "cmd_ns": [], "sample_ns": [], "tau": []}
+    for t, m in rec.decoded("/plant/command"):
+        s = samples.get(m["cycle"])
+        if s is None:
+            continue
+        out["cycle"].append(m["cycle"])
+        out["cmd_ns"].append(t)
+        out["sample_ns"].append(s["t_ns"])
+        out["tau"].extend(float(x) for x in m["tau"])
+    return out
+
+
+def timing(rec: Recording, cycles: tuple[int, int] | None = None) -> dict[str, Any]:
+    """The period and traversal series (s) the report's timing figures are taken from
+    (:func:`..compute.timing.timing_series`: the same start-up left out), as
+    ``period_s``, ``traversal_s``, and their figures (``period_s`` and ``traversal_s``
+    quantiles, ``period_mean_s``), within intervals ``A <= cycle < B`` if given (a period
+    counts for the interval it ends at)."""
+    from ..compute.timing import quantiles, timing_series
+
+    c = commands(rec)
+    period, trav, warm = timing_series(c["cmd_ns"], c["sample_ns"])
+    ks = np.asarray(c["cycle"][warm:], dtype=np.int64)
+    if cycles is not None:
+        trav = trav[(ks >= cycles[0]) & (ks < cycles[1])]
+        ends = ks[1:]
+        period = period[(ends >= cycles[0]) & (ends < cycles[1])]
+    return {"period_s": period, "traversal_s": trav,
+            "figures": {"period_s": quantiles(period), "traversal_s": quantiles(trav),
+                        "period_mean_s": float(period.mean()) if period.size else math.nan}}
+
+
 def events(rec: Recording, cycles: tuple[int, int] | None
             ) -> tuple[list[tuple[int, int, int]], dict[str, Any] | None]:
     """``(cycle, deadline misses so far, skipped samples so far)`` as recorded, and the
@@ -110,4 +152,4 @@ def halved_spans(rec: Recording, period: float, end_cycle: int) -> np.ndarray:
     return np.array(spans, dtype=float).reshape(-1, 2) * period
 
 
-__all__ = ["events", "gantt_spans", "halved_spans", "signals"]
+__all__ = ["commands", "events", "gantt_spans", "halved_spans", "signals", "timing"]

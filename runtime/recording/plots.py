@@ -13,16 +13,20 @@ From a recording alone (whole, compressed or salvaged after a crash), six PNGs a
 ``timing.png``
     Histograms of the period (command to command) and of the traversal (sample to
     command), with the nominal period and the deadline (the command of sample k is due
-    at tick k + d, d the command delay in periods) marked.
+    at tick k + d, d the command delay in periods) marked. The series and their p50 and
+    p99 are the report's (:func:`.plot_data.timing`: the same intervals, the start-up left
+    out, the same quantiles), so the titles say what the summary says.
 ``events.png``
     The period over the run, with each deadline miss, skipped sample and the fault (if
     any) where it fell, and the spans at the halved control rate (``--overload``).
 ``gantt.png``
     The processes' compute spans over a few intervals of the middle of the run.
 
-Every figure is drawn from the arrays in :class:`Plots.series`, which the caller (and
-the tests) can read: ``tracking_error_m`` is the recorded ``/signals/state`` error, an
-account independent of the report's (rebuilt from the samples).
+Every figure but the timing one is drawn from the arrays in :class:`Plots.series`, which
+the caller (and the tests) can read: ``tracking_error_m`` is the recorded
+``/signals/state`` error, an account independent of the report's (rebuilt from the
+samples); the timing figure's are in :attr:`Plots.timing`. No title overlaps another or
+passes its figure's edge (:func:`title_clashes`, checked as each figure is saved).
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from ..config import RunConfig
-from .plot_data import events, gantt_spans, halved_spans, signals
+from .plot_data import events, gantt_spans, halved_spans, signals, timing
 from .reader import Recording
 
 COLORS = {"central": "#1f77b4", "peripheral_1": "#ff7f0e", "peripheral_2": "#2ca02c",
@@ -64,12 +68,19 @@ class Plots:
         (n, 3; NaN where absent), ``tracking_error_m`` (n,), ``torque_nm`` (n, 3),
         ``period_s`` (n,), ``traversal_s`` (n,).
     notes : what a figure could not show (e.g. no plant in freerun).
+    timing : the timing figure's series and figures (:func:`.plot_data.timing`), the
+        report's own.
+    titles : figure name -> the titles of its panels, as drawn (the timing figure's).
+    clashes : titles that overlapped another or passed a figure's edge (none expected).
     """
 
     images: dict[str, Path] = field(default_factory=dict)
     index: Path | None = None
     series: dict[str, np.ndarray] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    timing: dict[str, Any] = field(default_factory=dict)
+    titles: dict[str, list[str]] = field(default_factory=dict)
+    clashes: list[str] = field(default_factory=list)
 
 
 def gantt_figure(path: Path, panels: dict[str, list]) -> None:
@@ -105,7 +116,8 @@ def _empty(ax: Any, text: str) -> None:
     ax.set_yticks([])
 
 
-def _path(path: Path, s: dict[str, np.ndarray], notes: list[str]) -> None:
+def _path(path: Path, s: dict[str, np.ndarray], plots: Plots) -> None:
+    notes = plots.notes
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), constrained_layout=True)
     p, ref = s["p_m"] * 1e3, s["reference_m"] * 1e3
     have_p, have_ref = np.isfinite(p).all(axis=1), np.isfinite(ref).all(axis=1)
@@ -123,12 +135,12 @@ def _path(path: Path, s: dict[str, np.ndarray], notes: list[str]) -> None:
         ax.set_title(f"path, {name} view")
         ax.set_aspect("equal", adjustable="datalim")
         ax.legend(fontsize=8)
-    fig.savefig(path, dpi=_DPI)
-    plt.close(fig)
+    _save(fig, path, plots)
 
 
 def _tracking(path: Path, s: dict[str, np.ndarray], max_error: float,
-              notes: list[str]) -> None:
+              plots: Plots) -> None:
+    notes = plots.notes
     fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
     e = s["tracking_error_m"]
     ok = np.isfinite(e)
@@ -153,11 +165,11 @@ def _tracking(path: Path, s: dict[str, np.ndarray], max_error: float,
         ax.set_ylim(0, top * 1e3 * 1.12)
         ax.legend(fontsize=8, loc="upper right")
     ax.set_title("tracking error")
-    fig.savefig(path, dpi=_DPI)
-    plt.close(fig)
+    _save(fig, path, plots)
 
 
-def _torques(path: Path, s: dict[str, np.ndarray], tau_max: float, kind: str) -> None:
+def _torques(path: Path, s: dict[str, np.ndarray], tau_max: float, kind: str,
+             plots: Plots) -> None:
     fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
     tau = s["torque_nm"]
     for i in range(3):
@@ -173,17 +185,38 @@ def _torques(path: Path, s: dict[str, np.ndarray], tau_max: float, kind: str) ->
         ax.set_title("commands of the kinematics law (joint accelerations, not torques)")
     ax.set_xlabel("reference time (s)")
     ax.legend(fontsize=8, loc="upper right")
-    fig.savefig(path, dpi=_DPI)
-    plt.close(fig)
+    _save(fig, path, plots)
 
 
-def _timing(path: Path, s: dict[str, np.ndarray], rc: RunConfig) -> None:
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), constrained_layout=True)
+CLOCK_NOTES = {
+    "lockstep": "wall time: lockstep runs in virtual time (no deadline), this is the "
+                "processes' pace",
+    "freerun": "wall time: freerun has no plant and no deadline, the unit runs as fast "
+               "as it can",
+}
+"""What the timing figure's times are, by clock (realtime: its period and deadline)."""
+
+
+def timing_titles(figures: dict[str, Any]) -> dict[str, str]:
+    """The timing figure's panel titles: what each histogram is, and its p50 and p99 as
+    the summary prints them (runtime/observe/summary.py, to 0.1 us)."""
+    def line(q: dict[str, float]) -> str:
+        return f"p50 {q['p50'] * 1e6:.1f} us   p99 {q['p99'] * 1e6:.1f} us"
+
+    return {"period_s": f"period (command to command)\n{line(figures['period_s'])}",
+            "traversal_s": f"traversal (sample to command)\n{line(figures['traversal_s'])}"}
+
+
+def _timing(path: Path, t: dict[str, Any], rc: RunConfig, plots: Plots) -> None:
+    """Histograms of the period and the traversal: the series and quantiles the report
+    takes (:func:`.plot_data.timing`: the same start-up left out)."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
     nominal_us = rc.schedule.period * 1e6
-    deadline_us = max(rc.delay_periods, 1) * rc.schedule.period * 1e6
-    for ax, key, title in ((axes[0], "period_s", "period (command to command)"),
-                           (axes[1], "traversal_s", "traversal (sample to command)")):
-        v = s[key][np.isfinite(s[key])] * 1e6
+    due = max(rc.delay_periods, 1)
+    titles = timing_titles(t["figures"])
+    plots.titles["timing"] = list(titles.values())
+    for ax, key in zip(axes, ("period_s", "traversal_s"), strict=True):
+        v = t[key] * 1e6
         if v.size == 0:
             _empty(ax, f"no {key[:-2]} recorded")
             continue
@@ -192,22 +225,48 @@ def _timing(path: Path, s: dict[str, np.ndarray], rc: RunConfig) -> None:
             ax.axvline(nominal_us, color="#2ca02c", ls="--", lw=1.0,
                        label=f"period {nominal_us:g} us")
         if key == "traversal_s" and rc.schedule.clock == "realtime":
-            ax.axvline(deadline_us, color="#d62728", ls="--", lw=1.0,
-                       label=f"deadline {deadline_us:g} us (tick k + {max(rc.delay_periods, 1)})")
-        p50, p99 = np.percentile(v, [50, 99])
-        clock = "" if rc.schedule.clock == "realtime" else f" ({rc.schedule.clock}: wall time)"
-        ax.set_title(f"{title}{clock}: p50 {p50:.0f} us, p99 {p99:.0f} us", fontsize=10)
+            ax.axvline(due * nominal_us, color="#d62728", ls="--", lw=1.0,
+                       label=f"deadline {due * nominal_us:g} us (tick k + {due})")
+        ax.set_title(titles[key], fontsize=10)
         ax.set_xlabel("us")
         ax.set_ylabel("intervals")
         ax.set_yscale("log")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
+    fig.suptitle(CLOCK_NOTES.get(rc.schedule.clock, f"realtime, period {nominal_us:g} us: "
+                                 f"the command of sample k is due at tick k + {due}"),
+                 fontsize=10)
+    _save(fig, path, plots)
+
+
+def title_clashes(fig: Any) -> list[str]:
+    """Titles of ``fig`` (each axes' and the figure's) that overlap another or pass the
+    figure's edge, drawn as they are saved; empty when every title stands clear."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    texts = [t for ax in fig.axes for t in (ax.title, ax._left_title, ax._right_title)
+             if t.get_text()]
+    if fig._suptitle is not None and fig._suptitle.get_text():
+        texts.append(fig._suptitle)
+    boxes = [(t.get_text(), t.get_window_extent(renderer)) for t in texts]
+    frame = fig.bbox
+    out = [f"{name!r} passes the figure's edge" for name, b in boxes
+           if b.x0 < frame.x0 - 0.5 or b.x1 > frame.x1 + 0.5 or b.y1 > frame.y1 + 0.5
+           or b.y0 < frame.y0 - 0.5]
+    for i, (a, ba) in enumerate(boxes):
+        out += [f"{a!r} overlaps {b!r}" for b, bb in boxes[i + 1:] if ba.overlaps(bb)]
+    return out
+
+
+def _save(fig: Any, path: Path, plots: Plots) -> None:
+    """Save ``fig`` to ``path`` and close it; titles that clash go to ``plots.clashes``."""
     fig.savefig(path, dpi=_DPI)
+    plots.clashes += [f"{path.name}: {c}" for c in title_clashes(fig)]
     plt.close(fig)
 
 
 def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int, int]],
-                   fault: dict[str, Any] | None, rc: RunConfig) -> None:
+                   fault: dict[str, Any] | None, rc: RunConfig, plots: Plots) -> None:
     fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
     t = s["cycle"] * rc.schedule.period
     for a, b in s.get("halved_spans_s", np.empty((0, 2))):
@@ -244,8 +303,7 @@ def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int
     ax.set_ylabel("period (us)")
     ax.set_title(title)
     ax.legend(fontsize=8, loc="upper left")
-    fig.savefig(path, dpi=_DPI)
-    plt.close(fig)
+    _save(fig, path, plots)
 
 
 def _index(path: Path, rec: Recording, images: dict[str, Path], summary: str,
@@ -304,16 +362,17 @@ def plot_recording(rec: Recording, out: str | Path, *,
     plots = Plots(series=s)
     images = plots.images
     images["path"] = out / "path.png"
-    _path(images["path"], s, plots.notes)
+    _path(images["path"], s, plots)
     images["tracking_error"] = out / "tracking_error.png"
-    _tracking(images["tracking_error"], s, rc.control.max_error, plots.notes)
+    _tracking(images["tracking_error"], s, rc.control.max_error, plots)
     images["torques"] = out / "torques.png"
     _torques(images["torques"], s, params.tau_max,
-             "acceleration" if rc.control.law == "kinematics" else "torque")
+             "acceleration" if rc.control.law == "kinematics" else "torque", plots)
     images["timing"] = out / "timing.png"
-    _timing(images["timing"], s, rc)
+    plots.timing = timing(rec, cycles)
+    _timing(images["timing"], plots.timing, rc, plots)
     images["events"] = out / "events.png"
-    _events_figure(images["events"], s, ev, fault, rc)
+    _events_figure(images["events"], s, ev, fault, rc, plots)
     from ..observe.report import gantt_window
 
     window = gantt_window(gantt_spans(rec, cycles))

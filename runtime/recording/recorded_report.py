@@ -13,12 +13,14 @@ from ..compute.timing import timing_figures
 from ..config import RunConfig
 from ..observe.report import (
     CPU_KEYS,
+    RESULT_KEYS,
     build_report,
     command_digest,
     error_stats,
     overload_figures,
     tracking_errors,
 )
+from .plot_data import commands
 from .reader import Recording
 from .replay import recorded_inputs, stride_grid
 
@@ -33,18 +35,9 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     rc = RunConfig.from_recording(cfg).replace(record=None, report=None)
     setup = make_setup(rc)
     samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
-    cmd_ns: list[int] = []
-    sample_ns: list[int] = []
-    commands: list[float] = []  # the torques of every command, one after the other
+    sent = commands(rec, samples)
+    cmd_ns, sample_ns, tau = sent["cmd_ns"], sent["sample_ns"], sent["tau"]
     true_p: dict[int, tuple[float, float, float]] = {}
-    for t, m in rec.decoded("/plant/command"):
-        k = m["cycle"]
-        s = samples.get(k)
-        if s is None:
-            continue
-        cmd_ns.append(t)
-        sample_ns.append(s["t_ns"])
-        commands.extend(float(x) for x in m["tau"])
     for k, s in samples.items():
         if "p" in s and k < setup.cycles:  # as live: the run's samples only
             p = s["p"]
@@ -84,8 +77,8 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     task = setup.task
     rep = build_report(
         rc=rc, plan=setup.plan, task=task, timing=timing_figures(cmd_ns, sample_ns),
-        digest=command_digest(commands),
-        torque_max=max((abs(x) for x in commands), default=math.nan),
+        digest=command_digest(tau),
+        torque_max=max((abs(x) for x in tau), default=math.nan),
         tracking=error_stats(tracking_errors(task, rc.schedule.period, true_p)), business=business,
         deadline_misses=misses,
         skipped=skipped, rejected=rejected, t1_s=t1, per_block_s=per_block, fault=fault,
@@ -93,6 +86,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     )
     cpu = json.loads(result.get("cpu", "{}") or "{}")  # per process: only the run knew
     rep.update({k: cpu.get(k) for k in CPU_KEYS if k in cpu})
+    _live_facts(rep, rec, rc, cpu_known=bool(cpu))
     grid = stride_grid(rec)
     last = max((m["cycle"] for _, m in rec.decoded("/plant/command")), default=-1)
     rep["periods"] = last + grid.hold_of(last) if last >= 0 else 0
@@ -103,3 +97,37 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     rep["overload"] = overload_figures(changes, rc.halves_on_overload, grid,
                                        end=rep["periods"])
     return rep
+
+
+def _live_facts(rep: dict[str, Any], rec: Recording, rc: RunConfig, *, cpu_known: bool
+                ) -> None:
+    """Into ``rep``: what only the live run knew (:data:`RESULT_KEYS`), from the result
+    record; without it (a recording cut off before the end, or made before ctrlunit kept
+    them), ``not_recorded``: the summary lines this run would have had that the file
+    cannot give, and why."""
+    result = rec.metadata.get("ctrlunit.result")
+    live = (result or {}).get("live")
+    if live is not None:
+        rep.update(json.loads(live))
+        return
+    rep.pop("link_list", None)  # the configuration's links, without the central's endpoint
+    sch, n = rc.schedule, rep["peripherals"]
+    relevant = {
+        "exchanges_per_interval": n > 0, "replies": n > 0,
+        "late": sch.clock == "realtime", "late_intervals": sch.clock == "realtime" and n > 0,
+        "idle": sch.clock == "realtime" or sch.idle == "poll",
+        "admission": sch.clock == "realtime" and sch.admission,
+        "scheduling_fallback": sch.clock == "realtime",
+        "placement_choice": sch.placement_auto and n > 0,
+        "plant_spares": sch.clock == "realtime", "silences_excused": sch.clock == "realtime",
+        "safe_stop": bool(rep.get("fault")) and sch.clock != "freerun",
+        "links": False,  # the weakest protection: the configuration's, rebuilt
+    }
+    lines = [] if cpu_known else ["CPU / interval"]
+    for key, line in RESULT_KEYS.items():
+        if relevant.get(key, True) and line not in lines:
+            lines.append(line)
+    why = ("the recording was cut off before the run's end, where they are written"
+           if rec.salvaged or result is None else
+           "the recording was made by a ctrlunit that kept them in the live report only")
+    rep["not_recorded"] = {"lines": lines, "why": why}

@@ -19,7 +19,10 @@ Channels
   q, torque, tracking error, period, traversal). NaN and infinities are written as null.
 
 A metadata record ``ctrlunit`` holds the configuration, placement, package version, host,
-core count and clock; ``ctrlunit.result`` (at the end) holds ``t_1`` and the block costs.
+core count and clock; ``ctrlunit.result`` (at the end) holds ``t_1``, the block costs and
+what else only the live run knew (``live``: scheduling, admission, placement choice, late
+data, excused silences, the safe stop, the links; ``cpu``: the CPU budget), so that
+``ctrlunit report`` prints every line of the live summary.
 
 Chunks are compressed (``--record-compression``, zstd by default) and written on the
 writer's own thread: the central's thread only appends to the open chunk.
@@ -46,7 +49,7 @@ import msgpack
 import orjson
 
 from ..host import sched
-from ..observe.report import CPU_KEYS
+from ..observe.report import CPU_KEYS, RESULT_KEYS
 from ..observe.signals import SIGNALS_SCHEMA, capture, state_message
 from .mcap_writer import LeanWriter
 
@@ -196,7 +199,8 @@ class Recorder:
                      "plant_busy_ns": central.meters.plant_busy_ns}
 
     def write_report(self, report: dict[str, Any]) -> None:
-        """Store what only the live run knows (t_1, block costs, wall times), then finish."""
+        """Store what only the live run knows (t_1, block costs, wall times, and under
+        ``live`` the report's :data:`~..observe.report.RESULT_KEYS`), then finish."""
         if self.closed:
             return
         self.w.add_metadata("ctrlunit.result", {
@@ -208,7 +212,15 @@ class Recorder:
             "fault": json.dumps(report.get("fault")),
             "rejected": json.dumps(report.get("rejected_messages") or {}),
             "cpu": json.dumps({k: report.get(k) for k in CPU_KEYS}),
+            "live": json.dumps({k: report[k] for k in RESULT_KEYS if k in report},
+                               default=_plain),
         })
         self.w.finish()
         self.fh.close()
         self.closed = True
+
+
+def _plain(x: Any) -> Any:
+    """A value JSON has no type for (a numpy number): as a plain number, else as text."""
+    item = getattr(x, "item", None)
+    return item() if callable(item) else str(x)

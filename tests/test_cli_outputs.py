@@ -1,0 +1,249 @@
+"""What the commands leave behind and say where: no file written that was not asked for,
+a faulted run's kept folder named, the exit code of each class of error the same for
+every command, warnings on stderr, the command balance's prediction assumes, and the
+profile ``main-job`` equal to README's main job (docs/faults-and-errors.md)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner, Result
+from ctrlunit.runtime.cli import cli
+from ctrlunit.runtime.config import RunConfig
+from ctrlunit.runtime.config.run_file import read_run_file
+from runner import kill_unit, pids_of, unit_id, wait_status
+
+README = Path(__file__).resolve().parent.parent / "README.md"
+
+
+def invoke(*args: str) -> Result:
+    return CliRunner().invoke(cli, list(args), prog_name="ctrlunit", catch_exceptions=True)
+
+
+def listing(d: Path) -> list[str]:
+    return sorted(str(p.relative_to(d)) for p in d.rglob("*"))
+
+
+def run_in(cwd: Path, tmpdir: Path, *args: str, timeout: float = 120
+           ) -> subprocess.CompletedProcess:
+    """``ctrlunit ARGS`` in ``cwd``, its temporary files under ``tmpdir``."""
+    env = os.environ | {"TMPDIR": str(tmpdir)}
+    return subprocess.run([sys.executable, "-m", "ctrlunit.runtime.cli", *args], cwd=cwd,
+                          env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """A 40-interval lockstep run started in an empty folder, recorded and reported
+    elsewhere: what it left in that folder and in its temporary directory."""
+    root = tmp_path_factory.mktemp("outputs")
+    cwd, tmp, out = root / "cwd", root / "t", root / "out"
+    for d in (cwd, tmp, out):
+        d.mkdir()
+    unit = unit_id("outputs")
+    try:
+        res = run_in(cwd, tmp, "start", "--unit", unit, "--clock", "lockstep",
+                     "--peripherals", "1", "--cycles", "40", "--record", str(out / "run.mcap"),
+                     "--report", str(out / "run.json"))
+    finally:
+        kill_unit(unit)
+    assert res.returncode == 0, res.stderr
+    return {"cwd": listing(cwd), "tmp": listing(tmp), "stderr": res.stderr,
+            "record": out / "run.mcap", "report": out / "run.json"}
+
+
+def test_a_run_leaves_only_the_files_asked_for(made):
+    assert made["cwd"] == [] and made["tmp"] == [], made
+    assert "logs are kept" not in made["stderr"]
+
+
+def test_no_command_writes_a_file_it_was_not_asked_for(made, tmp_path, monkeypatch):
+    """Each command run in an empty folder (the commands that write by README's word,
+    ``plot`` and ``bench``'s runs, aside) leaves it empty."""
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    rec, rep = str(made["record"]), str(made["report"])
+    for args in (["ik", "0", "0", "-0.35"], ["ik", "0", "0", "0.35", "--json"],
+                 ["fk", "0", "0", "0"], ["trajectory", "pick-place"],
+                 ["workspace", "--grid", "11"], ["config"], ["start", "--check"],
+                 ["start", "--profile", "main-job", "--check", "--json"],
+                 ["bench", "--check", "--stages", "floor"], ["bench", "--check", "--quick"],
+                 ["latency", "--period", "1ms", "--duration", "20ms", "--rt-priority", "0",
+                  "--idle", "default"],
+                 ["balance", rep], ["balance", rec, "--json"],
+                 ["replay", rec, "--verify"], ["report", rec]):
+        res = invoke(*args)
+        assert res.exit_code == 0, (args, res.output)
+        assert listing(cwd) == [], (args, listing(cwd))
+
+
+def test_a_faulted_run_names_the_folder_it_keeps(tmp_path):
+    """A peripheral killed mid-run: exit 3, and the run's folder (spec, the roles' logs),
+    the only thing left in the temporary directory, is named on stderr after the
+    summary and in the report."""
+    cwd, tmp = tmp_path / "cwd", tmp_path / "t"
+    cwd.mkdir()
+    tmp.mkdir()
+    unit = unit_id("kept")
+    status, report = tmp_path / "status", tmp_path / "run.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
+         "lockstep", "--peripherals", "1", "--cycles", "1000000", "--timeout", "300ms",
+         "--status-file", str(status), "--report", str(report)],
+        cwd=cwd, env=os.environ | {"TMPDIR": str(tmp)}, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert wait_status(status, 20) >= 20
+        for pid in pids_of(unit):
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+            if " peripheral " in cmd:
+                os.kill(pid, signal.SIGKILL)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 3, err
+    kept = [tmp / name for name in os.listdir(tmp)]
+    try:
+        assert len(kept) == 1 and kept[0].name.startswith("ctrlunit-"), kept
+        assert err.splitlines()[-1] == f"ctrlunit: the roles' logs are kept in {kept[0]}"
+        assert json.loads(report.read_text())["logs_kept"] == str(kept[0])
+        assert (kept[0] / "peripheral-1.log").exists()
+        assert listing(cwd) == [] and out.strip()
+    finally:
+        for d in kept:
+            shutil.rmtree(d, ignore_errors=True)
+
+
+# -- exit codes by class ------------------------------------------------------------------
+
+def missing_files(d: Path, existing: str) -> list[list[str]]:
+    """Commands naming a file that does not exist, or a folder where a file is wanted."""
+    nope = str(d / "nosuch")
+    return [["replay", nope + ".mcap"], ["replay", nope + ".mcap", "--verify"],
+            ["report", nope + ".mcap"], ["plot", nope + ".mcap"], ["report", str(d)],
+            ["balance", nope + ".json"], ["balance", existing, "--compare", nope + ".json"],
+            ["trajectory", nope + ".json"], ["ik", "0", "0", "-0.35", "--params", nope],
+            ["fk", "0", "0", "0", "--params", str(d)],
+            ["start", "--check", "--placement", nope + ".json"],
+            ["start", "--check", "--task", nope + ".json"],
+            ["start", "--check", "--params", nope + ".toml"],
+            ["start", "--check", "--config", nope + ".toml"],
+            ["start", "--check", "--zenoh-config", nope + ".json5"],
+            ["start", "--check", "--record", str(d)],
+            ["central", "--check", "--listen", "tcp/127.0.0.1:0", "--placement", nope],
+            ["peripheral", "--check", "--index", "1", "--params", nope],
+            ["latency", "--plot", str(d)], ["workspace", "--png", str(d)]]
+
+
+def test_a_missing_file_is_an_input_error_for_every_command(tmp_path):
+    existing = tmp_path / "exists.json"
+    existing.write_text("{}")
+    for args in missing_files(tmp_path, str(existing)):
+        res = invoke(*args)
+        err = res.stderr.strip().splitlines()
+        assert res.exit_code == 1, (args, res.exit_code, res.stderr)
+        assert len(err) == 1 and err[0].startswith("ctrlunit: error: "), (args, res.stderr)
+
+
+@pytest.mark.parametrize("command", sorted(cli.commands))
+def test_a_command_line_that_does_not_parse_is_a_usage_error(command):
+    args = [command, "init"] if command == "keys" else [command]
+    res = invoke(*args, "--no-such-option")
+    assert res.exit_code == 2, (command, res.output)
+    assert res.stderr.strip().splitlines()[-1].startswith("Error: ")
+
+
+def test_warnings_go_to_stderr():
+    """A point outside the usable workspace has angles (exit 0); the warning is not part
+    of the answer."""
+    res = invoke("ik", "0", "0", "0.35")
+    assert res.exit_code == 0
+    assert re.fullmatch(r"q = \[[^\]]+\] rad\n", res.stdout), res.stdout
+    assert res.stderr.startswith("ctrlunit: warning: ") and "beta_min" in res.stderr
+    res = invoke("ik", "0", "0", "0.35", "--json")
+    assert json.loads(res.stdout)["usable"] is False
+    assert invoke("ik", "0", "0", "-0.35").stderr == ""
+
+
+# -- names ----------------------------------------------------------------------------------
+
+VARIANTS = {  # a change to the recorded run's report: the run balance reads
+    "as recorded": {},
+    "freerun at depth 2": {"clock": "freerun", "pipeline": 2},
+    "realtime at 2 ms": {"clock": "realtime", "pipeline": 2, "nominal_period_s": 0.002},
+    "t800, replies and rounds asked": {"cost_model": "t800", "cost_scale": 60.0,
+                                       "replies": {"asked": "each", "mode": "each"},
+                                       "hold_rounds": {"asked": "never", "held": False},
+                                       "cycles": 500},
+}
+
+
+@pytest.mark.parametrize("change", VARIANTS.values(), ids=list(VARIANTS))
+def test_balance_prints_the_command_its_prediction_assumes(made, tmp_path, change):
+    """The command balance prints resolves to the run its model was calibrated on, with
+    the placement it wrote: every setting the prediction depends on."""
+    src = json.loads(made["report"].read_text()) | change
+    f, placement = tmp_path / "run.json", tmp_path / "placement.json"
+    f.write_text(json.dumps(src))
+    res = invoke("balance", str(f), "--write", str(placement), "--json")
+    assert res.exit_code == 0, res.output
+    a = json.loads(res.stdout)
+    text = invoke("balance", str(f), "--write", str(placement)).stdout
+    assert a["command"] in text and a["written"] == str(placement)
+    words = shlex.split(a["command"])
+    assert words[:2] == ["ctrlunit", "start"]
+    toml = tmp_path / "resolved.toml"
+    resolved = invoke("config", *words[2:])
+    assert resolved.exit_code == 0, resolved.output
+    toml.write_text(resolved.stdout)
+    rc = RunConfig.of(**read_run_file(str(toml)))
+    s, c = rc.schedule, rc.control
+    assert (s.clock, s.pipeline, s.placement, s.placement_auto) == (
+        src["clock"], src["pipeline"], str(placement), False)
+    if s.clock != "freerun":
+        assert s.period == src["nominal_period_s"] and not s.period_auto
+    assert (c.law, c.model, c.observer, rc.resolved_model_state) == (
+        src["law"], src["model"], src["observer"], src["model_state"])
+    assert (c.cost_model, c.cost_scale) == (src["cost_model"], src["cost_scale"])
+    asked = {k: (src.get(k) or {}).get("asked", "auto") for k in ("replies", "hold_rounds")}
+    assert (s.replies, s.hold_rounds) == (asked["replies"], asked["hold_rounds"])
+    assert rc.run.cycles == src["cycles"]
+    assert json.loads(placement.read_text())["peripherals"] == a["placement"]["peripherals"]
+
+
+def test_balance_without_write_says_it_wrote_nothing(made, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    res = invoke("balance", str(made["report"]))
+    assert res.exit_code == 0 and "not written (--write FILE writes it)" in res.stdout
+    assert "--placement FILE" in res.stdout and listing(tmp_path) == []
+
+
+def readme_main_job() -> list[str]:
+    """The options of README's first command, the main job."""
+    m = re.search(r"&& ctrlunit start ([^\n`]*)\n", README.read_text())
+    assert m, "README's set-up runs the main job"
+    return m[1].split()
+
+
+def test_the_main_job_profile_is_readmes_main_job():
+    main = readme_main_job()
+    assert "--pipeline" in main
+    for check in (["--check", "--unit", "u1"], ["--check", "--json", "--unit", "u1"]):
+        profiled = invoke("start", "--profile", "main-job", *check)
+        assert profiled.exit_code == 0, profiled.output
+        assert profiled.stdout == invoke("start", *main, *check).stdout
+    assert invoke("config", "--profile", "main-job").stdout == invoke("config", *main).stdout
+    assert "pipeline depth 2" in invoke("start", "--profile", "main-job", "--check").stdout
