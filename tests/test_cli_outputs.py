@@ -241,7 +241,7 @@ def readme_main_job() -> list[str]:
 def test_the_main_job_profile_is_readmes_main_job():
     main = readme_main_job()
     assert "--pipeline" in main
-    for check in (["--check"], ["--check", "--json"]):
+    for check in (["--check", "--unit", "u1"], ["--check", "--json", "--unit", "u1"]):
         profiled = invoke("start", "--profile", "main-job", *check)
         assert profiled.exit_code == 0, profiled.output
         assert profiled.stdout == invoke("start", *main, *check).stdout

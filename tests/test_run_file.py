@@ -9,6 +9,7 @@ from click.testing import CliRunner
 from ctrlunit.runtime.cli import cli
 from ctrlunit.runtime.config import ConfigError, RunConfig
 from ctrlunit.runtime.config.run_file import PROFILES, parse_set, read_run_file, to_toml
+from ctrlunit.runtime.config.spellings import to_fields
 
 
 def config(*args: str) -> str:
@@ -23,7 +24,7 @@ def resolved(*args: str) -> RunConfig:
 
     with tempfile.NamedTemporaryFile("w", suffix=".toml", delete=False) as fh:
         fh.write(config(*args))
-    return RunConfig.of(**read_run_file(fh.name))
+    return RunConfig.of(**to_fields(read_run_file(fh.name)))
 
 
 def test_the_defaults_are_the_main_job():
@@ -67,7 +68,12 @@ def test_a_resolved_file_runs_as_asked(tmp_path):
     ("pipeline=2", "expected SECTION.KEY=VALUE"),
     ("schedule.nope=1", "[schedule] has no 'nope'"),
     ("sched.pipeline=1", "no section [sched]"),
-    ("schedule.pipeline=two", "'two': allowed an integer"),
+    ("schedule.pipeline=two", "--set schedule.pipeline = 'two': allowed 1 or 2"),
+    ("schedule.late_policy=waitt",
+     "--set schedule.late_policy = 'waitt': allowed wait, compute, hold, fault"),
+    ("schedule.period=2 ms!", "--set schedule.period = '2 ms!': allowed auto, or 20us to 1s"),
+    ("schedule.period_auto=false", "period_auto is the run's own state, not a setting; give "
+     "period"),
     ("schedule.admission=1", "allowed true or false"),
 ])
 def test_a_bad_setting_is_refused_by_name(item, message):
@@ -89,7 +95,7 @@ def test_a_bad_run_file_names_the_file_and_the_key(tmp_path):
     with pytest.raises(ConfigError, match="--config .*bad.toml"):
         read_run_file(str(bad))
     bad.write_text('[schedule]\nlate_policy = 3\n')
-    with pytest.raises(ConfigError, match=r"\[schedule\] late_policy: 3: allowed a string"):
+    with pytest.raises(ConfigError, match=r"\[schedule\] late_policy = 3: allowed wait, "):
         read_run_file(str(bad))
     bad.write_text('pipeline = 2\n')
     with pytest.raises(ConfigError, match="must be a section"):
@@ -105,7 +111,7 @@ def test_to_toml_writes_every_section_and_reads_back():
     data = tomllib.loads(to_toml(rc.to_dict()))
     assert list(data) == ["control", "schedule", "plant", "transport", "run"]
     back = {k: v for k, v in rc.to_dict().items() if v is not None}
-    assert RunConfig.of(**read_back(data)).to_dict() == RunConfig.of(**back).to_dict()
+    assert RunConfig.of(**to_fields(read_back(data))).to_dict() == RunConfig.of(**back).to_dict()
     assert set(PROFILES) == {"main-job", "thesis"}
 
 

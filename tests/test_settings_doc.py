@@ -29,8 +29,11 @@ def test_docs_settings_is_the_table_the_source_makes():
     made = CliRunner().invoke(cli, ["config", "--table"]).output
     assert text.split(MARK, 1)[1] == made, \
         "docs/settings.md is stale: regenerate its table with ctrlunit config --table"
-    # the defaults are the command line's: --period auto and --placement auto by default
-    assert "| `period_auto` |  | `true` |" in made and "| `placement_auto` |  | `true` |" in made
+    # the defaults are the command line's: --period auto and --placement auto by default,
+    # and the run's own state (period_auto) is listed apart, not as a setting
+    assert "| `period` | `--period` | `\"auto\"` |" in made
+    assert "| `placement` | `--placement auto|axes|FILE` | `\"auto\"` |" in made
+    assert "| `period_auto` |" not in made and "- `schedule.period_auto`:" in made
     assert settings_table() != made  # the fields' own defaults differ there
 
 
@@ -68,7 +71,8 @@ def test_the_run_file_carries_each_setting_s_help_and_reads_back():
     text = to_toml(RunConfig.of().to_dict())
     for section in SECTIONS.values():
         for f, a in abouts(section):
-            assert a.help[:40] in " ".join(text.split()), f.name
+            shown = a.help[:40] in " ".join(text.split())
+            assert shown != a.internal, f.name  # the run's own state is no setting
     data = tomllib.loads(text)
     assert set(data) == set(SECTIONS)
 

@@ -9,28 +9,24 @@ from typing import Any
 
 import click
 
-from ..config import FLAT, LATE_POLICIES, ConfigError, RunConfig, parse_duration
+from ..config import FLAT, ConfigError, RunConfig
 from ..config.handed import FILE_SETTINGS, ROLE_OWN
 from ..config.run_file import PROFILES
 from ..config.sections import SECTIONS
 from ..config.setting import About
 from ..config.settings_doc import settings_of
-from .base import FilePath, _rt_priority
+from ..config.spellings import DERIVED, read_setting, to_fields
+from .base import FilePath
 
 
-def _duration(_ctx: Any, param: click.Parameter, value: str | None) -> float | None:
-    if value is None:
-        return None
+def _read(_ctx: Any, param: click.Parameter, value: Any) -> Any:
+    """A flag's value read as ``--set`` and the run file read the setting's
+    (runtime/config/spellings.py): ``2ms``, ``0.002``, ``auto`` where the setting takes it."""
+    flat = "late" if param.name == "late_items" else str(param.name)
     try:
-        return parse_duration(value, field_name=f"--{param.name}")
+        return read_setting(flat, value, f"--{param.opts[0].lstrip('-')}", ranged=False)
     except ConfigError as exc:
         raise click.BadParameter(str(exc)) from None
-
-
-def _period(ctx: Any, param: click.Parameter, value: str) -> float | str:
-    if isinstance(value, str) and value.strip() == "auto":
-        return "auto"
-    return _duration(ctx, param, value) or 0.0
 
 
 def run_options(fn: Any) -> Any:
@@ -87,8 +83,7 @@ def _option(flat: str, a: About, *, shown: bool | None = None) -> Any:
     if fl.kind in ("many", "late"):
         return click.option(name, "late_items" if fl.kind == "late" else flat,
                             multiple=True, **about)
-    callback = {"duration": _duration_or_zero if default == "0s" else _duration,
-                "period": _period, "priority": _rt_priority}.get(fl.kind)
+    callback = _read if fl.kind in ("duration", "period", "priority") else None
     return click.option(name, flat, type=_click_type(flat, a), default=default,
                         show_default=default is not None, callback=callback, **about)
 
@@ -165,15 +160,8 @@ def _help_all(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
     ctx.exit()
 
 
-def _duration_or_zero(ctx: Any, param: click.Parameter, value: str) -> float:
-    if value in ("0", "0s", 0):
-        return 0.0
-    return _duration(ctx, param, value) or 0.0
-
-
-PARAM_FLATS = {"placement": ("placement", "placement_auto"), "period": ("period", "period_auto"),
-               "late_items": ("late",)}
-"""Options a flag sets other than its own name."""
+PARAM_SETTINGS = {"late_items": "late"}
+"""Flags whose parameter is not named as their setting."""
 
 
 def explicit_params() -> set[str]:
@@ -185,14 +173,22 @@ def explicit_params() -> set[str]:
     return {n for n in ctx.params if ctx.get_parameter_source(n) in given}
 
 
+def _given_flags() -> set[str]:
+    """The settings (flat names) whose flags were given on the command line."""
+    return {PARAM_SETTINGS.get(p, p) for p in explicit_params()} & set(FLAT)
+
+
 def given_settings() -> set[str]:
-    """The settings (flat names) that flags given on the command line set."""
-    return {f for p in explicit_params() for f in PARAM_FLATS.get(p, (p,)) if f in FLAT}
+    """The fields (flat names) that flags given on the command line set."""
+    return {f for s in _given_flags() for f in DERIVED.get(s, (s,))}
 
 
 def make_rc(kw: dict[str, Any]) -> RunConfig:
     """The run's configuration: the defaults, then ``--profile``, the run file
-    (``--config``), ``--set``, and the flags given (runtime/config/run_file.py)."""
+    (``--config``), ``--set``, and the flags given (runtime/config/run_file.py), each a
+    user's setting read the same way (runtime/config/spellings.py); the fields each sets,
+    the run's state among them (``period = "auto"``: ``period_auto``), follow from the
+    settings once merged."""
     from ..config.run_file import parse_set, profile, read_run_file
 
     name = kw.pop("profile", None)
@@ -204,45 +200,32 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
     options = _flag_options(kw)
     if isinstance(options, RunConfig):  # a role the launcher started: the run's spec
         return options
-    if not layered:
-        return RunConfig.of(**options)
-    given = {f for p in explicit_params() for f in PARAM_FLATS.get(p, (p,)) if f in options}
-    return RunConfig.of(**(options | layered | {f: options[f] for f in given}))
+    settings = options | layered | {f: options[f] for f in _given_flags() if f in options}
+    return RunConfig.of(**to_fields(settings))
 
 
 def _flag_options(kw: dict[str, Any]) -> dict[str, Any] | RunConfig:
-    """The flags as options by flat name (every flag, defaulted ones too); the run's
-    spec instead for a role the launcher started."""
+    """The flags as settings by flat name (every flag, defaulted ones too, each read by
+    :func:`_read` or its click type); the run's spec instead for a role the launcher
+    started."""
     from ..compute.setup import load_spec
 
     spec = kw.pop("spec", None)
-    listen = list(kw.pop("listen", ()) or ()) or None
-    connect = list(kw.pop("connect", ()) or ()) or None
     if spec:
         # the central's endpoints are its own, not the children's
-        return load_spec(spec).replace(listen=listen, connect=connect,
+        return load_spec(spec).replace(listen=list(kw.get("listen") or ()) or None,
+                                       connect=list(kw.get("connect") or ()) or None,
                                        pin=kw.get("pin") or None)
-    unit = kw.pop("unit", None)
-    late: dict[str, str] = {}
-    for item in kw.pop("late_items", ()) or ():
-        block, _, pol = item.partition("=")
-        if not block or not pol:
-            raise ConfigError(f"--late {item!r}: expected BLOCK=POLICY (POLICY one of "
-                              f"{', '.join(LATE_POLICIES)})")
-        late[block] = pol
-    kw["late"] = late
-    placement = kw.get("placement")
-    if placement in ("auto", "axes"):
-        kw["placement"], kw["placement_auto"] = None, placement == "auto"
-    if kw.get("period") == "auto":
-        from ..launch.admission import LADDER_S
+    kw["late"] = kw.pop("late_items", ())
+    return {k: read_setting(k, v, f"--{_FLAG_NAMES[k]}") if k in _READ_AFTER else v
+            for k, v in kw.items() if k in FLAT}
 
-        kw["period"], kw["period_auto"] = LADDER_S[0], True
-    options = {k: v for k, v in kw.items() if k in FLAT}
-    options.update(plant_lag=kw.get("plant_lag", 0.0), listen=listen, connect=connect)
-    if unit:
-        options["unit"] = unit
-    return options
+
+_FLAG_NAMES = {flat: a.flag.name or flat.replace("_", "-") for section in SECTIONS
+               for flat, _, _, a in settings_of(section) if a.flag is not None}
+_READ_AFTER = {flat for section in SECTIONS for flat, _, _, a in settings_of(section)
+               if a.kind in ("many", "late", "placement")}
+"""Flags read with the configuration (an error exits 1, as ``--set``'s), not by click."""
 
 
 __all__ = ["CLI_SECTIONS", "given_settings", "make_rc", "role_options", "run_options"]

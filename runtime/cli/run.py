@@ -15,6 +15,7 @@ from ..config import (
     ConfigError,
     RunConfig,
 )
+from ..config.spellings import user_view
 from .base import FilePath, _emit, _fail, _json_safe, cli
 from .options import given_settings, make_rc, role_options, run_options
 
@@ -113,8 +114,13 @@ def _check(rc: RunConfig, as_json: bool) -> None:
             "placement": setup.placement.to_dict(), "round_trips": plan.round_trips,
             "placement_auto": rc.schedule.placement_auto,
             "command_delay_periods": rc.delay_periods,
-            "overload": "halve" if rc.halves_on_overload else "continue"}
-    period = "auto" if rc.schedule.period_auto else f"{rc.schedule.period * 1e3:g} ms"
+            "overload": "halve" if rc.halves_on_overload else "continue",
+            "settings": user_view(rc.to_dict())}
+    period = f"{rc.schedule.period * 1e3:g} ms"
+    if rc.schedule.period_auto:  # what will run: the admission chooses only in realtime
+        period = (f"auto (the shortest from {period} up that the admission's trial holds)"
+                  if rc.schedule.clock == "realtime" and rc.schedule.admission
+                  else f"{period} (auto)")
     overload = (f"  on overload: halve the control rate (--overload {rc.schedule.overload})\n"
                 if rc.halves_on_overload else "")
     _emit(data, as_json,
@@ -125,9 +131,17 @@ def _check(rc: RunConfig, as_json: bool) -> None:
           f"intervals, {rc.control.law} + {rc.control.model} model\n"
           + overload +
           f"  {plan.round_trips} round trip(s) per interval"
-          + (" (placement auto: the warm-up may move a round to the central)"
-             if rc.schedule.placement_auto and setup.placement.peripherals else "")
+          + _placement_note(rc, setup.placement.peripherals)
           + ":\n    " + plan.describe().replace("\n", "\n    "))
+
+
+def _placement_note(rc: RunConfig, peripherals: int) -> str:
+    """Which placement ``--check`` shows: auto, axes or the file's."""
+    if not peripherals:
+        return ""
+    if rc.schedule.placement_auto:
+        return " (placement auto: the warm-up may move a round to the central)"
+    return f" (placement {rc.schedule.placement or 'axes'})"
 
 
 def _plot_run(record: str | None, plot_dir: str, text: str | None) -> None:
@@ -363,7 +377,7 @@ def config_cmd(check: bool, table: bool, **kw: Any) -> None:
         ctx = click.get_current_context()
         flags = {p.name: p.process_value(ctx, p.get_default(ctx)) for p in ctx.command.params
                  if p.name in kw and p.expose_value}
-        defaults = make_rc(flags).to_dict() | {"unit": None}
+        defaults = user_view(make_rc(flags).to_dict()) | {"unit": None}
         click.echo(settings_table(defaults), nl=False)
         return
     asked_unit = "unit" in _given(kw)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 import typing
 from dataclasses import asdict, dataclass, field, fields
+from decimal import Decimal
 from typing import Any
 
 from .choices import (  # noqa: F401  (re-exported: the sets belong with the configuration)
@@ -26,7 +27,7 @@ from .sections import (
     ScheduleConfig,
     TransportConfig,
 )
-from .setting import about, allowed_text
+from .setting import about, allowed_text, out_of_range
 from .value_types import has_type, type_name
 
 # exit codes, one per fault class
@@ -43,15 +44,21 @@ EXIT_INTERRUPTED = 130
 """Ctrl-C (SIGINT). SIGTERM and SIGHUP stop a run the same way, with exit 128 + the
 signal's number (143, 129), as a shell reports a process the signal ended."""
 
-_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0}
+_UNITS: dict[str, Decimal] = {"s": Decimal(1), "ms": Decimal("1e-3"), "us": Decimal("1e-6"),
+                               "µs": Decimal("1e-6"), "ns": Decimal("1e-9"),
+                               "min": Decimal(60)}
+"""Seconds per unit, exact: ``20us`` is the same float as ``0.00002``."""
 
 
 class ConfigError(ValueError):
     """An option is out of range; the message names it and the allowed range."""
 
 
-def parse_duration(text: str | float, *, field_name: str = "duration") -> float:
-    """``500us``, ``1ms``, ``30s``, ``2min`` or a bare number of seconds -> seconds."""
+def parse_duration(text: str | float, *, field_name: str = "duration",
+                   zero: bool = False) -> float:
+    """``500us``, ``1ms``, ``30s``, ``2min`` or a bare number of seconds -> seconds, the
+    nearest float to the value written (``2ms`` is ``0.002``); positive, or 0 too with
+    ``zero``."""
     if isinstance(text, int | float):
         value = float(text)
     else:
@@ -61,9 +68,9 @@ def parse_duration(text: str | float, *, field_name: str = "duration") -> float:
                 f"{field_name} = {text!r}: expected a number with a unit (s, ms, us, ns, min) "
                 "or a bare number of seconds"
             )
-        value = float(m.group(1)) * _UNITS.get(m.group(2) or "s", 1.0)
-    if not value > 0.0:
-        raise ConfigError(f"{field_name} = {text!r} must be positive")
+        value = float(Decimal(m.group(1)) * _UNITS[m.group(2) or "s"])
+    if not (value > 0.0 or (zero and value == 0.0)):
+        raise ConfigError(f"{field_name} = {text!r} must be {'0 or more' if zero else 'positive'}")
     return value
 
 
@@ -173,11 +180,7 @@ class RunConfig:
             if not has_type(value, _FLAT_TYPES[flat]):  # as the range says, where one does
                 raise self._bad(flat, allowed_text(a) if a.choices or a.bounds or a.allowed
                                 else type_name(_FLAT_TYPES[flat]))
-            if value is None or (a.choices is None and a.bounds is None):
-                continue
-            if a.choices is not None and value not in a.choices:
-                raise self._bad(flat, allowed_text(a))
-            if a.bounds is not None and not a.bounds[0] <= value <= a.bounds[1]:
+            if out_of_range(a, value):
                 raise self._bad(flat, allowed_text(a))
 
     def _check_outputs(self) -> None:

@@ -15,24 +15,27 @@ from typing import Any
 
 from . import BY_FIELD, ConfigError
 from .sections import SECTIONS
-from .value_types import has_type, type_name
+from .spellings import USER, not_a_setting, read_setting, user_view
 
 PROFILES: dict[str, dict[str, Any]] = {
     "main-job": {"peripherals": 3, "pipeline": 2},
-    "thesis": {"model_state": "sample", "placement_auto": False, "observer": "previous"},
+    "thesis": {"model_state": "sample", "placement": "axes", "observer": "previous"},
 }
-"""Settings of each profile by flat name, over the defaults. ``main-job``: README's main
-job, ``ctrlunit start --peripherals 3 --pipeline 2`` (realtime at the period the
-admission holds, the model foreseen, placement auto). ``thesis``: the thesis's graph (the
-model at the sample, the axes placement, the observer from the previous estimate with two
-Newton-Raphson iterations), as the 1994 comparison runs it. Without ``--profile`` a run
-has the defaults alone."""
+"""Settings of each profile by flat name, as a user gives them, over the defaults.
+``main-job``: README's main job, ``ctrlunit start --peripherals 3 --pipeline 2``
+(realtime at the period the admission holds, the model foreseen, placement auto).
+``thesis``: the thesis's graph (the model at the sample, the axes placement, the observer
+from the previous estimate with two Newton-Raphson iterations), as the 1994 comparison
+runs it. Without ``--profile`` a run has the defaults alone."""
 
 
 def _flat(section: str, key: str, where: str) -> str:
     flat = BY_FIELD.get((section, key))
+    if flat is not None and (bad := not_a_setting(flat, where)) is not None:
+        raise bad
     if flat is None:
-        keys = sorted(name for sec, name in BY_FIELD if sec == section)
+        keys = sorted(name for sec, name in BY_FIELD
+                      if sec == section and BY_FIELD[(sec, name)] in USER)
         if section not in SECTIONS:
             raise ConfigError(f"{where}: no section [{section}] (allowed: "
                               f"{', '.join(SECTIONS)})")
@@ -40,17 +43,9 @@ def _flat(section: str, key: str, where: str) -> str:
     return flat
 
 
-def _checked(flat: str, value: Any, where: str) -> Any:
-    from . import _FLAT_TYPES
-
-    tp = _FLAT_TYPES[flat]
-    if not has_type(value, tp):
-        raise ConfigError(f"{where}: {value!r}: allowed {type_name(tp)}")
-    return value
-
-
 def read_run_file(path: str) -> dict[str, Any]:
-    """The settings of a run file by flat name, each checked for its type.
+    """The settings of a run file by flat name, each read as its flag reads it and
+    checked (runtime/config/spellings.py, ``read_setting``).
 
     Raises
     ------
@@ -71,13 +66,15 @@ def read_run_file(path: str) -> dict[str, Any]:
         for key, value in table.items():
             where = f"--config {path}: [{section}] {key}"
             flat = _flat(section, key, where)
-            out[flat] = _checked(flat, value, where)
+            out[flat] = read_setting(flat, value, where)
     return out
 
 
 def parse_set(items: list[str] | tuple[str, ...]) -> dict[str, Any]:
     """``--set SECTION.KEY=VALUE`` items by flat name. VALUE is read as TOML (``5``,
-    ``0.5``, ``true``, ``"x"``, ``["a", "b"]``); a bare word is a string (``wait``)."""
+    ``0.5``, ``true``, ``"x"``, ``["a", "b"]``); a bare word is a string (``wait``,
+    ``2ms``); then as the setting's flag reads it (``read_setting``), an error naming
+    ``--set SECTION.KEY``."""
     out: dict[str, Any] = {}
     for item in items:
         name, eq, text = item.partition("=")
@@ -91,9 +88,7 @@ def parse_set(items: list[str] | tuple[str, ...]) -> dict[str, Any]:
             value = tomllib.loads(f"v = {text.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             value = text.strip()
-        if isinstance(value, dict):
-            value = {str(k): str(v) for k, v in value.items()}
-        out[flat] = _checked(flat, value, where)
+        out[flat] = read_setting(flat, value, where)
     return out
 
 
@@ -105,9 +100,12 @@ def profile(name: str) -> dict[str, Any]:
 
 def to_toml(settings: dict[str, Any]) -> str:
     """Settings by flat name as a run file: every section, every key with its help above
-    it (runtime/config/settings_doc.py); unset ones as comments, since TOML has no null."""
+    it (runtime/config/settings_doc.py); unset ones as comments, since TOML has no null.
+    The fields of a configuration (``RunConfig.to_dict``) are written as the user's
+    settings (``period = "auto"``), the run's state left out (``user_view``)."""
     from .settings_doc import help_lines, settings_of
 
+    settings = user_view(settings)
     lines: list[str] = []
     for section in SECTIONS:
         lines.append(f"[{section}]")

@@ -103,7 +103,7 @@ class ScheduleConfig:
         "from 1 ms up that the admission trial shows this machine holds (1 ms in the other "
         "clocks).")
     period_auto: bool = setting(
-        False, help="`--period auto`: realtime runs at the shortest period of the "
+        False, internal=True, help="`--period auto`: realtime runs at the shortest period of the "
         "admission ladder that holds (runtime/launch/admission.py); `period` is where the "
         "ladder starts.")
     command_delay: str = setting(
@@ -114,15 +114,18 @@ class ScheduleConfig:
     placement: str | None = setting(
         None, flag=Flag(kind="placement", default="auto", metavar="auto|axes|FILE",
                         everyday=True),
+        allowed="auto, axes or a placement file (ctrlunit balance)",
         help="Which process runs which block: axes (each peripheral all of its axes' "
         "blocks, § IV.7), auto (at warm-up, a round cheaper than its round trip moves to "
         "the central) or a FILE from ctrlunit balance.")
     placement_auto: bool = setting(
-        False, help="`--placement auto`: the warm-up chooses which rounds the central "
+        False, internal=True,
+        help="`--placement auto`: the warm-up chooses which rounds the central "
         "runs itself (topology/balance.py, `auto_central_blocks`); the central then tells "
         "the peripherals (a `place` order) and runs with them in `central_blocks`.")
     central_blocks: list[str] | None = setting(
-        None, help="Per-axis blocks the central runs for every axis, with the default "
+        None, internal=True,
+        help="Per-axis blocks the central runs for every axis, with the default "
         "spread of the axes (the placement's `central_blocks`); None: none, or not chosen "
         "yet (auto).")
     replies: str = setting(
@@ -167,7 +170,8 @@ class ScheduleConfig:
         help="Realtime: a trial at the period before the first command; a period that does "
         "not hold is refused (exit 7) before any motion.")
     trial_only: bool = setting(
-        False, help="Run the admission trial and stop before the first command (`ctrlunit "
+        False, internal=True,
+        help="Run the admission trial and stop before the first command (`ctrlunit "
         "latency --unit`).")
     rt_priority: int | str = setting(
         "auto", flag=Flag(kind="priority", metavar="auto|0-99"),
@@ -239,8 +243,9 @@ class TransportConfig:
         allowed="0.01 to 600 s",
         help="Reply timeout in lockstep and freerun (realtime: --fault-periods).")
     startup_timeout: float = setting(
-        30.0, bounds=(0.1, 3600.0), allowed="0.1 to 3600 s",
-        help="How long, in seconds, the roles may take to say hello or confirm an order.")
+        30.0, bounds=(0.1, 3600.0), allowed="0.1 to 3600 s", duration=True,
+        help="How long (30s, 2min, or seconds) the roles may take to say hello or confirm "
+        "an order.")
     max_message_size: int = setting(
         lim.MAX_MESSAGE_SIZE, bounds=(lim.MAX_MESSAGE_SIZE_MIN, 2**30),
         allowed=f"{lim.MAX_MESSAGE_SIZE_MIN} to 1073741824 bytes",
@@ -257,9 +262,9 @@ class TransportConfig:
         help="Most Zenoh handshakes under way at once on this process's listeners "
         "(transport/unicast/accept_pending).")
     accept_timeout: float = setting(
-        lim.ACCEPT_TIMEOUT_S, bounds=(0.1, 60.0), allowed="0.1 to 60 s",
-        help="Seconds a peer may take to complete its Zenoh handshake before it is dropped "
-        "(transport/unicast/accept_timeout).")
+        lim.ACCEPT_TIMEOUT_S, bounds=(0.1, 60.0), allowed="0.1 to 60 s", duration=True,
+        help="How long (5s, 500ms, or seconds) a peer may take to complete its Zenoh "
+        "handshake before it is dropped (transport/unicast/accept_timeout).")
     reject_limit: int = setting(
         lim.REJECT_LIMIT, bounds=(1, 10**6), allowed="1 to 1000000 messages a second",
         help="The central: a peripheral or the plant that sends more than this many "
@@ -286,14 +291,16 @@ class RunOptions:
         "zstd", flag=Flag(), choices=COMPRESSIONS,
         help="MCAP chunk compression of --record, done on a writer thread off the control "
         "path (zstd: about 3x smaller).")
-    trace: bool = setting(False, help="Keep every role's spans of every interval for the "
-                          "report's Gantt chart.")
+    trace: bool = setting(False, internal=True,
+                          help="Keep every role's spans of every interval for the report's "
+                          "Gantt chart (the launcher: with --record).")
     report: str | None = setting(None, flag=Flag(kind="file", everyday=True),
                                  help="Write the report as JSON.")
-    progress: bool = setting(False, help="Show the live line on the terminal (start's "
-                             "--progress; default: when stdout is a terminal).")
+    progress: bool = setting(False, internal=True,
+                             help="Show the live line on the terminal (start's --progress; "
+                             "default: when stdout is a terminal).")
     status_file: str | None = setting(
-        None, flag=Flag(kind="file", hidden=True),
+        None, flag=Flag(kind="file", hidden=True), internal=True,
         help="Write the completed-interval count every 10.")
     foxglove: str | None = setting(
         None, flag=Flag(metavar="[HOST:]PORT", everyday=True),

@@ -64,15 +64,32 @@ class About:
     not checked)."""
     allowed: str | None
     """How an error states what is allowed, where the choices or bounds do not say it."""
+    internal: bool = False
+    """The run's own state, not a setting: the launcher, the admission or the warm-up sets
+    it (``period_auto`` from ``period = "auto"``, ``central_blocks`` at warm-up), and it
+    travels in the run's spec, the configuration handed to a role and a recording. No run
+    file, ``--set`` or table offers it (runtime/config/spellings.py)."""
+    duration: bool = False
+    """A duration without a flag of its own, given as one (``30s``, ``500ms`` or seconds)
+    as a flag's ``duration`` is."""
+
+    @property
+    def kind(self) -> str:
+        """How a user's value of the setting is read (:data:`KINDS`): its flag's kind,
+        else ``duration`` or ``value``."""
+        if self.flag is not None:
+            return self.flag.kind
+        return "duration" if self.duration else "value"
 
 
 def setting(default: Any = MISSING, *, help: str, flag: Flag | None = None,
             choices: tuple[str, ...] | None = None, bounds: tuple[float, float] | None = None,
-            allowed: str | None = None, factory: Any = MISSING) -> Any:
+            allowed: str | None = None, factory: Any = MISSING, internal: bool = False,
+            duration: bool = False) -> Any:
     """A field of a section with its :class:`About` (``default`` or ``factory`` as
-    :func:`dataclasses.field`'s)."""
+    :func:`dataclasses.field`'s; ``internal``: the run's state, not a setting)."""
     about = About(help=" ".join(help.split()), flag=flag, choices=choices, bounds=bounds,
-                  allowed=allowed)
+                  allowed=allowed, internal=internal, duration=duration)
     if factory is not MISSING:
         return field(default_factory=factory, metadata={"about": about})
     return field(default=default, metadata={"about": about})
@@ -107,4 +124,26 @@ def allowed_text(a: About) -> str:
     return "any"
 
 
-__all__ = ["KINDS", "About", "Flag", "about", "abouts", "allowed_text", "setting"]
+def user_allowed(a: About) -> str:
+    """What a user may give, in any of the setting's spellings: :func:`allowed_text`, with
+    ``auto`` for a period and the units of a duration."""
+    text = allowed_text(a)
+    if a.kind == "period":
+        return f"auto, or {text} (500us, 2ms or seconds)"
+    if a.kind == "duration":
+        return f"{text} (500us, 2ms, 30s or seconds)"
+    return text
+
+
+def out_of_range(a: About, value: Any) -> bool:
+    """Whether a value of the setting's type is outside its declared choices or bounds
+    (None, where the type allows it, is not checked)."""
+    if value is None:
+        return False
+    if a.choices is not None and value not in a.choices:
+        return True
+    return a.bounds is not None and not a.bounds[0] <= value <= a.bounds[1]
+
+
+__all__ = ["KINDS", "About", "Flag", "about", "abouts", "allowed_text", "out_of_range",
+           "setting", "user_allowed"]

@@ -12,7 +12,7 @@ from typing import Any
 
 from . import BY_FIELD
 from .sections import SECTIONS
-from .setting import About, abouts, allowed_text
+from .setting import About, abouts, user_allowed
 from .value_types import type_name
 
 
@@ -48,22 +48,31 @@ def _flag(flat: str, a: About) -> str:
 
 
 def settings_table(defaults: dict[str, Any] | None = None) -> str:
-    """Markdown: one table per section, a row per setting (key, flag, default, allowed,
-    help). ``defaults``: the value of each setting by flat name as the command line
-    resolves it when nothing is given (``ctrlunit config``'s); else each field's."""
+    """Markdown: one table per section, a row per setting a user gives (key, flag,
+    default, allowed, help), then the run's own state the configuration carries beside
+    them. ``defaults``: the value of each setting by flat name as the command line
+    resolves it when nothing is given (``ctrlunit config``'s, as the user's settings:
+    ``period = "auto"``); else each field's."""
     out: list[str] = []
+    state: list[str] = []
     for section in SECTIONS:
         hints = typing.get_type_hints(SECTIONS[section])
         out += [f"### [{section}]", "", "| key | flag | default | allowed | what it does |",
                 "|---|---|---|---|---|"]
         for flat, key, default, a in settings_of(section):
-            allowed = allowed_text(a) if (a.choices or a.bounds or a.allowed) \
+            if a.internal:
+                state.append(f"- `{section}.{key}`: {a.help}")
+                continue
+            allowed = user_allowed(a) if (a.choices or a.bounds or a.allowed) \
                 else type_name(hints[key])
             shown = defaults.get(flat) if defaults is not None else default
             out.append(f"| `{key}` | {_flag(flat, a)} | {_default(shown)} | "
                        f"{_cell(allowed)} | {_cell(a.help)} |")
         out.append("")
-    return "\n".join(out)
+    return "\n".join(out + ["### The run's own state", "",
+                            "Fields of the configuration no user gives: the run's spec, the "
+                            "configuration handed to a role and a recording carry them; a "
+                            "run file or `--set` that names one is refused.", "", *state, ""])
 
 
 __all__ = ["help_lines", "settings_of", "settings_table"]
