@@ -251,15 +251,16 @@ REPLAY_OPTIONS = {
 @SETTINGS
 @given(data=st.data())
 def test_report_and_replay_keep_the_contract_on_recordings(work, recorded, data):
-    """Files cut, emptied or garbled; and the whole recording with replay's options
-    (``--loop`` aside: it republishes until stopped)."""
+    """Files cut, emptied or garbled (export to rosbag2 too); and the whole recording with
+    replay's options (``--loop`` aside: it republishes until stopped)."""
     good, _ = recorded
     f = work / "cut.mcap"
     intact = data.draw(st.booleans())
     f.write_bytes(good if intact else data.draw(file_contents(good=good)))
+    bag = Path(tempfile.mkdtemp(dir=work)) / "bag"  # new for each example: export writes it
     command = data.draw(st.sampled_from([("report",), ("replay", "--verify"),
                                          ("replay", "--csv", str(work / "csv")),
-                                         ("replay",)]))
+                                         ("replay",), ("export", "--rosbag2", str(bag))]))
     args: list[str] = [*command, str(f)]
     if intact and command[0] == "replay":
         for opt in data.draw(st.lists(st.sampled_from(sorted(REPLAY_OPTIONS)), max_size=3,

@@ -55,6 +55,11 @@ def test_every_subpackage_imports_from_the_wheel(wheel, tmp_path):
         "    m = importlib.import_module('ctrlunit.' + sub)\n"
         f"    assert m.__file__.startswith({str(target)!r}), m.__file__\n"
         "import ctrlunit.runtime.cli, ctrlunit.kernels.dynamics, ctrlunit.plant.simulator\n"
+        # the ROS 2 channels' definitions come from rosbags' type store, and export writes
+        # with its rosbag2 writer: both from the installed dependency
+        "from ctrlunit.runtime.recording import ros2, rosbag2\n"
+        "assert ros2.definition(ros2.JOINT_STATE).startswith('std_msgs/Header header')\n"
+        "import rosbags.rosbag2\n"
         "print('ok')\n"
     )
     # -S: no site, so the editable install's finder is not loaded; deps come from PYTHONPATH

@@ -1,4 +1,4 @@
-"""``ctrlunit replay`` and ``ctrlunit report``: what a recording holds."""
+"""``ctrlunit replay``, ``report``, ``plot`` and ``export``: what a recording holds."""
 
 from __future__ import annotations
 
@@ -138,6 +138,35 @@ def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
         with open(report_file, "w") as fh:
             json.dump(_json_safe(rep), fh, indent=2)
     click.echo(json.dumps(_json_safe(rep)) if as_json else summary(rep))
+
+
+@cli.command("export")
+@click.argument("file", type=FilePath(exists=True, dir_okay=False))
+@click.option("--rosbag2", "rosbag2_dir", type=FilePath(), required=True, metavar="DIR",
+              help="Write the ROS 2 topics as a rosbag2 directory DIR (new): metadata.yaml "
+                   "and an MCAP file, for ros2 bag and the tools that read bags.")
+@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON.")
+def export_cmd(file: str, rosbag2_dir: str, as_json: bool) -> None:
+    """Export a recording for ROS 2: /joint_states, /platform/pose, /platform/reference and
+    /ctrlunit/diagnostics as a rosbag2 directory (built from the recording's own
+    channels when it predates them)."""
+    from ..recording.rosbag2 import export_rosbag2
+
+    rec = _open_recording(file)
+    try:
+        done = export_rosbag2(rec, rosbag2_dir)
+    except ValueError as exc:
+        _fail(f"export: {exc}")
+        return
+    if as_json:
+        click.echo(json.dumps({"directory": str(done.directory), "counts": done.counts,
+                               "converted": done.converted}))
+        return
+    if done.converted:
+        click.echo(f"ctrlunit: note: {file} has no ROS 2 channels (recorded before them): "
+                   "built from its own channels", err=True)
+    counts = ", ".join(f"{t} {n}" for t, n in done.counts.items())
+    click.echo(f"wrote {done.directory}/ (rosbag2, storage mcap): {counts} messages")
 
 
 @cli.command("plot")

@@ -17,6 +17,9 @@ Channels
   ``--late-policy compute``: cycle, stage, peripheral; replay expects no reply there).
 ``json`` with ``jsonschema`` schemas (open in Foxglove): ``/signals/state`` (p, reference,
   q, torque, tracking error, period, traversal). NaN and infinities are written as null.
+``cdr`` with ``ros2msg`` schemas (ROS 2's tools; the file's profile is ``ros2``):
+  ``/joint_states``, ``/platform/pose``, ``/platform/reference``,
+  ``/ctrlunit/diagnostics`` (:mod:`.ros2`).
 
 A metadata record ``ctrlunit`` holds the configuration, placement, package version, host,
 core count and clock; ``ctrlunit.result`` (at the end) holds ``t_1``, the block costs and
@@ -52,6 +55,7 @@ from ..host import sched
 from ..observe.report import CPU_KEYS, RESULT_KEYS
 from ..observe.signals import SIGNALS_SCHEMA, capture, state_message
 from .mcap_writer import LeanWriter
+from .ros2 import PROFILE, Ros2Channels
 
 FLUSH_EVERY_NS = 20_000_000
 CHUNK_SIZE = 256 * 1024
@@ -75,7 +79,7 @@ class Recorder:
         self.w = LeanWriter(self.fh, chunk_size=CHUNK_SIZE, chunk_age=CHUNK_AGE_NS,
                             compression=setup.rc.run.record_compression, background=True,
                             before_job=sched.leave_rt)
-        self.w.start(profile="", library=f"ctrlunit {version('ctrlunit')}")
+        self.w.start(profile=PROFILE, library=f"ctrlunit {version('ctrlunit')}")
         self.channels: dict[str, int] = {}
         self.seq = 0
         self.last_flush = time.monotonic_ns()
@@ -90,6 +94,19 @@ class Recorder:
                                 for o in b.outputs]
         self.json_schema = self.w.register_schema(
             "ctrlunit.State", "jsonschema", json.dumps(SIGNALS_SCHEMA).encode())
+        self.ros2 = Ros2Channels(self._ros2_channel, self._add_ros2, setup.rc.transport.unit)
+
+    def _ros2_channel(self, topic: str, msgtype: str, definition: bytes) -> int:
+        cid = self.w.register_channel(
+            topic, "cdr", self.w.register_schema(msgtype, "ros2msg", definition))
+        self.channels[topic] = cid
+        return cid
+
+    def _add_ros2(self, cid: int, t_ns: int, data: bytes) -> None:
+        if self.closed:
+            return
+        self.seq += 1
+        self.w.add_message(cid, t_ns, data, t_ns, self.seq)
 
     def begin(self, setup: Any) -> None:
         """Write the header (metadata ``ctrlunit``) of the run about to start: its
@@ -167,6 +184,12 @@ class Recorder:
                             previous_cmd_ns=self.last_cmd_ns)
         self.last_cmd_ns = now
         self._add("/signals/state", now, orjson.dumps(sig), json_signals=True)
+        ros2 = self.ros2
+        ros2.interval(now, sig, ctx.get("qdmeas_i"))
+        meters = central.meters
+        if ros2.due(now):
+            ros2.status(now, misses=meters.plant_misses, skipped=meters.skipped,
+                        rejected=sum(central.node.rejected.values()))
         self._add("/trace/central", now, msgpack.packb(
             {"cycle": cycle, "vals": {n: ctx[n] for n in self.central_outputs
                                       if n in ctx}}, use_single_float=False))
@@ -192,6 +215,9 @@ class Recorder:
         self._add("/faults/deadline", now, msgpack.packb(
             {"cycle": central.next_cycle, "deadline_misses": central.meters.plant_misses,
              "skipped_samples": central.meters.skipped}))
+        self.ros2.status(now, misses=central.meters.plant_misses,
+                         skipped=central.meters.skipped,
+                         rejected=sum(central.node.rejected.values()))
         self.t_end_ns = central.meters.t_end_ns
         self.t_start_ns = central.meters.t_start_ns
         self.busy = {"central_wait_ns": central.meters.wait_ns,
