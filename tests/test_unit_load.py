@@ -21,24 +21,27 @@ def scripted(readings: list[dict[int, tuple[int, int]]], cpus: int = 2) -> UnitL
                     clock=lambda: next(clock))
 
 
-def test_each_threads_time_goes_to_the_cpu_it_last_ran_on():
-    load = scripted([{10: (0, 5_000_000_000), 11: (1, 0)},   # the first reading: a baseline
-                     {10: (0, 5_600_000_000), 11: (1, 200_000_000)},
-                     {10: (1, 5_900_000_000), 11: (1, 400_000_000),
-                      12: (0, 100_000_000)}])  # 12 started after the last reading
+ZERO, ONE, BOTH = frozenset({0}), frozenset({1}), frozenset({0, 1})
+
+
+def test_a_pinned_threads_time_goes_to_its_cpu_and_any_others_is_spread():
+    load = scripted([{10: (ZERO, 5_000_000_000), 11: (BOTH, 0)},  # the first: a baseline
+                     {10: (ZERO, 5_600_000_000), 11: (BOTH, 200_000_000)},
+                     {10: (ZERO, 5_900_000_000), 11: (BOTH, 400_000_000),
+                      12: (ONE, 100_000_000)}])  # 12 started after the last reading
     first = load.sample()
     assert first == [(0.0, 0.0), (0.0, 0.0)]
     second = load.sample()
-    assert second == [(pytest.approx(0.6), 1.0), (pytest.approx(0.2), 1.0)]
+    assert second == [(pytest.approx(0.7), 1.0), (pytest.approx(0.1), 1.0)]
     third = load.sample()
-    assert third == [(pytest.approx(0.7), 2.0), (pytest.approx(0.7), 2.0)]
+    assert third == [(pytest.approx(1.1), 2.0), (pytest.approx(0.3), 2.0)]
     assert load.cpu_times() is third
     # the busiest CPU's share of the unit's time between two readings
-    assert sched.busy_share(second, third) == pytest.approx(0.5)
+    assert sched.busy_share(second, third) == pytest.approx(0.4)
 
 
-def test_a_thread_on_a_cpu_out_of_range_or_gone_is_not_charged():
-    load = scripted([{10: (0, 0)}, {10: (7, 10**9)}, {}])
+def test_a_thread_on_cpus_out_of_range_or_gone_is_not_charged():
+    load = scripted([{10: (frozenset({7}), 0)}, {10: (frozenset({7}), 10**9)}, {}])
     load.sample()
     assert load.sample() == [(0.0, 1.0), (0.0, 1.0)]
     assert load.sample() == [(0.0, 2.0), (0.0, 2.0)]
@@ -64,8 +67,11 @@ def test_other_programs_time_is_not_the_units():
 
 
 def test_the_unit_spinning_is_the_units():
+    """A role pinned to one CPU and spinning: that CPU is the unit's, all of it."""
+    cpu = min(os.sched_getaffinity(0))
     spin = subprocess.Popen([sys.executable, "-c", "import time\nt=time.time()\n"
-                             "while time.time() - t < 3: pass"])
+                             "while time.time() - t < 3: pass"],
+                            preexec_fn=lambda: os.sched_setaffinity(0, {cpu}))
     try:
         with UnitLoad(lambda: [spin.pid], every_s=0.05) as load:
             unit0 = load.cpu_times()

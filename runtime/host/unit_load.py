@@ -6,10 +6,14 @@ at the default policy on the same CPU runs only when the unit does not want the 
 machine kept busy by a browser or a compiler throttles nothing. :class:`UnitLoad` measures
 the unit's threads' time on each CPU from the kernel's scheduler accounting
 (``/proc/<pid>/task/<tid>/schedstat``, in ns, exact, unlike the tick-sampled user and
-system times: docs/architecture.md, scheduling policy), each thread's time since the last
-reading charged to the CPU it last ran on (``/proc/<pid>/task/<tid>/stat``, field 39).
-A role pinned to one CPU is charged exactly; a thread that moved within a reading is
-charged to its last CPU.
+system times: docs/architecture.md, scheduling policy). A process pinned to one CPU has
+its threads' time charged to that CPU, exactly; any other thread's time is spread evenly
+over the CPUs its process may use. Charging it to the CPU the thread last ran on
+(``/proc/<pid>/task/<tid>/stat``, field 39) put the time of threads that moved within a
+reading on one CPU: under a burst of another real-time task the unit's threads moved
+away from its CPU, their time landed on the other, which read 100 % busy, and the guard
+took the unit out of FIFO for a load it did not have (docs/measurements/
+2026-11-27-busy-machine.md).
 
 One reading of the unit's 50-60 threads takes 2-10 ms, too long for the control path:
 a thread of its own reads every :data:`SAMPLE_S` under the default policy, and the guard
@@ -33,23 +37,21 @@ SAMPLE_S = 0.25
 that each of the guard's windows sees a newer reading."""
 
 
-def thread_cpus(pids: Iterable[int]) -> dict[int, tuple[int, int]]:
-    """``{tid: (cpu, run_ns)}`` for every thread of the processes ``pids``: the CPU it last
-    ran on and its run time since it started. Threads or processes gone meanwhile are left
-    out."""
-    out: dict[int, tuple[int, int]] = {}
+def thread_cpus(pids: Iterable[int]) -> dict[int, tuple[frozenset[int], int]]:
+    """``{tid: (cpus, run_ns)}`` for every thread of the processes ``pids``: the CPUs its
+    process may run on and its run time since it started. Threads or processes gone
+    meanwhile are left out."""
+    out: dict[int, tuple[frozenset[int], int]] = {}
     for pid in pids:
         try:
             tids = os.listdir(f"/proc/{pid}/task")
+            cpus = frozenset(os.sched_getaffinity(pid))
         except OSError:
             continue
         for tid in tids:
             with contextlib.suppress(OSError, ValueError, IndexError):
-                with open(f"/proc/{pid}/task/{tid}/stat", "rb") as fh:
-                    fields = fh.read().rsplit(b")", 1)[1].split()
                 with open(f"/proc/{pid}/task/{tid}/schedstat", "rb") as fh:
-                    run = int(fh.read().split()[0])
-                out[int(tid)] = (int(fields[36]), run)  # field 39: the last CPU
+                    out[int(tid)] = (cpus, int(fh.read().split()[0]))
     return out
 
 
@@ -72,7 +74,8 @@ class UnitLoad:
 
     def __init__(self, pids: Callable[[], Iterable[int]], *, every_s: float = SAMPLE_S,
                  cpus: int | None = None,
-                 read: Callable[[Iterable[int]], dict[int, tuple[int, int]]] = thread_cpus,
+                 read: Callable[[Iterable[int]], dict[int, tuple[frozenset[int], int]]]
+                 = thread_cpus,
                  clock: Callable[[], float] = time.monotonic) -> None:
         if not every_s > 0:
             raise ValueError(f"every_s = {every_s!r}: allowed more than 0 s")
@@ -86,17 +89,18 @@ class UnitLoad:
 
     def sample(self) -> list[tuple[float, float]]:
         """Read the unit's threads now, charge each one's run time since the last reading
-        to its CPU, and return the new :meth:`cpu_times`."""
+        to its CPUs (module notes), and return the new :meth:`cpu_times`."""
         with self._lock:
             threads = self.read(list(self.pids()))
             at = self.clock()
             if self._runs is not None:
-                for tid, (cpu, run) in threads.items():
+                for tid, (cpus, run) in threads.items():
                     # a thread first seen now started after the last reading
                     ran = run - self._runs.get(tid, 0)
-                    if ran > 0 and 0 <= cpu < len(self._busy):
-                        self._busy[cpu] += ran / 1e9
-            self._runs = {tid: run for tid, (_cpu, run) in threads.items()}
+                    mine = [c for c in cpus if 0 <= c < len(self._busy)]
+                    for cpu in mine if ran > 0 else ():
+                        self._busy[cpu] += ran / 1e9 / len(mine)
+            self._runs = {tid: run for tid, (_cpus, run) in threads.items()}
             self._newest = [(b, at) for b in self._busy]
             return self._newest
 
