@@ -66,8 +66,10 @@ def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             if not (code == EXIT_UNSUSTAINABLE and rc.schedule.period_auto and held
                     and held > rc.schedule.period and not rc.schedule.trial_only):
                 break
-            echo(f"ctrlunit: --period auto: {rc.schedule.period * 1e3:g} ms was not held in the "
-                 f"trial, {held * 1e3:g} ms was; starting again at {held * 1e3:g} ms")
+            asked = f"{rc.schedule.period * 1e3:g} ms" + (
+                ", held in the last start's trial," if attempt else "")
+            echo(f"ctrlunit: --period auto: {asked} was not held in this start's trial, "
+                 f"{held * 1e3:g} ms was; starting again at {held * 1e3:g} ms")
             rc = rc.replace(period=held)
         if adm:
             report["admission"]["rungs"] = tried
