@@ -72,6 +72,10 @@ def test_plotted_tracking_error_is_the_reports_max(lockstep, tmp_path):
     e = plots.series["tracking_error_m"]
     assert np.isfinite(e).all() and e.size == rep["cycles"]
     assert abs(float(e.max()) - rep["tracking_error_m"]["max"]) <= 1e-9
+    # the figure draws the error at every recorded sample, as the summary counts it: a run
+    # stopped by its tracking fault has samples after its last completed interval
+    drawn = plots.series["sample_error_m"]
+    assert drawn.size >= rep["cycles"] and float(drawn.max()) == rep["tracking_error_m"]["max"]
     tau = plots.series["torque_nm"]
     assert abs(float(np.abs(tau).max()) - rep["torque_nm"]["max"]) <= 1e-9
 

@@ -64,6 +64,29 @@ def signals(rec: Recording, *, cycles: tuple[int, int] | None = None
     }
 
 
+def sample_tracking(rec: Recording, *, period: float, task: Any, end: int,
+                    cycles: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
+    """The tracking error at every recorded sample of the run (``k < end``), as the
+    summary and the report from a recording count it (runtime/observe/report.py,
+    ``tracking_errors``): ``sample_cycle``, ``sample_t_s`` and ``sample_error_m``. The
+    per-interval error of ``/signals/state`` stops at the last interval that completed;
+    a run stopped by its tracking fault has samples after it, and its largest error among
+    them. Empty where the samples hold no position (freerun)."""
+    ks: list[int] = []
+    errs: list[float] = []
+    for _, m in rec.decoded("/central/sample"):
+        k, p = m.get("cycle"), m.get("p")
+        if not isinstance(k, int) or p is None or not 0 <= k < end:
+            continue
+        if cycles is None or cycles[0] <= k < cycles[1]:
+            ks.append(k)
+            errs.append(math.dist(p, task.position(k * period)))
+    order = np.argsort(np.asarray(ks, dtype=np.int64), kind="stable")
+    cyc = np.asarray(ks, dtype=np.int64)[order]
+    return {"sample_cycle": cyc, "sample_t_s": cyc * period,
+            "sample_error_m": np.asarray(errs, dtype=float)[order]}
+
+
 def commands(rec: Recording, samples: dict[int, dict[str, Any]] | None = None
              ) -> dict[str, list]:
     """Every recorded command whose sample is recorded, in file order: ``cycle``,

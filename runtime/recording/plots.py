@@ -31,7 +31,6 @@ passes its figure's edge (:func:`title_clashes`, checked as each figure is saved
 
 from __future__ import annotations
 
-import html
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,7 +42,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from ..config import RunConfig
-from .plot_data import events, gantt_spans, halved_spans, signals, timing
+from .plot_data import events, gantt_spans, halved_spans, sample_tracking, signals, timing
+from .plot_index import write_index
 from .reader import Recording
 
 COLORS = {"central": "#1f77b4", "peripheral_1": "#ff7f0e", "peripheral_2": "#2ca02c",
@@ -142,16 +142,18 @@ def _tracking(path: Path, s: dict[str, np.ndarray], max_error: float,
               plots: Plots) -> None:
     notes = plots.notes
     fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
-    e = s["tracking_error_m"]
+    by_sample = s.get("sample_error_m") is not None and s["sample_error_m"].size > 0
+    e, t, cyc = ((s["sample_error_m"], s["sample_t_s"], s["sample_cycle"]) if by_sample
+                 else (s["tracking_error_m"], s["t_s"], s["cycle"]))
     ok = np.isfinite(e)
     if not ok.any():
         notes.append("tracking error: none recorded (freerun has no plant)")
         _empty(ax, "no tracking error: a freerun run has no plant")
     else:
-        ax.plot(s["t_s"][ok], e[ok] * 1e3, color="#1f77b4", lw=1.0, label="|p - p_c|")
+        ax.plot(t[ok], e[ok] * 1e3, color="#1f77b4", lw=1.0, label="|p - p_c|")
         k = int(np.nanargmax(e))
-        ax.plot(s["t_s"][k], e[k] * 1e3, "o", color="#d62728", ms=4,
-                label=f"max {e[k] * 1e3:.3f} mm at cycle {int(s['cycle'][k])}")
+        ax.plot(t[k], e[k] * 1e3, "o", color="#d62728", ms=4,
+                label=f"max {e[k] * 1e3:.3f} mm at cycle {int(cyc[k])}")
         if max_error <= 4 * e[k]:  # the fault threshold in view
             ax.axhline(max_error * 1e3, color="#d62728", ls="--", lw=1.0,
                        label=f"--max-error {max_error * 1e3:g} mm (fault)")
@@ -306,27 +308,6 @@ def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int
     _save(fig, path, plots)
 
 
-def _index(path: Path, rec: Recording, images: dict[str, Path], summary: str,
-           notes: list[str]) -> None:
-    title = f"ctrlunit run: {Path(rec.path).name}"
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
-             "</title><style>body{font-family:sans-serif;margin:1.5em;max-width:1100px}"
-             "img{max-width:100%;border:1px solid #ddd;margin:0.4em 0 1.2em}"
-             "pre{background:#f6f6f6;padding:0.8em;overflow-x:auto;font-size:12px}"
-             "</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
-    if rec.salvaged:
-        parts.append(f"<p><b>Salvaged:</b> {html.escape(rec.note)}</p>")
-    parts.append(f"<pre>{html.escape(summary)}</pre>")
-    for n in notes:
-        parts.append(f"<p><i>{html.escape(n)}</i></p>")
-    for name in FIGURES:
-        if name in images:
-            parts.append(f"<h2>{name.replace('_', ' ')}</h2><img src='{images[name].name}' "
-                         f"alt='{name}'>")
-    parts.append("</body></html>")
-    path.write_text("\n".join(parts), encoding="utf-8")
-
-
 def plot_recording(rec: Recording, out: str | Path, *,
                    cycles: tuple[int, int] | None = None,
                    summary: str | None = None) -> Plots:
@@ -350,10 +331,13 @@ def plot_recording(rec: Recording, out: str | Path, *,
         raise ValueError(f"{rec.path}: no ctrlunit configuration in the recording")
     rc = RunConfig.from_recording(cfg)
     from ...kernels.params import DELTA_IA, load_params
+    from ..compute.setup import make_setup
 
     path = rc.control.params
     params = load_params(path) if path and Path(path).exists() else DELTA_IA
-    s = signals(rec, cycles=cycles)
+    setup = make_setup(rc)  # the task as the run's engine follows it
+    s = signals(rec, cycles=cycles) | sample_tracking(
+        rec, period=rc.schedule.period, task=setup.task, cycles=cycles, end=setup.cycles)
     s["halved_spans_s"] = halved_spans(rec, rc.schedule.period,
                                        int(s["cycle"][-1]) + 1 if s["cycle"].size else 0)
     ev, fault = events(rec, cycles)
@@ -396,5 +380,5 @@ def plot_recording(rec: Recording, out: str | Path, *,
         except Exception as exc:  # a damaged recording still gets its pictures
             summary = f"(no summary: {type(exc).__name__}: {exc})"
     plots.index = out / "index.html"
-    _index(plots.index, rec, images, summary, plots.notes)
+    write_index(plots.index, rec, images, summary, plots.notes, FIGURES)
     return plots
