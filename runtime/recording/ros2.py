@@ -212,6 +212,10 @@ class Ros2Channels:
         self.unit = unit
         self.ids = {topic: register(topic, msgtype, definition(msgtype).encode())
                     for topic, msgtype in TOPICS.items()}
+        # the type store builds its serializer at the first message (150 ms here): now,
+        # before the run, not in its first interval on the central's thread
+        diagnostics(0, unit=unit, period_s=None, traversal_s=None, misses=0, skipped=0,
+                    rejected=0)
         self.last_diagnostics: int | None = None
         self.period_s: float | None = None
         self.traversal_s: float | None = None
