@@ -50,7 +50,7 @@ def one(kind: str, keys: Path, work: Path) -> dict:
          "--duration", "12s", "--keys", str(keys), "--report", str(report),
          "--status-file", str(status)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    attacker = None
+    attacker, said = None, ""
     try:
         deadline = time.monotonic() + 90
         while not status.exists() and time.monotonic() < deadline and proc.poll() is None:
@@ -66,7 +66,10 @@ def one(kind: str, keys: Path, work: Path) -> dict:
         for p in (attacker, proc):
             if p is not None and p.poll() is None:
                 p.kill()
-                p.communicate()
+        if attacker is not None:
+            said = attacker.communicate()[0][-300:]
+        if proc.poll() is None:
+            proc.communicate()
         kill_unit(unit)
     rep = json.loads(report.read_text()) if report.exists() else {}
     fault = rep.get("fault") or {}
@@ -76,7 +79,7 @@ def one(kind: str, keys: Path, work: Path) -> dict:
             "misses": rep.get("deadline_misses"), "periods": rep.get("periods"),
             "tracking_max_mm": (rep.get("tracking_error_m") or {}).get("max", 0) * 1e3,
             "scheduling": sorted(set((rep.get("scheduling") or {}).values())),
-            "attacker": attacker.communicate()[0][-300:] if attacker else None}
+            "attacker": said or None}
 
 
 def main(kind: str, runs: int) -> None:
