@@ -47,6 +47,17 @@ def test_a_thread_on_cpus_out_of_range_or_gone_is_not_charged():
     assert load.sample() == [(0.0, 2.0), (0.0, 2.0)]
 
 
+def newer(load: UnitLoad, than: list | None = None) -> list:
+    """The reading process's next reading after ``than`` (bounded: 5 s)."""
+    end = time.monotonic() + 5
+    while time.monotonic() < end:
+        got = load.cpu_times()
+        if got and (than is None or got[0][1] > than[0][1]):
+            return got
+        time.sleep(0.02)
+    raise AssertionError("no reading from the reading process")
+
+
 def test_other_programs_time_is_not_the_units():
     """A process spinning beside this one keeps a CPU busy: the machine's busy share sees
     it; the unit's own (this process, asleep) does not."""
@@ -55,10 +66,11 @@ def test_other_programs_time_is_not_the_units():
     try:
         time.sleep(0.3)
         with UnitLoad(lambda: [os.getpid()], every_s=0.05) as load:
-            machine0, unit0 = sched.cpu_times(), load.cpu_times()
+            newer(load)
+            machine0, unit0 = sched.cpu_times(), newer(load)
             time.sleep(1.0)
             machine, unit = sched.busy_share(machine0, sched.cpu_times()), \
-                sched.busy_share(unit0, load.cpu_times())
+                sched.busy_share(unit0, newer(load, unit0))
         assert machine is not None and machine > 0.8
         assert unit is not None and unit < 0.2
     finally:
@@ -74,9 +86,9 @@ def test_the_unit_spinning_is_the_units():
                             preexec_fn=lambda: os.sched_setaffinity(0, {cpu}))
     try:
         with UnitLoad(lambda: [spin.pid], every_s=0.05) as load:
-            unit0 = load.cpu_times()
+            unit0 = newer(load, newer(load))  # the spinner's threads adopted, then a reading
             time.sleep(1.0)
-            unit = sched.busy_share(unit0, load.cpu_times())
+            unit = sched.busy_share(unit0, newer(load, unit0))
         assert unit is not None and unit > 0.6  # one CPU, less what the host took
         assert thread_cpus([spin.pid])  # its one thread is read
     finally:
@@ -107,3 +119,21 @@ def test_the_guard_reading_the_units_time_leaves_fifo_alone_on_a_busy_machine():
 def test_every_s_must_be_positive():
     with pytest.raises(ValueError, match="every_s = 0: allowed more than 0 s"):
         UnitLoad(lambda: [], every_s=0)
+
+
+def test_the_reading_process_adopts_a_process_without_its_past_and_ends_with_the_unit():
+    """A process the reader learns of late is taken as it is then: its run time before
+    is not charged to one reading (a guard would read it as a CPU over its budget)."""
+    busy = subprocess.Popen([sys.executable, "-c", "import time\nt=time.time()\n"
+                             "while time.time() - t < 0.8: pass\ntime.sleep(5)"])
+    try:
+        time.sleep(1.0)  # 0.8 s of CPU before the reader knows it
+        with UnitLoad(lambda: [busy.pid], every_s=0.05) as load:
+            first = newer(load)
+            second = newer(load, newer(load, first))
+            assert sum(b for b, _ in second) < 0.1, second  # asleep since it was adopted
+            child = load._child
+        assert child is not None and child.poll() is not None  # ended with the unit
+    finally:
+        busy.kill()
+        busy.wait(timeout=5)

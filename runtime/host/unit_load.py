@@ -15,17 +15,23 @@ away from its CPU, their time landed on the other, which read 100 % busy, and th
 took the unit out of FIFO for a load it did not have (docs/measurements/
 2026-11-27-busy-machine.md).
 
-One reading of the unit's 50-60 threads takes 2-10 ms, too long for the control path:
-a thread of its own reads every :data:`SAMPLE_S` under the default policy, and the guard
-(:class:`.busy_guard.BusyGuard`) reads the newest figures, shaped as
-:func:`.sched.cpu_times` gives the machine's, so that :func:`.sched.busy_share` of two of
-them is the busiest CPU's share of the unit's own time between them.
+One reading of the unit's 50-60 threads takes 2-10 ms, too long for the control path,
+and a thread of the central's process doing it at the default policy held the GIL while
+the unit's real-time threads kept it from a CPU (the central then waited for the GIL): a
+process of its own reads every :data:`SAMPLE_S` under the default policy and writes each
+reading on a pipe, and the guard (:class:`.busy_guard.BusyGuard`) reads the newest one
+(one non-blocking read), shaped as :func:`.sched.cpu_times` gives the machine's, so that
+:func:`.sched.busy_share` of two of them is the busiest CPU's share of the unit's own
+time between them. A reader starved of a CPU only makes the readings older.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import select
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -84,8 +90,7 @@ class UnitLoad:
         self._runs: dict[int, int] | None = None  # each thread's run time at the last reading
         self._newest: list[tuple[float, float]] = []
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._child: subprocess.Popen[bytes] | None = None
 
     def sample(self) -> list[tuple[float, float]]:
         """Read the unit's threads now, charge each one's run time since the last reading
@@ -104,30 +109,99 @@ class UnitLoad:
             self._newest = [(b, at) for b in self._busy]
             return self._newest
 
-    def cpu_times(self) -> list[tuple[float, float]]:
-        """The newest reading (``[]`` before the first): cheap, for the control path."""
-        return self._newest
-
-    def _loop(self) -> None:
-        leave_rt()  # the reading can wait; the unit's roles cannot
-        while not self._stop.wait(self.every_s):
-            self.sample()
-
     def __enter__(self) -> UnitLoad:
+        """Start the reading process (this process's own readings stay :meth:`sample`'s)."""
         self.sample()
-        self._thread = threading.Thread(target=self._loop, name="unit-load", daemon=True)
-        self._thread.start()
+        self._child = subprocess.Popen(
+            [sys.executable, "-c", "from ctrlunit.runtime.host.unit_load import serve; "
+             f"serve({self.every_s!r}, {len(self._busy)})"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        assert self._child.stdout is not None
+        os.set_blocking(self._child.stdout.fileno(), False)
+        self._sent: tuple[int, ...] = ()
+        self._tail = b""
+        self._from_child: list[tuple[float, float]] = []
         return self
+
+    def adopt(self, pids: Iterable[int]) -> None:
+        """Take the threads of ``pids`` as they are now, without charging their time so
+        far (processes the reader learns of after they started)."""
+        threads = self.read(list(pids))
+        with self._lock:
+            if self._runs is not None:
+                self._runs.update({tid: run for tid, (_c, run) in threads.items()})
+
+    def cpu_times(self) -> list[tuple[float, float]]:
+        """The newest reading (``[]`` before the first): cheap, for the control path. With
+        the reading process running, the newest line it wrote (and the unit's processes
+        sent to it when they changed)."""
+        child = self._child
+        if child is None or child.stdout is None:
+            return self._newest
+        pids = tuple(self.pids())
+        if pids != self._sent and child.stdin is not None:
+            with contextlib.suppress(OSError):
+                child.stdin.write((" ".join(map(str, pids)) + "\n").encode())
+                child.stdin.flush()
+                self._sent = pids
+        with contextlib.suppress(OSError, BlockingIOError, TypeError):
+            got = os.read(child.stdout.fileno(), 65536)
+            lines = (self._tail + got).split(b"\n")
+            self._tail = lines[-1]
+            for line in reversed(lines[:-1]):
+                values = [float(v) for v in line.split()]
+                if len(values) == len(self._busy) + 1:
+                    self._from_child = [(b, values[0]) for b in values[1:]]
+                    break
+        return self._from_child
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
     def close(self) -> None:
-        """Stop the reading thread (waits at most one reading)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        """End the reading process."""
+        child = self._child
+        if child is None:
+            return
+        self._child = None
+        with contextlib.suppress(OSError):
+            if child.stdin is not None:
+                child.stdin.close()
+        try:
+            child.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait(timeout=5.0)
+        if child.stdout is not None:
+            child.stdout.close()
 
 
-__all__ = ["SAMPLE_S", "UnitLoad", "thread_cpus"]
+def serve(every_s: float, cpus: int, *, most_s: float = 7 * 24 * 3600.0) -> None:
+    """The reading process: the unit's processes from stdin (a line of pids whenever
+    they change), a reading every ``every_s`` on stdout (``at busy_0 busy_1 ...``, s),
+    until stdin closes (the unit ended) or ``most_s``, under the default policy."""
+    leave_rt()
+    pids: list[int] = []
+    load = UnitLoad(lambda: pids, every_s=every_s, cpus=cpus)
+    stdin = sys.stdin.buffer
+    tail = b""
+    end = time.monotonic() + most_s
+    while time.monotonic() < end:
+        ready, _, _ = select.select([stdin], [], [], every_s)
+        if ready:
+            got = os.read(stdin.fileno(), 65536)
+            if not got:
+                return  # the unit closed its end
+            lines = (tail + got).split(b"\n")
+            tail = lines[-1]
+            if len(lines) > 1:
+                now = [int(v) for v in lines[-2].split()]
+                load.adopt([p for p in now if p not in pids])
+                pids = now
+        reading = load.sample()
+        sys.stdout.write(" ".join([repr(reading[0][1])] + [repr(b) for b, _ in reading])
+                         + "\n")
+        sys.stdout.flush()
+
+
+__all__ = ["SAMPLE_S", "UnitLoad", "serve", "thread_cpus"]
