@@ -1,8 +1,11 @@
 """A reader that stops reading: it subscribes to KEY through ENDPOINT, takes one message
 and then never reads again, so that Zenoh's receive thread blocks on its full channel and
 its socket fills (``python frozen_reader.py ENDPOINT KEY SECONDS [KEYS_DIR ROLE]``).
-It prints ``subscribed`` once declared and ``got N`` when it takes its one message; it
-exits after SECONDS. Lowlatency on its side, as an attacker would choose where it can."""
+It prints ``ready`` once imported and connects when a line comes on its standard input
+(the test starts it before the run, so that importing Zenoh, a second of CPU, is not
+part of what the run meets). It prints ``subscribed`` once declared and ``got N`` when it
+takes its one message; it exits after SECONDS. Lowlatency on its side, as an attacker
+would choose where it can."""
 
 from __future__ import annotations
 
@@ -14,6 +17,8 @@ from ctrlunit.runtime.transport.zsession import make_config
 
 
 def main(endpoint: str, key: str, seconds: float, keys: str | None, role: str) -> None:
+    print("ready", flush=True)
+    sys.stdin.readline()
     conf = make_config(connect=[endpoint], keys=keys, role=role,
                        lowlatency=endpoint.startswith(("unixsock", "tls")) or None)
     with zenoh.open(conf) as session:

