@@ -268,9 +268,13 @@ def supervise(c: Central, **parts: Any) -> None:
 
 def realtime_unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUnit:
     """A realtime loopback unit (3 peripherals, depth 1 unless ``kw`` says otherwise)
-    with a unit id of its own, for a test that drives its central by hand."""
+    with a unit id of its own, for a test that drives its central by hand. A peripheral's
+    silence past the rule is a fault here (``peripheral_loss="fault"``) unless ``kw``
+    says otherwise: the silence rule's tests see when it fires, the take-over's pass
+    ``peripheral_loss="takeover"``."""
     kw.setdefault("peripherals", 3)
     kw.setdefault("pipeline", 1)
+    kw.setdefault("peripheral_loss", "fault")
     return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", **kw),
                         on_message=on_message)
 

@@ -427,7 +427,7 @@ def test_a_trial_whose_child_died_is_the_runs_fault(monkeypatch):
     from ctrlunit.runtime.central import Fault
 
     c = trial_central(monkeypatch, {"fault": "peripheral 1 exited"})
-    c.silence.supervision = Supervision(child_check=lambda: ("peripheral-1", 1))
+    c.silence.supervision = Supervision(child_check=lambda **_: ("peripheral-1", 1))
     with pytest.raises(Fault, match="peripheral 1 exited"):
         admission.trial(c, 1e-3, base=5, transit_s=0.0)
     assert Probe.made[0].supervision.child_check is c.silence.supervision.child_check

@@ -89,9 +89,9 @@ def test_no_command_writes_a_file_it_was_not_asked_for(made, tmp_path, monkeypat
 
 
 def test_a_faulted_run_names_the_folder_it_keeps(tmp_path):
-    """A peripheral killed mid-run: exit 3, and the run's folder (spec, the roles' logs),
-    the only thing left in the temporary directory, is named on stderr after the
-    summary and in the report."""
+    """A peripheral killed mid-run under ``--peripheral-loss fault``: exit 3, and the
+    run's folder (spec, the roles' logs), the only thing left in the temporary directory,
+    is named on stderr after the summary and in the report."""
     cwd, tmp = tmp_path / "cwd", tmp_path / "t"
     cwd.mkdir()
     tmp.mkdir()
@@ -100,7 +100,7 @@ def test_a_faulted_run_names_the_folder_it_keeps(tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--clock",
          "lockstep", "--peripherals", "1", "--cycles", "1000000", "--timeout", "300ms",
-         "--status-file", str(status), "--report", str(report)],
+         "--peripheral-loss", "fault", "--status-file", str(status), "--report", str(report)],
         cwd=cwd, env=os.environ | {"TMPDIR": str(tmp)}, stdout=subprocess.PIPE,
         stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:

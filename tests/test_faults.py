@@ -121,7 +121,9 @@ def test_safe_stop_brings_a_fast_robot_to_rest(period, belt):
 
 @pytest.mark.parametrize("how", ["kill", "stop"])
 def test_failed_peripheral_is_named_and_stops_the_unit(tmp_path, how):
-    code, out, detected, rec = run_and_break(tmp_path, how, "peripheral", 2)
+    """``--peripheral-loss fault``: the unit stops as it did before take-over."""
+    code, out, detected, rec = run_and_break(tmp_path, how, "peripheral", 2,
+                                             extra=("--peripheral-loss", "fault"))
     print(f"peripheral 2 {how}: exit {code} after {detected:.2f} s")
     assert code == 3, out
     assert "peripheral-2" in out or "peripheral 2" in out
@@ -148,7 +150,8 @@ def test_frozen_role_in_realtime_is_detected_within_three_periods(tmp_path, role
     # 5 ms would already call a failure before the process is frozen
     # 50 intervals (1 s) in: the loop runs at its period; 300 took 6 s for nothing more
     got, out, _, _ = run_and_break(tmp_path, "stop", role, index, clock="realtime", after=50,
-                                   extra=("--period", "20ms", "--task", slow_task(tmp_path)))
+                                   extra=("--period", "20ms", "--task", slow_task(tmp_path),
+                                          "--peripheral-loss", "fault"))
     silent = [float(m) for m in re.findall(r"for ([0-9.]+) ms", out)]
     print(f"realtime 20 ms, {role} frozen: exit {got}, detected after {silent} ms of silence")
     assert got == code, out

@@ -722,7 +722,7 @@ def test_a_dead_child_is_a_fault_of_its_kind_looked_at_every_50_ms(monkeypatch):
     c.silence.check_children()  # none started: nothing to look at
     calls = []
     dead: list[tuple[str, int] | None] = [None]
-    supervise(c, child_check=lambda: calls.append(1) or dead[0])
+    supervise(c, child_check=lambda **_: calls.append(1) or dead[0])
     clock = Clock(10**12)
     clock.install(monkeypatch)
     c.silence.check_children()

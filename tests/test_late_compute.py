@@ -143,9 +143,10 @@ def test_the_acting_graph_computes_its_late_rounds_at_their_share_of_the_deadlin
 
 
 def test_a_peripheral_that_stays_silent_is_still_a_fault():
-    """Computing its rounds keeps the commands on time, not a dead peripheral alive: its
-    silence past the limit is the named fault, as under every policy."""
-    u = foreseen("cmpdead", late_policy="compute")
+    """Computing its late rounds keeps the commands on time, not a dead peripheral alive:
+    under ``--peripheral-loss fault`` its silence past the limit is the named fault, as
+    under every late-data policy (the default takes it over: tests/test_takeover.py)."""
+    u = foreseen("cmpdead", late_policy="compute", peripheral_loss="fault")
     c = u.central
     turn(u)
     sample(u, 0)

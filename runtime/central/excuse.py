@@ -21,8 +21,9 @@ class Supervision(NamedTuple):
     launcher at construction; each None where it cannot (roles started by hand, on
     other hosts)."""
 
-    child_check: Callable[[], tuple[str, int] | None] | None = None
-    """The name and exit status of a role process that has exited, else None."""
+    child_check: Callable[..., tuple[str, int] | None] | None = None
+    """``child_check(skip=())``: the name and exit status of a role process that has
+    exited, other than those named in ``skip``, else None."""
     role_state: Callable[[str], str] | None = None
     """What a role's process is doing (:func:`~ctrlunit.runtime.roles.supervise.process_state`);
     ``"central"``: the central's own Zenoh threads."""

@@ -9,12 +9,15 @@ from ..config import EXIT_PLANT
 
 
 class Fault(RuntimeError):
-    """A detected fault: ``process`` names the failed process, ``code`` the exit code."""
+    """A detected fault: ``process`` names the failed process, ``code`` the exit code;
+    ``lost``: how the process was lost, ``exited`` or ``silent`` (a peripheral's rounds
+    can then be taken over: runtime/central/takeover.py), else empty."""
 
-    def __init__(self, message: str, *, process: str, code: int) -> None:
+    def __init__(self, message: str, *, process: str, code: int, lost: str = "") -> None:
         super().__init__(message)
         self.process = process
         self.code = code
+        self.lost = lost
 
 
 ROLE_REPORT_FIELDS: dict[str, tuple[type, ...]] = {

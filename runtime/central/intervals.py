@@ -74,6 +74,8 @@ class Intervals:
         self.done = 0
         self.reply_each = False
         """Peripherals answer each part of a fused request as soon as it is computed."""
+        self.requests_on = True
+        """Requests are published (off once every peripheral is taken over: .takeover)."""
         self.ahead = CommandAhead(settings.extrapolate)
         self.use(engine, controller)
 
@@ -330,7 +332,8 @@ class Intervals:
         extra = {"each": True} if self.reply_each and len(parts) > 1 else {}
         payload = encode(self.node.unit, parts[0]["cycle"], parts[0]["stage"], parts=parts,
                          **extra)
-        self.publish_request(payload)
+        if self.requests_on:
+            self.publish_request(payload)
         self.meters.exchanges += 1
         self.meters.send_ns += time.perf_counter_ns() - t_in
         if self.on_message is not None:

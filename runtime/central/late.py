@@ -72,6 +72,8 @@ class LateData:
         self.late_per_axis = [0, 0, 0]
         self.computed = 0
         """Late peripherals' rounds the central ran itself (``compute``)."""
+        self.taken_over = 0
+        """Rounds of lost peripherals the central ran itself (.takeover)."""
         self.use(engine)
 
     def use(self, engine: Engine) -> None:
@@ -173,23 +175,36 @@ class LateData:
         replies, when they come, are counted as late; their silence is still watched.
         False, and nothing done, where the round needs values only the peripherals
         hold."""
+        return self.compute(f, sorted(f.waiting))
+
+    def compute(self, f: InFlight, peripherals: list[int], *, late: bool = True) -> bool:
+        """Run the round of ``f`` here for the axes of ``peripherals`` (of those it waits
+        for), as they would have (:meth:`_compute`), record each as computed (the
+        recording's ``faults/computed``: replay computes it too), and go on with the
+        interval once it waits for no one. ``late``: their replies will come late
+        (``--late-policy compute``); else they were taken over (.takeover) and are not
+        counted as late. False, and nothing done, where the round needs values only the
+        peripherals hold."""
         rnd = f.round
         assert rnd is not None
-        late = sorted(f.waiting)
         axes_of = self.engine.plan.placement.axes
-        axes = [a for p in late for a in axes_of[p]]
+        axes = [a for p in peripherals for a in axes_of[p]]
         if not Engine.can_run(rnd, f.ctx, axes):
             return False
         t0 = time.monotonic_ns()
         self.engine.run_round(rnd, f.ctx, axes)
-        for p in late:
+        for p in peripherals:
             paxes = axes_of[p]
             Engine.merge(self.last_vals, Engine.reply_vals(rnd, f.ctx, paxes), paxes)
-            for a in paxes:
-                self.late_per_axis[a] += 1
-            f.dropped.add(p)
-            self.held.add((f.cycle, rnd.index, p))
-            self.computed += 1
+            if late:
+                for a in paxes:
+                    self.late_per_axis[a] += 1
+                f.dropped.add(p)
+                self.held.add((f.cycle, rnd.index, p))
+                self.computed += 1
+            else:
+                self.taken_over += 1
+            f.waiting.discard(p)
             if self.on_message is not None:  # the recording: replay knows the reply is missing
                 self.on_message("computed", f"{self.faults_key}/computed", f.cycle,
                                 rnd.index, msgpack.packb({"cycle": f.cycle, "stage": rnd.index,
@@ -197,8 +212,8 @@ class LateData:
         while len(self.held) > HELD_KEPT:  # bounded: the oldest rounds' late replies forgotten
             self.held.discard(min(self.held))
         self.span("central", f.cycle, t0, time.monotonic_ns())
-        f.waiting.clear()
-        self.advance(f)
+        if not f.waiting:
+            self.advance(f)
         return True
 
 

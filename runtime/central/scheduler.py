@@ -32,17 +32,20 @@ from ..config import RunConfig
 from ..config.handed import config_message
 from ..transport.node import Event, Node, rss_kb
 from .excuse import UNSUPERVISED, Supervision
+from .fault import Fault
 from .flood import FloodWatch
 from .intake import Intake
 from .intervals import Intervals
 from .late import LateData
 from .meters import Meters
 from .orders import Orders
-from .overload import OVERLOAD_LEAD, Overload
+from .overload import Overload
+from .rate import RateChange
 from .records import CycleLog, InFlight
 from .settings import LoopSettings
 from .silence import SilenceWatch
 from .state_check import hold_torques, overload_hint
+from .takeover import TakeOver
 from .warmup import WarmUp
 
 
@@ -109,8 +112,8 @@ class Central:
                              pending=node.events.pending,
                              advance=lambda f: self.intervals.advance(f),
                              span=self.meters.span, on_message=on_message)
-        self.overload = Overload(enabled=not trial and rc.halves_on_overload,
-                                 period_s=sch.period, change_rate=self._change_rate)
+        self.overload = Overload(enabled=not trial and rc.halves_on_overload, period_s=sch.period,
+                                 change_rate=lambda stride, why: self.rate(stride, why))
         self.intervals = Intervals(
             node, self.settings, engine, controller, intake=self.intake,
             silence=self.silence, overload=self.overload, expect_late=self.late.expect_late,
@@ -118,6 +121,9 @@ class Central:
             on_cycle=None if on_cycle is None else (lambda k, ctx: on_cycle(self, k, ctx)),
             on_message=on_message)
         self.intervals.reply_each = reply_each
+        self.takeover = TakeOver(enabled=sch.peripheral_loss == "takeover", late=self.late,
+                                 silence=self.silence, intervals=self.intervals,
+                                 on_message=on_message)
         self.orders = Orders(node, peripherals=n, plant=sch.clock != "freerun",
                              startup_timeout_s=rc.transport.startup_timeout,
                              check_children=self.silence.check_children,
@@ -126,6 +132,9 @@ class Central:
                              publish=self.intervals.publish_request, depth=sch.pipeline,
                              asked=sch.replies, startup_timeout_s=rc.transport.startup_timeout,
                              check_children=self.silence.check_children, other=self.handle)
+        self.rate = RateChange(ctl=lambda: self.ctl, where=lambda: (self.next_cycle, self.done),
+                               intake=self.intake, orders=self.orders,
+                               plant_key=keys.control("plant"), on_message=on_message)
 
     def use(self, engine: Engine, controller: Controller) -> None:
         """Run ``engine``'s plan with ``controller`` (when the placement changes before
@@ -176,8 +185,7 @@ class Central:
         choice at warm-up), without starting it again: every peripheral is told the
         blocks the central now runs, rebuilds its plan and says ``placed``; this returns
         once each has, and then runs the new plan itself. Warm up again before measuring.
-        Raises :class:`~.fault.Fault` if a peripheral does not confirm in the start-up
-        timeout."""
+        Raises :class:`~.fault.Fault` if a peripheral does not confirm in time."""
         self.orders.place(sorted(engine.plan.placement.central_blocks))
         self.rc = rc
         self.use(engine, controller)
@@ -215,8 +223,7 @@ class Central:
 
     def _loop(self) -> None:
         """The event loop of :meth:`run`: each turn starts what may start, sends what is
-        ready, waits for one event until the next time something is due, handles it and
-        applies the checks."""
+        ready, waits for one event until something is due, handles it, checks."""
         end = self.settings.end
         iv = self.intervals
         while iv.done < end and not (iv.next_cycle >= end and not iv.inflight):
@@ -224,6 +231,8 @@ class Central:
             iv.start_ready()
             now = time.monotonic_ns()
             hold_until = iv.flush(now)
+            if self.takeover.lost and self.takeover.cover(self.inflight.values()):
+                continue  # an interval went on: send what it made ready
             if iv.prime():
                 continue  # the primed interval may have its slot and sample already
             wait_until = self.next_check(now, limit_ns, hold_until)
@@ -239,7 +248,6 @@ class Central:
                 self.handle(ev)
             self.check_late(time.monotonic_ns())
             self.check_silence(limit_ns)
-            self.silence.check_children()
 
     def limit_ns(self) -> int:
         """How long a reply or a sample may be missing now before it is a fault
@@ -266,16 +274,23 @@ class Central:
         waiting in the inbox (the central may have been the slow one: a reply it has not
         read yet is not silence). Those are read first, and the silence is looked at only
         once none waits: looking costs a late central most (an excuse reads ``/proc``,
-        0.25-0.3 ms a process on the reference machine, and the fault's message again)."""
-        if self.node.events.pending():
-            return  # the check runs again after each event
-        plant_awaited = self.next_cycle if (
-            self.settings.clock != "freerun" and not self.intake.samples
-            and self.next_cycle < self.settings.end) else None
-        self.silence.check(time.monotonic_ns(), limit_ns, self.inflight.values(),
-                           done=self.done, plant_awaited=plant_awaited,
-                           newest_sample=self.intake.newest_sample,
-                           started_ns=self.meters.t_start_ns)
+        0.25-0.3 ms a process on the reference machine, and the fault's message again).
+        A role process that exited is a fault at once. A lost peripheral is taken over
+        where ``--peripheral-loss`` says so (:class:`~.takeover.TakeOver`)."""
+        try:
+            if not self.node.events.pending():  # else the check runs after each event
+                plant_awaited = self.next_cycle if (
+                    self.settings.clock != "freerun" and not self.intake.samples
+                    and self.next_cycle < self.settings.end) else None
+                self.silence.check(time.monotonic_ns(), limit_ns, self.inflight.values(),
+                                   done=self.done, plant_awaited=plant_awaited,
+                                   newest_sample=self.intake.newest_sample,
+                                   started_ns=self.meters.t_start_ns)
+            self.silence.check_children()
+        except Fault as fault:
+            if not self.takeover.take(fault, self.inflight.values(), done=self.done,
+                                      next_cycle=self.next_cycle):
+                raise
 
     # -- messages in ------------------------------------------------------------------
 
@@ -317,6 +332,8 @@ class Central:
             self.on_message("in", self.node.keys.sample, s.cycle, "sample", data, rx)
 
     def _on_reply(self, k: int, data: bytes, rx: int) -> None:
+        if self.takeover.ignores(k):
+            return
         t_in = time.perf_counter_ns()
         got = self.intake.reply(data)
         if got is None:
@@ -378,23 +395,6 @@ class Central:
             self.intervals.flush(time.monotonic_ns())
             for f in finishing:
                 self.intervals.advance(f)
-
-    def _change_rate(self, stride: int, why: dict[str, int]) -> dict[str, Any]:
-        """Change the control rate from the first sample of the current grid at least
-        :data:`~.overload.OVERLOAD_LEAD` periods past the newest one, and order the plant
-        to; returns the change's record."""
-        grid = self.ctl.grid
-        k = grid.next_on_grid(max(self.next_cycle, self.intake.newest_sample + 1)
-                              + OVERLOAD_LEAD)
-        grid.change(stride, k)
-        change: dict[str, Any] = {"stride": stride, "from_cycle": k - self.ctl.first_cycle,
-                  "at_interval": self.done, **why}
-        # the plant reads stride and start; the rest is for the recording's report
-        payload = self.orders.say("stride", plant_only=True, start=k, **change)
-        if self.on_message is not None:  # the recording: replay changes where the run did
-            self.on_message("out", self.node.keys.control("plant"), k, "stride", payload,
-                            time.monotonic_ns())
-        return change
 
 
 __all__ = ["Central"]

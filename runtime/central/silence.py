@@ -77,6 +77,8 @@ class SilenceWatch:
         self.own_gaps: deque[tuple[int, int]] = deque(maxlen=8)
         """The central's own stalls (from, to): it woke more than a period late."""
         self._next_child_check = 0.0
+        self.gone: set[int] = set()
+        """Peripherals taken over (:meth:`forget`): their silence is no longer watched."""
 
     # -- what the scheduler tells it ------------------------------------------------------
 
@@ -114,6 +116,10 @@ class SilenceWatch:
             start = max(start, self.own_gaps[-1][1])
         if now - start > self.period_ns:
             self.own_gaps.append((start, now))
+
+    def forget(self, k: int) -> None:
+        """Watch peripheral ``k`` no more: its rounds are taken over (.takeover)."""
+        self.gone.add(k)
 
     # -- the limit --------------------------------------------------------------------
 
@@ -254,6 +260,8 @@ class SilenceWatch:
                                 role_of(k), self.silent_since(k), now, limit_ns))
         if self.realtime and self.last_sample_ns:
             wake = min(wake, self.silence_ends("plant", self.last_sample_ns, now, limit_ns))
+        if self.supervision.child_check is not None:  # an exit is seen within the check's time
+            wake = min(wake, now + int(CHILD_CHECK_S * 1e9))
         return wake
 
     def check(self, now: int, limit_ns: int, intervals: Collection[InFlight], *,
@@ -267,7 +275,7 @@ class SilenceWatch:
         since its last sample, or since ``started_ns``)."""
         if self.realtime and done:
             for k, last in enumerate(self.last_reply_ns):  # alive, even when its data is held
-                t = self.silent_since(k) if last else 0
+                t = self.silent_since(k) if last and k not in self.gone else 0
                 role = role_of(k)
                 if t and any(k in f.dropped or k in f.waiting for f in intervals) \
                         and self._silent(role, t, now, limit_ns):
@@ -275,7 +283,7 @@ class SilenceWatch:
                                 f"{(now - t) / 1e6:.1f} ms (limit {limit_ns / 1e6:.1f} ms"
                                 f"{self.shared_note(t, now, limit_ns)})"
                                 f"{self._state_note(role)}{self.hint()}",
-                                process=role, code=EXIT_PERIPHERAL)
+                                process=role, code=EXIT_PERIPHERAL, lost="silent")
         for f in intervals:
             since = f.deadline_ns - limit_ns
             if not f.waiting:
@@ -283,7 +291,7 @@ class SilenceWatch:
             end = self.fault_at(since, now, limit_ns)
             if now <= end:
                 continue  # within the limit: no excuse can make it a fault sooner
-            for k in sorted(f.waiting):
+            for k in sorted(f.waiting - self.gone):
                 role = role_of(k)
                 if not self._silent(role, since, now, limit_ns, end):
                     continue
@@ -292,7 +300,7 @@ class SilenceWatch:
                     f" of cycle {f.cycle}: silent for {(now - since) / 1e6:.1f} ms (limit "
                     f"{limit_ns / 1e6:.1f} ms{self.shared_note(since, now, limit_ns)})"
                     f"{self._state_note(role)}{self.hint()}",
-                    process=role, code=EXIT_PERIPHERAL)
+                    process=role, code=EXIT_PERIPHERAL, lost="silent")
         if plant_awaited is not None and not any(f.waiting for f in intervals):
             last = self.last_sample_ns or started_ns
             if self._silent("plant", last, now, limit_ns):
@@ -313,11 +321,12 @@ class SilenceWatch:
         if now < self._next_child_check:
             return
         self._next_child_check = now + CHILD_CHECK_S
-        dead = child_check()
+        dead = child_check(skip={role_of(k) for k in self.gone})
         if dead is not None:
             name, rc = dead
             code = EXIT_PLANT if name == "plant" else EXIT_PERIPHERAL
-            raise Fault(f"{name} exited (status {rc})", process=name, code=code)
+            raise Fault(f"{name} exited (status {rc})", process=name, code=code,
+                        lost="" if name == "plant" else "exited")
 
 
 __all__ = ["STARTUP_INTERVALS", "STARTUP_LIMIT_S", "SilenceWatch", "role_of"]

@@ -16,6 +16,7 @@ from .choices import (  # noqa: F401  (re-exported: the sets belong with the con
     LATE_POLICIES,
     MISSED_COMMANDS,
     OVERLOAD_ACTIONS,
+    PERIPHERAL_LOSSES,
     REPLY_MODES,
 )
 from .sections import (

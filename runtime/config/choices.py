@@ -10,6 +10,11 @@ of the deadline passed, runtime/central/late.py): wait for them, compute the lat
 peripherals' blocks itself (the same arithmetic: the commands do not change), hold their
 last values, or stop with a fault. A round takes the strictest of its blocks', in this
 order."""
+PERIPHERAL_LOSSES = ("takeover", "fault")
+"""``--peripheral-loss``: what the central does when a peripheral is lost (its process
+exited, or it stayed silent past the silence rule): ``takeover``, compute its rounds
+itself from then on (the same arithmetic: the commands do not change;
+runtime/central/takeover.py), or ``fault``: stop the robot safely (exit 3)."""
 MISSED_COMMANDS = ("extrapolate", "hold")
 """``--missed-command``: what the plant applies in a period whose command is late: the
 command the central extrapolated for it and sent with the one before (runtime/central/settings.py,

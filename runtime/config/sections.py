@@ -30,6 +30,7 @@ from .choices import (
     LATE_POLICIES,
     MISSED_COMMANDS,
     OVERLOAD_ACTIONS,
+    PERIPHERAL_LOSSES,
     REPLY_MODES,
 )
 from .setting import Flag, setting
@@ -157,6 +158,12 @@ class ScheduleConfig:
         3.0, flag=Flag(), bounds=(1.0, 1000.0), allowed="1 to 1000 periods",
         help="Realtime: a peripheral, the plant or a link silent for this many periods is a "
         "fault (the robot is stopped).")
+    peripheral_loss: str = setting(
+        "takeover", flag=Flag(), choices=PERIPHERAL_LOSSES,
+        help="A peripheral whose process exited, or that stayed silent past the silence "
+        "rule, is taken over: the central computes its rounds itself from then on (the "
+        "same arithmetic, so the same commands; the report's degraded says which and from "
+        "when); fault: stop the robot safely (exit 3).")
     overload: str = setting(
         "auto", flag=Flag(), choices=OVERLOAD_ACTIONS,
         help="Realtime: when 10 of the last 100 intervals were late (their command left "

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+from collections.abc import Collection
 from typing import Any
 
 from ..central import Central, Supervision
@@ -32,9 +33,9 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
     """What the central can learn of the role processes it starts (``children``, named
     ``names`` in order; ``pids`` by name, filled as they are started)."""
 
-    def check() -> tuple[str, int] | None:
+    def check(skip: Collection[str] = ()) -> tuple[str, int] | None:
         for p, name in zip(children, names, strict=False):
-            if p.poll() is not None:
+            if name not in skip and p.poll() is not None:
                 return name, p.returncode
         return None
 
@@ -121,7 +122,8 @@ def report_extras(rc: RunConfig, setup: Setup, central: Central, *, cores: int |
     out: dict[str, Any] = {
         "late": {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),
                  "misses_per_axis": list(central.late.late_per_axis),
-                 "computed": central.late.computed},
+                 "computed": central.late.computed, "taken_over": central.late.taken_over},
+        "degraded": central.takeover.report(),
         "memory_kb": {"central": {"warm": m.rss_warm,
                                   "end": m.rss_end if m.rss_end > 0 else rss_kb(),
                                   "series": m.rss_series}},

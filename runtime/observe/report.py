@@ -36,6 +36,7 @@ RESULT_KEYS: dict[str, str] = {
     "silences_excused": "silences excused",
     "plant_spares": "misses covered by an extrapolated command",
     "late": "late data",
+    "degraded": "degraded",
     "late_intervals": "late intervals",
     "scheduling": "scheduling",
     "scheduling_choice": "scheduling",

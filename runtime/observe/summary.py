@@ -41,6 +41,7 @@ def _late_lines(r: dict[str, Any]) -> list[str]:
     if computed:
         out.append(f"  late data   {computed} late peripheral round(s) computed by the central "
                    "(the same arithmetic: the commands are unchanged)")
+    out += _degraded_lines(r)
     late = r.get("late_intervals")
     if not late or not late["intervals"] or not late["work_stretch"]:
         return out
@@ -50,6 +51,27 @@ def _late_lines(r: dict[str, Any]) -> list[str]:
     return [*out, f"  late        {late['intervals']} command(s) left after their deadline; "
             f"there the peripherals' work took {st['median']:.1f}x its median of "
             f"{late['work_median_s'] * 1e6:.0f} us (max {st['max']:.1f}x){why}"]
+
+
+def _degraded_lines(r: dict[str, Any]) -> list[str]:
+    """The peripherals lost and taken over (runtime/central/takeover.py), and those that
+    stood by with them."""
+    out = []
+    for i, d in enumerate(r.get("degraded") or []):
+        head = "  degraded    " if i == 0 else " " * 14
+        why = str(d["why"])
+        if why.startswith("stands by"):
+            out.append(f"{head}peripheral {d['peripheral']} stands by from cycle "
+                       f"{d['from_cycle']}{why[len('stands by'):][:160]}")
+        else:
+            out.append(f"{head}peripheral {d['peripheral']} lost at interval {d['at_interval']}"
+                       f" ({why[:160]}): the central computes its rounds from cycle "
+                       f"{d['from_cycle']}")
+    if out:
+        out.append(f"{' ' * 14}{(r.get('late') or {}).get('taken_over', 0)} round(s) of lost "
+                   "peripherals computed by the central (the same arithmetic: the commands "
+                   "are unchanged)")
+    return out
 
 
 def _cpu_lines(r: dict[str, Any]) -> list[str]:

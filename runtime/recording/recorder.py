@@ -14,7 +14,9 @@ Channels
   ``/faults/held`` (a late round's values replaced by the last ones, ``--late-policy
   hold``: cycle, stage, peripheral and the values used, which replay uses too),
   ``/faults/computed`` (a late round the central computed itself for a peripheral,
-  ``--late-policy compute``: cycle, stage, peripheral; replay expects no reply there).
+  ``--late-policy compute``, or a lost peripheral's round: cycle, stage, peripheral;
+  replay expects no reply there), ``/faults/degraded`` (a peripheral lost and taken over:
+  which, from which cycle, why; runtime/central/takeover.py).
 ``json`` with ``jsonschema`` schemas (open in Foxglove): ``/signals/state`` (p, reference,
   q, torque, tracking error, period, traversal). NaN and infinities are written as null.
 ``cdr`` with ``ros2msg`` schemas (ROS 2's tools; the file's profile is ``ros2``):
