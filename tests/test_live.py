@@ -162,7 +162,8 @@ def test_the_bar_counts_periods_covered_when_the_control_rate_is_halved():
                               meters=SimpleNamespace(plant_misses=0, skipped=0),
                               log=SimpleNamespace(cmd_ns=[0]),
                               ctl=SimpleNamespace(first_cycle=0,
-                                                  hold_of=lambda k: 2 if k >= 10 else 1))
+                                                  hold_of=lambda k: 2 if k >= 10 else 1),
+                              takeover=SimpleNamespace(lost={}))
     cycles = list(range(10)) + list(range(10, 20, 2))
     for k in cycles:
         central.done += 1
@@ -170,3 +171,26 @@ def test_the_bar_counts_periods_covered_when_the_control_rate_is_halved():
         line(central, k, {})
     assert central.done == 15
     assert shown[-1] == (20, 20)
+
+
+def test_the_line_names_the_peripherals_taken_over():
+    """A peripheral lost and taken over (runtime/central/takeover.py) is named on the
+    live line from the next refresh on."""
+    from types import SimpleNamespace
+
+    from ctrlunit.runtime.observe.live import LiveLine
+
+    shown: list[str] = []
+    line = LiveLine(lambda text, done, total: shown.append(text))
+    central = SimpleNamespace(cycles=4, done=0, meters=SimpleNamespace(plant_misses=0, skipped=0),
+                              log=SimpleNamespace(cmd_ns=[0]),
+                              ctl=SimpleNamespace(first_cycle=0, hold_of=lambda k: 1),
+                              takeover=SimpleNamespace(lost={}))
+    for k in range(4):
+        if k == 3:
+            central.takeover.lost = {1: {}}
+        central.done += 1
+        central.log.cmd_ns.append(central.log.cmd_ns[-1] + 1_000_000)
+        line(central, k, {})
+    assert "taken over" not in shown[0]
+    assert shown[-1].endswith("  taken over P2")

@@ -189,7 +189,7 @@ def fake_central(cycle: int, t_ns: int) -> tuple[Any, dict]:
     log.times.append(t_ns, 400_000)
     log.errors.append(1e-4)
     central = SimpleNamespace(log=log, meters=SimpleNamespace(plant_misses=0, skipped=0),
-                              done=cycle + 1)
+                              done=cycle + 1, takeover=SimpleNamespace(report=list))
     return central, {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
 
 
@@ -280,7 +280,7 @@ def test_the_rate_limits_states_and_the_running_figures_count_every_interval():
     n, t0 = 2000, 10**12
     log = CycleLog()
     central = SimpleNamespace(log=log, meters=SimpleNamespace(plant_misses=0, skipped=0),
-                              done=0)
+                              done=0, takeover=SimpleNamespace(report=list))
     ctx = {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
     with LiveView(host="127.0.0.1", port=0, task=None, period_s=1e-3, cycles=n,
                   rate_hz=100) as view:

@@ -246,6 +246,7 @@ class LiveView:
                 "deadline_misses": s.misses, "skipped_samples": s.skipped,
                 "tracking_error_m": {"now": finite_or_none(s.error),
                                      "max": finite_or_none(s.error_max)},
+                "degraded": [] if self._central is None else self._central.takeover.report(),
                 "dropped": self.dropped}
 
     def _send_running(self) -> None:
