@@ -218,4 +218,6 @@ def test_the_realtime_main_job_rides_out_a_lost_peripheral(tmp_path, how, index)
     assert code == 0, out[-2500:]
     assert rep["degraded"][0]["peripheral"] == index
     assert rep["degraded"][0]["from_cycle"] >= 1500
+    # killed: its process seen exited, the others go on serving; frozen: they stand by
+    assert len(rep["degraded"]) == (1 if how == "kill" else 3)
     assert 0 <= rep["periods"] - round(10 / rep["nominal_period_s"]) <= 1

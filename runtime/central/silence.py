@@ -225,6 +225,13 @@ class SilenceWatch:
 
     # -- the faults' messages -----------------------------------------------------------
 
+    def _how_lost(self, role: str) -> str:
+        """How a silent peripheral was lost (:class:`~.fault.Fault`'s ``lost``): ``exited``
+        where its process is known to have exited (killed, it falls silent within a few
+        periods, before the exit check looks), else ``silent``."""
+        state = self.supervision.role_state
+        return "exited" if state is not None and state(role) == "exited" else "silent"
+
     def _state_note(self, role: str) -> str:
         """For a silence fault's message: what the silent process was doing, and its
         excuse (:meth:`Excuses.note`)."""
@@ -283,7 +290,7 @@ class SilenceWatch:
                                 f"{(now - t) / 1e6:.1f} ms (limit {limit_ns / 1e6:.1f} ms"
                                 f"{self.shared_note(t, now, limit_ns)})"
                                 f"{self._state_note(role)}{self.hint()}",
-                                process=role, code=EXIT_PERIPHERAL, lost="silent")
+                                process=role, code=EXIT_PERIPHERAL, lost=self._how_lost(role))
         for f in intervals:
             since = f.deadline_ns - limit_ns
             if not f.waiting:
@@ -300,7 +307,7 @@ class SilenceWatch:
                     f" of cycle {f.cycle}: silent for {(now - since) / 1e6:.1f} ms (limit "
                     f"{limit_ns / 1e6:.1f} ms{self.shared_note(since, now, limit_ns)})"
                     f"{self._state_note(role)}{self.hint()}",
-                    process=role, code=EXIT_PERIPHERAL, lost="silent")
+                    process=role, code=EXIT_PERIPHERAL, lost=self._how_lost(role))
         if plant_awaited is not None and not any(f.waiting for f in intervals):
             last = self.last_sample_ns or started_ns
             if self._silent("plant", last, now, limit_ns):
