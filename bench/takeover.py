@@ -59,12 +59,13 @@ def run(*, duration: str, lose: tuple[int, int] | None, how: str, workdir: Path,
     try:
         deadline = time.monotonic() + timeout_s
         while lose is not None and proc.poll() is None and time.monotonic() < deadline:
-            if status.exists() and int(status.read_text() or 0) >= lose[1]:
+            text = status.read_text() if status.exists() else ""
+            if text.strip().isdigit() and int(text) >= lose[1]:
                 pid = _pids(unit).get(f"peripheral-{lose[0]}")
                 if pid is not None:
                     os.kill(pid, signal.SIGKILL if how == "kill" else signal.SIGSTOP)
-                    done_at = int(status.read_text() or 0)
-                break
+                    done_at = int(text)
+                    break
             time.sleep(0.005)
         out, _ = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
     finally:
