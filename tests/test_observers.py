@@ -154,6 +154,7 @@ def test_a_frozen_viewer_costs_a_keyed_run_nothing(tmp_path, unit_keys):
     print(f"exit {code}, misses {rep.get('deadline_misses')} of {rep.get('periods')}, "
           f"observers {rep.get('observers')}, readers {readers}")
     assert code == 0, out[-2000:]
+    assert not rep.get("degraded"), rep.get("degraded")  # no peripheral was taken over
     assert "got 1" in readers[0], readers  # it read the view, then froze
     assert "got 1" not in readers[1], readers  # denied the control path: nothing came
     # the whole run (a command at the halved rate that ends it covers one period more)
@@ -172,6 +173,7 @@ def test_a_frozen_loopback_reader_costs_a_run_without_keys_nothing(tmp_path):
     print(f"exit {code}, misses {rep.get('deadline_misses')} of {rep.get('periods')}, "
           f"readers {readers}")
     assert code == 0, out[-2000:]
+    assert not rep.get("degraded"), rep.get("degraded")  # no peripheral was taken over
     assert "got 1" in readers[0], readers  # it read, then froze
     # the whole run (a command at the halved rate that ends it covers one period more)
     assert 0 <= rep["periods"] - round(20 / rep["nominal_period_s"]) <= 1

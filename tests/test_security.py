@@ -183,6 +183,7 @@ def test_with_keys_a_peer_without_them_cannot_connect_and_a_viewer_cannot_write(
         "--keys", str(unit_keys))
     print(f"with keys: {seen}; rejected by the unit itself: {rep.get('rejected_messages')}")
     assert code == 0, out
+    assert not rep.get("degraded"), rep.get("degraded")  # no peripheral was taken over
     assert "links       TLS with mutual authentication" in out and rep["links"] == "tls"
     assert rep["command_digest"] == clean["command_digest"]
     assert rep["tracking_error_m"] == clean["tracking_error_m"]

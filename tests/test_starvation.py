@@ -157,4 +157,5 @@ def test_the_main_job_rides_out_a_cpu_taken_from_its_roles_for_10_ms_at_a_time(t
     assert len(bursts) >= 8, bursts
     assert all(b[3] for b in bursts)
     assert code == 0, out[-2000:]
+    assert not rep.get("degraded"), rep.get("degraded")  # ridden out, not taken over
     assert rep["periods"] >= round(SECONDS / period)
