@@ -44,8 +44,10 @@ def test_every_law_gives_the_one_process_commands_with_the_axes_spread_unevenly(
 
 
 def test_a_lost_reply_is_the_peripherals_fault_after_the_timeout():
+    """Under ``--peripheral-loss fault`` (the default takes the peripheral over:
+    tests/test_takeover.py)."""
     u = LoopbackUnit(lockstep_config(unit_id("lblost"), peripherals=3, pipeline=1,
-                                     cycles=CYCLES, timeout=0.2))
+                                     cycles=CYCLES, timeout=0.2, peripheral_loss="fault"))
     unit = u.rc.transport.unit
 
     def lose(key: str, data: bytes) -> bool:
