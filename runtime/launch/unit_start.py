@@ -298,11 +298,18 @@ class UnitStart:
         figures are all in the report's admission, and a stop the user asked for is no
         fault). A directory kept is the report's ``logs_kept``, which ``ctrlunit start``
         names after the summary."""
+        central = getattr(self, "central", None)  # None: the start failed before it
+        taken = {f"peripheral-{k + 1}" for k in central.takeover.lost} if central else set()
         for p, name in zip(self.children, child_names(self.rc, self.setup), strict=False):
             if (p.returncode not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM)
                     and self.fault is None):
+                if name in taken:  # the summary's degraded lines say what became of it
+                    self.echo(f"ctrlunit: {name} exited with {p.returncode}; the central had "
+                              "taken its rounds over")
+                    continue
                 log = (self.run_dir / f"{name}.log").read_text(errors="replace")[-2000:]
-                self.echo(f"ctrlunit: {name} exited with {p.returncode}:\n{log}")
+                self.echo(f"ctrlunit: {name} exited with {p.returncode}"
+                          + (f":\n{log}" if log.strip() else " (its log is empty)"))
         if self.code in (EXIT_OK, EXIT_UNSUSTAINABLE) or stopped_by_user({"fault": self.fault}):
             shutil.rmtree(self.run_dir, ignore_errors=True)
         else:

@@ -142,9 +142,9 @@ class LiveLine:
         reached = cycle - central.ctl.first_cycle + central.ctl.hold_of(cycle)
         if now >= self._next or reached >= central.cycles:
             self._next = now + REFRESH_S
-            lost = sorted(central.takeover.lost)  # peripherals taken over (degraded)
-            self.show(self.stats.line() + ("  taken over " + ",".join(
-                f"P{k + 1}" for k in lost) if lost else ""), reached, central.cycles)
+            lost = sorted(central.takeover.lost)  # peripherals taken over (degraded), first:
+            self.show(("taken over " + ",".join(f"P{k + 1}" for k in lost) + "  " if lost
+                       else "") + self.stats.line(), reached, central.cycles)  # a cut keeps it
 
 
 class TerminalLine:
