@@ -127,25 +127,24 @@ def test_a_recorded_take_over_replays_bit_for_bit(tmp_path):
     assert n == c.done
 
 
-def _kill_mid_run(tmp_path: Path, how: str, index: int, *options: str, after: int = 300
-                  ) -> tuple[int, dict, str]:
-    """``ctrlunit start`` (lockstep, 3 peripherals, depth 2, 1500 intervals); once
-    ``after`` intervals are done peripheral ``index`` is killed (SIGKILL) or frozen
-    (SIGSTOP). Returns the exit code, the report and the output."""
+def lose_mid_run(tmp_path: Path, how: str, index: int, *options: str, after: int,
+                 timeout: float = 120.0) -> tuple[int, dict, str]:
+    """``ctrlunit start --peripherals 3 --pipeline 2 OPTIONS``; once ``after`` intervals
+    are done peripheral ``index`` is killed (SIGKILL) or frozen (SIGSTOP). Returns the
+    exit code, the report and the output; every process of the run is ended."""
     unit = unit_id(f"to{how}")
     report, status = tmp_path / f"{unit}.json", tmp_path / f"{unit}.status"
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
-         "--clock", "lockstep", "--peripherals", "3", "--pipeline", "2", "--cycles", "1500",
-         "--timeout", "300ms", "--report", str(report), "--status-file", str(status),
-         *options], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        start_new_session=True)
+         "--peripherals", "3", "--pipeline", "2", "--report", str(report),
+         "--status-file", str(status), *options],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
-        assert wait_status(status, after) >= after, "the run did not get going"
+        assert wait_status(status, after, timeout=120) >= after, "the run did not get going"
         pid = next(p for p in pids_of(unit) if f"--index {index}" in
                    Path(f"/proc/{p}/cmdline").read_bytes().replace(b"\0", b" ").decode())
         os.kill(pid, signal.SIGKILL if how == "kill" else signal.SIGSTOP)
-        out, _ = proc.communicate(timeout=120)
+        out, _ = proc.communicate(timeout=timeout)
     finally:
         kill_unit(unit)
         if proc.poll() is None:
@@ -164,7 +163,8 @@ def test_a_peripheral_killed_or_frozen_mid_run_costs_no_command(tmp_path, how, i
     code0, clean, out0 = start_json(tmp_path, "--clock", "lockstep", "--peripherals", "3",
                                     "--pipeline", "2", "--cycles", "1500", tag="toclean")
     assert code0 == 0, out0
-    code, rep, out = _kill_mid_run(tmp_path, how, index)
+    code, rep, out = lose_mid_run(tmp_path, how, index, "--clock", "lockstep",
+                                  "--cycles", "1500", "--timeout", "300ms", after=300)
     print(out[-1500:])
     assert code == 0, out[-2000:]
     assert rep["command_digest"] == clean["command_digest"]
@@ -176,32 +176,6 @@ def test_a_peripheral_killed_or_frozen_mid_run_costs_no_command(tmp_path, how, i
     assert rep["late"]["taken_over"] > 0
 
 
-def realtime_loss(tmp_path: Path, how: str, index: int, *options: str, after: int = 1500,
-                  duration: str = "10s") -> tuple[int, dict, str]:
-    """The main job in realtime for ``duration``; once ``after`` intervals are done
-    peripheral ``index`` is killed (SIGKILL) or frozen (SIGSTOP, killed at the end).
-    Returns the exit code, the report and the output."""
-    unit = unit_id(f"tort{how}")
-    report, status = tmp_path / f"{unit}.json", tmp_path / f"{unit}.status"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
-         "--peripherals", "3", "--pipeline", "2", "--duration", duration,
-         "--report", str(report), "--status-file", str(status), *options],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    try:
-        assert wait_status(status, after, timeout=120) >= after, "the run did not get going"
-        pid = next(p for p in pids_of(unit) if f"--index {index}" in
-                   Path(f"/proc/{p}/cmdline").read_bytes().replace(b"\0", b" ").decode())
-        os.kill(pid, signal.SIGKILL if how == "kill" else signal.SIGSTOP)
-        out, _ = proc.communicate(timeout=180)
-    finally:
-        kill_unit(unit)
-        if proc.poll() is None:
-            proc.kill()
-    rep = json.loads(report.read_text()) if report.exists() else {}
-    return proc.returncode, rep, out
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize(("how", "index"), [("kill", 1), ("stop", 3)])
 def test_the_realtime_main_job_rides_out_a_lost_peripheral(tmp_path, how, index):
@@ -211,7 +185,8 @@ def test_the_realtime_main_job_rides_out_a_lost_peripheral(tmp_path, how, index)
     (exit 0) at its period, the lost peripheral named in the summary and the report."""
     from runner import slow_task
 
-    code, rep, out = realtime_loss(tmp_path, how, index, "--task", slow_task(tmp_path))
+    code, rep, out = lose_mid_run(tmp_path, how, index, "--duration", "10s", "--task",
+                                  slow_task(tmp_path), after=1500, timeout=180)
     print(f"{how} peripheral {index}: exit {code}, misses {rep.get('deadline_misses')} of "
           f"{rep.get('periods')}, tracking {rep.get('tracking_error_m')}, "
           f"degraded {[(d['peripheral'], d['from_cycle']) for d in rep.get('degraded', [])]}")
