@@ -16,7 +16,7 @@ from ctrlunit.runtime.config import ConfigError, RunConfig
 from ctrlunit.runtime.config.handed import ROLE_OWN, config_message, handed
 from ctrlunit.runtime.transport.codec import decode, encode
 from loopback import Bus, LoopbackNode
-from runner import ctrlunit, unit_id
+from runner import ctrlunit, kill_unit, unit_id
 from test_fuzz import free_port
 
 CENTRAL = dict(peripherals=2, pipeline=2, clock="lockstep", law="computed-torque",
@@ -216,3 +216,19 @@ def test_a_role_the_unit_does_not_have_is_told_at_once(tmp_path):
     finally:
         central.kill()
         central.wait(timeout=10)
+
+
+def test_a_central_whose_roles_never_come_reports_no_run_length(tmp_path):
+    """The run never started: its report says 0 s, not the time since the host booted."""
+    unit = unit_id("nohello")
+    report = tmp_path / "r.json"
+    try:
+        res = ctrlunit("central", "--unit", unit, "--peripherals", "1", "--clock", "lockstep",
+                       "--listen", f"unixsock-stream/{tmp_path}/{unit}.sock",
+                       "--set", "transport.startup_timeout=1", "--report", str(report),
+                       timeout=60)
+    finally:
+        kill_unit(unit)
+    assert res.returncode == 6, res.stdout + res.stderr
+    rep = json.loads(report.read_text())
+    assert rep["cycles"] == 0 and rep["wall_s"] == 0.0

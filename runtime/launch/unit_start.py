@@ -265,7 +265,8 @@ class UnitStart:
                 signal.signal(s, lambda signum, _f: ctrl_c.append(signum))
         gc.unfreeze()  # what the run kept alive may be collected again
         central = self.central
-        central.meters.t_end_ns = central.meters.t_end_ns or time.monotonic_ns()
+        if central.meters.t_start_ns:  # a run that never started has no length
+            central.meters.t_end_ns = central.meters.t_end_ns or time.monotonic_ns()
         try:
             self.decided["zenoh"] = central.orders.zenoh_identity()
         except Exception:
