@@ -79,8 +79,11 @@ def run(*, duration: str, lose: tuple[int, int] | None, how: str, workdir: Path,
             proc.wait()
     rep = json.loads(report.read_text()) if report.exists() else {}
     periods = rep.get("periods") or 0
+    degraded = rep.get("degraded") or []
+    back = [d["back_at_interval"] - d["at_interval"] for d in degraded if "back_at_interval" in d]
     return {"exit": proc.returncode, "lost": lose, "at": done_at,
-            "degraded": [d["peripheral"] for d in rep.get("degraded") or []],
+            "degraded": [d["peripheral"] for d in degraded],
+            "back_after_s": back[0] * (rep.get("nominal_period_s") or 0) if back else None,
             "misses_per_1000": 1000 * (rep.get("deadline_misses") or 0) / max(periods, 1),
             "tracking_max_m": (rep.get("tracking_error_m") or {}).get("max"),
             "period_s": rep.get("nominal_period_s"), "tail": "" if proc.returncode == 0
@@ -112,7 +115,9 @@ def main(argv: list[str] | None = None) -> None:
                   f"{r['at']}: exit {r['exit']}, taken over {r['degraded']}, misses "
                   f"{r['misses_per_1000']:.2f}/1000, tracking max "
                   f"{(r['tracking_max_m'] or float('nan')) * 1e3:.3f} mm, period "
-                  f"{(r['period_s'] or 0) * 1e3:g} ms {r['tail']}", flush=True)
+                  f"{(r['period_s'] or 0) * 1e3:g} ms, back after "
+                  f"{'-' if r['back_after_s'] is None else format(r['back_after_s'], '.2f')} s "
+                  f"{r['tail']}", flush=True)
             if k % 4 == 0:  # a run without a loss every fourth, for the misses' baseline
                 b = run(duration=args.duration, lose=None, how=args.signal, workdir=Path(tmp))
                 base.append(b)
@@ -126,7 +131,10 @@ def main(argv: list[str] | None = None) -> None:
     within = [r for r in lost if r["misses_per_1000"] <= bound]
     print(f"{len(good)} of {len(lost)} ended normally with tracking within "
           f"{TRACKING_BOUND_M * 1e3:g} mm; misses within max(1, baseline {baseline:.2f} + 1) "
-          f"per 1000 in {len(within)} of {len(lost)}")
+          f"per 1000 in {len(within)} of {len(lost)}; back (started again by the launcher) "
+          f"in {sum(r['back_after_s'] is not None for r in lost)} of {len(lost)}, after "
+          f"{sorted(round(r['back_after_s'], 2) for r in lost if r['back_after_s'] is not None)}"
+          " s of periods")
 
 
 if __name__ == "__main__":

@@ -78,6 +78,26 @@ def test_a_peripheral_the_unit_lacks_is_told_and_a_name_that_is_no_role_is_count
     assert len(_sent(bus, "u1", "config")) == 1  # after the handshake: too late to join
 
 
+def test_a_lost_peripheral_started_again_may_join_the_running_unit():
+    """Once the run has begun only a peripheral the central lost (runtime/central/
+    takeover.py) gets the configuration; its hello then gets ``go`` with the blocks the
+    central runs, and ``start`` (its CPU counted from then)."""
+    _, bus, orders, hello = _asked()
+    for role in ("plant", "peripheral-1", "peripheral-2"):
+        bus.put(hello, encode("u1", 0, "hello", role=role))
+    orders.handshake()
+    orders.central_blocks = ["ik_obs0"]
+    orders.say("start")
+    orders.may_join = lambda role: role == "peripheral-2"
+    for role in ("peripheral-1", "peripheral-2", "plant"):
+        orders.on_hello(encode("u1", 0, "hello", role=role, want="config"))
+    assert len(_sent(bus, "u1", "config")) == 1
+    orders.on_hello(encode("u1", 0, "hello", role="peripheral-2"))
+    go = [m for _, m in _sent(bus, "u1", "go")][-1]
+    assert go["central_blocks"] == ["ik_obs0"]
+    assert [k for k, _ in _sent(bus, "u1", "start")][-1] == "ctrlunit/u1/peripheral/control"
+
+
 def test_the_role_keeps_its_own_endpoints_keys_and_cpus():
     rc = RunConfig.of(**CENTRAL, keys="/central/keys", pin="0", startup_timeout=30.0)
     own = RunConfig.of(unit="u1", connect=["tcp/10.0.0.1:7447"], keys=None, pin="1",

@@ -17,10 +17,12 @@ from typing import Any
 
 import pytest
 from ctrlunit.runtime.central import Fault
+from ctrlunit.runtime.central.takeover import REJOIN_PARTS
 from ctrlunit.runtime.recording.reader import read
 from ctrlunit.runtime.recording.recorder import Recorder
 from ctrlunit.runtime.recording.replay import verify
-from loopback import LoopbackUnit, lockstep_config
+from ctrlunit.runtime.roles.peripheral import Peripheral
+from loopback import LoopbackUnit, lockstep_config, supervise
 from runner import kill_unit, pids_of, start_json, unit_id, wait_status
 
 SILENCE_S = 0.3
@@ -127,6 +129,81 @@ def test_a_recorded_take_over_replays_bit_for_bit(tmp_path):
     assert n == c.done
 
 
+def restarted(tag: str, k: int, *, dies: int, back: int, on_cycle: Any = None,
+              **kw: Any) -> LoopbackUnit:
+    """A lockstep unit whose peripheral ``k``'s process exits once interval ``dies`` is
+    done (its replies withheld, the launcher's check reports the exit) and is started
+    anew once interval ``back`` is done: a fresh role, which has seen no earlier round,
+    answering from then on."""
+    state = {"dead": False}
+
+    def restart(central: Any, cycle: int, ctx: dict) -> None:
+        if on_cycle is not None:
+            on_cycle(central, cycle, ctx)
+        if cycle >= dies and cycle < back and not state["dead"]:
+            state["dead"] = True
+            u.muted.add(k)
+        elif cycle >= back and k in u.muted:
+            pnode, _ = u.peripherals[k]
+            u.peripherals[k] = (pnode, Peripheral(u.setup.engine(), k, u.rc.transport.unit,
+                                                  rejected=pnode.rejected))
+            u.muted.discard(k)
+            state["dead"] = False
+
+    u = silenced(tag, {}, on_cycle=restart, **kw)
+    supervise(u.central, child_check=lambda skip=(): (
+        (f"peripheral-{k + 1}", -9) if state["dead"] and f"peripheral-{k + 1}" not in skip
+        else None), role_state=lambda role: "exited" if state["dead"] else "running")
+    return u
+
+
+@pytest.mark.parametrize(("k", "dies", "back"), [(1, 50, 120), (0, 5, 30), (2, 200, 201)])
+def test_a_peripheral_started_again_serves_its_rounds_again(undisturbed, k, dies, back):
+    """A peripheral whose process exited is taken over; started anew, it answers the
+    requests it sees, and after :data:`REJOIN_PARTS` current replies in a row it serves
+    its rounds again from the next interval to begin: every command that of the
+    undisturbed run, its replies taken again, the rounds the central computed for it
+    only those of the intervals begun before it came back."""
+    u = restarted("torejoin", k, dies=dies, back=back)
+    c = u.run()
+    (d,) = c.takeover.report()
+    print(d, c.late.taken_over, c.takeover.dropped_replies)
+    assert u.commands() == undisturbed
+    assert d["peripheral"] == k + 1 and "exited" in d["why"]
+    assert dies <= d["from_cycle"] < d["back_from_cycle"] < c.done
+    assert back < d["back_from_cycle"]
+    assert not c.takeover.lost and not c.takeover.covering
+    assert c.takeover.dropped_replies >= REJOIN_PARTS
+    rounds = len(c.engine.plan.rounds)
+    assert c.late.taken_over <= rounds * (d["back_from_cycle"] - d["from_cycle"])
+    assert u.peripherals[k][1].served > 0 and not sum(c.node.rejected.values())
+
+
+def test_a_recorded_return_replays_bit_for_bit(tmp_path):
+    """The return is recorded on ``/faults/degraded`` (the loss's record, now with the
+    interval it serves again from); ``replay --verify`` re-executes the run: the rounds
+    the central computed, then the returned peripheral's replies."""
+    path = tmp_path / "rejoin.mcap"
+    hooks: list[Recorder] = []
+    u = restarted("torejrec", 1, dies=40, back=90, record=str(path), trace=True,
+                  on_cycle=lambda *a: hooks[0].on_cycle(*a),
+                  on_message=lambda *a: hooks[0].on_message(*a))
+    recorder = Recorder(str(path), u.setup)
+    hooks.append(recorder)
+    recorder.begin(recorder.setup)
+    try:
+        c = u.run()
+    finally:
+        recorder.close(u.central)
+        recorder.write_report({})
+    rec = read(path)
+    degraded = [m for _, m in rec.decoded("/faults/degraded")]
+    assert [d.get("back_from_cycle") for d in degraded] == [None, c.takeover.back[1]]
+    n, div = verify(rec)
+    assert div is None, div
+    assert n == c.done
+
+
 def lose_mid_run(tmp_path: Path, how: str, index: int, *options: str, after: int,
                  timeout: float = 120.0) -> tuple[int, dict, str]:
     """``ctrlunit start --peripherals 3 --pipeline 2 OPTIONS``; once ``after`` intervals
@@ -156,15 +233,16 @@ def lose_mid_run(tmp_path: Path, how: str, index: int, *options: str, after: int
 @pytest.mark.parametrize(("how", "index"), [("kill", 2), ("stop", 3)])
 def test_a_peripheral_killed_or_frozen_mid_run_costs_no_command(tmp_path, how, index):
     """End to end: the peripheral's process killed (its exit is seen within 50 ms: the
-    others go on serving) or frozen (silent past the 300 ms reply timeout: the others
-    stand by) at interval 300 of 1500; the run ends normally (exit 0), every command
-    that of an undisturbed run, and the summary and the report say which peripheral was
-    lost, from when and why."""
+    others go on serving, and the launcher starts it again, which then serves its rounds
+    again) or frozen (silent past the 300 ms reply timeout: the others stand by) at
+    interval 300 of 4000; the run ends normally (exit 0), every command that of an
+    undisturbed run, and the summary and the report say which peripheral was lost, from
+    when and why."""
     code0, clean, out0 = start_json(tmp_path, "--clock", "lockstep", "--peripherals", "3",
-                                    "--pipeline", "2", "--cycles", "1500", tag="toclean")
+                                    "--pipeline", "2", "--cycles", "4000", tag="toclean")
     assert code0 == 0, out0
     code, rep, out = lose_mid_run(tmp_path, how, index, "--clock", "lockstep",
-                                  "--cycles", "1500", "--timeout", "300ms", after=300)
+                                  "--cycles", "4000", "--timeout", "300ms", after=300)
     print(out[-1500:])
     assert code == 0, out[-2000:]
     assert rep["command_digest"] == clean["command_digest"]
@@ -174,6 +252,11 @@ def test_a_peripheral_killed_or_frozen_mid_run_costs_no_command(tmp_path, how, i
     assert len(degraded) == (1 if how == "kill" else 3)
     assert f"degraded    peripheral {index} lost at interval" in out
     assert rep["late"]["taken_over"] > 0
+    if how == "kill":  # started again, it serves its rounds again
+        assert degraded[0]["from_cycle"] < degraded[0]["back_from_cycle"] < 4000
+        assert f"peripheral {index} back at interval" in out
+    else:
+        assert "back_from_cycle" not in degraded[0]
 
 
 @pytest.mark.slow

@@ -32,6 +32,9 @@ class Supervision(NamedTuple):
     (:func:`~ctrlunit.runtime.roles.supervise.thread_times`)."""
     machine_load: Callable[[], MachineLoad] | None = None
     """How short of CPUs the machine is (:func:`~ctrlunit.runtime.roles.supervise.machine_load`)."""
+    restart: Callable[[str], None] | None = None
+    """``restart(role)``: start a role whose process exited anew, in the background (a
+    lost peripheral: .takeover)."""
 
 
 UNSUPERVISED = Supervision()

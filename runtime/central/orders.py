@@ -36,12 +36,15 @@ class Orders:
     take_sample : takes a sample that arrives while an order waits (``place``).
     config : the fields of the ``config`` order, the run's configuration a role started by
         hand asks for at its handshake (runtime/config/handed.py, ``config_message``).
+    may_join : whether a role that asks for the configuration once the run has begun may
+        have it (a lost peripheral started again: .takeover); by default none may.
     """
 
     def __init__(self, node: Node, *, peripherals: int, plant: bool,
                  startup_timeout_s: float, check_children: Callable[[], None],
                  take_sample: Callable[[bytes, int], None],
-                 config: dict[str, Any]) -> None:
+                 config: dict[str, Any],
+                 may_join: Callable[[str], bool] = lambda role: False) -> None:
         self.node = node
         self.peripherals = peripherals
         self.plant = plant
@@ -49,6 +52,12 @@ class Orders:
         self.check_children = check_children
         self.take_sample = take_sample
         self.config = config
+        self.may_join = may_join
+        self.started = False
+        """Whether the run has begun (``start`` said)."""
+        self.central_blocks: list[str] | None = None
+        """The blocks the central runs, once a ``place`` order moved any: a role that
+        says hello after it gets them with ``go``."""
         self.pubs = [node.publisher(node.keys.control(r)) for r in ("peripheral", "plant")]
         self.role_reports: dict[str, dict] = {}
         """Each role's final report (:func:`~.fault.role_report`), by role name."""
@@ -68,6 +77,7 @@ class Orders:
         """Publish a control order (go, place, start, stop, ...) to every other role (or
         only to the peripherals, or only to the plant); returns its payload."""
         payload = encode(self.node.unit, 0, stage, **extra)
+        self.started = self.started or stage == "start"
         pubs = self.pubs[:1] if peripherals_only else self.pubs[1:] if plant_only \
             else self.pubs
         for pub in pubs:
@@ -90,9 +100,15 @@ class Orders:
             return
         stage = msg.get("stage")
         if stage == "hello" and msg.get("want") == "config":
-            return  # the run has begun: a role that asks now is too late to join it
-        if stage == "hello":
-            self.say("go")  # a role that missed go asks again
+            if self.may_join(str(msg.get("role"))):
+                self.hand_config(msg)  # a lost peripheral started again
+            return  # else the run has begun: a role that asks now is too late to join it
+        if stage == "hello":  # a role that missed go asks again, or one started again
+            blocks: dict[str, Any] = ({} if self.central_blocks is None
+                                      else {"central_blocks": self.central_blocks})
+            self.say("go", **blocks)
+            if self.started:  # its CPU is counted from now (a running one's stays)
+                self.say("start", peripherals_only=True)
         elif stage == "bye":
             report = msg.get("report")
             if msg.get("role") not in self.expected_roles() or type(report) is not dict:
@@ -158,6 +174,7 @@ class Orders:
             If a peripheral does not confirm within the start-up timeout.
         """
         waiting = {f"peripheral-{k + 1}" for k in range(self.peripherals)}
+        self.central_blocks = central_blocks
         deadline = time.monotonic() + self.startup_timeout_s
         next_say = 0.0
         while waiting:

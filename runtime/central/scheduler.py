@@ -127,7 +127,8 @@ class Central:
         self.orders = Orders(node, peripherals=n, plant=sch.clock != "freerun",
                              startup_timeout_s=rc.transport.startup_timeout,
                              check_children=self.silence.check_children,
-                             take_sample=self._on_sample, config=config_message(rc))
+                             take_sample=self._on_sample, config=config_message(rc),
+                             may_join=self.takeover.may_rejoin)
         self.warmup = WarmUp(node, engine, controller,
                              publish=self.intervals.publish_request, depth=sch.pipeline,
                              asked=sch.replies, startup_timeout_s=rc.transport.startup_timeout,
@@ -231,7 +232,7 @@ class Central:
             iv.start_ready()
             now = time.monotonic_ns()
             hold_until = iv.flush(now)
-            if self.takeover.lost and self.takeover.cover(self.inflight.values()):
+            if self.takeover.covering and self.takeover.cover(self.inflight.values()):
                 continue  # an interval went on: send what it made ready
             if iv.prime():
                 continue  # the primed interval may have its slot and sample already
@@ -332,13 +333,12 @@ class Central:
             self.on_message("in", self.node.keys.sample, s.cycle, "sample", data, rx)
 
     def _on_reply(self, k: int, data: bytes, rx: int) -> None:
-        if self.takeover.ignores(k):
-            return
         t_in = time.perf_counter_ns()
         got = self.intake.reply(data)
         if got is None:
             return
         msg, parts = got
+        parts = self.takeover.sift(k, parts, next_cycle=self.next_cycle, done=self.done)
         axes = self.engine.plan.placement.axes[k]
         complete = []
         accepted = False

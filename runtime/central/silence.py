@@ -79,6 +79,8 @@ class SilenceWatch:
         self._next_child_check = 0.0
         self.gone: set[int] = set()
         """Peripherals taken over (:meth:`forget`): their silence is no longer watched."""
+        self.let_go: set[str] = set()
+        """Roles whose process's exit is no fault any more (a lost peripheral's)."""
 
     # -- what the scheduler tells it ------------------------------------------------------
 
@@ -118,8 +120,17 @@ class SilenceWatch:
             self.own_gaps.append((start, now))
 
     def forget(self, k: int) -> None:
-        """Watch peripheral ``k`` no more: its rounds are taken over (.takeover)."""
+        """Watch peripheral ``k`` no more: its rounds are taken over (.takeover). Its
+        process, if this central started it, is let go for good."""
         self.gone.add(k)
+        self.let_go.add(role_of(k))
+
+    def watch_again(self, k: int, now: int) -> None:
+        """Peripheral ``k`` is back (.takeover): watch its silence again from ``now``."""
+        self.gone.discard(k)
+        self.let_go.discard(role_of(k))
+        self.last_reply_ns[k] = now
+        self.asked_ns[k] = 0
 
     # -- the limit --------------------------------------------------------------------
 
@@ -328,7 +339,7 @@ class SilenceWatch:
         if now < self._next_child_check:
             return
         self._next_child_check = now + CHILD_CHECK_S
-        dead = child_check(skip={role_of(k) for k in self.gone})
+        dead = child_check(skip=self.let_go)
         if dead is not None:
             name, rc = dead
             code = EXIT_PLANT if name == "plant" else EXIT_PERIPHERAL

@@ -12,13 +12,22 @@ Each computed round is recorded as the late ones are (``faults/computed``), so t
 ``replay --verify`` re-executes a run with a take-over; the loss itself is recorded on
 ``faults/degraded`` and listed in the report's ``degraded`` (docs/faults-and-errors.md).
 
-A lost peripheral stays lost for the rest of the run: a reply it still sends is dropped
-without being counted against it.
+A lost peripheral comes back (rejoins) by answering again. ``ctrlunit start`` starts a
+peripheral whose process exited anew (at most :data:`RESTARTS` times a run); one started
+by hand (``ctrlunit peripheral --index K --unit U --connect ...``) asks for the run's
+configuration first. Either gets the placement with ``go`` (:class:`~.orders.Orders`)
+and answers the requests it sees. Its replies are dropped, without being counted against
+it, until :data:`REJOIN_PARTS` in a row have come for current intervals; from the next
+interval on (whose first request is not out yet) its rounds are its own again, and the
+central, which never waited for it, computes its part only of the intervals begun
+before. A peripheral lost to silence is not asked any more (the others stand by with it,
+see :meth:`TakeOver.take`), so it does not come back.
 """
 
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Callable, Collection
 from typing import Any
 
@@ -30,6 +39,14 @@ from .intervals import Intervals
 from .late import LateData
 from .records import InFlight
 from .silence import SilenceWatch
+
+REJOIN_PARTS = 50
+"""Replies in a row, each for an interval at most :data:`CURRENT_BEHIND` behind the
+newest begun, that bring a lost peripheral back: it has shown that it keeps up."""
+CURRENT_BEHIND = 4
+RESTARTS = 3
+"""How often the launcher (``ctrlunit start``) starts a peripheral whose process exited
+anew in one run: a role that keeps failing costs the machine no more starts."""
 
 
 class TakeOver:
@@ -54,7 +71,18 @@ class TakeOver:
         self.lost: dict[int, dict[str, Any]] = {}
         """Lost peripheral (0-based) -> its record: ``peripheral`` (1-based),
         ``from_cycle`` (the first interval it did not serve), ``at_interval`` (intervals
-        done) and ``why`` (the fault's message)."""
+        done) and ``why`` (the fault's message); once it is back, ``back_from_cycle``."""
+        self.history: list[dict[str, Any]] = []
+        """Every loss's record, in the order they came (the report's ``degraded``)."""
+        self.back: dict[int, int] = {}
+        """Peripheral back -> the first interval it serves again: the central still
+        computes its part of the intervals begun before."""
+        self.settling: set[int] = set()
+        """Peripherals back while intervals begun before their return are in flight."""
+        self.in_a_row: dict[int, int] = {}
+        self.restarts: Counter[int] = Counter()
+        """Peripheral -> how often the launcher started it anew."""
+        """Lost peripheral -> its current replies in a row (:data:`REJOIN_PARTS`)."""
         self.dropped_replies = 0
         """Replies of lost peripherals that came anyway (dropped, not counted against
         them)."""
@@ -75,6 +103,10 @@ class TakeOver:
         if k in self.lost:
             return True
         self._lose(k, str(fault), intervals, done=done, next_cycle=next_cycle)
+        restart = self.silence.supervision.restart
+        if fault.lost == "exited" and restart is not None and self.restarts[k] < RESTARTS:
+            self.restarts[k] += 1
+            restart(fault.process)  # it comes back once it answers (:meth:`sift`)
         if fault.lost == "silent":
             for j in range(self.intervals.settings.peripherals):
                 if j not in self.lost:
@@ -91,10 +123,55 @@ class TakeOver:
         waiting = [f.cycle for f in intervals if k in f.waiting]
         self.lost[k] = {"peripheral": k + 1, "from_cycle": min(waiting, default=next_cycle),
                         "at_interval": done, "why": why}
+        self.history.append(self.lost[k])
+        self.in_a_row[k] = 0
         self.silence.forget(k)
+        self._record(self.lost[k], next_cycle)
+
+    def _record(self, record: dict[str, Any], cycle: int) -> None:
         if self.on_message is not None:
-            self.on_message("degraded", f"{self.late.faults_key}/degraded", next_cycle, 0,
-                            msgpack.packb(self.lost[k]), time.monotonic_ns())
+            self.on_message("degraded", f"{self.late.faults_key}/degraded", cycle, 0,
+                            msgpack.packb(record), time.monotonic_ns())
+
+    def covers(self, k: int, cycle: int) -> bool:
+        """Whether the central computes peripheral ``k``'s part of interval ``cycle``."""
+        return k in self.lost or cycle < self.back.get(k, -1)
+
+    def may_rejoin(self, role: str) -> bool:
+        """Whether ``role`` (``peripheral-K``) is lost and could come back: requests still
+        go out (:meth:`take`)."""
+        k = int(role.rsplit("-", 1)[1]) - 1 if role.startswith("peripheral-") else -1
+        return k in self.lost and self.intervals.requests_on
+
+    def sift(self, k: int, parts: list[dict[str, Any]], *, next_cycle: int, done: int
+             ) -> list[dict[str, Any]]:
+        """The parts of peripheral ``k``'s reply the central is to take: those of
+        intervals it does not compute for ``k`` (:meth:`covers`). The others are dropped,
+        not counted against it; while ``k`` is lost each counts towards its coming back,
+        which starts at ``next_cycle`` (the next interval to begin)."""
+        if not self.history:
+            return parts
+        kept = [p for p in parts if not self.covers(k, p["cycle"])]
+        if len(kept) == len(parts):
+            return parts
+        self.dropped_replies += len(parts) - len(kept)
+        if k in self.lost:
+            for p in parts:
+                current = p["cycle"] >= next_cycle - CURRENT_BEHIND
+                self.in_a_row[k] = self.in_a_row[k] + 1 if current else 0
+            if self.in_a_row[k] >= REJOIN_PARTS:
+                record = self.lost.pop(k)
+                record["back_from_cycle"] = self.back[k] = next_cycle
+                self.settling.add(k)
+                record["back_at_interval"] = done
+                self.silence.watch_again(k, time.monotonic_ns())
+                self._record(record, next_cycle)
+        return kept
+
+    @property
+    def covering(self) -> bool:
+        """Whether the central computes a peripheral's part of some interval."""
+        return bool(self.lost or self.settling)
 
     def cover(self, intervals: Collection[InFlight]) -> bool:
         """Compute here the lost peripherals' part of every round that waits for one;
@@ -102,8 +179,10 @@ class TakeOver:
         be sent). Raises :class:`~.fault.Fault` where a round needs values only a lost
         peripheral held (a round run on values it kept from an earlier round)."""
         went_on = False
+        for k in [k for k in self.settling if all(f.cycle >= self.back[k] for f in intervals)]:
+            self.settling.discard(k)
         for f in list(intervals):
-            gone = sorted(f.waiting & self.lost.keys())
+            gone = sorted(k for k in f.waiting if self.covers(k, f.cycle))
             if not gone or f.round is None:
                 continue
             if not self.late.compute(f, gone, late=False):
@@ -115,16 +194,9 @@ class TakeOver:
             went_on = went_on or not f.waiting
         return went_on
 
-    def ignores(self, k: int) -> bool:
-        """Whether a reply of peripheral ``k`` is to be dropped (it was taken over)."""
-        if k in self.lost:
-            self.dropped_replies += 1
-            return True
-        return False
-
     def report(self) -> list[dict[str, Any]]:
         """The report's ``degraded``: each loss, in the order they came."""
-        return list(self.lost.values())
+        return [dict(r) for r in self.history]
 
 
-__all__ = ["TakeOver"]
+__all__ = ["CURRENT_BEHIND", "REJOIN_PARTS", "RESTARTS", "TakeOver"]

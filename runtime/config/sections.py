@@ -163,7 +163,8 @@ class ScheduleConfig:
         help="A peripheral whose process exited, or that stayed silent past the silence "
         "rule, is taken over: the central computes its rounds itself from then on (the "
         "same arithmetic, so the same commands; the report's degraded says which and from "
-        "when); fault: stop the robot safely (exit 3).")
+        "when), until one whose process exited, started again by ctrlunit start, keeps up; "
+        "fault: stop the robot safely (exit 3).")
     overload: str = setting(
         "auto", flag=Flag(), choices=OVERLOAD_ACTIONS,
         help="Realtime: when 10 of the last 100 intervals were late (their command left "

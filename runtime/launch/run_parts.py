@@ -5,8 +5,10 @@ and the report's parts that come from the roles' final reports."""
 from __future__ import annotations
 
 import os
+import queue
 import subprocess
-from collections.abc import Collection
+import threading
+from collections.abc import Callable, Collection
 from typing import Any
 
 from ..central import Central, Supervision
@@ -29,9 +31,12 @@ def child_names(rc: RunConfig, setup: Setup) -> list[str]:
 
 
 def supervision(children: list[subprocess.Popen], pids: dict[str, int],
-                names: list[str]) -> Supervision:
+                names: list[str], *,
+                respawn: Callable[[str], subprocess.Popen] | None = None) -> Supervision:
     """What the central can learn of the role processes it starts (``children``, named
-    ``names`` in order; ``pids`` by name, filled as they are started)."""
+    ``names`` in order; ``pids`` by name, filled as they are started), and how it starts
+    one anew (``respawn(name)``, on a thread of its own: a start forks this process and
+    waits for the new program, which the central's loop must not)."""
 
     def check(skip: Collection[str] = ()) -> tuple[str, int] | None:
         for p, name in zip(children, names, strict=False):
@@ -49,7 +54,23 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
             return thread_times(os.getpid(), threads=ZENOH_THREADS)
         return thread_times(pids[role]) if role in pids else {}
 
-    return Supervision(check, role_state, role_times, machine_load)
+    asked: queue.SimpleQueue[str] = queue.SimpleQueue()
+    started: list[threading.Thread] = []
+
+    def restarter() -> None:  # lives as long as the process: a role started by a thread
+        while True:           # dies when that thread ends (PR_SET_PDEATHSIG)
+            role = asked.get()
+            p = respawn(role)  # type: ignore[misc]
+            children[names.index(role)], pids[role] = p, p.pid
+
+    def restart(role: str) -> None:
+        if not started:
+            started.append(threading.Thread(target=restarter, name="restarter", daemon=True))
+            started[0].start()
+        asked.put(role)
+
+    return Supervision(check, role_state, role_times, machine_load,
+                       None if respawn is None else restart)
 
 
 def live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:

@@ -162,7 +162,8 @@ class UnitStart:
                            self.viewer, self.observers, status_writer(rc.run.status_file),
                            self.guard),
             on_message=self.recorder.on_message if self.recorder else None,
-            supervision=supervision(self.children, self.pids, child_names(rc, setup))
+            supervision=supervision(self.children, self.pids, child_names(rc, setup),
+                                    respawn=self._spawn_one)
             if self.spawn else Supervision())
 
     def _central_node(self) -> Node:
@@ -219,12 +220,17 @@ class UnitStart:
     def _spawn(self) -> None:
         if not self.spawn:
             return
-        spec, run_dir, cpus = self.run_dir / "spec.json", self.run_dir, self.cpus[1]
         for name in child_names(self.rc, self.setup):
-            role, _, k = name.partition("-")
-            self.children.append(spawn_role(spec, role, int(k) if k else None, self.endpoint,
-                                            run_dir / f"{name}.log", cpus=cpus))
+            self.children.append(self._spawn_one(name))
             self.pids[name] = self.children[-1].pid
+
+    def _spawn_one(self, name: str) -> subprocess.Popen:
+        """Start role ``name`` (``plant``, ``peripheral-K``) from the run's spec file; its
+        output goes to ``name.log`` in the run's directory (appended: a role started
+        again during the run keeps its first process's log)."""
+        role, _, k = name.partition("-")
+        return spawn_role(self.run_dir / "spec.json", role, int(k) if k else None,
+                          self.endpoint, self.run_dir / f"{name}.log", cpus=self.cpus[1])
 
     def _place(self) -> None:
         """``--placement auto``: the warm-up's choice; if it differs, the roles take the
@@ -300,7 +306,8 @@ class UnitStart:
         fault). A directory kept is the report's ``logs_kept``, which ``ctrlunit start``
         names after the summary."""
         central = getattr(self, "central", None)  # None: the start failed before it
-        taken = {f"peripheral-{k + 1}" for k in central.takeover.lost} if central else set()
+        taken = ({f"peripheral-{d['peripheral']}" for d in central.takeover.history}
+                 if central else set())
         for p, name in zip(self.children, child_names(self.rc, self.setup), strict=False):
             if (p.returncode not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM)
                     and self.fault is None):

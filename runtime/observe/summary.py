@@ -67,6 +67,10 @@ def _degraded_lines(r: dict[str, Any]) -> list[str]:
             out.append(f"{head}peripheral {d['peripheral']} lost at interval {d['at_interval']}"
                        f" ({why[:160]}): the central computes its rounds from cycle "
                        f"{d['from_cycle']}")
+        if "back_from_cycle" in d:
+            out.append(f"{' ' * 14}peripheral {d['peripheral']} back at interval "
+                       f"{d['back_at_interval']}: it serves its rounds again from cycle "
+                       f"{d['back_from_cycle']}")
     if out:
         out.append(f"{' ' * 14}{(r.get('late') or {}).get('taken_over', 0)} round(s) of lost "
                    "peripherals computed by the central (the same arithmetic: the commands "

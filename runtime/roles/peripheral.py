@@ -242,11 +242,15 @@ def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
     with Node(conf, setup.rc.transport.unit, f"peripheral-{index}") as node:
         try:
             reply = declare(node, index - 1)
-            node.wait_for_go(timeout=setup.rc.transport.startup_timeout)
-            res = serve(node, setup.engine(), index - 1, reply,
+            go = node.wait_for_go(timeout=setup.rc.transport.startup_timeout)
+            # started again during a run (.takeover): the placement it runs comes with go
+            blocks = go.get("central_blocks")
+            engine = (setup.engine() if blocks is None
+                      else setup.with_central_blocks(blocks).engine())
+            res = serve(node, engine, index - 1, reply,
                         watchdog=max(5.0, 3 * setup.rc.transport.timeout), trace=setup.rc.run.trace,
                         place=lambda blocks: setup.with_central_blocks(blocks).engine())
-        except TimeoutError as exc:
+        except (TimeoutError, ConfigError) as exc:  # no go, or a go naming no placement
             print(f"ctrlunit peripheral {index}: {exc}", file=sys.stderr)
             return EXIT_LINK
         res["sched"] = sched.policy_name()
