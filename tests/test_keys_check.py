@@ -22,7 +22,12 @@ import pytest
 START = ["start", "--peripherals", "3", "--pipeline", "2", "--clock", "lockstep", "--check"]
 ROLES = ["central", "plant", "peripheral-1", "peripheral-2", "peripheral-3"]
 """The roles that ``START`` runs, whose credentials it checks."""
-NOW = datetime.datetime.now(datetime.UTC)
+
+
+def now() -> datetime.datetime:
+    """The time of the check: read when it runs, not when the module was collected (the
+    keys are made later, valid from five minutes before they were made)."""
+    return datetime.datetime.now(datetime.UTC)
 
 
 def ctrlunit(*args: str) -> subprocess.CompletedProcess[str]:
@@ -140,11 +145,11 @@ def test_a_bad_key_file_stops_start_before_anything_starts(keys, case):
 def test_the_check_names_the_file_and_the_reason(keys, case):
     from ctrlunit.runtime.transport.security import check_credentials
 
-    check_credentials(keys, ROLES, now=NOW)  # the unit's keys as made pass
+    check_credentials(keys, ROLES, now=now())  # the unit's keys as made pass
     spoil, reason = SPOILED[case]
     spoil(keys)
     with pytest.raises(ValueError) as err:
-        check_credentials(keys, ROLES, now=NOW)
+        check_credentials(keys, ROLES, now=now())
     assert str(err.value) == f"--keys {keys}: {reason}" or \
         str(err.value).startswith(f"--keys {keys}: {reason} ("), err.value
     assert "\n" not in str(err.value)
@@ -155,9 +160,9 @@ def test_the_validity_is_read_at_the_time_given(keys):
 
     with pytest.raises(ValueError, match=r"ca\.pem is valid only from .* UTC \(is this "
                        "host's clock right\\?\\)"):
-        check_credentials(keys, ["central"], now=NOW - datetime.timedelta(days=1))
+        check_credentials(keys, ["central"], now=now() - datetime.timedelta(days=1))
     with pytest.raises(ValueError, match=r"ca\.pem expired on "):
-        check_credentials(keys, ["central"], now=NOW + datetime.timedelta(days=366))
+        check_credentials(keys, ["central"], now=now() + datetime.timedelta(days=366))
 
 
 def test_each_role_checks_its_own_files_only(keys):
@@ -241,7 +246,7 @@ def test_keys_others_can_read_or_replace_are_refused(keys, case):
     line = one_line(ctrlunit(*START, "--keys", str(keys)))
     assert expected in line, line
     with pytest.raises(ValueError) as err:
-        check_credentials(keys, ROLES, now=NOW)
+        check_credentials(keys, ROLES, now=now())
     assert str(err.value).startswith(expected), err.value
 
 
