@@ -151,6 +151,7 @@ def restarted(tag: str, k: int, *, dies: int, back: int, on_cycle: Any = None,
             state["dead"] = False
 
     u = silenced(tag, {}, on_cycle=restart, **kw)
+    u.dead = state  # type: ignore[attr-defined]
     supervise(u.central, child_check=lambda skip=(): (
         (f"peripheral-{k + 1}", -9) if state["dead"] and f"peripheral-{k + 1}" not in skip
         else None), role_state=lambda role: "exited" if state["dead"] else "running")
@@ -177,6 +178,23 @@ def test_a_peripheral_started_again_serves_its_rounds_again(undisturbed, k, dies
     rounds = len(c.engine.plan.rounds)
     assert c.late.taken_over <= rounds * (d["back_from_cycle"] - d["from_cycle"])
     assert u.peripherals[k][1].served > 0 and not sum(c.node.rejected.values())
+
+
+def test_a_peripheral_lost_during_the_warm_up_is_taken_over_and_comes_back(undisturbed):
+    """Peripheral 2's process is gone before the warm-up: the warm-up runs its blocks
+    here, the run takes its rounds over, and started again it serves them again; the
+    commands are those of the undisturbed run."""
+    u = restarted("towarm", 1, dies=10**9, back=40)
+    u.muted.add(1)
+    u.dead["dead"] = True  # type: ignore[attr-defined]
+    u.plant_muted = True  # the plant's samples begin with the run
+    u.central.warmup.run()
+    u.plant_muted = False
+    assert set(u.central.takeover.lost) == {1}
+    c = u.run()
+    (d,) = c.takeover.report()
+    assert u.commands() == undisturbed
+    assert d["from_cycle"] == 0 and 40 < d["back_from_cycle"] < c.done
 
 
 def test_a_recorded_return_replays_bit_for_bit(tmp_path):

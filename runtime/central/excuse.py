@@ -33,8 +33,12 @@ class Supervision(NamedTuple):
     machine_load: Callable[[], MachineLoad] | None = None
     """How short of CPUs the machine is (:func:`~ctrlunit.runtime.roles.supervise.machine_load`)."""
     restart: Callable[[str], None] | None = None
-    """``restart(role)``: start a role whose process exited anew, in the background (a
-    lost peripheral: .takeover)."""
+    """``restart(role)``: start a role whose process exited anew, in the background and
+    under the default policy (a lost peripheral: .takeover): its start-up, about a
+    CPU-second of imports, takes no CPU from the unit's SCHED_FIFO threads."""
+    promote: Callable[[str], None] | None = None
+    """``promote(role)``: give a role started again, once it is set up, the scheduling
+    policy the calling thread has (the unit's)."""
 
 
 UNSUPERVISED = Supervision()

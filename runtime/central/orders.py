@@ -7,7 +7,7 @@ from __future__ import annotations
 import queue
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import Any
 
 from ..config import EXIT_LINK
@@ -164,16 +164,17 @@ class Orders:
             # a sample now is no fault: the plant's first sample may only follow go
         self.say("go")
 
-    def place(self, central_blocks: list[str]) -> None:
+    def place(self, central_blocks: list[str], *, skip: Collection[str] = ()) -> None:
         """Tell every peripheral the blocks the central now runs (``--placement auto``'s
-        choice at warm-up) until each has rebuilt its plan and said ``placed``.
+        choice at warm-up) until each has rebuilt its plan and said ``placed`` (those in
+        ``skip``, taken over, aside: one started again gets the blocks with ``go``).
 
         Raises
         ------
         Fault
             If a peripheral does not confirm within the start-up timeout.
         """
-        waiting = {f"peripheral-{k + 1}" for k in range(self.peripherals)}
+        waiting = {f"peripheral-{k + 1}" for k in range(self.peripherals)} - set(skip)
         self.central_blocks = central_blocks
         deadline = time.monotonic() + self.startup_timeout_s
         next_say = 0.0

@@ -126,13 +126,14 @@ class Central:
                                  on_message=on_message)
         self.orders = Orders(node, peripherals=n, plant=sch.clock != "freerun",
                              startup_timeout_s=rc.transport.startup_timeout,
-                             check_children=self.silence.check_children,
+                             check_children=self.takeover.check_children,
                              take_sample=self._on_sample, config=config_message(rc),
                              may_join=self.takeover.may_rejoin)
         self.warmup = WarmUp(node, engine, controller,
                              publish=self.intervals.publish_request, depth=sch.pipeline,
                              asked=sch.replies, startup_timeout_s=rc.transport.startup_timeout,
-                             check_children=self.silence.check_children, other=self.handle)
+                             check_children=self.takeover.check_children, other=self.handle,
+                             lost=lambda: self.takeover.lost)
         self.rate = RateChange(ctl=lambda: self.ctl, where=lambda: (self.next_cycle, self.done),
                                intake=self.intake, orders=self.orders,
                                plant_key=keys.control("plant"), on_message=on_message)
@@ -182,12 +183,11 @@ class Central:
         return info
 
     def place(self, rc: RunConfig, engine: Engine, controller: Controller) -> None:
-        """Switch the unit to ``engine``'s placement before the run (``--placement auto``'s
-        choice at warm-up), without starting it again: every peripheral is told the
-        blocks the central now runs, rebuilds its plan and says ``placed``; this returns
-        once each has, and then runs the new plan itself. Warm up again before measuring.
-        Raises :class:`~.fault.Fault` if a peripheral does not confirm in time."""
-        self.orders.place(sorted(engine.plan.placement.central_blocks))
+        """Switch to ``engine``'s placement before the run (``--placement auto``'s choice at
+        warm-up) without starting again: each peripheral not taken over rebuilds its plan
+        and says ``placed`` (else :class:`~.fault.Fault`); warm up again before measuring."""
+        self.orders.place(sorted(engine.plan.placement.central_blocks),
+                          skip={f"peripheral-{k + 1}" for k in self.takeover.lost})
         self.rc = rc
         self.use(engine, controller)
 

@@ -82,6 +82,9 @@ class TakeOver:
         self.in_a_row: dict[int, int] = {}
         self.restarts: Counter[int] = Counter()
         """Peripheral -> how often the launcher started it anew."""
+        self.starting: set[int] = set()
+        """Peripherals started anew that have not answered yet (then :meth:`sift` gives
+        them the unit's scheduling policy)."""
         """Lost peripheral -> its current replies in a row (:data:`REJOIN_PARTS`)."""
         self.dropped_replies = 0
         """Replies of lost peripherals that came anyway (dropped, not counted against
@@ -106,6 +109,7 @@ class TakeOver:
         restart = self.silence.supervision.restart
         if fault.lost == "exited" and restart is not None and self.restarts[k] < RESTARTS:
             self.restarts[k] += 1
+            self.starting.add(k)
             restart(fault.process)  # it comes back once it answers (:meth:`sift`)
         if fault.lost == "silent":
             for j in range(self.intervals.settings.peripherals):
@@ -156,6 +160,10 @@ class TakeOver:
             return parts
         self.dropped_replies += len(parts) - len(kept)
         if k in self.lost:
+            promote = self.silence.supervision.promote
+            if k in self.starting and promote is not None:
+                self.starting.discard(k)  # set up: it answers
+                promote(f"peripheral-{k + 1}")
             for p in parts:
                 current = p["cycle"] >= next_cycle - CURRENT_BEHIND
                 self.in_a_row[k] = self.in_a_row[k] + 1 if current else 0
@@ -172,6 +180,16 @@ class TakeOver:
     def covering(self) -> bool:
         """Whether the central computes a peripheral's part of some interval."""
         return bool(self.lost or self.settling)
+
+    def check_children(self) -> None:
+        """The silence watch's look at the role processes before the run (the warm-up,
+        the placement): a peripheral whose process exited is taken over there too."""
+        try:
+            self.silence.check_children()
+        except Fault as fault:
+            if not self.take(fault, (), done=self.intervals.done,
+                             next_cycle=self.intervals.next_cycle):
+                raise
 
     def cover(self, intervals: Collection[InFlight]) -> bool:
         """Compute here the lost peripherals' part of every round that waits for one;

@@ -9,7 +9,7 @@ import math
 import queue
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import Any
 
 from ...kernels.kinematics import inverse_kinematics
@@ -40,14 +40,17 @@ class WarmUp:
     engine, controller : the run's plan and estimate (:meth:`use` when they change).
     depth, asked : the pipeline depth and ``--replies``.
     startup_timeout_s : how long a peripheral may take to answer a warm-up round.
-    check_children : raises the fault of a role process that has exited.
+    check_children : raises the fault of a role process that has exited (or takes the
+        peripheral over: .takeover).
     other : takes the events that are not the warm-up's replies (samples, hellos).
+    lost : the peripherals taken over, whose blocks the warm-up runs here.
     """
 
     def __init__(self, node: Node, engine: Engine, controller: Controller, *,
                  publish: Callable[[bytes], None], depth: int, asked: str,
                  startup_timeout_s: float, check_children: Callable[[], None],
-                 other: Callable[[Event], None]) -> None:
+                 other: Callable[[Event], None],
+                 lost: Callable[[], Collection[int]] = frozenset) -> None:
         self.node = node
         self.publish = publish
         self.depth = depth
@@ -55,6 +58,7 @@ class WarmUp:
         self.startup_timeout_s = startup_timeout_s
         self.check_children = check_children
         self.other = other
+        self.lost = lost
         self.block_costs: dict[str, float] | None = None
         """Each block's time on the central (measured once)."""
         self.reply_each = False
@@ -103,6 +107,7 @@ class WarmUp:
              "vals": Engine.request_vals(rnd, ctx, (0, 1, 2))}])
         axes_of = self.engine.plan.placement.axes
         waiting = set(range(self.engine.plan.placement.peripherals))
+        self._run_lost(rnd, ctx, waiting)
         deadline = time.monotonic() + self.startup_timeout_s
         resend = 0.0
         sends = 0
@@ -123,6 +128,7 @@ class WarmUp:
                 ev = self.node.events.get(timeout=min(left, 0.1))
             except queue.Empty:
                 self.check_children()
+                self._run_lost(rnd, ctx, waiting)
                 continue
             if ev.kind != "reply":
                 self.other(ev)
@@ -144,6 +150,12 @@ class WarmUp:
             compute_s = max(compute_s, (span[1] - span[0]) / 1e9)
             if not waiting and sends == 1 and rnd.index == 0:
                 self.warm_rtt_s.append(time.perf_counter() - t_sent - compute_s)
+
+    def _run_lost(self, rnd: Round, ctx: dict, waiting: set[int]) -> None:
+        """Run here the blocks of the peripherals in ``waiting`` that were lost."""
+        for k in sorted(waiting & set(self.lost())):
+            self.engine.run_round(rnd, ctx, self.engine.plan.placement.axes[k])
+            waiting.discard(k)
 
     def choose_replies(self) -> dict[str, Any]:
         """Decide how peripherals answer fused requests (``--replies``). Returns what was

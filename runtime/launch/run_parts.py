@@ -58,7 +58,8 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
     started: list[threading.Thread] = []
 
     def restarter() -> None:  # lives as long as the process: a role started by a thread
-        while True:           # dies when that thread ends (PR_SET_PDEATHSIG)
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # dies when it ends
+        while True:  # (PR_SET_PDEATHSIG); a role it starts begins at the default policy
             role = asked.get()
             p = respawn(role)  # type: ignore[misc]
             children[names.index(role)], pids[role] = p, p.pid
@@ -69,8 +70,13 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
             started[0].start()
         asked.put(role)
 
+    def promote(role: str) -> None:
+        policy = os.sched_getscheduler(0)
+        sched.demote([pids[role]], priority=os.sched_getparam(0).sched_priority
+                     if policy == os.SCHED_FIFO else 0)
+
     return Supervision(check, role_state, role_times, machine_load,
-                       None if respawn is None else restart)
+                       None if respawn is None else restart, promote)
 
 
 def live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:

@@ -35,16 +35,10 @@ gets them too and stops every role in order (runtime/roles/stopping.py)."""
 
 def _child_setup(cpus: set[int] | None) -> Callable[[], None]:
     """What a role's process does between fork and exec: die with its parent, leave
-    :data:`LEFT_TO_THE_LAUNCHER` to it, start at the default policy (a role started
-    again during a run is forked by a thread of a central that may run under SCHED_FIFO:
-    its start-up, about a CPU-second of imports, would take a CPU from the unit's
-    threads; the role takes the run's policy itself once set up), and take its CPUs
-    before its first instruction (threads it starts later, numpy's and Zenoh's, inherit
-    them)."""
+    :data:`LEFT_TO_THE_LAUNCHER` to it, and take its CPUs before its first instruction
+    (threads it starts later, numpy's and Zenoh's, inherit them)."""
     def setup() -> None:
         _die_with_parent()
-        with contextlib.suppress(OSError):
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         for s in LEFT_TO_THE_LAUNCHER:
             signal.signal(s, signal.SIG_IGN)
         if cpus:
