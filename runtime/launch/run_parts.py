@@ -79,29 +79,31 @@ def observers_view(rc: RunConfig, setup: Setup, node: Any) -> Any:
                     rate_hz=rc.run.foxglove_rate)
 
 
-def ros2_config(rc: RunConfig) -> Any:
+def ros2_config(rc: RunConfig, *, probe: bool = True) -> Any:
     """``--ros2``: the Zenoh configuration of the session that joins the ROS 2 network
-    (runtime/transport/ros2_zenoh.py), once a router answers there; None without
-    ``--ros2``. Raises ValueError (a link the rule refuses) or OSError (no router)."""
+    (runtime/transport/ros2_zenoh.py), with ``probe`` once a router answers there; None
+    without ``--ros2``. Raises ValueError (a link the rule refuses) or OSError (no
+    router)."""
     if rc.run.ros2 is None:
         return None
     from ..transport import ros2_zenoh
 
     conf = ros2_zenoh.session_config(os.environ, insecure=rc.transport.insecure)
-    ros2_zenoh.probe(conf)
+    if probe:
+        ros2_zenoh.probe(conf)
     return conf
 
 
-def ros2_live(rc: RunConfig, setup: Setup, conf: Any, echo: Any) -> Any:
-    """``--ros2``: the live ROS 2 topics (runtime/observe/ros2_live.py) in a session of
+def ros2_live(rc: RunConfig, setup: Setup, echo: Any) -> Any:
+    """``--ros2``: the live ROS 2 topics (runtime/recording/ros2_live.py) in a session of
     their own, or None; a session that does not open is said and the run goes on
     without them (an observer never stops the unit)."""
-    if conf is None or rc.run.ros2 is None:
+    if rc.run.ros2 is None:
         return None
-    from ..observe.ros2_live import Ros2Live
+    from ..recording.ros2_live import Ros2Live
 
     try:
-        live = Ros2Live(conf, domain=rc.run.ros2, unit=rc.transport.unit,
+        live = Ros2Live(ros2_config(rc, probe=False), domain=rc.run.ros2, unit=rc.transport.unit,
                         task=view_task(rc, setup), period_s=rc.schedule.period,
                         rate_hz=rc.run.foxglove_rate)
     except Exception as exc:  # ZError: the router went away since the probe

@@ -119,7 +119,7 @@ class UnitStart:
         self.viewer = None
         try:
             self.setup = setup = make_setup(rc)
-            self.ros2_conf = ros2_config(rc)  # a router answers: else refused here
+            ros2_config(rc)  # --ros2: a router answers, else the start is refused here
             # before the real-time policy: the view's threads stay at normal priority
             if self.view:
                 self.viewer = self.view[0]
@@ -148,14 +148,13 @@ class UnitStart:
         self.run_dir = Path(tempfile.mkdtemp(prefix="ctrlunit-"))
         (self.run_dir / "spec.json").write_text(json.dumps({"run": rc.to_dict()}))
         self.cpus = role_cpus(rc)  # (the central's, the children's): before pinning
-        self.cores = unit_cores(*self.cpus) if self.spawn else None
         if self.cpus[0]:
             os.sched_setaffinity(0, self.cpus[0])  # before zenoh.open: its threads inherit it
         self.node = self._central_node()
         self.guard = self._busy_guard()
         self.observers = observers_view(rc, setup, self.node)
         # after the node's session: Zenoh's threads, shared, are made under the RT policy
-        self.ros2 = ros2_live(rc, setup, self.ros2_conf, self.echo)
+        self.ros2 = ros2_live(rc, setup, self.echo)
         self.recorder = None
         if rc.run.record:
             from ..recording.recorder import Recorder
@@ -338,8 +337,8 @@ class UnitStart:
         report["zenoh"] = self.decided.get("zenoh", {})
         report["link_list"] = rc.links(central=self.endpoint)  # the central's, the default's too
         report["links"] = rc.link_security(check_files=False, central=self.endpoint)
-        report.update(report_extras(rc, self.setup, central, cores=self.cores,
-                                    spawn=self.spawn))
+        cores = unit_cores(*self.cpus) if self.spawn else None
+        report.update(report_extras(rc, self.setup, central, cores=cores, spawn=self.spawn))
         if self.inspect is not None:
             self.inspect["central"] = central
             self.inspect["setup"] = self.setup

@@ -1,6 +1,6 @@
 """Live ROS 2 topics of a run over rmw_zenoh (``ctrlunit start --ros2 [DOMAIN]``).
 
-The recording's four ROS 2 topics (runtime/recording/ros2.py), with the same messages
+The recording's four ROS 2 topics (:mod:`.ros2`), with the same messages
 byte for byte, published as a ROS 2 node ``/ctrlunit_<unit>`` would publish them with
 rmw_zenoh (runtime/transport/ros2_zenoh.py), so that ``ros2 topic list`` and ``ros2
 topic echo /joint_states`` on a host running ROS 2 with rmw_zenoh see them:
@@ -26,11 +26,11 @@ import time
 from typing import Any
 
 from ..host import sched
-from ..recording.ros2 import TOPICS, Ros2Channels, typestore
+from ..observe.signals import Interval, capture, state_message
+from ..observe.viewer import QUEUE_INTERVALS, SEND_EVERY_S, YIELD_EVERY_S
+from ..observe.zview import LISTENING_EVERY_S
 from ..transport import ros2_zenoh as rz
-from .signals import Interval, capture, state_message
-from .viewer import QUEUE_INTERVALS, SEND_EVERY_S, YIELD_EVERY_S
-from .zview import LISTENING_EVERY_S
+from .ros2 import TOPICS, Ros2Channels, typestore
 
 CLOSE_WAIT_S = 1.0
 """How long the end of a run waits for the session to close."""
