@@ -37,7 +37,8 @@ def table() -> list[tuple[list[list[str]], list[list[str]]]]:
         if not line.startswith("| `"):
             continue
         cells = [c.strip() for c in line.replace("\\|", "¦").strip("|").split(" | ")]
-        groups = [re.findall(r"--[a-z][a-z-]*(?:/--[a-z-]+)?", g) for g in cells[0].split(";")]
+        groups = [re.findall(r"--[a-z][a-z0-9-]*(?:/--[a-z0-9-]+)?", g)
+                  for g in cells[0].split(";")]
         defaults = [[d.strip() for d in g.split(",")] for g in cells[1].split(";")]
         rows.append((groups, defaults))
     return rows

@@ -84,6 +84,10 @@ def _option(flat: str, a: About, *, shown: bool | None = None) -> Any:
         return click.option(name, "late_items" if fl.kind == "late" else flat,
                             multiple=True, **about)
     callback = _read if fl.kind in ("duration", "period", "priority") else None
+    if fl.bare is not None:  # --ros2 alone, or --ros2 5
+        bare = fl.bare() if callable(fl.bare) else fl.bare
+        return click.option(name, flat, type=_click_type(flat, a), default=default,
+                            is_flag=False, flag_value=bare, callback=callback, **about)
     return click.option(name, flat, type=_click_type(flat, a), default=default,
                         show_default=default is not None, callback=callback, **about)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import typing
 from dataclasses import asdict, dataclass, field, fields
@@ -226,6 +227,10 @@ class RunConfig:
                     check_endpoint(e, option=option)
             if self.transport.zenoh_config is not None:
                 check_zenoh_config(self.transport.zenoh_config)
+            if self.run.ros2 is not None:  # the ROS 2 router's link, by the same rule
+                from ..transport.ros2_zenoh import session_config
+
+                session_config(os.environ, insecure=self.transport.insecure)
             self.link_security(roles=roles)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None

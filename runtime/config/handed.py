@@ -30,7 +30,7 @@ from its links and its host's CPUs."""
 FILE_SETTINGS = ("task", "params", "placement")
 """Settings by flat name that may name a file on the host that reads them."""
 
-CENTRAL_ONLY = frozenset({"record", "report", "foxglove", "reject_limit"})
+CENTRAL_ONLY = frozenset({"record", "report", "foxglove", "reject_limit", "ros2"})
 """Settings only the central uses (its outputs, its flood rule): not sent."""
 
 SENT = frozenset(FLAT) - ROLE_OWN - CENTRAL_ONLY

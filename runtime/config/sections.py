@@ -14,6 +14,7 @@ are written there once (module notes of :mod:`.setting`).
 
 from __future__ import annotations
 
+import os
 import secrets
 from dataclasses import dataclass
 
@@ -280,6 +281,12 @@ class TransportConfig:
         "second is a fault by name (exit 3 or 4); a role of the unit sends none.")
 
 
+def _ros_domain() -> str:
+    """``--ros2`` alone: ``ROS_DOMAIN_ID``'s domain, or 0 (as ROS 2 does; the flag reads
+    and checks it as a domain given)."""
+    return os.environ.get("ROS_DOMAIN_ID", "").strip() or "0"
+
+
 @dataclass(frozen=True)
 class RunOptions:
     """How long the run lasts and what it writes."""
@@ -318,6 +325,14 @@ class RunOptions:
         200.0, flag=Flag(metavar="HZ"), allowed="0 (every interval) or 1 to 100000 Hz",
         help="/signals/state messages per second of the live view; 0: every interval (each "
         "costs the central ~0.1 ms of CPU).")
+    ros2: int | None = setting(
+        None, flag=Flag(metavar="[DOMAIN]", everyday=True, bare=_ros_domain),
+        bounds=(0, 232), allowed="0 to 232",
+        help="Publish /joint_states, /platform/pose, /platform/reference and "
+        "/ctrlunit/diagnostics as ROS 2 topics over rmw_zenoh in this domain (alone: "
+        "ROS_DOMAIN_ID, or 0), through the ROS 2 router tcp/localhost:7447 "
+        "(ZENOH_CONFIG_OVERRIDE changes it, as for rmw_zenoh), at --foxglove-rate, off "
+        "the control path.")
 
 
 SECTIONS: dict[str, type] = {"control": ControlConfig, "schedule": ScheduleConfig,

@@ -35,6 +35,9 @@ class Flag:
     metavar : what the help shows for the value.
     everyday : shown by ``--help`` (the others: ``--help-all``).
     hidden : never shown (an option the launcher passes to the roles it starts).
+    bare : the value of the flag given without one (``--ros2``: the domain of
+        ``ROS_DOMAIN_ID``, or 0); a callable is called when the options are built; None:
+        the flag needs its value.
     """
 
     name: str | None = None
@@ -43,6 +46,7 @@ class Flag:
     metavar: str | None = None
     everyday: bool = False
     hidden: bool = False
+    bare: Any = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:

@@ -106,6 +106,41 @@ def observers_view(rc: RunConfig, setup: Setup, node: Any) -> Any:
                     rate_hz=rc.run.foxglove_rate)
 
 
+def ros2_config(rc: RunConfig, *, probe: bool = True) -> Any:
+    """``--ros2``: the Zenoh configuration of the session that joins the ROS 2 network
+    (runtime/transport/ros2_zenoh.py), with ``probe`` once a router answers there; None
+    without ``--ros2``. Raises ValueError (a link the rule refuses) or OSError (no
+    router)."""
+    if rc.run.ros2 is None:
+        return None
+    from ..transport import ros2_zenoh
+
+    conf = ros2_zenoh.session_config(os.environ, insecure=rc.transport.insecure)
+    if probe:
+        ros2_zenoh.probe(conf)
+    return conf
+
+
+def ros2_live(rc: RunConfig, setup: Setup, echo: Any) -> Any:
+    """``--ros2``: the live ROS 2 topics (runtime/recording/ros2_live.py) in a session of
+    their own, or None; a session that does not open is said and the run goes on
+    without them (an observer never stops the unit)."""
+    if rc.run.ros2 is None:
+        return None
+    from ..recording.ros2_live import Ros2Live
+
+    try:
+        live = Ros2Live(ros2_config(rc, probe=False), domain=rc.run.ros2, unit=rc.transport.unit,
+                        task=view_task(rc, setup), period_s=rc.schedule.period,
+                        rate_hz=rc.run.foxglove_rate)
+    except Exception as exc:  # ZError: the router went away since the probe
+        echo(f"ctrlunit: --ros2: no ROS 2 topics this run ({exc})")
+        return None
+    echo(f"ctrlunit: ROS 2 topics of node /{live.node} in domain {live.domain} via "
+         f"{live.router} (ros2 topic echo /joint_states)")
+    return live
+
+
 def view_task(rc: RunConfig, setup: Setup) -> Any:
     """The reference the live view draws (none in freerun)."""
     return setup.task if rc.schedule.clock != "freerun" else None
@@ -173,4 +208,4 @@ def report_extras(rc: RunConfig, setup: Setup, central: Central, *, cores: int |
 
 
 __all__ = ["STOP_REPORTS_WAIT_S", "chain", "child_names", "live_view", "observers_view",
-           "report_extras", "status_writer", "supervision", "view_task"]
+           "report_extras", "ros2_config", "ros2_live", "status_writer", "supervision", "view_task"]

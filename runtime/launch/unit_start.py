@@ -43,6 +43,8 @@ from .run_parts import (
     live_view,
     observers_view,
     report_extras,
+    ros2_config,
+    ros2_live,
     status_writer,
     supervision,
     view_task,
@@ -77,6 +79,7 @@ class UnitStart:
         self.fault: dict[str, Any] | None = None
         self.kept: Path | None = None  # the run directory, kept after a fault
         self.decided: dict[str, Any] = {}
+        self.ros2: Any = None  # --ros2's topics, once the node is open
         """What the start decided on the way: admission, placement choice, Zenoh ids."""
 
     def __call__(self) -> tuple[int, dict]:
@@ -116,6 +119,7 @@ class UnitStart:
         self.viewer = None
         try:
             self.setup = setup = make_setup(rc)
+            ros2_config(rc)  # --ros2: a router answers, else the start is refused here
             # before the real-time policy: the view's threads stay at normal priority
             if self.view:
                 self.viewer = self.view[0]
@@ -144,12 +148,13 @@ class UnitStart:
         self.run_dir = Path(tempfile.mkdtemp(prefix="ctrlunit-"))
         (self.run_dir / "spec.json").write_text(json.dumps({"run": rc.to_dict()}))
         self.cpus = role_cpus(rc)  # (the central's, the children's): before pinning
-        self.cores = unit_cores(*self.cpus) if self.spawn else None
         if self.cpus[0]:
             os.sched_setaffinity(0, self.cpus[0])  # before zenoh.open: its threads inherit it
         self.node = self._central_node()
         self.guard = self._busy_guard()
         self.observers = observers_view(rc, setup, self.node)
+        # after the node's session: Zenoh's threads, shared, are made under the RT policy
+        self.ros2 = ros2_live(rc, setup, self.echo)
         self.recorder = None
         if rc.run.record:
             from ..recording.recorder import Recorder
@@ -159,8 +164,8 @@ class UnitStart:
         self.central = Central(
             self.node, rc, engine, setup.controller(engine), setup.cycles,
             on_cycle=chain(self.recorder.on_cycle if self.recorder else None, self.progress,
-                           self.viewer, self.observers, status_writer(rc.run.status_file),
-                           self.guard),
+                           self.viewer, self.observers, self.ros2,
+                           status_writer(rc.run.status_file), self.guard),
             on_message=self.recorder.on_message if self.recorder else None,
             supervision=supervision(self.children, self.pids, child_names(rc, setup),
                                     respawn=self._spawn_one)
@@ -290,6 +295,8 @@ class UnitStart:
             if self.guard is not None:
                 self.guard.close()
             self.observers.close(join_s=OBSERVERS_JOIN_S)
+            if self.ros2 is not None:
+                self.ros2.close(join_s=OBSERVERS_JOIN_S)
             self.node.close()
             if self.recorder is not None:
                 self.recorder.close(central)
@@ -338,8 +345,8 @@ class UnitStart:
         report["zenoh"] = self.decided.get("zenoh", {})
         report["link_list"] = rc.links(central=self.endpoint)  # the central's, the default's too
         report["links"] = rc.link_security(check_files=False, central=self.endpoint)
-        report.update(report_extras(rc, self.setup, central, cores=self.cores,
-                                    spawn=self.spawn))
+        cores = unit_cores(*self.cpus) if self.spawn else None
+        report.update(report_extras(rc, self.setup, central, cores=cores, spawn=self.spawn))
         if self.inspect is not None:
             self.inspect["central"] = central
             self.inspect["setup"] = self.setup
@@ -350,6 +357,8 @@ class UnitStart:
                                    "dropped": self.viewer.dropped}
         report["observers"] = {"keys": self.observers.url, "sent": self.observers.sent,
                                "dropped": self.observers.dropped}
+        if self.ros2 is not None:
+            report["ros2"] = self.ros2.report()
         if self.node.close_error is not None:
             report["zenoh"]["close_error"] = self.node.close_error
         return report

@@ -66,6 +66,8 @@ class Interval(NamedTuple):
     """Samples skipped so far."""
     previous_cmd_ns: int | None = None
     """When the previous interval's command left (ns), if there was one."""
+    qd: tuple[float, ...] | None = None
+    """Measured joint velocities (rad/s), when the interval has them."""
 
 
 def capture(central: Any, cycle: int, ctx: dict) -> Interval:
@@ -73,11 +75,13 @@ def capture(central: Any, cycle: int, ctx: dict) -> Interval:
     ``on_cycle``)."""
     log = central.log
     cmd = log.cmd_ns
+    qd = ctx.get("qdmeas_i")
     return Interval(cycle, cmd[-1], log.traversal_ns[-1], log.true_p.get(cycle),
                     tuple(float(x) for x in ctx["qmeas_i"]),
                     tuple(float(x) for x in ctx["cmd"]),
                     central.meters.plant_misses, central.meters.skipped,
-                    cmd[-2] if len(cmd) > 1 else None)
+                    cmd[-2] if len(cmd) > 1 else None,
+                    None if qd is None else tuple(float(x) for x in qd))
 
 
 def finite_or_none(x: float) -> float | None:
