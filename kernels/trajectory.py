@@ -387,4 +387,6 @@ def get_task(name: str) -> Task:
         return TASKS[name]()
     if FsPath(name).is_file():
         return task_from_json(name)
+    if name.endswith(".json") or "/" in name:
+        raise ValueError(f"no such file: {name!r}")
     raise ValueError(f"task must be one of {', '.join(TASKS)} or a JSON file, got {name!r}")

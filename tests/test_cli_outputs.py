@@ -156,6 +156,9 @@ def test_a_missing_file_is_an_input_error_for_every_command(tmp_path):
         err = res.stderr.strip().splitlines()
         assert res.exit_code == 1, (args, res.exit_code, res.stderr)
         assert len(err) == 1 and err[0].startswith("ctrlunit: error: "), (args, res.stderr)
+        assert "nosuch" in err[0] or str(tmp_path) in err[0], (args, err)  # names the file
+    assert "no such file" in invoke("start", "--check", "--task",
+                                    str(tmp_path / "nosuch.json")).stderr
 
 
 @pytest.mark.parametrize("command", sorted(cli.commands))
@@ -188,6 +191,7 @@ VARIANTS = {  # a change to the recorded run's report: the run balance reads
                                        "replies": {"asked": "each", "mode": "each"},
                                        "hold_rounds": {"asked": "never", "held": False},
                                        "cycles": 500},
+    "the circle": {"task": "circle"},
 }
 
 
@@ -221,6 +225,7 @@ def test_balance_prints_the_command_its_prediction_assumes(made, tmp_path, chang
     asked = {k: (src.get(k) or {}).get("asked", "auto") for k in ("replies", "hold_rounds")}
     assert (s.replies, s.hold_rounds) == (asked["replies"], asked["hold_rounds"])
     assert rc.run.cycles == src["cycles"]
+    assert c.task == src["task"]
     assert json.loads(placement.read_text())["peripherals"] == a["placement"]["peripherals"]
 
 

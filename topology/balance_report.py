@@ -108,8 +108,8 @@ def read_report(doc: Any, *, source: str = "report") -> dict[str, Any]:
 def _run_fields(doc: dict[str, Any], source: str) -> dict[str, Any]:
     """How the run was made beyond its graph and placement, which its figures (and so a
     model calibrated on them) depend on: the clock, its period, the cost model, the
-    replies and lone rounds asked, its length. A report that does not say: freerun, the
-    native costs, auto, the task's length."""
+    replies and lone rounds asked, its length, its task's name. A report that does not
+    say: freerun, the native costs, auto, the task's length, no name."""
     scale = doc.get("cost_scale")
     if scale is None:
         scale = 1.0
@@ -130,6 +130,7 @@ def _run_fields(doc: dict[str, Any], source: str) -> dict[str, Any]:
         "cost_scale": float(scale), "cycles": cycles,
         "hold_rounds": _choice(source, "hold_rounds.asked", hold.get("asked"),
                                ("auto", "always", "never"), "auto"),
+        "task": doc["task"] if isinstance(doc.get("task"), str) else None,
     }
 
 

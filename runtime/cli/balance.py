@@ -76,8 +76,10 @@ def rerun_command(a: dict[str, Any], placement_file: str) -> str:
     """The ``ctrlunit start`` command that runs the recommended placement as the
     prediction of analysis ``a`` assumes: the model is calibrated on the source run, so
     everything that run's figures depend on is the same (clock, period, depth, law, model,
-    observer, model state, cost model, replies, lone rounds, length); a setting left out
-    is the one the run had by default."""
+    observer, model state, cost model, replies, lone rounds, length, task); a setting left
+    out is the one the run had by default. A task read from a file is named by its name
+    only: the command then ends with a note to give the file."""
+    from ...kernels.trajectory import TASKS
     from ..config import RunConfig
 
     run = a["run"]
@@ -89,9 +91,10 @@ def rerun_command(a: dict[str, Any], placement_file: str) -> str:
     if run["cycles"]:
         opts.append(("--cycles", run["cycles"]))
     defaults = RunConfig.of(peripherals=n, pipeline=a["pipeline"], clock=run["clock"],
-                            law=a["law"])
+                            law=a["law"])  # the model state's default follows the law
+    task = run.get("task")
     for flag, value, default in (
-            ("--law", a["law"], defaults.control.law),
+            ("--law", a["law"], RunConfig.of().control.law),
             ("--model", a["model"], defaults.control.model),
             ("--observer", a["observer"], defaults.control.observer),
             ("--model-state", a["model_state"], defaults.resolved_model_state),
@@ -102,8 +105,12 @@ def rerun_command(a: dict[str, Any], placement_file: str) -> str:
             opts.append((flag, value))
     if run["cost_model"] == "t800" and run["cost_scale"] != 1.0:
         opts.append(("--cost-scale", f"{run['cost_scale']:g}"))
+    if task in TASKS and task != RunConfig.of().control.task:
+        opts.append(("--task", task))
     opts.append(("--placement", placement_file))
-    return "ctrlunit start " + " ".join(f"{k} {shlex.quote(str(v))}" for k, v in opts)
+    note = (f"  # and --task FILE: the run followed task {task!r} from a file"
+            if task is not None and task not in TASKS else "")
+    return "ctrlunit start " + " ".join(f"{k} {shlex.quote(str(v))}" for k, v in opts) + note
 
 
 def _balance_text(a: dict[str, Any], cmp: dict[str, Any] | None, *, source: str,

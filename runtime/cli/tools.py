@@ -16,6 +16,30 @@ from ..roles.stopping import raise_if_stopped, stop_signals
 from .base import FilePath, _fail, _json_safe, _rt_priority, cli
 
 
+def _stages(_ctx: Any, _param: click.Parameter, text: str) -> tuple[str, ...]:
+    """``--stages``: the names given, in the bench's order; a name that is not a stage is
+    a usage error (exit 2), as a value outside a flag's choices is."""
+    from ...bench.sweep import STAGES
+
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if names == ["all"]:
+        return STAGES
+    if not names or any(n not in STAGES for n in names):
+        raise click.BadParameter(f"{text!r}: allowed a comma-separated list of "
+                                 f"{', '.join(STAGES)}, or all")
+    return tuple(n for n in STAGES if n in names)
+
+
+def _duration(_ctx: Any, param: click.Parameter, text: str) -> float:
+    """A duration flag (``1ms``, ``0.001``, ``0``) in seconds; one that does not read is a
+    usage error (exit 2), as it is for ``ctrlunit start``; its range is the command's to
+    check (exit 1)."""
+    try:
+        return parse_duration(text, field_name=f"--{param.name}", zero=True)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
+
+
 @cli.command()
 @click.option("--out", "out_dir", type=FilePath(file_okay=False), default="bench-out",
               show_default=True, help="Directory for report.md, report.json and figures.")
@@ -33,26 +57,21 @@ from .base import FilePath, _fail, _json_safe, _rt_priority, cli
 @click.option("--realtime-long", "rt_long", default=None,
               help="Length of the realtime stage's long run of the main job, e.g. 60s; 0: "
                    "none.  [default: 60s; with --quick 0]")
-@click.option("--stages", "stages_text", default="all", show_default=True,
+@click.option("--stages", "stages", default="all", show_default=True, callback=_stages,
               help="Comma-separated stages to run: floor, sweep, recording, thesis, "
                    "balance, target, realtime (e.g. thesis,floor); all: every one.")
 @click.option("--check", is_flag=True,
               help="Check the options and list the runs the bench would make; run nothing.")
 def bench(out_dir: str, quick: bool, repeats: int | None, rt_periods: tuple[str, ...],
           thesis_scale: float, realtime_runs: int | None, rt_long: str | None,
-          stages_text: str, check: bool) -> None:
+          stages: tuple[str, ...], check: bool) -> None:
     """Sweep n x depth x cost model, measure the floor, compare with the 1994 unit and
     check its guarded figures, write reports and figures.
 
     Exits 1 when a figure of the thesis stage leaves its guarded range (report.md lists
     them)."""
-    from ...bench.sweep import STAGES
     from ...bench.sweep import bench as run_bench
     from ...bench.thesis import guard_lines
-
-    stages = _stages(stages_text, STAGES)
-    if stages is None:
-        return
 
     periods = [parse_duration(p, field_name="--realtime-period") for p in rt_periods]
     for p in periods:
@@ -125,20 +144,6 @@ def _bench_plan(stages: tuple[str, ...], *, quick: bool, repeats: int | None,
     return lines
 
 
-def _stages(text: str, allowed: tuple[str, ...]) -> tuple[str, ...] | None:
-    """``--stages``: the names given, in the bench's order; None (after the error) when a
-    name is not a stage."""
-    names = [t.strip() for t in text.split(",") if t.strip()]
-    if names == ["all"]:
-        return allowed
-    unknown = [n for n in names if n not in allowed]
-    if unknown or not names:
-        _fail(f"--stages = {text!r}: allowed a comma-separated list of "
-              f"{', '.join(allowed)}, or all", EXIT_CONFIG)
-        return None
-    return tuple(n for n in allowed if n in names)
-
-
 @contextlib.contextmanager
 def _ticker(label: str) -> Iterator[Callable[[str, int, int], None]]:
     """A transient progress bar and the ``progress(what, done, total)`` that moves it."""
@@ -180,8 +185,10 @@ def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
 
 
 @cli.command(short_help="This machine's wake-up latency; with --unit the unit's traversal.")
-@click.option("--period", default="1ms", show_default=True, help="Tick period.")
-@click.option("--duration", default="10s", show_default=True, help="How long to measure.")
+@click.option("--period", default="1ms", show_default=True, callback=_duration,
+              help="Tick period.")
+@click.option("--duration", default="10s", show_default=True, callback=_duration,
+              help="How long to measure.")
 @click.option("--unit", "with_unit", is_flag=True,
               help="Also run the unit's admission trial (no motion): its sample-to-command "
               "traversal at the period, and the shortest period it holds.")
@@ -200,7 +207,7 @@ def _realtime_only(out_dir: str, runs: int, long_s: float) -> None:
               "latency request at 0 us (needs root); auto: poll where permitted and a "
               "deeper idle state exists; default: leave them alone.")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
-def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipeline: int,
+def latency(period: float, duration: float, with_unit: bool, peripherals: int, pipeline: int,
             plot: str | None, rt_priority: str | int, idle: str, as_json: bool) -> None:
     """Measure how late this machine wakes a process at each tick of PERIOD (the realtime
     plant's own sleep), as LinuxCNC's latency-test does, for DURATION; print p50, p99,
@@ -212,9 +219,11 @@ def latency(period: str, duration: str, with_unit: bool, peripherals: int, pipel
     from ..host.sched import RtPermissionError
     from ..launch.latency import histogram_png, latency_report
 
+    period_s, duration_s = period, duration
+    if duration_s <= 0:
+        _fail(f"--duration = {duration_s:g} s: allowed more than 0", EXIT_CONFIG)
+        return
     try:
-        period_s = parse_duration(period, field_name="--period")
-        duration_s = parse_duration(duration, field_name="--duration")
         rep, lat = latency_report(period_s, duration_s, rt_priority=rt_priority, idle=idle)
     except (ConfigError, ValueError, RtPermissionError, IdlePermissionError) as exc:
         _fail(str(exc), EXIT_CONFIG)
