@@ -116,7 +116,7 @@ def thesis_stage(*, scale: float, repeats: int, cycles: int,
     Parameters
     ----------
     scale : the T-800 cost scale.
-    repeats : pairs to run (two or more for a median that one slow run cannot move).
+    repeats : pairs to run (three or more for a median that one slow pair cannot move).
     cycles : intervals per run.
     run : ``run(config, cycles) -> (report, central)`` (:func:`.runs.run_one`).
     config : the bench's configuration class (:class:`.runs.Config`).
