@@ -105,9 +105,10 @@ def main(argv: list[str] | None = None) -> None:
     lost, base = [], []
     with tempfile.TemporaryDirectory(prefix="ctrlunit-takeover-") as tmp:
         for k in range(args.runs):
-            # a random interval between 10 % and 80 % of the run at 2 ms (the period the
-            # admission chooses is not known beforehand; at 1 ms it comes earlier)
-            at = rng.randint(int(0.1 * seconds / 2e-3), int(0.8 * seconds / 2e-3))
+            # a random interval between 10 % and 80 % of the run at 3.2 ms (the period the
+            # admission chooses is not known beforehand; at 1 ms it comes earlier), so
+            # that the run reaches it at every period a busy hour admits
+            at = rng.randint(int(0.1 * seconds / 3.2e-3), int(0.8 * seconds / 3.2e-3))
             r = run(duration=args.duration, lose=(rng.randint(1, 3), at), how=args.signal,
                     workdir=Path(tmp))
             lost.append(r)

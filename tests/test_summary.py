@@ -121,7 +121,8 @@ def test_plot_figures_are_the_summarys(runs, name, tmp_path):
             assert figures[key][q] == pytest.approx(rep[key][q], rel=1e-12, abs=0), (key, q)
     for title in plots.titles["timing"]:
         for x in re.findall(r"p50 ([0-9.]+) us", title):
-            assert x in text or (name == "lockstep" and "period" in title), (x, title)
+            assert x in text, (x, title)
+        assert name != "lockstep" or "p99" not in title  # no deadline: no tail to judge
     assert f"p50 {rep['traversal_s']['p50'] * 1e6:.1f} us" in plots.titles["timing"][1]
     assert not plots.clashes, plots.clashes
     assert plots.index is not None and Path(plots.index).exists()

@@ -199,12 +199,19 @@ CLOCK_NOTES = {
 """What the timing figure's times are, by clock (realtime: its period and deadline)."""
 
 
-def timing_titles(figures: dict[str, Any]) -> dict[str, str]:
-    """The timing figure's panel titles: what each histogram is, and its p50 and p99 as
-    the summary prints them (runtime/observe/summary.py, to 0.1 us)."""
+def timing_titles(figures: dict[str, Any], clock: str = "realtime") -> dict[str, str]:
+    """The timing figure's panel titles: what each histogram is, and the figures the
+    summary prints of it (runtime/observe/summary.py, to 0.1 us): p50 and p99; in
+    lockstep, which keeps no deadline, the wall time's spread only and the traversal's
+    p50, as its summary gives them."""
     def line(q: dict[str, float]) -> str:
         return f"p50 {q['p50'] * 1e6:.1f} us   p99 {q['p99'] * 1e6:.1f} us"
 
+    if clock == "lockstep":
+        return {"period_s": "wall time per interval (command to command)\nno deadline: "
+                            "how fast the processes ran",
+                "traversal_s": "sample to command (wall time)\n"
+                               f"p50 {figures['traversal_s']['p50'] * 1e6:.1f} us"}
     return {"period_s": f"period (command to command)\n{line(figures['period_s'])}",
             "traversal_s": f"traversal (sample to command)\n{line(figures['traversal_s'])}"}
 
@@ -215,7 +222,7 @@ def _timing(path: Path, t: dict[str, Any], rc: RunConfig, plots: Plots) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
     nominal_us = rc.schedule.period * 1e6
     due = max(rc.delay_periods, 1)
-    titles = timing_titles(t["figures"])
+    titles = timing_titles(t["figures"], rc.schedule.clock)
     plots.titles["timing"] = list(titles.values())
     for ax, key in zip(axes, ("period_s", "traversal_s"), strict=True):
         v = t[key] * 1e6
