@@ -84,6 +84,7 @@ def run(*, duration: str, lose: tuple[int, int] | None, how: str, workdir: Path,
     return {"exit": proc.returncode, "lost": lose, "at": done_at,
             "degraded": [d["peripheral"] for d in degraded],
             "back_after_s": back[0] * (rep.get("nominal_period_s") or 0) if back else None,
+            "while_lost": [(d.get("started_again"), d.get("replies_while_lost")) for d in degraded],
             "misses_per_1000": 1000 * (rep.get("deadline_misses") or 0) / max(periods, 1),
             "tracking_max_m": (rep.get("tracking_error_m") or {}).get("max"),
             "period_s": rep.get("nominal_period_s"), "tail": "" if proc.returncode == 0
@@ -118,7 +119,7 @@ def main(argv: list[str] | None = None) -> None:
                   f"{(r['tracking_max_m'] or float('nan')) * 1e3:.3f} mm, period "
                   f"{(r['period_s'] or 0) * 1e3:g} ms, back after "
                   f"{'-' if r['back_after_s'] is None else format(r['back_after_s'], '.2f')} s "
-                  f"{r['tail']}", flush=True)
+                  f"{r['while_lost']} {r['tail']}", flush=True)
             if k % 4 == 0:  # a run without a loss every fourth, for the misses' baseline
                 b = run(duration=args.duration, lose=None, how=args.signal, workdir=Path(tmp))
                 base.append(b)

@@ -338,7 +338,7 @@ class Central:
         if got is None:
             return
         msg, parts = got
-        parts = self.takeover.sift(k, parts, next_cycle=self.next_cycle, done=self.done)
+        parts = self.takeover.sift(k, parts, next_cycle=self.next_cycle, done=self.done, rx=rx)
         axes = self.engine.plan.placement.axes[k]
         complete = []
         accepted = False

@@ -41,9 +41,14 @@ from .records import InFlight
 from .silence import SilenceWatch
 
 REJOIN_PARTS = 50
-"""Replies in a row, each for an interval at most :data:`CURRENT_BEHIND` behind the
-newest begun, that bring a lost peripheral back: it has shown that it keeps up."""
+"""Replies in a row, each on time, that bring a lost peripheral back: it has shown that
+it keeps up. On time: in realtime before its round's data would have been late (the
+late-data time, its share of the deadline), so that the intervals that wait for it again
+are not made late; in the other clocks, for an interval at most :data:`CURRENT_BEHIND`
+behind the newest begun."""
 CURRENT_BEHIND = 4
+DUE_KEPT = 64
+"""Rounds whose late-data time is kept for judging a lost peripheral's replies."""
 RESTARTS = 3
 """How often the launcher (``ctrlunit start``) starts a peripheral whose process exited
 anew in one run: a role that keeps failing costs the machine no more starts."""
@@ -77,6 +82,9 @@ class TakeOver:
         self.back: dict[int, int] = {}
         """Peripheral back -> the first interval it serves again: the central still
         computes its part of the intervals begun before."""
+        self.due: dict[tuple[int, int], int] = {}
+        """(cycle, round) -> when its data is late (realtime), for the rounds computed
+        here for a lost peripheral: its replies are judged on time against it."""
         self.settling: set[int] = set()
         """Peripherals back while intervals begun before their return are in flight."""
         self.in_a_row: dict[int, int] = {}
@@ -109,6 +117,7 @@ class TakeOver:
         restart = self.silence.supervision.restart
         if fault.lost == "exited" and restart is not None and self.restarts[k] < RESTARTS:
             self.restarts[k] += 1
+            self.lost[k]["started_again"] = self.restarts[k]
             self.starting.add(k)
             restart(fault.process)  # it comes back once it answers (:meth:`sift`)
         if fault.lost == "silent":
@@ -147,12 +156,13 @@ class TakeOver:
         k = int(role.rsplit("-", 1)[1]) - 1 if role.startswith("peripheral-") else -1
         return k in self.lost and self.intervals.requests_on
 
-    def sift(self, k: int, parts: list[dict[str, Any]], *, next_cycle: int, done: int
-             ) -> list[dict[str, Any]]:
+    def sift(self, k: int, parts: list[dict[str, Any]], *, next_cycle: int, done: int,
+             rx: int = 0) -> list[dict[str, Any]]:
         """The parts of peripheral ``k``'s reply the central is to take: those of
         intervals it does not compute for ``k`` (:meth:`covers`). The others are dropped,
         not counted against it; while ``k`` is lost each counts towards its coming back,
-        which starts at ``next_cycle`` (the next interval to begin)."""
+        which starts at ``next_cycle`` (the next interval to begin), where it came on
+        time (:data:`REJOIN_PARTS`; ``rx``: when it came)."""
         if not self.history:
             return parts
         kept = [p for p in parts if not self.covers(k, p["cycle"])]
@@ -160,12 +170,16 @@ class TakeOver:
             return parts
         self.dropped_replies += len(parts) - len(kept)
         if k in self.lost:
+            self.lost[k]["replies_while_lost"] = self.lost[k].get("replies_while_lost", 0) \
+                + len(parts)
             promote = self.silence.supervision.promote
             if k in self.starting and promote is not None:
                 self.starting.discard(k)  # set up: it answers
                 promote(f"peripheral-{k + 1}")
             for p in parts:
-                current = p["cycle"] >= next_cycle - CURRENT_BEHIND
+                late_ns = self.due.get((p["cycle"], p["stage"]), 0)
+                current = (rx <= late_ns if late_ns
+                           else p["cycle"] >= next_cycle - CURRENT_BEHIND)
                 self.in_a_row[k] = self.in_a_row[k] + 1 if current else 0
             if self.in_a_row[k] >= REJOIN_PARTS:
                 record = self.lost.pop(k)
@@ -203,6 +217,10 @@ class TakeOver:
             gone = sorted(k for k in f.waiting if self.covers(k, f.cycle))
             if not gone or f.round is None:
                 continue
+            if self.lost.keys() & set(gone):  # when its data would be late (:meth:`sift`)
+                self.due[(f.cycle, f.round.index)] = f.late_ns
+                if len(self.due) > DUE_KEPT:
+                    del self.due[min(self.due)]
             if not self.late.compute(f, gone, late=False):
                 k = gone[0]
                 raise Fault(f"peripheral {k + 1} was lost and round {f.round.index} of cycle "
