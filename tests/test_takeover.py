@@ -101,15 +101,12 @@ def test_the_fault_policy_stops_the_run_naming_the_peripheral():
     assert not u.central.takeover.lost
 
 
-def test_a_recorded_take_over_replays_bit_for_bit(tmp_path):
-    """The recording names the loss (``/faults/degraded``) and each round the central
-    computed for the lost peripheral (``/faults/computed``); ``replay --verify``
-    re-executes the run without those replies and finds every command."""
-    path = tmp_path / "takeover.mcap"
+def recorded(path: Path, make: Any) -> tuple[Any, Any]:
+    """Run the unit ``make(**recording options)`` builds with the recorder of ``ctrlunit
+    start --record`` writing ``path``; returns its central and the recording read back."""
     hooks: list[Recorder] = []
-    u = silenced("torec", {2: 25}, record=str(path), trace=True,
-                 on_cycle=lambda *a: hooks[0].on_cycle(*a),
-                 on_message=lambda *a: hooks[0].on_message(*a))
+    u = make(record=str(path), trace=True, on_cycle=lambda *a: hooks[0].on_cycle(*a),
+             on_message=lambda *a: hooks[0].on_message(*a))
     recorder = Recorder(str(path), u.setup)
     hooks.append(recorder)
     recorder.begin(recorder.setup)
@@ -118,7 +115,14 @@ def test_a_recorded_take_over_replays_bit_for_bit(tmp_path):
     finally:
         recorder.close(u.central)
         recorder.write_report({})
-    rec = read(path)
+    return c, read(path)
+
+
+def test_a_recorded_take_over_replays_bit_for_bit(tmp_path):
+    """The recording names the loss (``/faults/degraded``) and each round the central
+    computed for the lost peripheral (``/faults/computed``); ``replay --verify``
+    re-executes the run without those replies and finds every command."""
+    c, rec = recorded(tmp_path / "takeover.mcap", lambda **kw: silenced("torec", {2: 25}, **kw))
     degraded = [m for _, m in rec.decoded("/faults/degraded")]
     computed = [m for _, m in rec.decoded("/faults/computed")]
     assert [d["peripheral"] for d in degraded] == [3, 1, 2]  # the others stand by
@@ -201,20 +205,8 @@ def test_a_recorded_return_replays_bit_for_bit(tmp_path):
     """The return is recorded on ``/faults/degraded`` (the loss's record, now with the
     interval it serves again from); ``replay --verify`` re-executes the run: the rounds
     the central computed, then the returned peripheral's replies."""
-    path = tmp_path / "rejoin.mcap"
-    hooks: list[Recorder] = []
-    u = restarted("torejrec", 1, dies=40, back=90, record=str(path), trace=True,
-                  on_cycle=lambda *a: hooks[0].on_cycle(*a),
-                  on_message=lambda *a: hooks[0].on_message(*a))
-    recorder = Recorder(str(path), u.setup)
-    hooks.append(recorder)
-    recorder.begin(recorder.setup)
-    try:
-        c = u.run()
-    finally:
-        recorder.close(u.central)
-        recorder.write_report({})
-    rec = read(path)
+    c, rec = recorded(tmp_path / "rejoin.mcap",
+                      lambda **kw: restarted("torejrec", 1, dies=40, back=90, **kw))
     degraded = [m for _, m in rec.decoded("/faults/degraded")]
     assert [d.get("back_from_cycle") for d in degraded] == [None, c.takeover.back[1]]
     n, div = verify(rec)
