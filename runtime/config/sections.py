@@ -326,7 +326,7 @@ class RunOptions:
         help="/signals/state messages per second of the live view; 0: every interval (each "
         "costs the central ~0.1 ms of CPU).")
     ros2: int | None = setting(
-        None, flag=Flag(metavar="[DOMAIN]", everyday=True, bare=_ros_domain),
+        None, flag=Flag(metavar="[DOMAIN]", bare=_ros_domain),
         bounds=(0, 232), allowed="0 to 232",
         help="Publish /joint_states, /platform/pose, /platform/reference and "
         "/ctrlunit/diagnostics as ROS 2 topics over rmw_zenoh in this domain (alone: "
