@@ -36,6 +36,7 @@ import collections
 import json
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import orjson
@@ -60,6 +61,24 @@ STOP_WAIT_S = 1.0
 """How long the end of a run waits for the server to stop."""
 BACKLOG = 2048
 """Messages the server queues for one client before it drops for that client."""
+
+def drain(queue: collections.deque, handle: Callable[[Any], None]) -> None:
+    """On an observer's thread: ``handle`` each item of ``queue`` (filled by the central's
+    thread) until it is empty, giving the GIL back after every :data:`YIELD_EVERY_S` of
+    work: the central's thread, returning from a wait in Zenoh, would otherwise wait for
+    it up to the switch interval (5 ms); a yield costs ~50 us, so once per
+    :data:`YIELD_EVERY_S`, not per item."""
+    held_since = time.perf_counter()
+    while queue:
+        try:
+            item = queue.popleft()
+        except IndexError:
+            break
+        handle(item)
+        if time.perf_counter() - held_since >= YIELD_EVERY_S:
+            time.sleep(0)
+            held_since = time.perf_counter()
+
 
 RUNNING_SCHEMA: dict[str, Any] = {
     "title": "ctrlunit.Running",
@@ -205,24 +224,13 @@ class LiveView:
         return max(0, self.appended - self.sent - len(self._queue))
 
     def _send_pending(self) -> None:
-        q = self._queue
-        held_since = time.perf_counter()
-        while q:
-            try:
-                iv = q.popleft()
-            except IndexError:
-                break
-            msg = state_message(iv, period_s=self.period_s, task=self.task,
-                                previous_cmd_ns=iv.previous_cmd_ns)
-            self.sink.state(orjson.dumps(msg), iv.cmd_ns + self._wall_offset_ns)
-            self.sent += 1
-            # hand the GIL back often: the central's thread, returning from a wait in
-            # Zenoh, would otherwise wait for it up to the switch interval (5 ms); a yield
-            # costs ~50 us, so once per YIELD_EVERY_S of work, not per message
-            now = time.perf_counter()
-            if now - held_since >= YIELD_EVERY_S:
-                time.sleep(0)
-                held_since = time.perf_counter()
+        drain(self._queue, self._send)
+
+    def _send(self, iv: Interval) -> None:
+        msg = state_message(iv, period_s=self.period_s, task=self.task,
+                            previous_cmd_ns=iv.previous_cmd_ns)
+        self.sink.state(orjson.dumps(msg), iv.cmd_ns + self._wall_offset_ns)
+        self.sent += 1
 
     def _read_logs(self) -> None:
         """Bring the running figures up to the central's logs (its thread only appends

@@ -27,7 +27,7 @@ from typing import Any
 
 from ..host import sched
 from ..observe.signals import Interval, capture, state_message
-from ..observe.viewer import QUEUE_INTERVALS, SEND_EVERY_S, YIELD_EVERY_S
+from ..observe.viewer import QUEUE_INTERVALS, SEND_EVERY_S, drain
 from ..observe.zview import LISTENING_EVERY_S
 from ..transport import ros2_zenoh as rz
 from .ros2 import TOPICS, Ros2Channels, typestore
@@ -150,23 +150,17 @@ class Ros2Live:
     # -- its own thread ----------------------------------------------------------------
 
     def _publish_pending(self) -> None:
-        q, ch = self._queue, self.channels
-        held_since = time.perf_counter()
-        while q:
-            try:
-                iv = q.popleft()
-            except IndexError:
-                break
-            sig = state_message(iv, period_s=self.period_s, task=self.task,
-                                previous_cmd_ns=iv.previous_cmd_ns)
-            ch.interval(iv.cmd_ns, sig, iv.qd)
-            if ch.due(iv.cmd_ns):
-                ch.status(iv.cmd_ns, misses=iv.misses, skipped=iv.skipped,
-                          rejected=self._rejected())
-            self._done += 1
-            if time.perf_counter() - held_since >= YIELD_EVERY_S:  # give the GIL back
-                time.sleep(0)
-                held_since = time.perf_counter()
+        drain(self._queue, self._publish)
+
+    def _publish(self, iv: Interval) -> None:
+        ch = self.channels
+        sig = state_message(iv, period_s=self.period_s, task=self.task,
+                            previous_cmd_ns=iv.previous_cmd_ns)
+        ch.interval(iv.cmd_ns, sig, iv.qd)
+        if ch.due(iv.cmd_ns):
+            ch.status(iv.cmd_ns, misses=iv.misses, skipped=iv.skipped,
+                      rejected=self._rejected())
+        self._done += 1
 
     def _rejected(self) -> int:
         c = self._central
