@@ -62,4 +62,6 @@ def test_bench_thesis_stage_holds_every_guarded_figure(tmp_path):
     assert not failed, failed
     # the peripherals were busy most of the period at depth 2: the stages overlapped
     assert th["figures"]["depth2_business_peripherals"] >= 0.80
-    assert (tmp_path / "bench" / "report.md").read_text().count("Guarded figures") == 1
+    md = (tmp_path / "bench" / "report.md").read_text()
+    assert md.count("Guarded figures") == 1 and "57 %" in md
+    assert (tmp_path / "bench" / "gantt.png").read_bytes()[:4] == b"\x89PNG"
