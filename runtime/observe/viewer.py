@@ -32,52 +32,28 @@ A layout that plots the tracking error, torques and period: docs/foxglove-layout
 
 from __future__ import annotations
 
-import collections
 import json
 import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
 import orjson
 
 from .live import LiveStats
-from .signals import SIGNALS_SCHEMA, Interval, capture, finite_or_none, state_message
+from .signals import SIGNALS_SCHEMA, Interval, finite_or_none, state_message
+from .tap import IntervalTap
 
 STATE_TOPIC = "/signals/state"
 RUNNING_TOPIC = "/report/running"
 RATE_HZ = 200.0
 """Default rate of ``/signals/state`` (``--foxglove-rate``)."""
-QUEUE_INTERVALS = 4096
-"""Intervals the central may be ahead of the view's thread before the oldest are dropped
-(4 s at 1 kHz)."""
 SEND_EVERY_S = 0.02
 """The view's thread wakes this often to send what has accumulated."""
 RUNNING_EVERY_S = 1.0
-YIELD_EVERY_S = 100e-6
-"""The view's thread gives up the GIL after this much work: the longest it can make the
-central's thread wait (docs/measurements/2026-11-23-live-view.md)."""
 STOP_WAIT_S = 1.0
 """How long the end of a run waits for the server to stop."""
 BACKLOG = 2048
 """Messages the server queues for one client before it drops for that client."""
-
-def drain(queue: collections.deque, handle: Callable[[Any], None]) -> None:
-    """On an observer's thread: ``handle`` each item of ``queue`` (filled by the central's
-    thread) until it is empty, giving the GIL back after every :data:`YIELD_EVERY_S` of
-    work: the central's thread, returning from a wait in Zenoh, would otherwise wait for
-    it up to the switch interval (5 ms); a yield costs ~50 us, so once per
-    :data:`YIELD_EVERY_S`, not per item."""
-    held_since = time.perf_counter()
-    while queue:
-        try:
-            item = queue.popleft()
-        except IndexError:
-            break
-        handle(item)
-        if time.perf_counter() - held_since >= YIELD_EVERY_S:
-            time.sleep(0)
-            held_since = time.perf_counter()
 
 
 RUNNING_SCHEMA: dict[str, Any] = {
@@ -175,12 +151,9 @@ class LiveView:
         self.task, self.period_s, self.cycles = task, period_s, cycles
         self.sink = sink if sink is not None else FoxgloveSink(host=host, port=port,
                                                                  name=name)
-        self._queue: collections.deque[Interval] = collections.deque(maxlen=QUEUE_INTERVALS)
-        self.appended = 0
+        self.tap = IntervalTap(rate_hz=rate_hz)
         self.sent = 0
         self.stats = LiveStats(cycles)
-        self._every_ns = round(1e9 / rate_hz) if rate_hz > 0 else 0
-        self._due_ns: int | None = None
         self._central: Any = None
         self._read = 0  # intervals of the central's logs read into the running figures
         self._errors_read = 0
@@ -207,24 +180,23 @@ class LiveView:
         """``on_cycle``: note the interval if it is due to be shown (a tuple into a bounded
         deque; nothing waits)."""
         self._central = central
-        if not self.sink.listening:
-            return  # nobody reads: nothing is built
-        t = central.log.cmd_ns[-1]
-        if self._due_ns is not None and t < self._due_ns:
-            return
-        self._due_ns = t + self._every_ns
-        self._queue.append(capture(central, cycle, ctx))
-        self.appended += 1
+        if self.sink.listening:  # nobody reads: nothing is built
+            self.tap.offer(central, cycle, ctx)
 
     # -- the view's thread -------------------------------------------------------------
 
     @property
     def dropped(self) -> int:
         """Intervals the view skipped because its thread fell behind."""
-        return max(0, self.appended - self.sent - len(self._queue))
+        return self.tap.dropped
+
+    @property
+    def appended(self) -> int:
+        """Intervals noted to be shown."""
+        return self.tap.appended
 
     def _send_pending(self) -> None:
-        drain(self._queue, self._send)
+        self.tap.drain(self._send)
 
     def _send(self, iv: Interval) -> None:
         msg = state_message(iv, period_s=self.period_s, task=self.task,
@@ -280,12 +252,12 @@ class LiveView:
         """The unit starts again (``--period auto``): the same server and viewers, the
         figures of the new run from zero. Call it from the central's thread between runs."""
         with self._lock:
-            self._queue.clear()
+            self.tap.clear()
             self.task, self.period_s, self.cycles = task, period_s, cycles
             self.stats = LiveStats(cycles)
-            self._central, self._due_ns = None, None
+            self._central = None
             self._read = self._errors_read = 0
-            self.appended = self.sent = 0
+            self.sent = 0
 
     # -- end ---------------------------------------------------------------------------
 

@@ -20,14 +20,14 @@ drops messages, or the deque overflows and intervals are skipped (``dropped``).
 
 from __future__ import annotations
 
-import collections
 import threading
 import time
 from typing import Any
 
 from ..host import sched
-from ..observe.signals import Interval, capture, state_message
-from ..observe.viewer import QUEUE_INTERVALS, SEND_EVERY_S, drain
+from ..observe.signals import Interval, state_message
+from ..observe.tap import IntervalTap
+from ..observe.viewer import SEND_EVERY_S
 from ..observe.zview import LISTENING_EVERY_S
 from ..transport import ros2_zenoh as rz
 from .ros2 import TOPICS, Ros2Channels, typestore
@@ -111,11 +111,7 @@ class Ros2Live:
         self.task, self.period_s = task, period_s
         self.pubs = Ros2Publishers(zenoh.open(conf), domain=domain, node=self.node)
         self.channels = Ros2Channels(self.pubs.register, self.pubs.add, unit)
-        self._queue: collections.deque[Interval] = collections.deque(maxlen=QUEUE_INTERVALS)
-        self.appended = 0
-        self._done = 0  # intervals published
-        self._every_ns = round(1e9 / rate_hz) if rate_hz > 0 else 0
-        self._due_ns: int | None = None
+        self.tap = IntervalTap(rate_hz=rate_hz)
         self._listening, self._asked = False, 0.0
         self._central: Any = None
         self._stop = threading.Event()
@@ -130,27 +126,20 @@ class Ros2Live:
     @property
     def dropped(self) -> int:
         """Intervals due to be published that the thread skipped because it fell behind."""
-        published = self.appended - len(self._queue)
-        return max(0, published - self._done)
+        return self.tap.dropped
 
     # -- the central's thread ----------------------------------------------------------
 
     def __call__(self, central: Any, cycle: int, ctx: dict) -> None:
         """``on_cycle``: note the interval if it is due (a tuple into a bounded deque)."""
         self._central = central
-        if not self._listening:
-            return
-        t = central.log.cmd_ns[-1]
-        if self._due_ns is not None and t < self._due_ns:
-            return
-        self._due_ns = t + self._every_ns
-        self._queue.append(capture(central, cycle, ctx))
-        self.appended += 1
+        if self._listening:
+            self.tap.offer(central, cycle, ctx)
 
     # -- its own thread ----------------------------------------------------------------
 
     def _publish_pending(self) -> None:
-        drain(self._queue, self._publish)
+        self.tap.drain(self._publish)
 
     def _publish(self, iv: Interval) -> None:
         ch = self.channels
@@ -160,7 +149,6 @@ class Ros2Live:
         if ch.due(iv.cmd_ns):
             ch.status(iv.cmd_ns, misses=iv.misses, skipped=iv.skipped,
                       rejected=self._rejected())
-        self._done += 1
 
     def _rejected(self) -> int:
         c = self._central
