@@ -179,6 +179,24 @@ def test_wire_format_is_rmw_zenohs():
     assert rz.node_name("t-a.b") == "ctrlunit_t_a_b"
 
 
+def test_gid_is_rmw_zenohs_xxh3_of_the_token():
+    """rmw_zenoh's GID: XXH3-128 (seed 0) of the liveliness token, low 64 bits then high 64
+    bits, little-endian. XXH3-128 of the empty input is 99aa06d3014798d8 6001c324468d497f
+    (xxHash's own test value, as high64 low64), so its GID starts with the low word's
+    bytes reversed; a token's GID is 16 bytes, differs from another token's, and does
+    not depend on the process (no per-run salt)."""
+    assert rz.gid("") == bytes.fromhex("7f498d4624c30160" "d8984701d306aa99")
+    token = rz.publisher_token(0, "abc123", "ctrlunit_u1", 1, "/joint_states",
+                               "sensor_msgs/msg/JointState", JOINT_STATE_HASH)
+    other = token.replace("abc123", "abc124")
+    assert len(rz.gid(token)) == 16 and rz.gid(token) != rz.gid(other)
+    again = subprocess.run(
+        [sys.executable, "-c", "import sys; from ctrlunit.runtime.transport import "
+         "ros2_zenoh as rz; print(rz.gid(sys.argv[1]).hex())", token],
+        capture_output=True, text=True, timeout=60)
+    assert again.stdout.strip() == rz.gid(token).hex(), again.stderr
+
+
 @pytest.mark.parametrize("endpoint, refused", [("tcp/192.0.2.1:7447", True),
                                                ("tcp/127.0.0.1:7447", False)])
 def test_a_router_beyond_the_host_follows_the_link_rule(endpoint, refused):

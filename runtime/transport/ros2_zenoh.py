@@ -29,7 +29,6 @@ onward is the way rmw_zenoh itself recommends).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import socket
 import struct
@@ -170,9 +169,14 @@ def publisher_token(domain: int, zid: str, node: str, entity_id: int, topic: str
 
 
 def gid(token: str) -> bytes:
-    """A publisher's 16-byte GID, from its token (rmw_zenoh hashes the token too, with
-    XXH3; a subscriber only compares GIDs)."""
-    return hashlib.blake2b(token.encode(), digest_size=16).digest()
+    """A publisher's 16-byte GID, as rmw_zenoh makes it: the 128-bit XXH3 hash (seed 0) of
+    its liveliness token, the low 64 bits then the high 64 bits, each little-endian. A
+    ROS 2 node computes the same GID from the token it discovers, so that the attachment's
+    (a message's ``publisher_gid``) names the publisher in the graph."""
+    import xxhash
+
+    h = xxhash.xxh3_128_intdigest(token.encode())
+    return (h & (1 << 64) - 1).to_bytes(8, "little") + (h >> 64).to_bytes(8, "little")
 
 
 _ATTACHMENT = struct.Struct("<qqB16s")
