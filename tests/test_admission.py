@@ -112,7 +112,7 @@ def _admit_with_trials(monkeypatch, verdicts: list[dict], *, period: float = 1e-
 
     tried: list[float] = []
 
-    def fake_trial(central, p, *, base, transit_s, unit_cpu=None):
+    def fake_trial(central, p, *, base, transit_s, unit_cpu=None, rehearse=None):
         tried.append(p)
         return {"period_s": p} | verdicts[len(tried) - 1]
 

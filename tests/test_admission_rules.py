@@ -7,6 +7,7 @@ trials run in tests/test_admission.py."""
 from __future__ import annotations
 
 import math
+import os
 from types import SimpleNamespace
 from typing import Any, ClassVar
 
@@ -157,8 +158,9 @@ def scripted(monkeypatch, verdicts: list[dict[str, Any]], tracking: dict[float, 
     queue = list(verdicts)
 
     def trial(central: Any, period: float, *, base: int, transit_s: float,
-              unit_cpu: Any = None) -> dict:
+              unit_cpu: Any = None, rehearse: Any = None) -> dict:
         assert transit_s == 0.25 * MS  # half the median warm-up round trip
+        assert rehearse is None  # admit() was given none
         calls.append((period, base))
         return dict(queue.pop(0))
 
@@ -281,8 +283,9 @@ def test_without_a_warm_up_round_trip_the_transit_is_zero(monkeypatch):
     central, _ = scripted(monkeypatch, [rung(1e-3, held=True)])
     central.warmup.warm_rtt_s = []
     seen = []
-    monkeypatch.setattr(admission, "trial", lambda c, period, *, base, transit_s, unit_cpu: (
-        seen.append((c, transit_s)) or rung(period, held=True)))
+    monkeypatch.setattr(admission, "trial",
+                        lambda c, period, *, base, transit_s, unit_cpu, rehearse: (
+                            seen.append((c, transit_s)) or rung(period, held=True)))
     info = admit(central)
     assert info["transit_s"] == 0.0 and seen == [(central, 0.0)]
 
@@ -355,8 +358,10 @@ class Probe:
     made: ClassVar[list[Probe]] = []
 
     def __init__(self, node: Any, rc: Any, engine: Any, ctl: Any, n: int, *,
-                 trial: bool, supervision: Any, reply_each: bool) -> None:
+                 trial: bool, supervision: Any, reply_each: bool, on_cycle: Any = None,
+                 on_message: Any = None) -> None:
         assert trial is True
+        self.on_cycle, self.on_message = on_cycle, on_message
         self.node, self.rc, self.engine, self.ctl, self.n = node, rc, engine, ctl, n
         self.supervision, self.reply_each = supervision, reply_each
         s = self.script
@@ -421,6 +426,58 @@ def test_a_trial_that_faults_does_not_hold_and_drains_its_stragglers(monkeypatch
     c = trial_central(monkeypatch, {"fault": "x"})
     admission.trial(c, 10e-3, base=5, transit_s=0.0)
     assert c.drained == [0.2]
+
+
+def test_a_run_that_records_does_the_recordings_work_in_each_trial(monkeypatch):
+    """Each trial gets a rehearsal of its own: its callbacks are the trial central's, and
+    it is discarded after the trial, a trial that faults included; without ``rehearse``
+    the trial central has no callbacks."""
+    made = []
+
+    class Rehearsal:
+        def __init__(self) -> None:
+            self.discarded_with: Any = None
+            made.append(self)
+
+        def on_cycle(self, central: Any, cycle: int, ctx: dict) -> None: ...
+
+        def on_message(self, *args: Any) -> None: ...
+
+        def discard(self, central: Any) -> None:
+            self.discarded_with = central
+
+    for script in ({"traversal_s": [0.4 * MS] * 300}, {"fault": "x"}):
+        c = trial_central(monkeypatch, script)
+        admission.trial(c, 1e-3, base=5, transit_s=0.0, rehearse=Rehearsal)
+        probe, r = Probe.made[0], made[-1]
+        assert probe.on_cycle == r.on_cycle and probe.on_message == r.on_message
+        assert r.discarded_with is probe
+    assert len(made) == 2
+    c = trial_central(monkeypatch, {"traversal_s": [0.4 * MS] * 300})
+    admission.trial(c, 1e-3, base=5, transit_s=0.0)
+    assert Probe.made[0].on_cycle is None and Probe.made[0].on_message is None
+
+
+def test_a_recorders_rehearsal_writes_nowhere_and_ends(tmp_path):
+    """``Recorder.rehearsal`` writes to /dev/null (nothing appears where the run records)
+    and ``discard`` ends it: its writer's thread is gone."""
+    import threading
+
+    from ctrlunit.runtime.compute.setup import make_setup
+    from ctrlunit.runtime.recording.recorder import Recorder
+
+    rec = tmp_path / "run.mcap"
+    setup = make_setup(RunConfig.of(clock="realtime", pipeline=2, record=str(rec)))
+    before = {t.name for t in threading.enumerate()}
+    r = Recorder.rehearsal(setup)
+    assert r.path == os.devnull
+    central = SimpleNamespace(
+        next_cycle=0, node=SimpleNamespace(rejected={}),
+        meters=SimpleNamespace(plant_misses=0, skipped=0, t_end_ns=0, t_start_ns=0,
+                               wait_ns=0, periph_busy_ns=[], plant_busy_ns=0))
+    r.discard(central)
+    assert r.closed and not rec.exists()
+    assert {t.name for t in threading.enumerate()} <= before
 
 
 def test_a_trial_whose_child_died_is_the_runs_fault(monkeypatch):

@@ -4,7 +4,10 @@ In realtime the central, after its warm-up, runs a *trial* at the requested peri
 plant ticks on its wall clock as in the run (integrating a throw-away copy of the robot at
 rest, so that its CPU load is the run's) and publishes trial samples; the central runs the
 real pipeline on them (every process, every exchange, the same scheduler) with positions
-that follow the reference, computes each command and sends none. A trial interval is
+that follow the reference, computes each command and sends none. A run that records does
+the recording's work in its trial too, into a recorder that keeps nothing (``rehearse``):
+on a slow host, the recorder on the central's thread made runs admitted without it halve
+their rate within 400 intervals (docs/measurements/2026-11-27-ros2-live.md). A trial interval is
 *late* when its command would have reached the plant after the tick it is due at (its
 sample's time plus ``depth`` periods; the traversal counts from the sample's time stamp and
 adds the command's one-way transit measured at warm-up); a skipped sample is late too. The
@@ -36,7 +39,7 @@ import math
 import statistics
 import time
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -155,13 +158,32 @@ CpuTimes = Callable[[], list[tuple[float, float]]]
 """A reading of CPU time per CPU, as :func:`..host.sched.cpu_times` gives the machine's."""
 
 
-def admit(central: Central, *, unit_cpu: CpuTimes | None = None) -> dict[str, Any]:
+class Rehearsal(Protocol):
+    """What a run does besides the control, done in a trial and kept nowhere."""
+
+    def on_cycle(self, central: Any, cycle: int, ctx: dict) -> None: ...
+
+    def on_message(self, direction: str, key: str, cycle: int, stage: Any, data: bytes,
+                   t_ns: int) -> None: ...
+
+    def discard(self, central: Any) -> None: ...
+
+
+Rehearse = Callable[[], Rehearsal]
+"""Makes a :class:`Rehearsal` for one trial (runtime/recording/recorder.py,
+``Recorder.rehearsal``)."""
+
+
+def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
+          rehearse: Rehearse | None = None) -> dict[str, Any]:
     """Run the trial from the configured period up :data:`LADDER_S` until a period holds.
     Returns the admission's report when the configured period holds; raises
     :class:`Unsustainable` otherwise (with ``--period auto`` the caller starts again at
     ``info["sustainable_period_s"]``), before any command has been sent. ``unit_cpu``
     reads the unit's own CPU time per CPU (runtime/host/unit_load.py), which the busy
-    limit under FIFO judges; without it, the machine's (every process)."""
+    limit under FIFO judges; without it, the machine's (every process). ``rehearse``
+    makes, for each trial, what the run does after each interval besides the control
+    (its recorder, writing nowhere: :data:`Rehearse`)."""
     rc = central.rc
     transit = statistics.median(central.warmup.warm_rtt_s) / 2 if central.warmup.warm_rtt_s else 0.0
     asked = rc.schedule.period
@@ -175,13 +197,13 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None) -> dict[str, An
             untrackable = (period, err)
             break
         verdict = trial(central, period, base=TRIAL_BASE + (len(rungs) << 20),
-                        transit_s=transit, unit_cpu=unit_cpu)
+                        transit_s=transit, unit_cpu=unit_cpu, rehearse=rehearse)
         verdict["predicted_tracking_max_m"] = err
         rungs.append(verdict)
         if verdict["one_stall"] and not retried:  # one stall of the host: once more
             retried = True
             verdict = trial(central, period, base=TRIAL_BASE + (len(rungs) << 20),
-                            transit_s=transit, unit_cpu=unit_cpu)
+                            transit_s=transit, unit_cpu=unit_cpu, rehearse=rehearse)
             verdict |= {"predicted_tracking_max_m": err, "retry": True}
             rungs.append(verdict)
         if verdict["held"]:
@@ -296,7 +318,8 @@ def fifo_busy_limit() -> float | None:
 
 
 def trial(central: Central, period: float, *, base: int, transit_s: float,
-          unit_cpu: CpuTimes | None = None) -> dict[str, Any]:
+          unit_cpu: CpuTimes | None = None, rehearse: Rehearse | None = None
+          ) -> dict[str, Any]:
     """One rung: the plant ticks ``trial_intervals(period)`` trial samples at ``period``; a
     trial central (a :class:`~.central.Central` with ``trial=True`` on the same node and a
     copy of the controller) runs the pipeline on them. A fault during the trial (a silent
@@ -312,9 +335,12 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
     ctl = copy.copy(central.ctl)
     ctl.first_cycle, ctl.q_prev, ctl.k_prev = base, None, base
     child_check = central.silence.supervision.child_check
+    rehearsal = rehearse() if rehearse is not None else None
     probe = Central(central.node, trc, central.engine, ctl, n, trial=True,
                     supervision=Supervision(child_check=child_check),
-                    reply_each=central.intervals.reply_each)
+                    reply_each=central.intervals.reply_each,
+                    on_cycle=None if rehearsal is None else rehearsal.on_cycle,
+                    on_message=None if rehearsal is None else rehearsal.on_message)
     unit0 = unit_cpu() if unit_cpu is not None else None  # 2-10 ms: before the ticks
     central.orders.say("probe", period=period, ticks=n, base=base)
     t0 = time.monotonic()
@@ -326,6 +352,9 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
         if child_check is not None and child_check() is not None:
             raise
         fault = str(exc)
+    finally:
+        if rehearsal is not None:
+            rehearsal.discard(probe)
     machine = sched.busy_share(busy0, sched.cpu_times())
     busy = machine if unit_cpu is None or unit0 is None else sched.busy_share(unit0, unit_cpu())
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth

@@ -220,7 +220,14 @@ class UnitStart:
         if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
             self.decided["admission"] = admit(
                 central, unit_cpu=self.guard.load.sample if self.guard and self.guard.load
-                else None)
+                else None, rehearse=self._rehearsal if self.recorder else None)
+
+    def _rehearsal(self) -> Any:
+        """The recorder of one admission trial: the run's work after each interval, kept
+        nowhere."""
+        from ..recording.recorder import Recorder
+
+        return Recorder.rehearsal(self.setup)
 
     def _spawn(self) -> None:
         if not self.spawn:

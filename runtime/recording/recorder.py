@@ -98,6 +98,18 @@ class Recorder:
             "ctrlunit.State", "jsonschema", json.dumps(SIGNALS_SCHEMA).encode())
         self.ros2 = Ros2Channels(self._ros2_channel, self._add_ros2, setup.rc.transport.unit)
 
+    @classmethod
+    def rehearsal(cls, setup: Any) -> Recorder:
+        """A recorder writing to ``/dev/null``: the admission's trial does the recording's
+        work on the same threads without keeping it (runtime/launch/admission.py); end it
+        with :meth:`discard`."""
+        return cls(os.devnull, setup)
+
+    def discard(self, central: Any) -> None:
+        """End a :meth:`rehearsal` (its last records and footer go nowhere)."""
+        self.close(central)
+        self.write_report({})
+
     def _ros2_channel(self, topic: str, msgtype: str, definition: bytes) -> int:
         cid = self.w.register_channel(
             topic, "cdr", self.w.register_schema(msgtype, "ros2msg", definition))
