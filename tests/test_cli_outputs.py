@@ -91,7 +91,7 @@ def test_no_command_writes_a_file_it_was_not_asked_for(made, tmp_path, monkeypat
 def test_a_faulted_run_names_the_folder_it_keeps(tmp_path):
     """A peripheral killed mid-run under ``--peripheral-loss fault``: exit 3, and the
     run's folder (spec, the roles' logs), the only thing left in the temporary directory,
-    is named on stderr after the summary and in the report."""
+    is named in the summary, on stderr after it and in the report."""
     cwd, tmp = tmp_path / "cwd", tmp_path / "t"
     cwd.mkdir()
     tmp.mkdir()
@@ -122,6 +122,8 @@ def test_a_faulted_run_names_the_folder_it_keeps(tmp_path):
         assert json.loads(report.read_text())["logs_kept"] == str(kept[0])
         assert (kept[0] / "peripheral-1.log").exists()
         assert listing(cwd) == [] and out.strip()
+        assert any(line.startswith(f"  logs        kept in {kept[0]} (")
+                   for line in out.splitlines())  # the summary names it too
     finally:
         for d in kept:
             shutil.rmtree(d, ignore_errors=True)

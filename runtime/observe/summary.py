@@ -308,7 +308,8 @@ def _admission_lines(r: dict[str, Any]) -> list[str]:
 def _end_lines(r: dict[str, Any]) -> list[str]:
     """Messages dropped or refused; how the run ended when not as planned: a stop the
     user asked for (Ctrl-C, SIGTERM, SIGHUP: not a fault, docs/faults-and-errors.md) or a
-    fault, with the plant's safe stop; and what a recording could not tell."""
+    fault, with the plant's safe stop, and the folder kept for its diagnosis; and what a
+    recording could not tell."""
     lines = []
     rejected = dict(r["rejected_messages"])
     late = rejected.pop("late_reply", 0)  # not malformed: a round already held or computed
@@ -328,6 +329,9 @@ def _end_lines(r: dict[str, Any]) -> list[str]:
             lines.append(f"  FAULT in {f['process']}: {f['message']}{code}")
         if "safe_stop" in r:
             lines.append(_safe_stop_line(r["safe_stop"]))
+    if r.get("logs_kept"):
+        lines.append(f"  logs        kept in {r['logs_kept']} (the run's spec and each role's "
+                     "log, for the diagnosis; delete it when done)")
     unknown = r.get("not_recorded")
     if unknown:
         lines.append(f"  not in the recording: {', '.join(unknown['lines'])} "
