@@ -168,6 +168,7 @@ def test_an_unsustainable_period_is_refused_before_the_plant_gets_a_command(tmp_
     assert "0.1 ms cannot be held" in msg and "trial" in msg
     assert rep["cycles"] == 0
     assert rep["plant_commands"] == 0  # the plant's own word
+    assert rep["plant_trial_commands"] > 0  # the trials' commands: checked, dropped
     first = rep["admission"]["rungs"][0]
     assert first["period_s"] == pytest.approx(100e-6) and not first["held"]
     # the climb stopped at the first period that held, or named why it could not
@@ -196,6 +197,8 @@ def test_period_auto_runs_at_the_period_the_trial_held_and_says_so(tmp_path):
     assert final[-1]["held"] and final[-1]["period_s"] == adm["period_s"]
     assert not any(r["held"] for r in final[:-1])
     assert rep["cycles"] == 200 and rep["plant_commands"] > 0
+    # the held trial's commands went out as the run's do, and the plant dropped them
+    assert rep["plant_trial_commands"] >= final[-1]["intervals"] - 3, rep["admission"]
     # late commands the plant replaced with the one extrapolated the period before
     assert 0 <= rep["plant_spares"] <= rep["deadline_misses"]
     # --rt-priority auto: FIFO where permitted and the kernel throttles, and then the

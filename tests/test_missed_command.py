@@ -102,6 +102,26 @@ def test_a_command_with_a_malformed_extrapolation_is_rejected_whole(nxt):
     assert server.node.rejected == Counter({"bad_value": 1})
 
 
+def test_an_admission_trials_commands_are_checked_counted_and_never_applied():
+    """The trial sends its commands flagged ``probe`` (the run's messaging load without
+    motion): the plant checks each as a run's, counts it and keeps none, during the trial
+    and after the start alike; during a trial a command of the run is dropped."""
+    server = _server()
+    probe = encode(UNIT, (1 << 41) + 3, "command", tau=[1.0, 2.0, 3.0], next=[1.0, 2.0, 3.0],
+                   probe=True)
+    server.take_command(probe, trial=True)
+    server.take_command(probe)  # one that comes after the start
+    assert server.trial_commands == 2 and server.commands_taken == 0
+    assert server.commands == {} and server.spares == {} and not server.node.rejected
+    server.take_command(_command(5, [1.0, 2.0, 3.0]), trial=True)
+    assert server.commands == {} and server.commands_taken == 0
+    bad = encode(UNIT, 7, "command", tau=[1.0, math.inf, 3.0], probe=True)
+    server.take_command(bad, trial=True)
+    assert server.trial_commands == 2 and server.node.rejected == Counter({"bad_value": 1})
+    server.take_command(_command(5, [1.0, 2.0, 3.0]))  # the run's own still acts
+    assert server.apply(5) and server.plant.command == [1.0, 2.0, 3.0]
+
+
 def _ahead(clock: str = "realtime", missed: str = "extrapolate",
            halved_at: int | None = None) -> tuple[Any, Any]:
     """The central's rule for the command ahead (runtime/central/settings.py,

@@ -332,7 +332,7 @@ def test_the_plant_publishes_and_counts_misses_on_the_halved_grid_only(monkeypat
         def __init__(self, node: _StrideNode) -> None:
             self.node, self.depth, self.grid = node, 2, StrideSchedule()
             self.sample_no = self.misses = self.busy_ns = self.commands_taken = 0
-            self.spares_applied = 0
+            self.spares_applied = self.trial_commands = 0
             self.rss_warm, self.next_trial, self.fault = -1, None, None
             self.samples: list[int] = []
             self.applied: list[int] = []

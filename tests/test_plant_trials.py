@@ -74,6 +74,7 @@ class FakeServer:
         self.next_trial = None
         self.samples: list[int] = []
         self.sample_no = self.misses = self.busy_ns = self.commands_taken = 0
+        self.trial_commands = 0
         self.spares_applied = 0
         self.rss_warm = -1
         self.depth = 2

@@ -24,6 +24,7 @@ ROLE_REPORT_FIELDS: dict[str, tuple[type, ...]] = {
     "exit": (str,), "sched": (str,), "served": (int,), "samples": (int,), "misses": (int,),
     "busy_ns": (int,), "wall_ns": (int,), "cpu_s": (int, float), "rejected": (dict,),
     "rss_kb": (dict,), "safe_stop": (dict,), "commands": (int,), "spares": (int,),
+    "trial_commands": (int,),
     "fault": (dict,),
 }
 """What a role's ``bye`` report may hold, by field; anything else is left out."""

@@ -367,10 +367,11 @@ class Intervals:
         cmd = f.ctx["cmd"]
         tau = [float(x) for x in cmd]
         nxt = self.ahead.after(f.cycle, tau, grid=self.ctl)
-        payload = (encode(self.node.unit, f.cycle, "command", tau=tau) if nxt is None else
-                   encode(self.node.unit, f.cycle, "command", tau=tau, next=nxt))
-        if not sch.trial:
-            self.pub_cmd.put(payload)
+        extra: dict[str, Any] = {} if nxt is None else {"next": nxt}
+        if sch.trial:  # sent as the run's are (their cost is the run's), never applied
+            extra["probe"] = True
+        payload = encode(self.node.unit, f.cycle, "command", tau=tau, **extra)
+        self.pub_cmd.put(payload)
         now = time.monotonic_ns()
         self.meters.span("central", f.cycle, f.start_ns, now)
         if self.on_message is not None:

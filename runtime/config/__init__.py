@@ -41,7 +41,7 @@ EXIT_OBSERVER = 5
 EXIT_LINK = 6
 EXIT_UNSUSTAINABLE = 7
 """Realtime: the admission trial showed that the period asked cannot be held; refused
-before any command reached the plant."""
+before the plant acted on any command (a trial's commands are checked and dropped)."""
 EXIT_INTERRUPTED = 130
 """Ctrl-C (SIGINT). SIGTERM and SIGHUP stop a run the same way, with exit 128 + the
 signal's number (143, 129), as a shell reports a process the signal ended."""

@@ -4,7 +4,9 @@ In realtime the central, after its warm-up, runs a *trial* at the requested peri
 plant ticks on its wall clock as in the run (integrating a throw-away copy of the robot at
 rest, so that its CPU load is the run's) and publishes trial samples; the central runs the
 real pipeline on them (every process, every exchange, the same scheduler) with positions
-that follow the reference, computes each command and sends none. A run that records does
+that follow the reference, computes each command and sends it flagged ``probe``: the
+plant checks and drops it (runtime/roles/plant_node.py), so the trial carries the
+command's messaging too and the robot never moves for it. A run that records does
 the recording's work in its trial too, into a recorder that keeps nothing (``rehearse``):
 on a slow host, the recorder on the central's thread made runs admitted without it halve
 their rate within 400 intervals (docs/measurements/2026-11-27-ros2-live.md). A trial interval is
@@ -179,7 +181,9 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
     """Run the trial from the configured period up :data:`LADDER_S` until a period holds.
     Returns the admission's report when the configured period holds; raises
     :class:`Unsustainable` otherwise (with ``--period auto`` the caller starts again at
-    ``info["sustainable_period_s"]``), before any command has been sent. ``unit_cpu``
+    ``info["sustainable_period_s"]``), before the plant has acted on any command (a
+    trial sends its commands, flagged ``probe``, which the plant checks and drops: the
+    run's messaging load without motion). ``unit_cpu``
     reads the unit's own CPU time per CPU (runtime/host/unit_load.py), which the busy
     limit under FIFO judges; without it, the machine's (every process). ``rehearse``
     makes, for each trial, what the run does after each interval besides the control

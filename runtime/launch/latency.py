@@ -21,7 +21,7 @@ import numpy as np
 from ..compute.timing import quantiles
 from ..host import sched
 from ..host.idle import idle_request
-from ..roles.plant_node import SLEEP_SLICE_S
+from ..roles.plant_ticks import SLEEP_SLICE_S
 from .admission import LADDER_S
 
 

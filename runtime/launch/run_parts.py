@@ -202,6 +202,8 @@ def report_extras(rc: RunConfig, setup: Setup, central: Central, *, cores: int |
         stop = plant.get("safe_stop")
         out["safe_stop"] = stop if isinstance(stop, dict) else None
         out["plant_commands"] = plant.get("commands")  # commands it took
+        # the admission's trial commands it checked and dropped (none acts)
+        out["plant_trial_commands"] = plant.get("trial_commands")
         # late commands it replaced with the one extrapolated the period before
         out["plant_spares"] = plant.get("spares")
     return out

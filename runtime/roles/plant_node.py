@@ -45,23 +45,23 @@ from ..compute.stride import StrideSchedule
 from ..config import EXIT_LINK, EXIT_OK, EXIT_PLANT
 from ..host import sched
 from ..transport.codec import BadMessage, check_vector, encode
-from ..transport.node import WARM_RSS_AT, Node, control_order, cpu_used, is_stop, rss_kb, say_bye
-from .plant_orders import STOP_ORDER_WAIT_S, announce_fault, safe_stop, trial_order, wait_for_stop
+from ..transport.node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb, say_bye
+from .plant_orders import STOP_ORDER_WAIT_S, announce_fault, safe_stop, wait_for_stop
+from .plant_ticks import await_start, sleep_to_tick, tick_after
 from .stopping import stop_of, stop_signals
 
-SLEEP_SLICE_S = 0.02
-"""Longest the realtime plant sleeps before it reads its inbox (a stop order waits at most
-this long)."""
 
 class PlantServer:
     """State of the plant role between messages. ``trial_plant(period)`` builds the
-    throw-away robot of an admission trial at ``period`` (:func:`trial_ticks`)."""
+    throw-away robot of an admission trial at ``period`` (:func:`.plant_ticks.trial_ticks`)."""
 
     def __init__(self, node: Node, plant: Plant, *, depth: int, initial: list[float],
                  trial_plant: Callable[[float], Plant] | None = None) -> None:
         self.node = node
         self.trial_plant = trial_plant
         self.commands_taken = 0
+        self.trial_commands = 0
+        """Commands of the admission's trials checked and dropped (:meth:`take_command`)."""
         self.plant = plant
         self.depth = depth
         self.pub = node.publisher(node.keys.sample)
@@ -88,18 +88,28 @@ class PlantServer:
         arm that reached its mechanical stop (a real robot hit its end stop), or the fault
         that stopped the simulated robot (plant/limits.py)."""
 
-    def take_command(self, data: bytes) -> None:
+    def take_command(self, data: bytes, *, trial: bool = False) -> None:
+        """Check a command and keep it for the period it acts in. An admission trial's
+        (flagged ``probe``) is checked as the run's are, counted, and never kept: the trial
+        carries the run's messaging load, the robot never moves for it. During a trial
+        (``trial``) only those are taken; a command of the run is dropped there."""
         msg = self.node.decode(data)
         if msg is None:
             return
         if msg["stage"] != "command":
             self.node.reject("bad_stage")
             return
+        probe = msg.get("probe") is True
+        if trial and not probe:
+            return
         try:
             tau = check_vector(msg.get("tau"), 3, "tau")
             nxt = None if msg.get("next") is None else check_vector(msg["next"], 3, "next")
         except BadMessage as exc:
             self.node.reject(exc.reason)
+            return
+        if probe:
+            self.trial_commands += 1
             return
         cycle = msg["cycle"]
         if cycle <= self.applied_cycle:
@@ -189,24 +199,9 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
     ``delay``: periods from a sample to the period its command acts in (module notes).
     The clock starts on the central's ``start`` order (after its warm-up)."""
     causal = clock == "realtime" and delay == server.depth
-    while True:
-        try:
-            ev = node.events.get(timeout=0.2)
-        except queue.Empty:
-            if (time.monotonic_ns() - node.last_heard_ns) / 1e9 > watchdog:
-                return _result(server, "watchdog", time.monotonic_ns())
-            continue
-        if is_stop(node, ev):
-            return _result(server, "stop", time.monotonic_ns())
-        if node.cpu_start_s is not None:  # is_stop noted the start order
-            break
-        order = trial_order(node, ev)
-        while order is not None:  # a trial, or the one that superseded it
-            if not trial_ticks(node, server, *order, causal=causal):
-                return _result(server, "stop", time.monotonic_ns())
-            order, server.next_trial = server.next_trial, None
-        if node.cpu_start_s is not None:  # the start came during a trial
-            break
+    ended = await_start(node, server, causal=causal, watchdog=watchdog)
+    if ended is not None:
+        return _result(server, ended, time.monotonic_ns())
     t_start = time.monotonic_ns()
     server.publish_sample((t_start, t_start))
     span = server.simulate() if causal else (t_start, t_start)  # the state at T, ahead
@@ -264,84 +259,11 @@ def serve(node: Node, server: PlantServer, *, clock: str, period: float, cycles:
     return _result(server, "fault" if server.fault else "done", t_start)
 
 
-def sleep_to_tick(node: Node, server: PlantServer, tick_ns: int, *,
-                  take_commands: bool) -> bool:
-    """Sleep to the monotonic time ``tick_ns``, reading the inbox every
-    :data:`SLEEP_SLICE_S` and once at the tick (commands are taken then, all at once, when
-    ``take_commands``: a wake-up per command and a ticker hop per tick cost more CPU than
-    the simulation; otherwise, during a trial, a new trial order is kept in
-    :attr:`PlantServer.next_trial`). Returns False on a stop order."""
-    while True:
-        ahead = tick_ns - time.monotonic_ns()
-        if ahead > 0:
-            time.sleep(min(ahead / 1e9, SLEEP_SLICE_S))
-        while True:
-            try:
-                ev = node.events.get_nowait()
-            except queue.Empty:
-                break
-            if take_commands:
-                if ev.kind == "command":
-                    server.take_command(ev.data)
-                    continue
-                order = control_order(node, ev)
-                if order is not None and order["stage"] == "stop":
-                    return False
-                if order is not None and order["stage"] == "stride":
-                    server.take_stride(order)
-            elif is_stop(node, ev):
-                return False
-            elif (trial := trial_order(node, ev)) is not None:
-                server.next_trial = trial
-        if time.monotonic_ns() >= tick_ns:
-            return True
-
-
-def tick_after(tick_ns: int, period_ns: int) -> int:
-    """The tick after ``tick_ns``; a period from now when the plant fell more than a period
-    behind (the ticks missed are skipped, not caught up)."""
-    nxt = tick_ns + period_ns
-    now = time.monotonic_ns()
-    return now + period_ns if now > nxt else nxt
-
-
-def trial_ticks(node: Node, server: PlantServer, period: float, ticks: int, base: int, *,
-                causal: bool) -> bool:
-    """An admission trial (runtime/launch/admission.py): tick ``ticks`` times at ``period`` on the
-    wall clock, integrating a throw-away robot at rest (the run's load) and publishing its
-    samples, numbered from ``base`` and flagged ``probe``, in the run's order (``causal``:
-    at the tick, then integrate). Commands are not taken. The trial ends early when a new
-    trial order comes (the central gave this one up, e.g. on a fault: the new one runs at
-    once, where it used to be dropped and its trial found the plant silent) or the start
-    order. Returns False on a stop order."""
-    if server.trial_plant is None:
-        return True
-    sim = server.trial_plant(period)
-    tick_ns = int(period * 1e9)
-    next_tick = time.monotonic_ns() + tick_ns
-    span = (0, 0)
-
-    for j in range(ticks):
-        if not sleep_to_tick(node, server, next_tick, take_commands=False):
-            return False
-        if server.next_trial is not None or node.cpu_start_s is not None:
-            break
-        next_tick = tick_after(next_tick, tick_ns)
-        if causal:
-            server.publish_sample(span, trial=(sim, base + j))
-        t0 = time.monotonic_ns()
-        sim.step()
-        span = (t0, time.monotonic_ns())
-        if not causal:
-            server.publish_sample(span, trial=(sim, base + j))
-    node.last_heard_ns = time.monotonic_ns()
-    return True
-
-
 def _result(server: PlantServer, reason: str, t_start: int) -> dict[str, Any]:
     return {"exit": reason, "samples": server.sample_no, "misses": server.misses,
             "busy_ns": server.busy_ns, "wall_ns": time.monotonic_ns() - t_start,
             "rejected": dict(server.node.rejected), "commands": server.commands_taken,
+            "trial_commands": server.trial_commands,
             "spares": server.spares_applied,
             "rss_kb": {"warm": server.rss_warm, "end": rss_kb()},
             "cpu_s": cpu_used(server.node)} | ({"fault": server.fault} if server.fault else {})
