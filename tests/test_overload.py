@@ -10,6 +10,7 @@ several times worse than the full rate.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -183,7 +184,12 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tm
     assert len(halved) >= o["changes"][1]["calm"] - 1, (len(halved), halved[:20])
     assert all((k - s1) % 2 == 0 for k in halved), halved[:20]
     after = [k for k in cycles if k >= s2]
-    assert len(after) > 50 and after == list(range(s2, s2 + len(after)))
+    steps = [b - a for a, b in itertools.pairwise(after)]
+    # the full rate again: a step of one sample, but where a loaded host made the run skip
+    # one (counted: a second suite beside this one did, 2026-11-27); the halved rate steps by 2
+    assert len(after) > 50 and after[0] == s2 and min(steps) >= 1, after[:20]
+    assert sum(d - 1 for d in steps) <= r["skipped_samples"], (steps, r["skipped_samples"])
+    assert steps.count(1) >= 0.9 * len(steps), steps
     # the periods the run covered, not its intervals, are the misses' denominator
     assert r["periods"] >= r["cycles"] + len(halved) - 1
     n, div = verify(recording)
