@@ -265,17 +265,29 @@ class SilenceWatch:
         round's deadline, and in realtime the moment a silent peripheral or the plant
         would become a fault."""
         wake = now + limit_ns
+        # asked on every turn of the loop: each silence's end and each excuse once a call
+        # (the peripherals asked by one request share their silence's start)
+        ends: dict[int, int] = {}
+        until: dict[int, int] = {}
+
+        def end_of(since: int) -> int:  # a peripheral's :meth:`silence_ends`, unexcused
+            if since not in ends:
+                ends[since] = self.fault_at(since, now, limit_ns)
+            return ends[since]
+
+        def excused_end(k: int, end: int) -> int:  # :meth:`_excused_end`
+            if k not in until:
+                excused = self.excuse_of(role_of(k))
+                until[k] = 0 if excused is None else excused.until
+            return max(end, until[k])
+
         for f in intervals:
             if f.waiting:
-                since = f.deadline_ns - limit_ns
-                end = self.fault_at(since, now, limit_ns)  # the same for each peripheral
+                end = end_of(f.deadline_ns - limit_ns)  # the same for each peripheral
                 for k in f.waiting:
-                    wake = min(wake, self._excused_end(role_of(k), end))
-                if self.realtime:  # liveness: wake when it would fail
-                    for k in f.waiting:
-                        if self.last_reply_ns[k]:
-                            wake = min(wake, self.silence_ends(
-                                role_of(k), self.silent_since(k), now, limit_ns))
+                    wake = min(wake, excused_end(k, end))
+                    if self.realtime and self.last_reply_ns[k]:  # liveness: when it would fail
+                        wake = min(wake, excused_end(k, end_of(self.silent_since(k))))
         if self.realtime and self.last_sample_ns:
             wake = min(wake, self.silence_ends("plant", self.last_sample_ns, now, limit_ns))
         if self.supervision.child_check is not None:  # an exit is seen within the check's time
