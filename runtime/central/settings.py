@@ -63,7 +63,7 @@ class LoopSettings:
     end: int
     """The cycle number after the run's last."""
     trial: bool
-    """The admission's trial: commands computed but never sent."""
+    """The admission's trial: commands sent flagged ``probe``, which the plant drops."""
     hold: Any
     """When a lone round waits to be fused (:func:`~ctrlunit.topology.pipeline.hold_rule`)."""
     deadline_ns: int
