@@ -65,8 +65,7 @@ class Central:
     supervision : what this central can learn of the role processes it started.
     trial : the admission's trial (:mod:`..admission`): intervals from the plant's trial
         samples (flagged ``probe``, numbered from ``controller.first_cycle``) at the
-        reference's own synthetic position, commands sent flagged ``probe`` (the plant
-        checks and drops them).
+        reference's own synthetic position, commands sent flagged ``probe`` (dropped).
     reply_each : peripherals answer each part of a fused request at once (a trial takes
         the run's choice; otherwise :meth:`WarmUp.choose_replies` makes it).
     """
