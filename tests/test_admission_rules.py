@@ -208,10 +208,31 @@ def test_a_refusal_names_the_first_trials_figures_and_what_to_try(monkeypatch):
     assert str(e.value) == (
         "the period of 1 ms cannot be held here: in a trial of 300 intervals before any "
         "motion, 12 were late and the traversal p99 was 2.40 ms of a 2.00 ms budget (2 "
-        "period(s)); the shortest period measured to hold is 1.25 ms. Try --period 1.25ms "
-        "(measured to hold); or --period auto; or --rt-priority 10 (SCHED_FIFO: other "
-        "programs then wait for the unit). ctrlunit latency measures what this machine "
-        "holds.")
+        "period(s)); the shortest period measured to hold is 1.25 ms. Try --period auto "
+        "(it climbs to a period that holds at each start); or --period 1.25ms (measured to "
+        "hold); or --rt-priority 10 (SCHED_FIFO: other programs then wait for the unit). "
+        "ctrlunit latency measures what this machine holds.")
+
+
+@pytest.mark.parametrize(("held", "suggested"), [
+    ({}, "--period 1.25ms (measured to hold)"),
+    ({"traversal_p99_s": 0.9 * 0.95 * 2.5e-3 * 1.01}, "--period 1.6ms (1.25 ms held, near its "
+                                                        "limit)"),
+    ({"busy": 0.74, "limit": 0.8}, "--period 1.6ms (1.25 ms held, near its limit)"),
+    ({"busy": 0.71, "limit": 0.8}, "--period 1.25ms (measured to hold)"),
+])
+def test_a_refusal_suggests_a_rung_higher_than_one_that_held_near_a_limit(monkeypatch, held,
+                                                                          suggested):
+    """A period that held within 90 % of a limit (the traversal p99 of its headroom, the
+    busy share of its limit) was refused by the next start's trial as often as not on a
+    busy host: the refusal then suggests the next rung; ``--period auto`` comes first."""
+    ok = rung(1.25e-3, held=True, busy=held.get("busy"), limit=held.get("limit"))
+    ok |= {k: v for k, v in held.items() if k == "traversal_p99_s"}
+    central, _ = scripted(monkeypatch, [rung(1e-3, held=False), ok])
+    with pytest.raises(Unsustainable) as e:
+        admit(central)
+    assert f"Try --period auto (it climbs to a period that holds at each start); or {suggested}" \
+        in str(e.value)
 
 
 def test_a_busy_cpu_is_named_in_the_refusal(monkeypatch):

@@ -68,6 +68,12 @@ of the machine's stalls than a run of thousands)."""
 LATE_SHARE = 1 / 200
 """At most this share of the trial's intervals may be late (or skipped)."""
 
+NEAR_LIMIT = 0.9
+"""A refusal suggests a period that held in its trial within this share of a limit (the
+traversal p99 of its headroom, the busy share of its limit) one rung higher: on a busy
+host the next start's trial refused such a period as often as not
+(docs/measurements/2026-11-27-newcomer.md)."""
+
 EPISODE_GAP = 10
 """Late (or skipped) intervals less than this many intervals apart belong to one episode."""
 
@@ -245,8 +251,9 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
         f"{first['intervals']} intervals before any motion, {first['late']} were late and "
         f"the traversal p99 was {first['traversal_p99_s'] * 1e3:.2f} ms of a "
         f"{first['budget_s'] * 1e3:.2f} ms budget ({rc.schedule.pipeline} period(s))"
-        + _busy_clause(first) + f"; {found}." + _advice(rc.schedule.period_auto, first,
-                                                          held_at), info)
+        + _busy_clause(first) + f"; {found}."
+        + _advice(rc.schedule.period_auto, first, rungs[-1] if held_at is not None else None),
+        info)
 
 
 def _busy_clause(rung: dict[str, Any]) -> str:
@@ -261,15 +268,29 @@ def _busy_clause(rung: dict[str, Any]) -> str:
             "real-time budget)")
 
 
-def _advice(period_auto: bool, first: dict[str, Any], held_at: float | None) -> str:
-    """The refusal's advice: only what the trial showed would help. A period measured to
-    hold; FIFO where the unit ran without it and may use it (other programs then wait for
-    the unit); a lighter placement where the unit's own load was the limit."""
-    if held_at is not None and period_auto:
+def _suggested(held: dict[str, Any]) -> str:
+    """The period to try after a refusal, from the rung that held: its own, or the next
+    of the ladder where it held near a limit (:data:`NEAR_LIMIT`)."""
+    period, limit, share = held["period_s"], held.get("busy_limit"), held.get("busy_share")
+    near = (held["traversal_p99_s"] > NEAR_LIMIT * HEADROOM * held["budget_s"]
+            or (limit is not None and share is not None and share > NEAR_LIMIT * limit))
+    above = [p for p in LADDER_S if p > period * 1.0001]
+    if near and above:
+        return f"--period {above[0] * 1e3:g}ms ({period * 1e3:g} ms held, near its limit)"
+    return f"--period {period * 1e3:g}ms (measured to hold)"
+
+
+def _advice(period_auto: bool, first: dict[str, Any], held: dict[str, Any] | None) -> str:
+    """The refusal's advice: only what the trial showed would help. ``--period auto`` and
+    a period measured to hold (``held``: its rung); FIFO where the unit ran without it and
+    may use it (other programs then wait for the unit); a lighter placement where the
+    unit's own load was the limit."""
+    if held is not None and period_auto:
         return ""  # the launcher starts again at the period that held
     tries: list[str] = []
-    if held_at is not None:
-        tries += [f"--period {held_at * 1e3:g}ms (measured to hold)", "--period auto"]
+    if held is not None:
+        tries += ["--period auto (it climbs to a period that holds at each start)",
+                  _suggested(held)]
     if not sched.fifo_in_force() and sched.fifo_permitted():
         tries.append(f"--rt-priority {sched.AUTO_PRIORITY} (SCHED_FIFO: other programs "
                      "then wait for the unit)")
