@@ -171,6 +171,20 @@ def test_a_held_replys_late_arrival_is_counted_and_marks_the_peripheral_alive():
     assert c.node.rejected["unexpected_reply"] == 1 and c.silence.last_reply_ns[1] == 123
 
 
+def test_a_reply_to_a_throw_away_interval_is_a_straggler_and_counts_against_its_sender():
+    """A reply part for a warm-up's or a trial's cycle (from ``WARMUP_BASE`` up) that no
+    interval waits for is a straggler of the unit's own; any other is unexpected. Both
+    are counted (the flood watch counts every reject against its sender)."""
+    from ctrlunit.runtime.central.warmup import WARMUP_BASE
+    from ctrlunit.runtime.transport.codec import encode
+
+    _, c, _ = second_interval_late("straggle", late_policy="hold", muted={1})
+    for cycle in (WARMUP_BASE + 7, (1 << 41) + 3, 999_999):
+        part = {"cycle": cycle, "stage": 0, "vals": {}, "span": [0, 1]}
+        c.handle(("reply", 1, encode(c.node.unit, cycle, 0, parts=[part]), 123))
+    assert c.node.rejected["straggler"] == 2 and c.node.rejected["unexpected_reply"] == 1
+
+
 def test_hold_waits_when_there_is_nothing_to_hold_yet():
     u = realtime_unit("holdnone", late_policy="hold")
     c = u.central

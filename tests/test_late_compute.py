@@ -185,3 +185,9 @@ def test_the_summary_tells_late_replies_from_rejected_messages():
     assert "  rejected messages bad_value: 1" in lines
     r["rejected_messages"] = {"late_reply": 2}
     assert not any("rejected" in x for x in summary(r).splitlines())
+    # the warm-up's and the trials' stragglers: the unit's own, late, not malformed
+    r["rejected_messages"] = {"straggler": 3}
+    lines = summary(r).splitlines()
+    assert ("  stragglers  3 replies to the warm-up's or the admission trials' throw-away "
+            "intervals came after them (dropped)") in lines
+    assert not any("rejected" in x for x in lines)

@@ -16,6 +16,7 @@ from ...kernels.kinematics import ik_axis
 from ...kernels.params import DeltaParams
 from ..transport.codec import BadMessage, check_span, check_vals, check_vector, parts_of
 from ..transport.node import Node
+from .warmup import WARMUP_BASE
 
 SAMPLES_KEPT = 64
 """Samples kept waiting for their interval; beyond it the oldest is dropped."""
@@ -142,6 +143,13 @@ class Intake:
     def reject(self, reason: str) -> None:
         """Count a message dropped for ``reason``."""
         self.node.reject(reason)
+
+    def unexpected_reply(self, cycle: int) -> None:
+        """Count a reply part for ``cycle`` that no interval waits for: a straggler of the
+        warm-up's or the admission trials' throw-away intervals (numbered from
+        ``WARMUP_BASE`` up: runtime/central/warmup.py, runtime/launch/admission.py), or an
+        unexpected one. Either counts against its sender (:class:`~.flood.FloodWatch`)."""
+        self.node.reject("straggler" if cycle >= WARMUP_BASE else "unexpected_reply")
 
 
 __all__ = ["SAMPLES_KEPT", "Intake", "Sample", "check_sample"]

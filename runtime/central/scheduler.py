@@ -350,7 +350,7 @@ class Central:
                     self.silence.heard_reply(k, rx)  # its values were held: alive, late
                     self.intake.reject("late_reply")
                 else:
-                    self.intake.reject("unexpected_reply")
+                    self.intake.unexpected_reply(part["cycle"])
                 continue
             checked = self.intake.reply_part(part, f.round.recv, len(axes))
             if checked is None:

@@ -316,6 +316,10 @@ def _end_lines(r: dict[str, Any]) -> list[str]:
     if late:
         lines.append(f"  late replies {late} (dropped: their rounds were held or computed "
                      "by the central)")
+    stragglers = rejected.pop("straggler", 0)  # not malformed: the unit's own, late
+    if stragglers:
+        lines.append(f"  stragglers  {stragglers} replies to the warm-up's or the admission "
+                     "trials' throw-away intervals came after them (dropped)")
     if rejected:
         lines.append("  rejected messages " + ", ".join(
             f"{k}: {v}" for k, v in sorted(rejected.items())))
