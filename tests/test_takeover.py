@@ -171,8 +171,9 @@ def test_a_peripheral_started_again_serves_its_rounds_again(undisturbed, k, dies
     only those of the intervals begun before it came back."""
     u = restarted("torejoin", k, dies=dies, back=back)
     c = u.run()
-    (d,) = c.takeover.report()
-    print(d, c.late.taken_over, c.takeover.dropped_replies)
+    taken = c.takeover.report()
+    print(taken, c.late.taken_over, c.takeover.dropped_replies)
+    (d,) = taken  # one take-over (CI's suite once saw two: the print says which)
     assert u.commands() == undisturbed
     assert d["peripheral"] == k + 1 and "exited" in d["why"]
     assert dies <= d["from_cycle"] < d["back_from_cycle"] < c.done

@@ -148,7 +148,8 @@ class Intake:
         """Count a reply part for ``cycle`` that no interval waits for: a straggler of the
         warm-up's or the admission trials' throw-away intervals (numbered from
         ``WARMUP_BASE`` up: runtime/central/warmup.py, runtime/launch/admission.py), or an
-        unexpected one. Either counts against its sender (:class:`~.flood.FloodWatch`)."""
+        unexpected one. Neither is malformed: the flood watch (:class:`~.flood.FloodWatch`)
+        counts neither against its sender."""
         self.node.reject("straggler" if cycle >= WARMUP_BASE else "unexpected_reply")
 
 
