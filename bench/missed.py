@@ -45,10 +45,13 @@ class _Offline:
         return None
 
 
-def tracking_with_late(period_s: float, late: dict[int, int], *, missed: str) -> float:
+def tracking_with_late(period_s: float, late: dict[int, int], *, missed: str,
+                       bandwidth_hz: float | None = None) -> float:
     """Max tracking error (m) of the default task at ``period_s``, depth 2, when the
-    command of each sample in ``late`` arrives that many periods after it is due."""
-    rc = RunConfig.of(period=period_s, pipeline=2, peripherals=0, clock="lockstep").validate()
+    command of each sample in ``late`` arrives that many periods after it is due (the
+    gains: ``bandwidth_hz``, else the default, ``RunConfig.bandwidth``)."""
+    rc = RunConfig.of(period=period_s, pipeline=2, peripherals=0, clock="lockstep",
+                      bandwidth_hz=bandwidth_hz).validate()
     setup = make_setup(rc)
     engine = setup.engine(peripherals_plan=False)
     ctl = setup.controller(engine)

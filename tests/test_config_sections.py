@@ -89,23 +89,26 @@ def test_the_model_state_auto_is_foreseen2_in_realtime_at_depth_two(clock, depth
     assert RunConfig.of(clock=clock, pipeline=depth, model_state="sample"
                         ).resolved_model_state == "sample"
     # the gains: the foreseen model servoes the acting state, as acting does
-    assert rc.replace(period=8e-3).bandwidth == (10.0 if law == "resolved-acceleration"
+    assert rc.replace(period=8e-3).bandwidth == (5.0 if law == "resolved-acceleration"
                                                  else 2.5)
 
 
 @pytest.mark.parametrize(("period", "law", "state", "hz"), [
     (1e-3, "resolved-acceleration", "acting", 20.0),
-    (4e-3, "resolved-acceleration", "acting", 20.0),
-    (8e-3, "resolved-acceleration", "acting", 10.0),
+    (2e-3, "resolved-acceleration", "acting", 20.0),
+    (2.5e-3, "resolved-acceleration", "acting", 16.0),
+    (4e-3, "resolved-acceleration", "acting", 10.0),
+    (8e-3, "resolved-acceleration", "acting", 5.0),
     (1e-3, "resolved-acceleration", "sample", 20.0),
     (4e-3, "resolved-acceleration", "sample", 5.0),
     (4e-3, "computed-torque", "acting", 5.0),
 ])
 def test_the_default_bandwidth_is_capped_by_the_delay_the_law_does_not_predict(
         period: float, law: str, state: str, hz: float) -> None:
-    """20 Hz, at most 1 / (12.5 T) where the law servoes the state predicted for the
-    period its command acts in, 1 / (50 T) where it servoes the sample's; ``--bandwidth``
-    is taken as given."""
+    """20 Hz, at most 1 / (25 T) where the law servoes the state predicted for the
+    period its command acts in (its margin at twice the period: a command a period late,
+    or the halved rate), 1 / (50 T) where it servoes the sample's; ``--bandwidth`` is
+    taken as given."""
     rc = RunConfig.of(period=period, law=law, model_state=state)
     assert rc.bandwidth == pytest.approx(hz)
     assert rc.replace(bandwidth_hz=33.0).bandwidth == 33.0

@@ -104,7 +104,8 @@ def test_halving_needs_gains_that_hold_at_twice_the_period():
     base = RunConfig.of()
     assert base.schedule.period == pytest.approx(1e-3)
     assert base.gains_hold_halved and base.halves_on_overload  # 20 Hz, limit 40 Hz at 2 ms
-    slow = base.replace(period=5e-3)  # 16 Hz by default; 8 Hz is the limit at 10 ms
+    assert base.replace(period=5e-3).halves_on_overload  # the default 8 Hz holds at 10 ms
+    slow = base.replace(period=5e-3, bandwidth_hz=16.0)  # 8 Hz is the limit at 10 ms
     assert not slow.gains_hold_halved and not slow.halves_on_overload
     with pytest.raises(ConfigError, match=r"--overload halve.*--bandwidth at most 8 Hz"):
         slow.replace(overload="halve").validate()
@@ -373,9 +374,10 @@ def test_start_check_names_the_overload_policy_and_refuses_gains_that_cannot_hal
 
     ok = ctrlunit("start", "--peripherals", "3", "--pipeline", "2", "--check")
     assert ok.returncode == 0 and "on overload: halve the control rate" in ok.stdout
-    off = ctrlunit("start", "--period", "5ms", "--check", "--json")
+    off = ctrlunit("start", "--period", "5ms", "--bandwidth", "16", "--check", "--json")
     assert off.returncode == 0 and json.loads(off.stdout)["overload"] == "continue"
-    bad = ctrlunit("start", "--period", "5ms", "--overload", "halve", "--check")
+    bad = ctrlunit("start", "--period", "5ms", "--bandwidth", "16", "--overload", "halve",
+                   "--check")
     assert bad.returncode == 1
     assert "--overload halve" in bad.stderr and "--bandwidth at most 8 Hz" in bad.stderr
 

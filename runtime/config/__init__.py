@@ -267,21 +267,30 @@ class RunConfig:
     def bandwidth(self) -> float:
         """Closed-loop bandwidth of the gains (Hz): ``--bandwidth``, else 20 Hz but at most
         ``1 / (50 T)`` so that slower periods keep their phase margin against the delay
-        from a sample to its command's action; at most ``1 / (12.5 T)`` where the law
-        servoes the state predicted for the period in which its command acts (resolved
-        acceleration at the ``acting`` model state), whose loop the delay no longer
-        slows (docs/architecture.md, the commands in flight)."""
+        from a sample to its command's action; where the law servoes the state predicted
+        for the period in which its command acts (resolved acceleration at the ``acting``
+        model state), whose loop the delay no longer slows, at most ``1 / (12.5 T')`` at
+        ``T' = 2 T``: its margin then also holds a period more than designed, every
+        command a period late (an overloaded host) or the rate halved (the overload's
+        remedy). 20 Hz up to 2 ms (docs/architecture.md, the commands in flight and
+        overload)."""
         if self.control.bandwidth_hz is not None:
             return self.control.bandwidth_hz
-        return min(20.0, self.bandwidth_limit(self.schedule.period))
+        period = self.schedule.period
+        return min(20.0, self.bandwidth_limit(period * (2.0 if self.predicts_acting else 1.0)))
+
+    @property
+    def predicts_acting(self) -> bool:
+        """Whether the law servoes the state predicted for the period in which its command
+        acts (resolved acceleration at the ``acting`` model state or a foreseen one)."""
+        return (self.control.law == "resolved-acceleration"
+                and self.resolved_model_state in ("acting", "foreseen", "foreseen2"))
 
     def bandwidth_limit(self, period: float) -> float:
         """The highest bandwidth (Hz) whose loop keeps its phase margin at a control period
         ``period`` (s): ``1 / (12.5 T)`` for resolved acceleration at the ``acting`` model
         state, ``1 / (50 T)`` for the other laws (:attr:`bandwidth`)."""
-        predicted = (self.control.law == "resolved-acceleration"
-                     and self.resolved_model_state in ("acting", "foreseen", "foreseen2"))
-        return 1.0 / ((12.5 if predicted else 50.0) * period)
+        return 1.0 / ((12.5 if self.predicts_acting else 50.0) * period)
 
     @property
     def resolved_model_state(self) -> str:
@@ -304,9 +313,10 @@ class RunConfig:
     @property
     def gains_hold_halved(self) -> bool:
         """Whether the gains keep their phase margin at twice the period, where a realtime
-        run that halves its control rate on overload continues (``--overload``): at 1 ms
-        the default 20 Hz does (the limit is 40 Hz); at 5 ms the default 16 Hz does not
-        (the one-process loop diverges; docs/architecture.md, overload)."""
+        run that halves its control rate on overload continues (``--overload``): the
+        default bandwidth of resolved acceleration does at every period (:attr:`bandwidth`);
+        a ``--bandwidth`` over ``1 / (25 T)`` does not (at 5 ms 16 Hz: the one-process
+        loop diverges once halved; docs/architecture.md, overload)."""
         return self.bandwidth <= self.bandwidth_limit(2.0 * self.schedule.period)
 
     @property

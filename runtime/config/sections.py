@@ -68,8 +68,9 @@ class ControlConfig:
         "otherwise.")
     bandwidth_hz: float | None = setting(
         None, flag=Flag(name="bandwidth"), bounds=(0.1, 200.0), allowed="0.1 to 200 Hz",
-        help="Closed-loop bandwidth of the gains in Hz (default: 20, at most 1/(12.5 "
-        "period) with resolved acceleration at the acting state, 1/(50 period) otherwise).")
+        help="Closed-loop bandwidth of the gains in Hz (default: 20, at most 1/(25 "
+        "period) with resolved acceleration at the acting state, so that the margin holds "
+        "a period more than designed, 1/(50 period) otherwise).")
     params: str | None = setting(None, flag=Flag(kind="file"),
                                  help="TOML file of Delta parameters (a role started by "
                                  "hand: this host's copy of the central's).")
