@@ -166,6 +166,7 @@ def test_an_unsustainable_period_is_refused_before_the_plant_gets_a_command(tmp_
     msg = rep["fault"]["message"]
     assert rep["fault"]["process"] == "admission"
     assert "0.1 ms cannot be held" in msg and "trial" in msg
+    assert msg.startswith(rep["fault"]["headline"]) and rep["fault"]["advice"] in msg
     assert rep["cycles"] == 0
     assert rep["plant_commands"] == 0  # the plant's own word
     assert rep["plant_trial_commands"] > 0  # the trials' commands: checked, dropped

@@ -274,14 +274,15 @@ def test_the_climb_stops_where_tracking_gets_too_poor(monkeypatch):
 
 def test_the_tracking_a_period_predicts_is_the_one_process_loops_at_it():
     """1 ms with the main job's settings (depth 2, foreseen2): 0.019 mm, as README says;
-    at 8 ms 3.6 mm; the kinematics law has no torques to track with (NaN)."""
+    at 8 ms 5.8 mm (its default gains 5 Hz: the margin at twice the period); the kinematics
+    law has no torques to track with (NaN)."""
     from ctrlunit.runtime.compute.setup import make_setup
 
     rc = RunConfig.of(clock="realtime", pipeline=2)
     engine = make_setup(rc).engine()
     central = SimpleNamespace(rc=rc, engine=engine)
     assert f"{admission.predicted_tracking(central, 1e-3) * 1e3:.3f}" == "0.019"
-    assert f"{admission.predicted_tracking(central, 8e-3) * 1e3:.1f}" == "3.6"
+    assert f"{admission.predicted_tracking(central, 8e-3) * 1e3:.1f}" == "5.8"
     kin = SimpleNamespace(rc=rc.replace(law="kinematics"), engine=engine)
     assert math.isnan(admission.predicted_tracking(kin, 1e-3))
 

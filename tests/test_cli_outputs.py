@@ -159,8 +159,8 @@ def test_a_missing_file_is_an_input_error_for_every_command(tmp_path):
         assert res.exit_code == 1, (args, res.exit_code, res.stderr)
         assert len(err) == 1 and err[0].startswith("ctrlunit: error: "), (args, res.stderr)
         assert "nosuch" in err[0] or str(tmp_path) in err[0], (args, err)  # names the file
-    assert "no such file" in invoke("start", "--check", "--task",
-                                    str(tmp_path / "nosuch.json")).stderr
+    err = invoke("start", "--check", "--task", str(tmp_path / "nosuch.json")).stderr
+    assert "--task: no such file" in err, err  # named as the user gives it
 
 
 @pytest.mark.parametrize("command", sorted(cli.commands))
@@ -254,3 +254,25 @@ def test_the_main_job_profile_is_readmes_main_job():
         assert profiled.stdout == invoke("start", *main, *check).stdout
     assert invoke("config", "--profile", "main-job").stdout == invoke("config", *main).stdout
     assert "pipeline depth 2" in invoke("start", "--profile", "main-job", "--check").stdout
+
+
+def test_stderr_names_what_was_refused_and_what_to_try():
+    """stdout may go to a file: a refusal's stderr line says what was refused and what to
+    try; a fault's names the process (its whole message with ``--json``); a stop the
+    user asked for is no fault."""
+    from ctrlunit.runtime.cli.run import _exit_line
+
+    refusal = {"process": "admission", "message": "the period of 0.5 ms cannot be held here: "
+               "in a trial of 300 intervals ... Try --period auto; or --period 2.5ms.",
+               "headline": "the period of 0.5 ms cannot be held here",
+               "advice": "Try --period auto; or --period 2.5ms."}
+    line = _exit_line(refusal, 7, as_json=False)
+    assert line == ("ctrlunit: refused before any motion: the period of 0.5 ms cannot be "
+                    "held here (exit 7). Try --period auto; or --period 2.5ms."), line
+    assert "in a trial of" not in line  # the figures are the summary's
+    assert _exit_line(refusal, 7, as_json=True).endswith("--period 2.5ms. (exit 7)")
+    fault = {"process": "central", "message": "cycle 9: tracking error 21 mm"}
+    assert _exit_line(fault, 5, as_json=False) == "ctrlunit: fault in central (exit 5)"
+    assert "tracking error 21 mm" in _exit_line(fault, 5, as_json=True)
+    assert _exit_line({"process": "user", "message": "interrupted (Ctrl-C)"}, 130,
+                      as_json=False).startswith("ctrlunit: stopped on request")

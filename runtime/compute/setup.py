@@ -101,7 +101,7 @@ def make_setup(rc: RunConfig) -> Setup:
     try:
         task = get_task(rc.control.task).align(rc.schedule.period / 2.0)
     except ValueError as exc:
-        raise ConfigError(f"task: {exc}") from None
+        raise ConfigError(f"--task: {exc}") from None
     pts = np.array([task.sample_path(t)[0] for t in np.linspace(0.0, task.duration, 400)])
     try:
         require_path(params, pts, what=f"task {task.name}")

@@ -88,9 +88,14 @@ class Unsustainable(Exception):
 
     code = EXIT_UNSUSTAINABLE
 
-    def __init__(self, message: str, info: dict[str, Any]) -> None:
+    def __init__(self, message: str, info: dict[str, Any], *, headline: str = "",
+                 advice: str = "") -> None:
         super().__init__(message)
         self.info = info
+        self.headline = headline or message
+        """What was refused, in a clause (``ctrlunit start`` puts it on stderr)."""
+        self.advice = advice
+        """What to try, as sentences (empty: nothing the trial showed would help)."""
 
 
 def trial_intervals(period_s: float, *, seconds: float = 0.3, least: int = 50,
@@ -246,14 +251,16 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
                  f"ms of {rungs[-1]['budget_s'] * 1e3:.2f} ms)")
     else:
         found = f"the shortest period measured to hold is {held_at * 1e3:g} ms"
+    headline = f"the period of {asked * 1e3:g} ms cannot be held here"
+    advice = _advice(rc.schedule.period_auto, first,
+                     rungs[-1] if held_at is not None else None)
     raise Unsustainable(
-        f"the period of {asked * 1e3:g} ms cannot be held here: in a trial of "
+        f"{headline}: in a trial of "
         f"{first['intervals']} intervals before any motion, {first['late']} were late and "
         f"the traversal p99 was {first['traversal_p99_s'] * 1e3:.2f} ms of a "
         f"{first['budget_s'] * 1e3:.2f} ms budget ({rc.schedule.pipeline} period(s))"
-        + _busy_clause(first) + f"; {found}."
-        + _advice(rc.schedule.period_auto, first, rungs[-1] if held_at is not None else None),
-        info)
+        + _busy_clause(first) + f"; {found}." + advice, info, headline=headline,
+        advice=advice.strip())
 
 
 def _busy_clause(rung: dict[str, Any]) -> str:

@@ -97,7 +97,8 @@ class UnitStart:
             self.fault = {"process": exc.process, "message": str(exc), "code": exc.code}
         except Unsustainable as exc:
             self.code, self.decided["admission"] = exc.code, exc.info
-            self.fault = {"process": "admission", "message": str(exc), "code": exc.code}
+            self.fault = {"process": "admission", "message": str(exc), "code": exc.code,
+                          "headline": exc.headline, "advice": exc.advice}
         except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (Terminated)
             self.code, self.fault = stop_of(exc)
         finally:
