@@ -149,9 +149,11 @@ def test_a_recording_without_the_live_facts_says_which_lines_it_cannot_give(runs
     assert "kept them in the live report only" in last
     live = text.splitlines()
     # every other line is the live one, but for the facts named as missing (the misses'
-    # line says how many were covered only where the live facts are: a loaded host misses)
+    # line says how many were covered only where the live facts are: a loaded host misses;
+    # without the late data line, the late replies have a line of their own)
     differ = [ln for ln in lines[:-1] if ln not in live]
-    assert all(ln.startswith(("  round trips", "  deadline misses")) for ln in differ), differ
+    assert all(ln.startswith(("  round trips", "  deadline misses", "  late replies"))
+               for ln in differ), differ
     assert "exchanges per interval" in last
 
 
@@ -165,3 +167,29 @@ def test_a_stop_the_user_asked_for_is_not_a_fault(runs):
     assert ("  stopped     on request: interrupted (exit 130), after 300 intervals (a stop "
             "asked for, not a fault)") in text
     assert "  safe stop   the plant held and braked for 50 ms" in text
+    assert "result" not in text  # the stop line says how it ended
+
+
+def test_the_last_line_says_how_a_run_ended_and_what_it_gave_up(runs):
+    """A run that was not stopped ends on a result line: as planned, or what it gave up
+    on the way (a peripheral taken over, the halved rate, late commands), each of which a
+    line above details; late replies of rounds the central computed are said on the late
+    data line, not as a separate count that reads as trouble."""
+    code, rep, out, _ = runs["lockstep"]
+    assert code == 0 and out.rstrip().splitlines()[-1] == "  result      completed as planned"
+    r = dict(rep, clock="realtime", periods=2000, deadline_misses=30,
+             overload={"policy": "halve", "changes": [], "halved": None,
+                       "halved_periods": 400},
+             degraded=[{"peripheral": 2, "at_interval": 900, "from_cycle": 905,
+                        "why": "its process exited (status -9)"}],
+             late={"computed": 12, "taken_over": 1095},
+             rejected_messages={"late_reply": 7})
+    lines = summary(r).splitlines()
+    assert lines[-1] == ("  result      completed: degraded: the central computed the rounds "
+                         "of peripheral(s) 2; 400 period(s) at the halved rate; 30 of 2000 "
+                         "commands late (1.5%)"), lines[-1]
+    late = [x for x in lines if x.startswith("  late data")]
+    assert late and late[0].endswith("; the 7 late replies were dropped"), late
+    assert not any(x.startswith("  late replies") for x in lines)
+    r["fault"] = {"process": "central", "message": "cycle 9: tracking", "code": 5}
+    assert not any(x.startswith("  result") for x in summary(r).splitlines())

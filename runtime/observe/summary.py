@@ -8,6 +8,7 @@ import math
 from typing import Any
 
 from .report import quoted
+from .summary_end import end_lines
 
 
 def _overload_lines(r: dict[str, Any]) -> list[str]:
@@ -39,8 +40,11 @@ def _late_lines(r: dict[str, Any]) -> list[str]:
     out = []
     computed = (r.get("late") or {}).get("computed")
     if computed:
-        out.append(f"  late data   {computed} late peripheral round(s) computed by the central "
-                   "(the same arithmetic: the commands are unchanged)")
+        replies = dict(r.get("rejected_messages") or {}).get("late_reply", 0)
+        out.append(f"  late data   {computed} peripheral round(s) late for their deadline, "
+                   "computed by the central (the same arithmetic: the commands are "
+                   "unchanged)" + (f"; the {replies} late replies were dropped" if replies
+                                   else ""))
     out += _degraded_lines(r)
     late = r.get("late_intervals")
     if not late or not late["intervals"] or not late["work_stretch"]:
@@ -125,17 +129,6 @@ def _sched_lines(r: dict[str, Any]) -> list[str]:
     elif idle.get("asked") in ("auto", "poll") and r.get("clock") == "realtime":
         lines.append(f"  idle CPUs   as they are: {idle.get('why')}")
     return lines
-
-
-def _safe_stop_line(stop: Any) -> str:
-    """What the plant reported of its safe stop (gravity hold with braking, then zero
-    torque), or that it reported nothing."""
-    try:
-        return (f"  safe stop   the plant held and braked for {stop['hold_s'] * 1e3:.0f} ms "
-                f"(moved {stop['drift_m'] * 1e3:.1f} mm, left at "
-                f"{stop['speed_m_s'] * 1e3:.1f} mm/s), then zero torque")
-    except (TypeError, KeyError, ValueError):
-        return "  safe stop   NOT confirmed: the plant did not report one"
 
 
 LINK_LINES = {
@@ -305,44 +298,6 @@ def _admission_lines(r: dict[str, Any]) -> list[str]:
                      if adm["rungs"][-1].get("retry") else "")]
 
 
-def _end_lines(r: dict[str, Any]) -> list[str]:
-    """Messages dropped or refused; how the run ended when not as planned: a stop the
-    user asked for (Ctrl-C, SIGTERM, SIGHUP: not a fault, docs/faults-and-errors.md) or a
-    fault, with the plant's safe stop, and the folder kept for its diagnosis; and what a
-    recording could not tell."""
-    lines = []
-    rejected = dict(r["rejected_messages"])
-    late = rejected.pop("late_reply", 0)  # not malformed: a round already held or computed
-    if late:
-        lines.append(f"  late replies {late} (dropped: their rounds were held or computed "
-                     "by the central)")
-    stragglers = rejected.pop("straggler", 0)  # not malformed: the unit's own, late
-    if stragglers:
-        lines.append(f"  stragglers  {stragglers} replies to the warm-up's or the admission "
-                     "trials' throw-away intervals came after them (dropped)")
-    if rejected:
-        lines.append("  rejected messages " + ", ".join(
-            f"{k}: {v}" for k, v in sorted(rejected.items())))
-    f = r.get("fault")
-    if f:
-        code = f" (exit {f['code']})" if f.get("code") is not None else ""
-        if f.get("process") == "user":
-            lines.append(f"  stopped     on request: {f['message']}{code}, after {r['cycles']} "
-                         "intervals (a stop asked for, not a fault)")
-        else:
-            lines.append(f"  FAULT in {f['process']}: {f['message']}{code}")
-        if "safe_stop" in r:
-            lines.append(_safe_stop_line(r["safe_stop"]))
-    if r.get("logs_kept"):
-        lines.append(f"  logs        kept in {r['logs_kept']} (the run's spec and each role's "
-                     "log, for the diagnosis; delete it when done)")
-    unknown = r.get("not_recorded")
-    if unknown:
-        lines.append(f"  not in the recording: {', '.join(unknown['lines'])} "
-                     f"({unknown['why']})")
-    return lines
-
-
 def summary(r: dict[str, Any]) -> str:
     """The human summary printed at the end of a run: each figure where the run's clock
     gives it a meaning (:func:`_timing_lines`, :func:`efficiency_unmeasured`)."""
@@ -371,7 +326,7 @@ def summary(r: dict[str, Any]) -> str:
         lines.append(f"  placement   auto: {choice['why']}")
     lines += _link_lines(r)
     lines += _admission_lines(r)
-    lines += _end_lines(r)
+    lines += end_lines(r)
     return "\n".join(lines)
 
 
