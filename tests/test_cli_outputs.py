@@ -91,7 +91,8 @@ def test_no_command_writes_a_file_it_was_not_asked_for(made, tmp_path, monkeypat
 def test_a_faulted_run_names_the_folder_it_keeps(tmp_path):
     """A peripheral killed mid-run under ``--peripheral-loss fault``: exit 3, and the
     run's folder (spec, the roles' logs), the only thing left in the temporary directory,
-    is named in the summary, on stderr after it and in the report."""
+    is named in the summary, on stderr after it and in the report; the logs say what each
+    role saw (runtime/roles/rolelog.py)."""
     cwd, tmp = tmp_path / "cwd", tmp_path / "t"
     cwd.mkdir()
     tmp.mkdir()
@@ -120,7 +121,12 @@ def test_a_faulted_run_names_the_folder_it_keeps(tmp_path):
         assert len(kept) == 1 and kept[0].name.startswith("ctrlunit-"), kept
         assert err.splitlines()[-1] == f"ctrlunit: the roles' logs are kept in {kept[0]}"
         assert json.loads(report.read_text())["logs_kept"] == str(kept[0])
-        assert (kept[0] / "peripheral-1.log").exists()
+        # each role's log says what it saw: the killed peripheral got its go, and the
+        # plant ended with its final report
+        killed = (kept[0] / "peripheral-1.log").read_text()
+        assert "peripheral-1[" in killed and ": go" in killed, killed
+        plant = (kept[0] / "plant.log").read_text().splitlines()
+        assert plant and ": ended (stop): {" in plant[-1], plant
         assert listing(cwd) == [] and out.strip()
         assert any(line.startswith(f"  logs        kept in {kept[0]} (")
                    for line in out.splitlines())  # the summary names it too

@@ -34,6 +34,7 @@ from ..config import EXIT_LINK, EXIT_OK, ConfigError
 from ..host import sched
 from ..transport.codec import BadMessage, check_vals, decode, encode, parts_of
 from ..transport.node import WARM_RSS_AT, Node, control_order, cpu_used, rss_kb, say_bye
+from .rolelog import role_log, role_log_end
 
 MAX_KEPT_CYCLES = 8
 ALL_AXES = (0, 1, 2)
@@ -239,10 +240,14 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
 
 
 def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
-    with Node(conf, setup.rc.transport.unit, f"peripheral-{index}") as node:
+    name = f"peripheral-{index}"
+    with Node(conf, setup.rc.transport.unit, name) as node:
+        role_log(name, f"connected to unit {setup.rc.transport.unit}; waiting for the go")
         try:
             reply = declare(node, index - 1)
             go = node.wait_for_go(timeout=setup.rc.transport.startup_timeout)
+            role_log(name, "go" + (f": central blocks {go['central_blocks']}"
+                                   if go.get("central_blocks") is not None else ""))
             # started again during a run (.takeover): the placement it runs comes with go
             blocks = go.get("central_blocks")
             engine = (setup.engine() if blocks is None
@@ -255,4 +260,5 @@ def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
             return EXIT_LINK
         res["sched"] = sched.policy_name()
         say_bye(node, res)
+        role_log_end(name, res)
         return EXIT_OK if res["exit"] == "stop" else EXIT_LINK

@@ -48,6 +48,7 @@ from ..transport.codec import BadMessage, check_vector, encode
 from ..transport.node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb, say_bye
 from .plant_orders import STOP_ORDER_WAIT_S, announce_fault, safe_stop, wait_for_stop
 from .plant_ticks import await_start, sleep_to_tick, tick_after
+from .rolelog import role_log, role_log_end
 from .stopping import stop_of, stop_signals
 
 
@@ -289,11 +290,13 @@ def run_plant(setup: Setup, conf: Any) -> int:
     with Node(conf, rc.transport.unit, "plant") as node:
         server = PlantServer(node, plant, depth=rc.schedule.pipeline, initial=initial,
                              trial_plant=trial_plant)
+        role_log("plant", f"connected to unit {rc.transport.unit}; waiting for the go")
         try:
             node.wait_for_go(timeout=rc.transport.startup_timeout)
         except TimeoutError as exc:
             print(f"ctrlunit plant: {exc}", file=sys.stderr)
             return EXIT_LINK
+        role_log("plant", f"go: {rc.schedule.clock} at {rc.schedule.period * 1e3:g} ms")
         t_serve = time.monotonic_ns()
         code = EXIT_OK
         try:
@@ -315,6 +318,7 @@ def run_plant(setup: Setup, conf: Any) -> int:
         res["safe_stop"] = safe_stop(plant)
         res["sched"] = sched.policy_name()
         say_bye(node, res)
+        role_log_end("plant", res)
         if code != EXIT_OK:
             return code
         if res["exit"] == "fault":
