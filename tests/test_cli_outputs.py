@@ -266,7 +266,7 @@ def test_stderr_names_what_was_refused_and_what_to_try():
     """stdout may go to a file: a refusal's stderr line says what was refused and what to
     try; a fault's names the process (its whole message with ``--json``); a stop the
     user asked for is no fault."""
-    from ctrlunit.runtime.cli.run import _exit_line
+    from ctrlunit.runtime.cli.base import exit_line as _exit_line
 
     refusal = {"process": "admission", "message": "the period of 0.5 ms cannot be held here: "
                "in a trial of 300 intervals ... Try --period auto; or --period 2.5ms.",

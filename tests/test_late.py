@@ -108,7 +108,7 @@ def test_compute_policy_computes_the_late_rounds_and_replay_verifies_them(tmp_pa
     print(f"compute: {len(computed)} rounds, misses per axis {rep['late']['misses_per_axis']}")
     assert computed and {m["peripheral"] for m in computed} == {1}
     assert rep["late"]["computed"] == len(computed) == rep["late"]["misses_per_axis"][1]
-    assert "late peripheral round(s) computed by the central" in out
+    assert "peripheral round(s) late for their deadline, computed by the central" in out
     n, div = verify(read(mcap))
     assert div is None, div
     assert n == rep["cycles"]

@@ -43,6 +43,22 @@ def warn(msg: str) -> None:
     click.echo(f"ctrlunit: warning: {one_line(msg)}", err=True)
 
 
+def exit_line(f: dict[str, Any], code: int, *, as_json: bool) -> str:
+    """stderr's line for a run that did not end normally. The summary on stdout has the
+    whole message; with ``--json`` stderr gives it. A refusal names what was refused and
+    what to try either way (stdout may go to a file)."""
+    if f.get("process") == "user":
+        return f"ctrlunit: stopped on request: {f.get('message')} (exit {code})"
+    if f.get("process") == "admission":
+        if as_json:
+            return f"ctrlunit: refused before any motion: {f.get('message')} (exit {code})"
+        advice = f" {f['advice']}" if f.get("advice") else ""
+        return (f"ctrlunit: refused before any motion: {f.get('headline') or f.get('message')}"
+                f" (exit {code}).{advice}")
+    return (f"ctrlunit: fault in {f.get('process')}"
+            + (f": {f.get('message')}" if as_json else "") + f" (exit {code})")
+
+
 class FilePath(click.Path):
     """:class:`click.Path` whose refusal (a file that does not exist, a directory given
     for a file or the reverse, no permission) is an input error, exit 1 like any other

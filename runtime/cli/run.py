@@ -16,7 +16,7 @@ from ..config import (
     RunConfig,
 )
 from ..config.spellings import user_view
-from .base import FilePath, _emit, _fail, _json_safe, cli
+from .base import FilePath, _emit, _fail, _json_safe, cli, exit_line
 from .options import given_settings, make_rc, role_options, run_options
 
 
@@ -75,26 +75,10 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
         _plot_run(rc.run.record, plot_dir, summary(report)
                   if (report.get("timing") or {}).get("exact", True) else None)
     if code:
-        click.echo(_exit_line(report.get("fault") or {}, code, as_json=as_json), err=True)
+        click.echo(exit_line(report.get("fault") or {}, code, as_json=as_json), err=True)
     if report.get("logs_kept"):
         click.echo(f"ctrlunit: the roles' logs are kept in {report['logs_kept']}", err=True)
     sys.exit(code)
-
-
-def _exit_line(f: dict[str, Any], code: int, *, as_json: bool) -> str:
-    """stderr's line for a run that did not end normally. The summary on stdout has the
-    whole message; with ``--json`` stderr gives it. A refusal names what was refused and
-    what to try either way (stdout may go to a file)."""
-    if f.get("process") == "user":
-        return f"ctrlunit: stopped on request: {f.get('message')} (exit {code})"
-    if f.get("process") == "admission":
-        if as_json:
-            return f"ctrlunit: refused before any motion: {f.get('message')} (exit {code})"
-        advice = f" {f['advice']}" if f.get("advice") else ""
-        return (f"ctrlunit: refused before any motion: {f.get('headline') or f.get('message')}"
-                f" (exit {code}).{advice}")
-    return (f"ctrlunit: fault in {f.get('process')}"
-            + (f": {f.get('message')}" if as_json else "") + f" (exit {code})")
 
 
 def _kept(report: dict[str, Any]) -> str:

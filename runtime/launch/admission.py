@@ -77,25 +77,22 @@ host the next start's trial refused such a period as often as not
 EPISODE_GAP = 10
 """Late (or skipped) intervals less than this many intervals apart belong to one episode."""
 
-
 TRACKING_SHARE = 0.5
 """A period that holds is admitted only if the one-process simulation of the task at it
 tracks within this share of ``--max-error`` (the run would otherwise stop mid-motion)."""
 
 
 class Unsustainable(Exception):
-    """The requested period cannot be held; ``info`` is the admission's report."""
+    """The requested period cannot be held; ``info`` is the admission's report,
+    ``headline`` what was refused in a clause and ``advice`` what to try (sentences, or
+    empty): ``ctrlunit start`` puts those two on stderr."""
 
     code = EXIT_UNSUSTAINABLE
 
     def __init__(self, message: str, info: dict[str, Any], *, headline: str = "",
                  advice: str = "") -> None:
         super().__init__(message)
-        self.info = info
-        self.headline = headline or message
-        """What was refused, in a clause (``ctrlunit start`` puts it on stderr)."""
-        self.advice = advice
-        """What to try, as sentences (empty: nothing the trial showed would help)."""
+        self.info, self.headline, self.advice = info, headline or message, advice
 
 
 def trial_intervals(period_s: float, *, seconds: float = 0.3, least: int = 50,
@@ -194,11 +191,10 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
     :class:`Unsustainable` otherwise (with ``--period auto`` the caller starts again at
     ``info["sustainable_period_s"]``), before the plant has acted on any command (a
     trial sends its commands, flagged ``probe``, which the plant checks and drops: the
-    run's messaging load without motion). ``unit_cpu``
-    reads the unit's own CPU time per CPU (runtime/host/unit_load.py), which the busy
-    limit under FIFO judges; without it, the machine's (every process). ``rehearse``
-    makes, for each trial, what the run does after each interval besides the control
-    (its recorder, writing nowhere: :data:`Rehearse`)."""
+    run's messaging load without motion). ``unit_cpu`` reads the unit's own CPU time per
+    CPU (runtime/host/unit_load.py), which the busy limit under FIFO judges; without it,
+    the machine's. ``rehearse`` makes, for each trial, what the run does after each
+    interval besides the control (its recorder, writing nowhere: :data:`Rehearse`)."""
     rc = central.rc
     transit = statistics.median(central.warmup.warm_rtt_s) / 2 if central.warmup.warm_rtt_s else 0.0
     asked = rc.schedule.period
@@ -252,15 +248,13 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
     else:
         found = f"the shortest period measured to hold is {held_at * 1e3:g} ms"
     headline = f"the period of {asked * 1e3:g} ms cannot be held here"
-    advice = _advice(rc.schedule.period_auto, first,
-                     rungs[-1] if held_at is not None else None)
+    advice = _advice(rc.schedule.period_auto, first, rungs[-1] if held_at else None)
     raise Unsustainable(
-        f"{headline}: in a trial of "
-        f"{first['intervals']} intervals before any motion, {first['late']} were late and "
-        f"the traversal p99 was {first['traversal_p99_s'] * 1e3:.2f} ms of a "
-        f"{first['budget_s'] * 1e3:.2f} ms budget ({rc.schedule.pipeline} period(s))"
-        + _busy_clause(first) + f"; {found}." + advice, info, headline=headline,
-        advice=advice.strip())
+        f"{headline}: in a trial of {first['intervals']} intervals before any motion, "
+        f"{first['late']} were late and the traversal p99 was "
+        f"{first['traversal_p99_s'] * 1e3:.2f} ms of a {first['budget_s'] * 1e3:.2f} ms "
+        f"budget ({rc.schedule.pipeline} period(s))" + _busy_clause(first) + f"; {found}."
+        + advice, info, headline=headline, advice=advice.strip())
 
 
 def _busy_clause(rung: dict[str, Any]) -> str:
