@@ -276,7 +276,7 @@ def test_the_unit_runs_the_model_round_ahead_with_the_one_process_commands(tmp_p
     assert rep["command_digest"] == command_digest([x for c in ref.commands for x in c])
     # the slow pick & place: a loaded host's late commands cost it little (this run judges
     # the round run ahead; at 4 ms the default gains, 10 Hz, track the fast task's 150
-    # cycles within 0.72 mm, and a slow hour's misses took it to 3.7 mm, 2026-11-27)
+    # cycles within 0.72 mm, and the misses beside two busy loops took it to 3.7 mm)
     code, rt, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--period",
                                "4ms", "--no-admission", "--cycles", "150", "--model-state",
                                "foreseen", "--fault-periods", "10", "--task", slow_task(tmp_path),

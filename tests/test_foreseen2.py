@@ -254,7 +254,7 @@ def test_the_unit_sends_one_exchange_per_two_intervals_and_replay_verifies(tmp_p
     mcap = tmp_path / "f2.mcap"
     # the slow pick & place: a loaded host's late commands cost it little (this run judges
     # the rounds run ahead; at 4 ms the default gains, 10 Hz, track the fast task's 150
-    # cycles within 0.72 mm, and a slow hour's misses took it past 1 mm, 2026-11-27)
+    # cycles within 0.72 mm, and the misses beside two busy loops took it past 1 mm)
     code, rt, out = start_json(tmp_path, "--peripherals", "3", "--pipeline", "2", "--period",
                                "4ms", "--no-admission", "--cycles", "150", "--model-state",
                                "foreseen2", "--fault-periods", "10", "--record", str(mcap),
@@ -262,9 +262,8 @@ def test_the_unit_sends_one_exchange_per_two_intervals_and_replay_verifies(tmp_p
     assert code == 0, out
     assert rt["model_state"] == "foreseen2" and rt["rounds_ahead"] == 1
     # 1.0 where nothing is fused; a loaded host leaves some rounds alone (0.60 with a
-    # second test suite beside this one, 0.73-0.92 in a slow hour with 26-120 commands
-    # late of 150, 2026-11-27), 0.50-0.55 on a quiet one
-    assert rt["exchanges_per_interval"] <= 0.95, rt["exchanges_per_interval"]
+    # second test suite beside this one, 2026-11-27), 0.50-0.55 on a quiet one
+    assert rt["exchanges_per_interval"] <= 0.7, rt["exchanges_per_interval"]
     assert "foreseen two periods ahead" in out
     assert rt["tracking_error_m"]["max"] < 1e-3
     n, div = verify(read(mcap))

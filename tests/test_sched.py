@@ -136,11 +136,8 @@ def test_busy_share_sees_a_load_that_wakes_every_millisecond() -> None:
         child.kill()
         child.wait(timeout=10)
     share = sched.busy_share(before[cpu:cpu + 1], after[cpu:cpu + 1])
-    # at least the child's 0.6; more only by what else ran on that CPU meanwhile (CI's
-    # slow hour once read 1.0: what else ran is judged only where the CPU was calm before)
-    assert share is not None and share >= 0.55, share
-    if idle[cpu] < 0.2:
-        assert share <= 0.95, (share, idle)
+    # at least the child's 0.6; more only by what else ran on that CPU meanwhile
+    assert share is not None and 0.55 <= share <= 0.95, (share, idle)
 
 
 def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limit(

@@ -343,8 +343,7 @@ def test_placement_auto_moves_the_observer_round_when_messages_cost_more_same_co
     """--placement auto (the default): here a round trip costs far more than the observer's
     round of arithmetic, so that round runs on the central, the roles re-placed where they
     are, with the commands of the thesis's placement bit for bit; with T-800 block times
-    thirty times over (the thesis stage's scale) the round stays on the peripherals (ten
-    times over, a slow hour's round trip outweighed it once, 2026-11-27)."""
+    ten times over the round stays on the peripherals."""
     args = ("--peripherals", "3", "--pipeline", "2", "--clock", "lockstep", "--cycles", "60")
     code, auto, out = start_json(tmp_path, *args, tag="pauto")
     assert code == 0, out
@@ -358,7 +357,7 @@ def test_placement_auto_moves_the_observer_round_when_messages_cost_more_same_co
     assert code == 0, out
     assert "placement_choice" not in axes and axes["round_trips"] == 2
     assert axes["command_digest"] == auto["command_digest"]
-    code, slow, out = start_json(tmp_path, *args, "--cost-model", "t800", "--cost-scale", "30",
+    code, slow, out = start_json(tmp_path, *args, "--cost-model", "t800", "--cost-scale", "10",
                                  tag="pt800")
     assert code == 0, out
     assert slow["placement_choice"]["central_blocks"] == [] and slow["round_trips"] == 2
