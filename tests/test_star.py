@@ -154,11 +154,13 @@ def test_a_stop_signal_stops_the_robot_safely_and_keeps_report_and_recording(
     torques included, and left the platform at up to 0.47 m/s."""
     unit = unit_id(f"sig{signum}-{whom}")
     report, rec = tmp_path / "report.json", tmp_path / "run.mcap"
+    out_file = tmp_path / "output"  # what the run said, for a failure's message
+    out = out_file.open("w")
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, *clock,
          "--duration", "600s", "--no-progress", "--report", str(report),
          "--record", str(rec), "--status-file", str(tmp_path / "status")],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
         # as from a terminal, whatever this runner ignores (under nohup SIGHUP is ignored,
         # and a run that inherits that keeps running on purpose: the next test)
         preexec_fn=_default_stop_signals)
@@ -172,12 +174,13 @@ def test_a_stop_signal_stops_the_robot_safely_and_keeps_report_and_recording(
             os.kill(proc.pid, signum)
         # a bound on "left behind", not a speed target (a loaded 2-core CI machine took
         # over 2 s once)
-        assert proc.wait(timeout=20) == code
+        assert proc.wait(timeout=20) == code, out_file.read_text()[-3000:]
         assert not wait_gone(unit)
     finally:
         kill_unit(unit)
         if proc.poll() is None:
             proc.kill()
+        out.close()
     rep = json.loads(report.read_text())
     name = "interrupted" if signum == signal.SIGINT else \
         f"terminated ({signal.Signals(signum).name})"
@@ -186,10 +189,10 @@ def test_a_stop_signal_stops_the_robot_safely_and_keeps_report_and_recording(
     assert rep["safe_stop"] is not None and rep["safe_stop"]["hold_s"] > 0
     # docs/faults-and-errors.md: under 2 mm/s from the fastest point of the path
     assert rep["safe_stop"]["speed_m_s"] < 0.02, rep["safe_stop"]
-    out = subprocess.run([sys.executable, "-m", "ctrlunit.runtime.cli", "report", str(rec)],
+    res = subprocess.run([sys.executable, "-m", "ctrlunit.runtime.cli", "report", str(rec)],
                          capture_output=True, text=True, timeout=120)
-    assert "cut off" not in out.stdout + out.stderr  # the footer was written
-    assert name in out.stdout
+    assert "cut off" not in res.stdout + res.stderr  # the footer was written
+    assert name in res.stdout
 
 
 def _ignoring(signum: int) -> None:
