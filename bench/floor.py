@@ -105,7 +105,7 @@ def _zenoh_child(endpoint: str, index: int, unit: str) -> None:
               inbox="peripheral") as node:
         node.route(node.keys.request, "req")
         pub = node.publisher(node.keys.reply(index + 1))
-        hello = node.publisher(node.keys.hello)
+        hello = node.publisher(node.keys.hello(node.role))
         deadline = time.monotonic() + 60
         c0 = _cpu_s()
         while time.monotonic() < deadline:
@@ -132,7 +132,7 @@ def zenoh_round_trip(n: int, *, rounds: int = 2000, warmup: int = 300) -> list[f
     node = Node(make_config(listen=[endpoint]), unit, "central")
     for k in range(n):
         node.route(node.keys.reply(k + 1), "rep", k)
-    node.route(node.keys.hello, "hello")
+        node.route(node.keys.hello(f"floor-{k}"), "hello")
     pub = node.publisher(node.keys.request)
     ctx = mp.get_context("spawn")
     procs = [ctx.Process(target=_zenoh_child, args=(endpoint, k, unit), daemon=True)
@@ -199,7 +199,7 @@ class _Link:
         unit = f"floor{os.getpid()}"
         self.node = Node(make_config(listen=[endpoint]), unit, "central")
         self.node.route(self.node.keys.reply(1), "rep")
-        self.node.route(self.node.keys.hello, "hello")
+        self.node.route(self.node.keys.hello("floor-0"), "hello")
         self.pub = self.node.publisher(self.node.keys.request)
         self.proc = mp.get_context("spawn").Process(target=_zenoh_child,
                                                     args=(endpoint, 0, unit), daemon=True)

@@ -71,15 +71,18 @@ def expected_grants(n: int) -> dict[str, set[Grant]]:
     def inbox(p: str) -> set[Grant]:
         return {("declare_subscriber", "ingress", f"{u}/{p}/**"), ("put", "egress", f"{u}/{p}/**")}
 
-    hello = ("put", "ingress", f"{u}/central/hello")
+    def hello(role: str) -> Grant:
+        return ("put", "ingress", f"{u}/central/hello/{role}")
+
     table = {
         "central": {learn, *inbox("central"), ("put", "ingress", f"{u}/plant/**"),
                     ("put", "ingress", f"{u}/peripheral/**"), ("put", "ingress", f"{u}/view/**")},
-        "plant": {learn, *inbox("plant"), hello, ("put", "ingress", f"{u}/central/sample")},
+        "plant": {learn, *inbox("plant"), hello("plant"),
+                  ("put", "ingress", f"{u}/central/sample")},
         "viewer": inbox("view"),
     }
     for k in range(1, n + 1):
-        table[f"peripheral-{k}"] = {learn, *inbox("peripheral"), hello,
+        table[f"peripheral-{k}"] = {learn, *inbox("peripheral"), hello(f"peripheral-{k}"),
                                     ("put", "ingress", f"{u}/central/reply/{k}")}
     return table
 
@@ -103,7 +106,9 @@ def test_the_policy_grants_each_role_its_own_keys_alone(n):
     k = Keys("u")
     peripherals = {f"peripheral-{j}" for j in range(1, n + 1)}
     assert publishers(policy, k.sample) == {"plant"}
-    assert publishers(policy, k.hello) == {"plant", *peripherals}
+    for role in ("plant", *peripherals):  # each its own hello key alone
+        assert publishers(policy, k.hello(role)) == {role}
+    assert publishers(policy, k.hello(f"peripheral-{n + 1}")) == set()
     for j in range(1, n + 1):
         assert publishers(policy, k.reply(j)) == {f"peripheral-{j}"}
     assert publishers(policy, k.reply(n + 1)) == set()
@@ -161,7 +166,8 @@ def _all_rights_to(subject: str) -> Callable[[Policy], Policy]:
     def widen(policy: Policy) -> Policy:
         p = copy.deepcopy(policy)
         for pol in p["policies"]:
-            if pol["id"] in ("roles", "plant", "central") or pol["id"].startswith("peripheral-"):
+            if pol["id"] in ("plant", "central") or pol["id"].startswith(("peripheral-",
+                                                                          "hello-")):
                 pol["subjects"] = [*pol["subjects"], subject]
         return p
     return widen
@@ -188,14 +194,20 @@ CASES = [
          _with_subject("central", "peripheral-1")),
     Case("peripheral-1 on request", "peripheral-1", lambda k: k.request,
          _with_subject("central", "peripheral-1")),
+    # a bye as the plant once stopped the unit on a plant fault it never had
+    Case("peripheral-1 on the plant's hello", "peripheral-1", lambda k: k.hello("plant"),
+         _with_subject("hello-plant", "peripheral-1")),
+    Case("peripheral-1 on peripheral-2's hello", "peripheral-1",
+         lambda k: k.hello("peripheral-2"), _with_subject("hello-peripheral-2", "peripheral-1")),
     *(Case(f"viewer on {what}", "viewer", key, _all_rights_to("viewer")) for what, key in (
         ("sample", lambda k: k.sample), ("reply 1", lambda k: k.reply(1)),
-        ("hello", lambda k: k.hello), ("command", lambda k: k.command),
+        ("hello", lambda k: k.hello("plant")), ("command", lambda k: k.command),
         ("request", lambda k: k.request), ("view", lambda k: k.view("state")))),
 ]
 ALLOWED = [Case("peripheral-1 on reply 1", "peripheral-1", lambda k: k.reply(1), any_reply),
            Case("plant on sample", "plant", lambda k: k.sample, any_reply),
-           Case("peripheral-2 on hello", "peripheral-2", lambda k: k.hello, any_reply)]
+           Case("peripheral-2 on its hello", "peripheral-2", lambda k: k.hello("peripheral-2"),
+                any_reply)]
 
 # -- a guarded session and a thief ------------------------------------------------------------
 
@@ -276,7 +288,8 @@ def test_a_role_publishes_its_own_keys(unit_keys, case):
 
 def unit_keys_of(k: Keys) -> list[str]:
     """One key of each kind a unit's roles publish."""
-    return [k.sample, k.reply(1), k.reply(2), k.hello, k.command, k.request,
+    return [k.sample, k.reply(1), k.reply(2), k.hello("plant"), k.hello("peripheral-1"),
+            k.command, k.request,
             k.control("plant"), k.control("peripheral"), k.view("state"), k.view("running")]
 
 

@@ -139,7 +139,8 @@ def run_unit(tmp_path, unit: str, cycles: int) -> tuple[int, dict, str, int, Cou
         assert wait_status(status, 10) >= 10, "the unit did not start"
         keys = Keys(unit)
         targets = [keys.sample, keys.command, keys.request, keys.reply(1), keys.reply(2),
-                   keys.reply(3), keys.hello, keys.control("peripheral"),
+                   keys.reply(3), keys.hello("plant"), keys.hello("peripheral-2"),
+                   keys.control("peripheral"),
                    keys.control("plant")]
         rng = random.Random(7)
         sent: Counter[str] = Counter()

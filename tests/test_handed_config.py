@@ -7,14 +7,16 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from typing import Any
 
 import msgpack
 import pytest
 from ctrlunit.runtime.central.fault import Fault
-from ctrlunit.runtime.central.orders import Orders
+from ctrlunit.runtime.central.orders import HELLO_ROLES, Orders
 from ctrlunit.runtime.config import ConfigError, RunConfig
 from ctrlunit.runtime.config.handed import ROLE_OWN, config_message, handed
 from ctrlunit.runtime.transport.codec import decode, encode
+from ctrlunit.runtime.transport.node import Event
 from loopback import Bus, LoopbackNode
 from runner import ctrlunit, kill_unit, unit_id
 from test_fuzz import free_port
@@ -26,7 +28,6 @@ CENTRAL = dict(peripherals=2, pipeline=2, clock="lockstep", law="computed-torque
 
 def _orders(bus: Bus, rc: RunConfig, *, timeout: float = 0.3) -> Orders:
     node = LoopbackNode(bus, rc.transport.unit, "central")
-    node.route(node.keys.hello, "hello")
     return Orders(node, peripherals=rc.schedule.peripherals, plant=True,
                   startup_timeout_s=timeout, check_children=lambda: None,
                   take_sample=lambda data, ns: None, config=config_message(rc))
@@ -37,20 +38,30 @@ def _sent(bus: Bus, unit: str, stage: str) -> list[tuple[str, dict]]:
             if key.startswith(f"ctrlunit/{unit}/") and decode(data, unit)["stage"] == stage]
 
 
-def _asked(*roles: str) -> tuple[RunConfig, Bus, Orders, str]:
+def hello(role: str) -> str:
+    """``role``'s hello key in unit ``u1``."""
+    return f"ctrlunit/u1/central/hello/{role}"
+
+
+def said(role: str, **fields: Any) -> Event:
+    """A hello-key event of ``role`` as the central's inbox gives it."""
+    return Event("hello", HELLO_ROLES.index(role), encode("u1", 0, "hello", role=role, **fields),
+                 0)
+
+
+def _asked(*roles: str) -> tuple[RunConfig, Bus, Orders]:
     """The central's orders on a bus, and a hello asking for the configuration from each
-    of ``roles`` on it."""
+    of ``roles`` on its own key."""
     rc = RunConfig.of(**CENTRAL)
     bus = Bus()
     orders = _orders(bus, rc)
-    hello = f"ctrlunit/{rc.transport.unit}/central/hello"
     for role in roles:
-        bus.put(hello, encode("u1", 0, "hello", role=role, want="config"))
-    return rc, bus, orders, hello
+        bus.put(hello(role), encode("u1", 0, "hello", role=role, want="config"))
+    return rc, bus, orders
 
 
 def test_a_role_that_asks_gets_the_configuration_and_counts_once_it_says_hello():
-    rc, bus, orders, hello = _asked("peripheral-2")
+    rc, bus, orders = _asked("peripheral-2")
     with pytest.raises(Fault, match="no hello from"):  # asking is not its hello
         orders.handshake()
     (key, msg), = _sent(bus, "u1", "config")
@@ -62,37 +73,54 @@ def test_a_role_that_asks_gets_the_configuration_and_counts_once_it_says_hello()
     assert notes == ["schedule.pipeline = 2 of the unit over 1 given"]
     assert not _sent(bus, "u1", "go")
     for role in ("plant", "peripheral-1", "peripheral-2"):
-        bus.put(hello, encode("u1", 0, "hello", role=role))
+        bus.put(hello(role), encode("u1", 0, "hello", role=role))
     orders.handshake()
     assert len(_sent(bus, "u1", "go")) == 2  # to the peripherals' and the plant's key
 
 
 def test_a_peripheral_the_unit_lacks_is_told_and_a_name_that_is_no_role_is_counted():
-    _, bus, orders, _ = _asked("peripheral-3", "viewer")
+    _, bus, orders = _asked("peripheral-3", "viewer")
     with pytest.raises(Fault):
         orders.handshake()
     (_, msg), = _sent(bus, "u1", "config")  # peripheral 3 checks its index against it
     assert msg["settings"]["schedule"]["peripherals"] == 2
-    assert orders.node.rejected["bad_value"] == 1
-    orders.on_hello(encode("u1", 0, "hello", role="peripheral-1", want="config"))
+    assert orders.node.rejected["unexpected_key"] == 1  # a viewer has no hello key
+    orders.on_hello(said("peripheral-1", want="config"))
     assert len(_sent(bus, "u1", "config")) == 1  # after the handshake: too late to join
+
+
+def test_a_role_cannot_speak_for_another_on_its_hello_key():
+    """A message on a role's hello key that names another role is counted and dropped: a
+    peripheral's certificate once sent a ``bye`` as the plant naming a plant fault, and
+    the unit stopped on it (with keys each role may publish on its own hello key alone:
+    tests/test_access_policy.py)."""
+    orders = _asked()[2]
+    fault = {"exit": "fault", "fault": {"name": "mechanical_stop", "time": 1.234,
+                                        "message": "arm 2 at its mechanical stop"}}
+    forged = Event("hello", HELLO_ROLES.index("peripheral-1"),
+                   encode("u1", 0, "bye", role="plant", report=fault), 0)
+    orders.on_hello(forged)  # no plant fault raised
+    assert orders.node.rejected["bad_value"] == 1 and "plant" not in orders.role_reports
+    with pytest.raises(Fault, match="mechanical stop"):  # the plant's own, on its own key
+        orders.on_hello(Event("hello", 0, encode("u1", 0, "bye", role="plant", report=fault),
+                              0))
 
 
 def test_a_lost_peripheral_started_again_may_join_the_running_unit():
     """Once the run has begun only a peripheral the central lost (runtime/central/
     takeover.py) gets the configuration; its hello then gets ``go`` with the blocks the
     central runs, and ``start`` (its CPU counted from then)."""
-    _, bus, orders, hello = _asked()
+    _, bus, orders = _asked()
     for role in ("plant", "peripheral-1", "peripheral-2"):
-        bus.put(hello, encode("u1", 0, "hello", role=role))
+        bus.put(hello(role), encode("u1", 0, "hello", role=role))
     orders.handshake()
     orders.central_blocks = ["ik_obs0"]
     orders.say("start")
     orders.may_join = lambda role: role == "peripheral-2"
     for role in ("peripheral-1", "peripheral-2", "plant"):
-        orders.on_hello(encode("u1", 0, "hello", role=role, want="config"))
+        orders.on_hello(said(role, want="config"))
     assert len(_sent(bus, "u1", "config")) == 1
-    orders.on_hello(encode("u1", 0, "hello", role="peripheral-2"))
+    orders.on_hello(said("peripheral-2"))
     go = [m for _, m in _sent(bus, "u1", "go")][-1]
     assert go["central_blocks"] == ["ik_obs0"]
     assert [k for k, _ in _sent(bus, "u1", "start")][-1] == "ctrlunit/u1/peripheral/control"

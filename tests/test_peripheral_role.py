@@ -264,7 +264,7 @@ def test_serve_passes_trace_and_its_place_to_the_role_and_acknowledges_on_hello(
                                          {"stage": "stop"}])
     assert res["exit"] == "stop"
     assert "trace" in decode(out.items[0], UNIT)["parts"][0]
-    acks = [decode(d, UNIT) for k, d in log if k == node.keys.hello]
+    acks = [decode(d, UNIT) for k, d in log if k == node.keys.hello("peripheral-1")]
     assert [(a["stage"], a["role"]) for a in acks] == [("placed", "peripheral-1")]
 
 
@@ -321,7 +321,7 @@ def test_run_peripheral_says_hello_serves_after_go_and_says_bye_at_stop(tmp_path
     heard: list[dict] = []
     replies: list[dict] = []
     with zenoh.open(make_config(listen=[endpoint])) as central:
-        central.declare_subscriber(keys.hello, lambda s: heard.append(
+        central.declare_subscriber(keys.hello("peripheral-2"), lambda s: heard.append(
             decode(bytes(s.payload.to_bytes()), rc.transport.unit)))
         central.declare_subscriber(keys.reply(2), lambda s: replies.append(
             decode(bytes(s.payload.to_bytes()), rc.transport.unit)))

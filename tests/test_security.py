@@ -237,4 +237,5 @@ def test_keys_init_writes_an_authority_and_a_certificate_per_role(tmp_path):
     writers = {p["id"]: p["subjects"] for p in acl["policies"]}
     assert writers["plant"] == ["plant"] and writers["central"] == ["central"]
     assert writers["peripheral-2"] == ["peripheral-2"]
-    assert "viewer" not in writers["roles"]
+    assert all(writers[f"hello-{r}"] == [r] for r in ("plant", "peripheral-1"))
+    assert not any("viewer" in who for pid, who in writers.items() if pid != "inbox-viewer")

@@ -242,6 +242,12 @@ def test_the_flood_rule_counts_malformed_messages_per_sender():
         one("sample", 0, 10, "undecodable")
     assert exc.value.process == "plant" and exc.value.code == 4
     assert "plant sent 4 malformed messages on the sample key" in str(exc.value)
+    for i in range(3):  # a role's own hello key names it too
+        one("hello", 2, i, "bad_value")
+    with pytest.raises(Fault) as exc:
+        one("hello", 2, 10, "bad_value")
+    assert exc.value.process == "peripheral-2" and exc.value.code == 3
+    assert "peripheral-2 sent 4 malformed messages on its hello key" in str(exc.value)
     # without the unit's keys a key does not name its sender: counted, never a fault
     blind = FloodWatch(node, limit=3, authenticated=False)  # type: ignore[arg-type]
     for i in range(10):

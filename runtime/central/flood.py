@@ -9,12 +9,12 @@ starved it until the run faulted on its tracking error, naming no one. Past
 (exit 3 for a peripheral, 4 for the plant), its message saying what it sent.
 
 Which role sent a message is known by its key only with the unit's keys: then only
-peripheral K may publish on its reply key and only the plant on the sample key
-(runtime/transport/security.py). Without keys any process that reaches the unit's links
-may publish there (docs/faults-and-errors.md, Security): a fault would name a role that
-sent nothing, and let any such process stop the unit with a few bytes, so there the
-malformed messages are counted and dropped, as every other. Messages on the hello key,
-which every role shares, are counted (``rejected_messages``) and not attributed.
+peripheral K may publish on its reply key, only the plant on the sample key, and each
+role on its own hello key (runtime/transport/security.py). Without keys any process
+that reaches the unit's links may publish there (docs/faults-and-errors.md, Security):
+a fault would name a role that sent nothing, and let any such process stop the unit
+with a few bytes, so there the malformed messages are counted and dropped, as every
+other.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from typing import Any
 from ..config import EXIT_PERIPHERAL, EXIT_PLANT
 from ..transport.node import Node
 from .fault import Fault
+from .orders import HELLO_ROLES
 from .silence import role_of
 
 MALFORMED = frozenset({"too_large", "undecodable", "not_a_map", "schema_version",
@@ -63,7 +64,8 @@ class FloodWatch:
         return cls(node, limit=transport.reject_limit, authenticated=bool(transport.keys))
 
     def check(self, kind: str, index: int, rx: int, before: int) -> None:
-        """After an event of ``kind`` (``reply`` of peripheral ``index``, ``sample``)
+        """After an event of ``kind`` (``reply`` of peripheral ``index``, ``sample``,
+        ``hello`` of :data:`~.orders.HELLO_ROLES` ``[index]``)
         received at ``rx`` (monotonic ns) was handled: if it was rejected as malformed
         (the node counted a rejection since ``before``), count it against its sender.
 
@@ -80,6 +82,9 @@ class FloodWatch:
             who, code, where = role_of(index), EXIT_PERIPHERAL, "its reply key"
         elif kind == "sample":
             who, code, where = "plant", EXIT_PLANT, "the sample key"
+        elif kind == "hello":
+            who, where = HELLO_ROLES[index], "its hello key"
+            code = EXIT_PLANT if who == "plant" else EXIT_PERIPHERAL
         else:
             return
         times = self._times.get((kind, index))

@@ -18,6 +18,10 @@ from .fault import Fault, plant_fault, role_report
 ROLE_NAME = re.compile(r"plant|peripheral-[1-9]")
 """What a role that asks for the configuration may be called."""
 
+HELLO_ROLES = ("plant", *(f"peripheral-{k}" for k in range(1, 10)))
+"""The roles whose hello keys the central reads (:data:`ROLE_NAME`), each event's index
+the role's place here."""
+
 REPEAT_S = 0.1
 """An order not yet acknowledged (place, stop) is given again this often: a role may
 have missed it (an order may race a route, or a signal of the role's own)."""
@@ -59,6 +63,8 @@ class Orders:
         """The blocks the central runs, once a ``place`` order moved any: a role that
         says hello after it gets them with ``go``."""
         self.pubs = [node.publisher(node.keys.control(r)) for r in ("peripheral", "plant")]
+        for i, role in enumerate(HELLO_ROLES):
+            node.route(node.keys.hello(role), "hello", i)
         self.role_reports: dict[str, dict] = {}
         """Each role's final report (:func:`~.fault.role_report`), by role name."""
         self.peers_seen: set[str] = set()
@@ -84,7 +90,20 @@ class Orders:
             pub.put(payload)
         return payload
 
-    def on_hello(self, data: bytes) -> None:
+    def hello_message(self, ev: Event) -> dict[str, Any] | None:
+        """The message of an event on a role's hello key, decoded, if it names that role;
+        else counted (``bad_value``) and None. With keys a role may publish on its own
+        hello key alone, so a role that claims another's name there is refused: a
+        peripheral's certificate once sent a ``bye`` as the plant naming a plant fault
+        (the unit stopped) or a safe stop the plant never made (it was reported)."""
+        msg = self.node.decode(ev.data)
+        if msg is not None and msg.get("role") != HELLO_ROLES[ev.index]:
+            self.node.reject("bad_value", f"a message on {HELLO_ROLES[ev.index]}'s hello key "
+                             f"names the role {str(msg.get('role'))[:24]!r}")
+            return None
+        return msg
+
+    def on_hello(self, ev: Event) -> None:
         """A message on the hello key outside the handshake: a role that missed ``go``
         asks again; a ``bye`` carries a role's final report; a late ``placed`` is no
         fault; anything else is rejected.
@@ -95,7 +114,7 @@ class Orders:
             The plant's, with exit code 4, when its report names a plant fault (an arm at
             its mechanical stop, a singular configuration, ...) before the stop; the
             report is kept only from its final ``bye``, after the stop order."""
-        msg = self.node.decode(data)
+        msg = self.hello_message(ev)
         if msg is None:
             return
         stage = msg.get("stage")
@@ -156,7 +175,7 @@ class Orders:
             except queue.Empty:
                 continue
             if ev.kind == "hello":
-                msg = self.node.decode(ev.data)
+                msg = self.hello_message(ev)
                 if msg is not None and msg.get("want") == "config":
                     self.hand_config(msg)  # its hello comes once it is set up
                 elif msg is not None and msg.get("role") in expected:
@@ -193,12 +212,12 @@ class Orders:
             except queue.Empty:
                 continue
             if ev.kind == "hello":
-                msg = self.node.decode(ev.data)
+                msg = self.hello_message(ev)
                 if (msg is not None and msg.get("stage") == "placed"
                         and msg.get("central_blocks") == central_blocks):
                     waiting.discard(msg.get("role"))
                 elif msg is not None:
-                    self.on_hello(ev.data)
+                    self.on_hello(ev)
             elif ev.kind == "sample":
                 self.take_sample(ev.data, ev.rx_ns)
             # a reply now is the warm-up's, of the old plan: dropped
@@ -214,7 +233,7 @@ class Orders:
             except queue.Empty:
                 break
             if ev.kind == "hello":
-                self.on_hello(ev.data)
+                self.on_hello(ev)
 
     def stop(self, *, reason: str, hold: list[float], wait: float) -> None:
         """Tell every role to stop, the plant to hold ``hold`` while it makes its safe
@@ -233,7 +252,7 @@ class Orders:
             except queue.Empty:
                 ev = None
             if ev is not None and ev.kind == "hello":
-                self.on_hello(ev.data)
+                self.on_hello(ev)
             if time.monotonic() > next_say:
                 self.say("stop", reason=reason, hold=hold)
                 next_say = time.monotonic() + REPEAT_S

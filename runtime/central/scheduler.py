@@ -95,7 +95,6 @@ class Central:
         keys = node.keys
         for k in range(n):
             node.route(keys.reply(k + 1), "reply", k)
-        node.route(keys.hello, "hello")
         if sch.clock != "freerun":
             node.route(keys.sample, "sample")
         self.log = CycleLog()
@@ -306,7 +305,7 @@ class Central:
         elif kind == "sample":
             self._on_sample(data, rx)
         elif kind == "hello":
-            self.orders.on_hello(data)
+            self.orders.on_hello(ev)
         else:
             self.intake.reject("unexpected_key")
         self.flood.check(kind, index, rx, before)

@@ -206,7 +206,7 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
     """
     role = Peripheral(engine, index, node.unit, trace=trace, rejected=node.rejected,
                       place=place)
-    said = node.publisher(node.keys.hello)
+    said = node.publisher(node.keys.hello(node.role))
     t_start = time.monotonic_ns()
 
     def result(exit_reason: str) -> dict[str, Any]:

@@ -30,7 +30,7 @@ def announce_fault(node: Node, report: dict[str, Any]) -> None:
     """Send the plant's report naming its fault at once, once (the central stops the
     unit on it and then waits for the final report, sent after the safe stop; copies of
     this one, as ``say_bye`` sends, could stand in for that one)."""
-    node.publisher(node.keys.hello).put(
+    node.publisher(node.keys.hello(node.role)).put(
         encode(node.unit, 0, "bye", role=node.role, report=report))
 
 

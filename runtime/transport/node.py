@@ -293,7 +293,7 @@ class Node:
                      **hello_fields: Any) -> dict[str, Any]:
         """Say hello every 50 ms until the central's order ``stage`` comes on this role's
         control key; other events go to ``on_event``."""
-        hello = self.publisher(self.keys.hello)
+        hello = self.publisher(self.keys.hello(self.role))
         self.route(self.keys.control(self.inbox_name), "control")
         deadline = time.monotonic() + timeout
         next_hello = 0.0
@@ -385,7 +385,7 @@ def cpu_used(node: Node) -> float | None:
 def say_bye(node: Node, report: dict[str, Any]) -> None:
     """A role's last word: its final report, sent a few times (the central collects it
     while it waits for every role after its stop order)."""
-    pub = node.publisher(node.keys.hello)
+    pub = node.publisher(node.keys.hello(node.role))
     for _ in range(3):
         pub.put(encode(node.unit, 0, "bye", role=node.role, report=report))
         time.sleep(0.02)

@@ -12,7 +12,8 @@ is refused), and each role's session carries the same access-control policy
 - only peripheral K publishes its replies (``central/reply/K``);
 - only the central publishes into the plant's and the peripherals' inboxes (requests,
   commands, orders);
-- the unit's roles say hello and bye to the central;
+- each of the unit's roles says its hello and bye to the central on a key of its own
+  (``central/hello/<role>``): none can speak for another;
 - each role may subscribe to, and be sent, its own inbox alone; a viewer the observers'
   keys (``view/``) alone, and it may publish nothing. A reader that stops reading can
   then hold back no put of the control path (runtime/transport/zsession.py,
@@ -105,7 +106,8 @@ def access_control(peripherals: int = MAX_PERIPHERALS) -> dict[str, Any]:
         *(rule for p in sorted(set(inbox.values())) for rule in (
             _rule(f"sub-{p}", ["declare_subscriber"], [f"{unit}/{p}/**"], ["ingress"]),
             _rule(f"to-{p}", ["put"], [f"{unit}/{p}/**"], ["egress"]))),
-        _rule("hello", ["put"], [f"{unit}/central/hello"], ["ingress"]),
+        *(_rule(f"hello-{r}", ["put"], [f"{unit}/central/hello/{r}"], ["ingress"])
+          for r in units if r != "central"),
         _rule("sample", ["put"], [f"{unit}/central/sample"], ["ingress"]),
         _rule("orders", ["put"], [f"{unit}/plant/**", f"{unit}/peripheral/**",
                                   f"{unit}/{VIEWER_KEYS}/**"], ["ingress"]),
@@ -117,7 +119,8 @@ def access_control(peripherals: int = MAX_PERIPHERALS) -> dict[str, Any]:
         {"id": "units", "rules": ["learn"], "subjects": units},
         *({"id": f"inbox-{r}", "rules": [f"sub-{inbox[r]}", f"to-{inbox[r]}"],
            "subjects": [r]} for r in roles),
-        {"id": "roles", "rules": ["hello"], "subjects": [r for r in units if r != "central"]},
+        *({"id": f"hello-{r}", "rules": [f"hello-{r}"], "subjects": [r]}
+          for r in units if r != "central"),
         {"id": "plant", "rules": ["sample"], "subjects": ["plant"]},
         {"id": "central", "rules": ["orders"], "subjects": ["central"]},
         *({"id": f"peripheral-{k}", "rules": [f"reply-{k}"], "subjects": [f"peripheral-{k}"]}

@@ -157,10 +157,11 @@ class Keys:
         """Peripheral k -> central: the values of one round."""
         return f"{self.root}/central/reply/{k}"
 
-    @property
-    def hello(self) -> str:
-        """Any role -> central: hello and bye."""
-        return f"{self.root}/central/hello"
+    def hello(self, role: str) -> str:
+        """``role`` (``plant``, ``peripheral-K``) -> central: its hello and bye, on a key of
+        its own (with keys, each role may publish on its own alone: none speaks for
+        another)."""
+        return f"{self.root}/central/hello/{role}"
 
     @property
     def request(self) -> str:
