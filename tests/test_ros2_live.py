@@ -197,6 +197,24 @@ def test_gid_is_rmw_zenohs_xxh3_of_the_token():
     assert again.stdout.strip() == rz.gid(token).hex(), again.stderr
 
 
+@pytest.mark.parametrize("override", [
+    'mode="peer";listen/endpoints={peer:["tcp/0.0.0.0:7447"]}',  # an attacker's review
+    'connect/endpoints={client:["tcp/127.0.0.1:7447"],peer:["tcp/192.0.2.1:7447"]}',
+    'listen/endpoints=["tcp/0.0.0.0:7447"]', 'scouting/multicast/enabled=true'])
+def test_an_override_that_reaches_beyond_the_host_is_refused_in_any_mode(override):
+    """The link rule reads every mode's endpoints of a per-mode object: an override that
+    also set the mode once opened a keyless listener the check never saw."""
+    with pytest.raises(ValueError, match="--insecure"):
+        rz.session_config({rz.OVERRIDE_ENV: override}, insecure=False)
+    rz.session_config({rz.OVERRIDE_ENV: override}, insecure=True)  # a lab bench's choice
+
+
+def test_a_per_mode_override_connects_where_its_mode_says():
+    conf = rz.session_config({rz.OVERRIDE_ENV: 'mode="peer";connect/endpoints={client:['
+                              '"tcp/127.0.0.1:1"],peer:["tcp/127.0.0.1:2"]}'}, insecure=False)
+    assert rz.router_endpoints(conf) == ["tcp/127.0.0.1:2"]
+
+
 @pytest.mark.parametrize("endpoint, refused", [("tcp/192.0.2.1:7447", True),
                                                ("tcp/127.0.0.1:7447", False)])
 def test_a_router_beyond_the_host_follows_the_link_rule(endpoint, refused):

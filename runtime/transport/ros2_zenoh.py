@@ -93,11 +93,13 @@ def session_config(env: Mapping[str, str], *, insecure: bool) -> Any:
     return conf
 
 
-def _endpoints(conf: Any, key: str) -> list[str]:
-    """The endpoints of ``key`` (a list, or a per-mode object read for ``client``)."""
+def _endpoints(conf: Any, key: str, *, every_mode: bool = False) -> list[str]:
+    """The endpoints of ``key``: a list, or of a per-mode object the session's mode's entry
+    (``every_mode``: every entry's)."""
     value = json.loads(conf.get_json(key))
     if isinstance(value, dict):
-        value = value.get("client", [])
+        mode = json.loads(conf.get_json("mode"))
+        value = [e for m, es in value.items() if every_mode or m == mode for e in es or []]
     return [str(e) for e in value or []]
 
 
@@ -110,7 +112,8 @@ def check_links(conf: Any) -> None:
     """The unit's link rule on the ROS 2 session: no endpoint beyond this host and no
     scouting (raises ValueError naming it and the fix)."""
     for key in ("connect/endpoints", "listen/endpoints"):
-        for e in _endpoints(conf, key):
+        # every mode's: an override may set the mode too (a peer's listen once passed)
+        for e in _endpoints(conf, key, every_mode=True):
             if reaches_beyond_host(e):
                 raise ValueError(
                     f"--ros2: {key} {e} can be reached from other hosts, and nothing on "
