@@ -11,7 +11,8 @@ import msgpack
 import pytest
 from ctrlunit.runtime.central import Fault
 from ctrlunit.runtime.central.late import HELD_KEPT
-from ctrlunit.runtime.config import EXIT_PERIPHERAL, RunConfig
+from ctrlunit.runtime.compute.blocks import ObserverDiverged
+from ctrlunit.runtime.config import EXIT_OBSERVER, EXIT_PERIPHERAL, RunConfig
 from ctrlunit.runtime.transport.codec import decode
 from loopback import LoopbackUnit, supervise, turn
 from loopback import take_sample as sample
@@ -191,3 +192,27 @@ def test_the_summary_tells_late_replies_from_rejected_messages():
     assert ("  stragglers  3 replies to the warm-up's or the admission trials' throw-away "
             "intervals came after them (dropped)") in lines
     assert not any("rejected" in x for x in lines)
+
+
+def test_a_late_round_whose_point_is_out_of_reach_is_the_observers_fault(monkeypatch):
+    """A round the central computes for a late peripheral raises as the central's own steps
+    do: a point out of reach is a fault by name (exit 5), never a traceback (a new user's
+    ``bench --quick`` once ended in ``ObserverDiverged`` during an admission trial)."""
+    u = foreseen("cmpdiv", late_policy="compute")
+    turn(u)
+    u.muted = {1}
+    sample(u, 0)
+    turn(u)
+    sample(u, 1)
+    turn(u)
+    c = u.central
+    f = c.inflight.get(1)
+    assert f is not None and f.waiting == {1} and f.late_ns
+
+    def out_of_reach(*_a: Any, **_k: Any) -> None:
+        raise ObserverDiverged("point (0.06, 0, -0.17) m is out of reach of chain 1")
+
+    monkeypatch.setattr(c.late.engine, "run_round", out_of_reach)
+    with pytest.raises(Fault) as exc:
+        c.check_late(f.late_ns)
+    assert exc.value.code == EXIT_OBSERVER and "out of reach" in str(exc.value)

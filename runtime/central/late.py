@@ -18,8 +18,9 @@ from typing import Any
 import msgpack
 
 from ...topology.plan import ExchangePlan as Plan
+from ..compute.blocks import ObserverDiverged
 from ..compute.engine import Engine
-from ..config import EXIT_PERIPHERAL, LATE_POLICIES
+from ..config import EXIT_OBSERVER, EXIT_PERIPHERAL, LATE_POLICIES
 from .fault import Fault
 from .records import InFlight
 
@@ -192,7 +193,11 @@ class LateData:
         if not Engine.can_run(rnd, f.ctx, axes):
             return False
         t0 = time.monotonic_ns()
-        self.engine.run_round(rnd, f.ctx, axes)
+        try:
+            self.engine.run_round(rnd, f.ctx, axes)
+        except ObserverDiverged as exc:  # as in the central's own steps (.intervals)
+            raise Fault(f"cycle {f.cycle}: {exc}", process="central",
+                        code=EXIT_OBSERVER) from None
         for p in peripherals:
             paxes = axes_of[p]
             Engine.merge(self.last_vals, Engine.reply_vals(rnd, f.ctx, paxes), paxes)
