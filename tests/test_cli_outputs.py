@@ -169,6 +169,23 @@ def test_a_missing_file_is_an_input_error_for_every_command(tmp_path):
     assert "--task: no such file" in err, err  # named as the user gives it
 
 
+def test_an_output_file_that_cannot_be_written_is_refused_before_the_run(tmp_path):
+    """``--report`` or ``--record`` in a directory that does not exist, or under a file:
+    refused before anything starts, ``--check`` too (a new user's run went to its end,
+    then ended in a traceback and printed no summary)."""
+    a_file = tmp_path / "afile"
+    a_file.write_text("")
+    for option, path, why in (("--report", tmp_path / "nosuch" / "r.json", "does not exist"),
+                              ("--record", a_file / "x.mcap", "is not a directory"),
+                              ("--record", tmp_path / "nosuch" / "x.mcap", "does not exist")):
+        for check in (["--check"], ["--clock", "lockstep", "--cycles", "10"]):
+            res = invoke("start", *check, option, str(path))
+            err = res.stderr.strip().splitlines()
+            assert res.exit_code == 1 and len(err) == 1, (option, res.stderr)
+            assert err[0].startswith(f"ctrlunit: error: {option}: {path}") and why in err[0]
+            assert not res.stdout.strip(), res.stdout  # nothing ran
+
+
 @pytest.mark.parametrize("command", sorted(cli.commands))
 def test_a_command_line_that_does_not_parse_is_a_usage_error(command):
     args = [command, "init"] if command == "keys" else [command]

@@ -20,6 +20,7 @@ from .choices import (  # noqa: F401  (re-exported: the sets belong with the con
     PERIPHERAL_LOSSES,
     REPLY_MODES,
 )
+from .outputs import output_file_error
 from .sections import (
     RENAMED,
     SECTIONS,
@@ -154,6 +155,10 @@ class RunConfig:
         self._check_values()
         self._check_outputs()
         self._check_host(roles)
+        if not roles or "central" in roles:  # the files the central writes at its end
+            for name in ("record", "report"):
+                if (why := output_file_error(getattr(self.run, name), f"--{name}")):
+                    raise ConfigError(why)
         return self
 
     @property

@@ -1,0 +1,29 @@
+"""Where a run writes its files (``--record``, ``--report``): checked before anything
+starts, so that a run is not made only to lose what it measured at its end."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def output_file_error(path: str | None, option: str) -> str | None:
+    """Why no file can be written at ``path``, naming ``option`` (its directory does not
+    exist, is not a directory or is not writable; the path is a directory), or None if
+    one can (or ``path`` is None: nothing to write)."""
+    if path is None:
+        return None
+    p = Path(path).expanduser()
+    parent = p.parent
+    if p.is_dir():
+        return f"{option}: {path} is a directory: give a file name in it"
+    if not parent.exists():
+        return f"{option}: {path}: the directory {parent} does not exist (make it first)"
+    if not parent.is_dir():
+        return f"{option}: {path}: {parent} is not a directory"
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f"{option}: {path}: the directory {parent} is not writable"
+    return None
+
+
+__all__ = ["output_file_error"]
