@@ -84,6 +84,12 @@ def _floor(r: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _exits(codes: list[Any]) -> str:
+    """The exit codes of a configuration's runs, named (docs/faults-and-errors.md)."""
+    names = {7: "refused before any motion (exit 7)", None: "no report"}
+    return ", ".join(names.get(c, f"exit {c}") for c in codes if c != 0) or "no run"
+
+
 def _sweep(r: dict[str, Any]) -> list[str]:
     rows = [x for x in r.get("runs", []) if x["tag"] in ("sweep", "realtime", "live")]
     if not rows:
@@ -102,12 +108,19 @@ def _sweep(r: dict[str, Any]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for x in rows:
+        head = (f"| {x['peripherals']} | {x['processors'] or 'n/a'} | {x['pipeline']} | "
+                f"{x['cost_model']} | {x['clock']} {x['nominal_period_s'] * 1e3:g} ms |")
+        codes = x.get("exit_codes") or []
+        if not x.get("repeats"):  # no run moved: its figures would read as measured
+            lines.append(f"{head} not run: {_exits(codes)} |" + " |" * 8)
+            continue
         busy = ", ".join(f"{k.replace('peripheral_', 'p')} {v * 100:.0f}%"
                          for k, v in x["business"].items() if v is not None)
+        busy += f" ({x['repeats']} of {len(codes)} runs: {_exits(codes)})" \
+            if len(codes) > x["repeats"] else ""
         sp = x["efficiency_spread"]
         lines.append(
-            f"| {x['peripherals']} | {x['processors']} | {x['pipeline']} | {x['cost_model']} |"
-            f" {x['clock']} {x['nominal_period_s'] * 1e3:g} ms | {x['round_trips']} | "
+            f"{head} {x['round_trips']} | "
             f"{_us(x['period_s']['p50'])} / {_us(x['period_s']['p99'])} / "
             f"{_us(x.get('period_mean_s'))} | {_us(x.get('cpu_bound_period_s'))} | "
             f"{_us(x['traversal_s']['p50'])} | {_us(x['t1_s'])} | {_pct(x['efficiency'])} "

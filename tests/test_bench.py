@@ -388,3 +388,35 @@ def test_paced_link_names_the_links_it_knows():
 
     with pytest.raises(ValueError, match="kind = 'tcp': allowed 'pipe' or 'zenoh'"):
         paced_link("tcp")
+
+
+def test_a_configuration_whose_runs_were_refused_reads_as_not_run_in_report_md(tmp_path):
+    """A sweep row whose every run was refused (exit 7) said ``n/a ... | 0 | central
+    100%`` in report.md, figures that read as measured (a new user's review): it now says
+    it did not run and why; a row with some runs refused says how many ran."""
+    import math
+
+    from ctrlunit.bench.markdown import write_markdown
+
+    def row(repeats: int, codes: list[int]) -> dict:
+        nan = math.nan
+        return {"tag": "sweep", "peripherals": 3, "processors": 4 if repeats else None,
+                "pipeline": 2, "cost_model": "none", "clock": "realtime",
+                "nominal_period_s": 0.003, "round_trips": 1, "repeats": repeats,
+                "period_s": {"p50": 3e-3, "p99": 3.1e-3, "max": 4e-3},
+                "period_mean_s": 3e-3, "cpu_bound_period_s": 1e-3,
+                "traversal_s": {"p50": 5e-4}, "t1_s": 1e-4,
+                "efficiency": 0.5 if repeats else nan, "efficiency_spread": [nan, nan],
+                "speedup": 2.0 if repeats else nan, "deadline_misses": 0,
+                "business": {"central": 1.0, "peripheral_1": 0.0}, "exit_codes": codes}
+
+    path = tmp_path / "report.md"
+    write_markdown(path, {"runs": [row(0, [7, 7]), row(2, [0, 7, 0])], "quick": True,
+                          "machine": {"platform": "Linux", "cores": 2, "python": "3.11"},
+                          "repeats": 3, "wall_s": 1.0, "method": {"sweep": "test"}})
+    lines = [ln for ln in path.read_text().splitlines() if ln.startswith("| 3 |")]
+    assert len(lines) == 2
+    refused, partly = lines
+    assert "not run: refused before any motion (exit 7), refused" in refused
+    assert "central 100%" not in refused and refused.count("|") == partly.count("|") == 15
+    assert "(2 of 3 runs: refused before any motion (exit 7))" in partly
