@@ -30,7 +30,7 @@ from ..host import sched
 from ..host.busy_guard import BusyGuard
 from ..host.unit_load import UnitLoad
 from ..observe.report import finish_report
-from ..roles.stopping import STOP_SIGNALS, not_ignored, stop_of, stopped_by_user
+from ..roles.stopping import STOP_SIGNALS, held_stops, not_ignored, stop_of, stopped_by_user
 from ..roles.supervise import end_children, role_cpus, spawn_role, unit_cores
 from ..transport.limits import Limits
 from ..transport.node import Node, freeze_heap
@@ -90,8 +90,9 @@ class UnitStart:
         ctrl_c: list[int] = []  # signals during the clean-up: they end the run
         handlers = {s: signal.getsignal(s) for s in not_ignored((signal.SIGINT, *STOP_SIGNALS))}
         try:
-            self.activate()
-            self.run()
+            with held_stops(self.node.events):  # a stop signal: raised between two turns
+                self.activate()
+                self.run()
         except Fault as exc:
             self.code = exc.code
             self.fault = {"process": exc.process, "message": str(exc), "code": exc.code}

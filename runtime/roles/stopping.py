@@ -14,6 +14,12 @@ started under it; a background job of a non-interactive shell ignores SIGINT.
 A command that runs the unit several times (``bench``, ``latency --unit``) calls
 :func:`raise_if_stopped` after each run, so that a stop ends the command too, not only
 the run it arrived in.
+
+While a run moves (:func:`held_stops`) a stop is not raised where the signal finds the
+main thread but held, and raised where the central next waits for a message, between
+two turns of its loop (runtime/transport/node.py, ``Inbox.checkpoint``): raised anywhere,
+it once left a lock taken (inside a ``with`` block's exit) and the stop then hung. A
+second signal while one is held is raised at once.
 """
 
 from __future__ import annotations
@@ -72,21 +78,65 @@ def raise_if_stopped(code: int, report: dict[str, Any]) -> None:
     raise Terminated(code - 128)
 
 
+def _stop(signum: int) -> KeyboardInterrupt:
+    """The exception a stop signal raises: ``KeyboardInterrupt`` for Ctrl-C, else
+    :class:`Terminated`."""
+    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
+_held: list[int] = []
+"""The stop signal held while a run moves (:func:`held_stops`), at most one."""
+_holding: list[bool] = []
+"""Whether a :func:`held_stops` region is active (a stack: one entry per region)."""
+
+
+def raise_held() -> None:
+    """Raise the stop held by :func:`held_stops`, if any (the place where it is safe)."""
+    if _held:
+        raise _stop(_held.pop())
+
+
+@contextmanager
+def held_stops(inbox: Any) -> Iterator[None]:
+    """While inside (in the main thread, within :func:`stop_signals`), a stop signal is
+    held and raised at ``inbox``'s next wait (its ``checkpoint``), not where the signal
+    finds the main thread (module notes); one still held at the end is raised there."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _holding.append(True)
+    before = inbox.checkpoint
+    inbox.checkpoint = raise_held
+    try:
+        yield
+    finally:
+        inbox.checkpoint = before
+        _holding.pop()
+    raise_held()
+
+
 @contextmanager
 def stop_signals() -> Iterator[None]:
-    """While inside, SIGTERM and SIGHUP raise :class:`Terminated` in the main thread
-    (elsewhere, or where Python cannot set handlers, nothing changes; a signal ignored
-    when it is entered stays ignored)."""
+    """While inside, SIGTERM and SIGHUP raise :class:`Terminated` and Ctrl-C
+    ``KeyboardInterrupt`` in the main thread, or are held (:func:`held_stops`); elsewhere,
+    or where Python cannot set handlers, nothing changes; a signal ignored when it is
+    entered stays ignored."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
-    def raise_terminated(signum: int, _frame: Any) -> None:
-        raise Terminated(signum)
+    def on_stop(signum: int, _frame: Any) -> None:
+        if _holding and not _held:
+            _held.append(signum)
+            return
+        raise _stop(signum)
 
-    old = {s: signal.signal(s, raise_terminated) for s in not_ignored(STOP_SIGNALS)}
+    catch = not_ignored((signal.SIGINT, *STOP_SIGNALS))
+    old = {s: signal.signal(s, on_stop) for s in catch
+           if s != signal.SIGINT or signal.getsignal(s) is signal.default_int_handler}
     try:
         yield
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+        _held.clear()

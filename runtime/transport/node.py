@@ -147,7 +147,14 @@ class Inbox:
             self._held = self._sub.try_recv()
         return self._held is not None
 
+    @staticmethod
+    def checkpoint() -> None:
+        """Called by :meth:`get` before it returns or waits, and after each wake-up: a
+        place where the caller's state is whole (a stop signal held meanwhile is raised
+        here: runtime/roles/stopping.py, ``held_stops``). Does nothing by default."""
+
     def get(self, timeout: float | None = None) -> Event:
+        self.checkpoint()
         s, self._held = self._held, None
         if s is None:
             s = self._sub.try_recv()
@@ -167,6 +174,7 @@ class Inbox:
             self._ticker.arm(min(end, now + int(TICK_MAX_S * 1e9)))
             s = self._sub.recv()
             self._ticker.disarm()
+            self.checkpoint()
 
     def get_nowait(self) -> Event:
         return self.get(timeout=0.0)
