@@ -202,13 +202,16 @@ def test_one_stall_repeats_the_trial_once_and_only_once(monkeypatch):
 
 
 def test_a_refusal_names_the_first_trials_figures_and_what_to_try(monkeypatch):
+    """Each figure against its rule, a broken one with its limit: "the traversal p99 was
+    2.86 ms of a 3.00 ms budget" read as a pass to a new user (the limit was 2.85 ms)."""
     central, _ = scripted(monkeypatch, [rung(1e-3, held=False), rung(1.25e-3, held=True)])
     with pytest.raises(Unsustainable) as e:
         admit(central)
     assert str(e.value) == (
         "the period of 1 ms cannot be held here: in a trial of 300 intervals before any "
-        "motion, 12 were late and the traversal p99 was 2.40 ms of a 2.00 ms budget (2 "
-        "period(s)); the shortest period measured to hold is 1.25 ms. Try --period auto "
+        "motion, 12 were late, more than the 1 allowed; the traversal p99 was 2.40 ms, over "
+        "the 1.90 ms allowed (95% of a 2.00 ms budget: 2 period(s)); the shortest period "
+        "measured to hold is 1.25 ms. Try --period auto "
         "(it climbs to a period that holds at each start); or --period 1.25ms (measured to "
         "hold); or --rt-priority 10 (SCHED_FIFO: other programs then wait for the unit). "
         "ctrlunit latency measures what this machine holds.")
@@ -241,8 +244,8 @@ def test_a_busy_cpu_is_named_in_the_refusal(monkeypatch):
     with pytest.raises(Unsustainable) as e:
         admit(central)
     msg = str(e.value)
-    assert (", and a CPU was 90% busy under SCHED_FIFO (limit 81% of the CPU: 85% of the "
-            "kernel's real-time budget); ") in msg
+    assert ("; a CPU was 90% busy under SCHED_FIFO, over the limit of 81% of the CPU (85% "
+            "of the kernel's real-time budget); ") in msg
     assert msg.endswith("or a placement from ctrlunit balance (less of the unit's CPU "
                         "time). ctrlunit latency measures what this machine holds.")
     assert "none of the ladder's periods up to 10 ms held either (the last: traversal " \
@@ -334,8 +337,9 @@ def test_the_refusals_words_and_figures_in_full(monkeypatch):
         admit(central)
     assert str(e.value) == (
         "the period of 10 ms cannot be held here: in a trial of 300 intervals before any "
-        "motion, 12 were late and the traversal p99 was 24.00 ms of a 20.00 ms budget (2 "
-        "period(s)); none of the ladder's periods up to 10 ms held either (the last: "
+        "motion, 12 were late, more than the 1 allowed; the traversal p99 was 24.00 ms, over "
+        "the 19.00 ms allowed (95% of a 20.00 ms budget: 2 period(s)); none of the "
+        "ladder's periods up to 10 ms held either (the last: "
         "traversal p99 24.00 ms of 20.00 ms). Try --rt-priority 10 (SCHED_FIFO: other "
         "programs then wait for the unit). ctrlunit latency measures what this machine "
         "holds.")
@@ -531,5 +535,20 @@ def test_a_refusal_for_the_units_own_load_says_whose_time_it_was(monkeypatch):
     central, _ = scripted(monkeypatch, [busy] + [rung(p, held=False) for p in LADDER_S[1:]])
     with pytest.raises(Unsustainable) as e:
         admit(central)
-    assert ", and the unit kept a CPU 90% busy under SCHED_FIFO (limit 81% of the CPU" \
+    assert "; the unit kept a CPU 90% busy under SCHED_FIFO, over the limit of 81% of the CPU" \
         in str(e.value)
+
+
+def test_a_trials_findings_say_which_rule_it_broke():
+    from ctrlunit.runtime.launch.refusal import trial_findings
+
+    rung = {"intervals": 300, "late": 3, "traversal_p99_s": 1.0e-3, "budget_s": 2.0e-3,
+            "busy_share": None, "busy_limit": None, "fault": "peripheral-2 silent 9.1 ms"}
+    assert trial_findings(rung, 2) == (
+        "3 were late, more than the 1 allowed; the traversal p99 was 1.00 ms, within the "
+        "1.90 ms allowed (95% of a 2.00 ms budget: 2 period(s)); the trial faulted "
+        "(peripheral-2 silent 9.1 ms)")
+    rung |= {"late": 0, "traversal_p99_s": 2.86e-3, "budget_s": 3.0e-3, "fault": None}
+    assert trial_findings(rung, 1) == (  # the new user's case: over by 0.01 ms
+        "0 were late; the traversal p99 was 2.86 ms, over the 2.85 ms allowed (95% of a "
+        "3.00 ms budget: 1 period(s))")

@@ -168,6 +168,12 @@ def test_a_stop_the_user_asked_for_is_not_a_fault(runs):
             "asked for, not a fault)") in text
     assert "  safe stop   the plant held and braked for 50 ms" in text
     assert "result" not in text  # the stop line says how it ended
+    # a refusal of the admission moved nothing: no fault either (a new user read one so)
+    rep["fault"] = {"process": "admission", "code": 7,
+                    "message": "the period of 0.5 ms cannot be held here: ..."}
+    text = summary(rep)
+    assert "FAULT" not in text and ("  refused     before any motion: the period of 0.5 ms "
+                                    "cannot be held here: ... (exit 7)") in text
 
 
 def test_the_last_line_says_how_a_run_ended_and_what_it_gave_up(runs):

@@ -48,6 +48,7 @@ import numpy as np
 from ..config import EXIT_UNSUSTAINABLE
 from ..host import sched
 from ..host.busy_guard import ADMIT_BUSY_SHARE
+from .refusal import HEADROOM, LATE_SHARE, advice, trial_findings
 
 if TYPE_CHECKING:
     from ..central import Central
@@ -59,20 +60,6 @@ LADDER_S = (1.0e-3, 1.25e-3, 1.6e-3, 2.0e-3, 2.5e-3, 3.2e-3, 4.0e-3, 5.0e-3, 6.4
 TRIAL_BASE = 1 << 41
 """Trial cycles are numbered from here (one block of 2**20 per rung), far from the run's
 and the warm-up's, so that a straggling trial message is never taken for a real one."""
-
-HEADROOM = 0.95
-"""The trial's traversal p99 (command transit included) may use at most this share of the
-budget: the rest is for the run's longer tail (a few hundred trial intervals see fewer
-of the machine's stalls than a run of thousands)."""
-
-LATE_SHARE = 1 / 200
-"""At most this share of the trial's intervals may be late (or skipped)."""
-
-NEAR_LIMIT = 0.9
-"""A refusal suggests a period that held in its trial within this share of a limit (the
-traversal p99 of its headroom, the busy share of its limit) one rung higher: on a busy
-host the next start's trial refused such a period as often as not
-(docs/measurements/2026-11-27-newcomer.md)."""
 
 EPISODE_GAP = 10
 """Late (or skipped) intervals less than this many intervals apart belong to one episode."""
@@ -248,59 +235,11 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
     else:
         found = f"the shortest period measured to hold is {held_at * 1e3:g} ms"
     headline = f"the period of {asked * 1e3:g} ms cannot be held here"
-    advice = _advice(rc.schedule.period_auto, first, rungs[-1] if held_at else None)
+    tips = advice(rc.schedule.period_auto, first, rungs[-1] if held_at else None, LADDER_S)
     raise Unsustainable(
         f"{headline}: in a trial of {first['intervals']} intervals before any motion, "
-        f"{first['late']} were late and the traversal p99 was "
-        f"{first['traversal_p99_s'] * 1e3:.2f} ms of a {first['budget_s'] * 1e3:.2f} ms "
-        f"budget ({rc.schedule.pipeline} period(s))" + _busy_clause(first) + f"; {found}."
-        + advice, info, headline=headline, advice=advice.strip())
-
-
-def _busy_clause(rung: dict[str, Any]) -> str:
-    """What the busy limit found, if it refused the rung: whose CPU time it judged and the
-    limit as a share of the CPU and of the kernel's real-time budget (README's figure)."""
-    if not _busy_over(rung):
-        return ""
-    whose = ("the unit kept a CPU" if rung.get("busy_of") == "unit"
-             else "a CPU was")
-    return (f", and {whose} {rung['busy_share']:.0%} busy under SCHED_FIFO (limit "
-            f"{rung['busy_limit']:.0%} of the CPU: {ADMIT_BUSY_SHARE:.0%} of the kernel's "
-            "real-time budget)")
-
-
-def _suggested(held: dict[str, Any]) -> str:
-    """The period to try after a refusal, from the rung that held: its own, or the next
-    of the ladder where it held near a limit (:data:`NEAR_LIMIT`)."""
-    period, limit, share = held["period_s"], held.get("busy_limit"), held.get("busy_share")
-    near = (held["traversal_p99_s"] > NEAR_LIMIT * HEADROOM * held["budget_s"]
-            or (limit is not None and share is not None and share > NEAR_LIMIT * limit))
-    above = [p for p in LADDER_S if p > period * 1.0001]
-    if near and above:
-        return f"--period {above[0] * 1e3:g}ms ({period * 1e3:g} ms held, near its limit)"
-    return f"--period {period * 1e3:g}ms (measured to hold)"
-
-
-def _advice(period_auto: bool, first: dict[str, Any], held: dict[str, Any] | None) -> str:
-    """The refusal's advice: only what the trial showed would help. ``--period auto`` and
-    a period measured to hold (``held``: its rung); FIFO where the unit ran without it and
-    may use it (other programs then wait for the unit); a lighter placement where the
-    unit's own load was the limit."""
-    if held is not None and period_auto:
-        return ""  # the launcher starts again at the period that held
-    tries: list[str] = []
-    if held is not None:
-        tries += ["--period auto (it climbs to a period that holds at each start)",
-                  _suggested(held)]
-    if not sched.fifo_in_force() and sched.fifo_permitted():
-        tries.append(f"--rt-priority {sched.AUTO_PRIORITY} (SCHED_FIFO: other programs "
-                     "then wait for the unit)")
-    if _busy_over(first):
-        tries.append("a placement from ctrlunit balance (less of the unit's CPU time)")
-    if not tries:
-        return " ctrlunit latency measures what this machine holds."
-    return (" Try " + "; or ".join(tries)
-            + ". ctrlunit latency measures what this machine holds.")
+        f"{trial_findings(first, rc.schedule.pipeline)}; {found}." + tips, info,
+        headline=headline, advice=tips.strip())
 
 
 def predicted_tracking(central: Central, period: float) -> float:
@@ -326,11 +265,6 @@ def predicted_tracking(central: Central, period: float) -> float:
     ref = np.asarray(res.references, dtype=float)
     pos = np.asarray(res.positions, dtype=float)
     return float(np.max(np.linalg.norm(ref - pos, axis=1))) if ref.size else math.nan
-
-
-def _busy_over(rung: dict[str, Any]) -> bool:
-    limit, share = rung.get("busy_limit"), rung.get("busy_share")
-    return limit is not None and share is not None and share > limit
 
 
 def fifo_busy_limit() -> float | None:

@@ -62,6 +62,8 @@ def end_lines(r: dict[str, Any]) -> list[str]:
         if f.get("process") == "user":
             lines.append(f"  stopped     on request: {f['message']}{code}, after {r['cycles']} "
                          "intervals (a stop asked for, not a fault)")
+        elif f.get("process") == "admission":  # nothing moved: a refusal, not a fault
+            lines.append(f"  refused     before any motion: {f['message']}{code}")
         else:
             lines.append(f"  FAULT in {f['process']}: {f['message']}{code}")
         if "safe_stop" in r:
