@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections import Counter
 from types import SimpleNamespace
 from typing import Any, ClassVar
 
@@ -397,6 +398,7 @@ class Probe:
         Probe.made.append(self)
 
     def run(self) -> None:
+        self.node.rejected["late_reply"] += self.script.get("late_replies", 0)
         if self.script.get("fault"):
             from ctrlunit.runtime.central import Fault
 
@@ -415,7 +417,7 @@ def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
     cfg = RunConfig.of(clock="realtime", pipeline=2, **rc)
     ctl = SimpleNamespace(first_cycle=0, q_prev=[1, 2, 3], k_prev=0)
     return SimpleNamespace(
-        rc=cfg, node="node", engine="engine", ctl=ctl,
+        rc=cfg, node=SimpleNamespace(rejected=Counter()), engine="engine", ctl=ctl,
         silence=SimpleNamespace(supervision=Supervision()),
         intervals=SimpleNamespace(reply_each=True),
         orders=SimpleNamespace(say=lambda stage, **kw: said.append((stage, kw)),
@@ -430,7 +432,7 @@ def test_a_trial_runs_its_intervals_on_a_copy_of_the_controller_and_judges_them(
     probe = Probe.made[0]
     assert probe.n == 300 and probe.rc.schedule.period == 1e-3
     assert probe.rc.run.t1_cycles == 0 and probe.rc.run.record is None
-    assert probe.node == "node" and probe.engine == "engine" and probe.reply_each is True
+    assert probe.node is c.node and probe.engine == "engine" and probe.reply_each is True
     assert probe.ctl is not c.ctl and c.ctl.first_cycle == 0  # a copy, the run's untouched
     assert (probe.ctl.first_cycle, probe.ctl.q_prev, probe.ctl.k_prev) == (1 << 41, None,
                                                                            1 << 41)
@@ -439,6 +441,19 @@ def test_a_trial_runs_its_intervals_on_a_copy_of_the_controller_and_judges_them(
     assert out["intervals"] == 301 and out["late"] == 2 and out["busy_share"] == 0.42
     assert out["traversal_max_s"] == pytest.approx(3.1 * MS)
     assert "fault" not in out and out["wall_s"] >= 0 and c.drained == [0.0]
+
+
+def test_the_late_replies_of_a_trials_rounds_are_the_trials_not_the_runs(monkeypatch):
+    """A new user's summary said 23 late replies for 1 late round: the other 22 were the
+    admission trials' (rounds a trial computed itself), counted on the node the run
+    shares."""
+    c = trial_central(monkeypatch, {"traversal_s": [0.4 * MS] * 300, "late_replies": 22})
+    c.node.rejected["late_reply"] = 1  # one of the run's (the warm-up has none; say one)
+    out = admission.trial(c, 1e-3, base=5, transit_s=0.0)
+    assert out["late_replies"] == 22 and c.node.rejected["late_reply"] == 1
+    c = trial_central(monkeypatch, {"traversal_s": [0.4 * MS] * 300, "late_replies": 3})
+    assert admission.trial(c, 1e-3, base=5, transit_s=0.0)["late_replies"] == 3
+    assert "late_reply" not in c.node.rejected  # no count of 0 left in the report
 
 
 def test_a_trial_that_faults_does_not_hold_and_drains_its_stragglers(monkeypatch):

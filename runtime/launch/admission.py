@@ -302,6 +302,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
                     on_cycle=None if rehearsal is None else rehearsal.on_cycle,
                     on_message=None if rehearsal is None else rehearsal.on_message)
     unit0 = unit_cpu() if unit_cpu is not None else None  # 2-10 ms: before the ticks
+    late0 = central.node.rejected["late_reply"]
     central.orders.say("probe", period=period, ticks=n, base=base)
     t0 = time.monotonic()
     busy0 = sched.cpu_times()
@@ -331,4 +332,12 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
         out["late"] = max(out["late"], n - int(trav.size))
     out["wall_s"] = time.monotonic() - t0
     central.orders.drain(seconds=min(0.2, 50 * period) if fault else 0.0)
+    # the replies of the trial's rounds it computed itself: the trial's, not the run's
+    # (they once made the run's summary say 23 late replies for 1 late round)
+    rejected = central.node.rejected
+    out["late_replies"] = rejected["late_reply"] - late0
+    if late0:
+        rejected["late_reply"] = late0
+    else:
+        rejected.pop("late_reply", None)
     return out
