@@ -314,8 +314,9 @@ def summary(r: dict[str, Any]) -> str:
         "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),
         *_cpu_lines(r),
         *_sched_lines(r),
-        f"  t_1 (one process, no exchange) {_us(r['t1_s'])}   t_s {_us(r['t_s_model_s'])}   "
-        f"t_p {_us(r['t_p_model_s'])}",
+        f"  t_1 (one process, no exchange) {_us(r['t1_s'])}   the blocks as this run timed "
+        f"them: in series t_s {_us(r['t_s_model_s'])}, the per-axis ones split t_p "
+        f"{_us(r['t_p_model_s'])}",
         *_efficiency_lines(r),
         _tracking_line(r),
     ]
