@@ -115,14 +115,17 @@ def _check(rc: RunConfig, as_json: bool) -> None:
         period = (f"auto (the shortest from {period} up that the admission's trial holds)"
                   if rc.schedule.clock == "realtime" and rc.schedule.admission
                   else f"{period} (auto)")
+    intervals = f"{setup.cycles} intervals"
+    if period.startswith("auto"):  # a fixed duration: fewer intervals at a longer period
+        intervals += f" at {rc.schedule.period * 1e3:g} ms (fewer at a longer period)"
     overload = (f"  on overload: halve the control rate (--overload {rc.schedule.overload})\n"
                 if rc.halves_on_overload else "")
     _emit(data, as_json,
           f"ctrlunit start: the options are valid; nothing was started.\n"
           f"  {setup.placement.peripherals} peripheral(s), pipeline depth {rc.schedule.pipeline}, "
           f"clock {rc.schedule.clock}, period {period}\n"
-          f"  task {quoted(setup.task.name)} (a loop of {setup.task.period:.3f} s), {setup.cycles} "
-          f"intervals, {rc.control.law} + {rc.control.model} model\n"
+          f"  task {quoted(setup.task.name)} (a loop of {setup.task.period:.3f} s), {intervals}, "
+          f"{rc.control.law} + {rc.control.model} model\n"
           + overload +
           f"  {plan.round_trips} round trip(s) per interval"
           + _placement_note(rc, setup.placement.peripherals)
