@@ -70,7 +70,8 @@ class Plots:
     notes : what a figure could not show (e.g. no plant in freerun).
     timing : the timing figure's series and figures (:func:`.plot_data.timing`), the
         report's own.
-    titles : figure name -> the titles of its panels, as drawn (the timing figure's).
+    titles : figure name -> the titles of its panels, as drawn (the timing figure's and
+        the events figure's).
     clashes : titles that overlapped another or passed a figure's edge (none expected).
     """
 
@@ -297,7 +298,9 @@ def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int
         ax.axvline(x, color="#d62728", lw=0.8, alpha=0.7)
     for x in skip_t:
         ax.axvline(x, color="#ff7f0e", lw=0.8, alpha=0.7, ls=":")
-    title = f"deadline misses {prev_m}, skipped samples {prev_s}"
+    realtime = rc.schedule.clock == "realtime"
+    title = (f"deadline misses {prev_m}, skipped samples {prev_s}" if realtime else
+             f"{rc.schedule.clock}: wall time per interval (no deadline)")
     if fault:
         x = t[-1] if t.size else 0.0
         ax.axvline(x, color="black", lw=2.0)
@@ -309,8 +312,9 @@ def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int
     if skip_t:
         ax.plot([], [], color="#ff7f0e", ls=":", label="skipped sample")
     ax.set_xlabel("time of the interval, k T (s)")
-    ax.set_ylabel("period (us)")
+    ax.set_ylabel("period (us)" if realtime else "wall time per interval (us)")
     ax.set_title(title)
+    plots.titles["events"] = [title]
     ax.legend(fontsize=8, loc="upper left")
     _save(fig, path, plots)
 
