@@ -117,9 +117,11 @@ params_option = click.option(
 
 
 class _Group(click.Group):
-    """The group: a configuration error no command caught itself is still one line on
-    stderr and exit 1, never a traceback; Ctrl-C (or SIGTERM / SIGHUP where the command
-    listens for them) one line and exit 130 (143, 129)."""
+    """The group: a configuration error no command caught itself, or a value click refused
+    (its type, choices or range), is one line on stderr and exit 1, never a traceback (a
+    command line that does not parse, an unknown option or a missing argument, stays
+    click's usage error, exit 2); Ctrl-C (or SIGTERM / SIGHUP where the command listens for
+    them) one line and exit 130 (143, 129)."""
 
     def invoke(self, ctx: click.Context) -> Any:
         from ..config import EXIT_CONFIG, ConfigError
@@ -127,6 +129,10 @@ class _Group(click.Group):
 
         try:
             return super().invoke(ctx)
+        except click.MissingParameter:
+            raise
+        except click.BadParameter as exc:  # a value, as --set and a run file refuse one
+            _fail(exc.format_message(), EXIT_CONFIG)
         except ConfigError as exc:
             _fail(str(exc), EXIT_CONFIG)
         except KeyboardInterrupt as exc:

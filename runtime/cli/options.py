@@ -13,7 +13,7 @@ from ..config import FLAT, ConfigError, RunConfig
 from ..config.handed import FILE_SETTINGS, ROLE_OWN
 from ..config.run_file import PROFILES
 from ..config.sections import SECTIONS
-from ..config.setting import About
+from ..config.setting import About, user_allowed
 from ..config.settings_doc import settings_of
 from ..config.spellings import DERIVED, read_setting, to_fields
 from .base import FilePath
@@ -23,10 +23,26 @@ def _read(_ctx: Any, param: click.Parameter, value: Any) -> Any:
     """A flag's value read as ``--set`` and the run file read the setting's
     (runtime/config/spellings.py): ``2ms``, ``0.002``, ``auto`` where the setting takes it."""
     flat = "late" if param.name == "late_items" else str(param.name)
-    try:
-        return read_setting(flat, value, f"--{param.opts[0].lstrip('-')}", ranged=False)
-    except ConfigError as exc:
-        raise click.BadParameter(str(exc)) from None
+    # a ConfigError: one line and exit 1, as every value out of its range
+    return read_setting(flat, value, f"--{param.opts[0].lstrip('-')}", ranged=False)
+
+
+def _ranged(base: type[click.IntRange] | type[click.FloatRange], a: About) -> click.ParamType:
+    """Click's range type (its range shown in ``--help``) whose refusal is the
+    configuration's: ``--peripherals = 9: allowed 0 to 3``, exit 1, as ``--set`` and the
+    run file say it, not click's usage error (exit 2)."""
+    assert a.bounds is not None
+
+    class Ranged(base):  # type: ignore[valid-type,misc]
+        def convert(self, value: Any, param: click.Parameter | None,
+                    ctx: click.Context | None) -> Any:
+            try:
+                return super().convert(value, param, ctx)
+            except click.BadParameter:
+                opt = param.opts[0] if isinstance(param, click.Option) else "value"
+                raise ConfigError(f"{opt} = {value}: allowed {user_allowed(a)}") from None
+
+    return Ranged(a.bounds[0], a.bounds[1])
 
 
 def run_options(fn: Any) -> Any:
@@ -106,9 +122,9 @@ def _click_type(flat: str, a: About) -> Any:
         return click.Choice(list(a.choices))
     base = _BASE_TYPES[flat]
     if a.bounds is not None and base is int:
-        return click.IntRange(int(a.bounds[0]), int(a.bounds[1]))
+        return _ranged(click.IntRange, a)
     if a.bounds is not None and base is float:
-        return click.FloatRange(*a.bounds)
+        return _ranged(click.FloatRange, a)
     return base
 
 
