@@ -29,7 +29,7 @@ def _read(_ctx: Any, param: click.Parameter, value: Any) -> Any:
 
 def _ranged(base: type[click.IntRange] | type[click.FloatRange], a: About) -> click.ParamType:
     """Click's range type (its range shown in ``--help``) whose refusal is the
-    configuration's: ``--peripherals = 9: allowed 0 to 3``, exit 1, as ``--set`` and the
+    configuration's: ``--peripherals = 9: allowed 0, 1, 2 or 3``, exit 1, as ``--set`` and the
     run file say it, not click's usage error (exit 2)."""
     assert a.bounds is not None
 
