@@ -215,5 +215,6 @@ def test_the_command_line_refuses_an_unknown_idle_choice_naming_the_allowed_ones
     from runner import ctrlunit
 
     res = ctrlunit("start", "--idle", "spin", "--check", timeout=60)
-    assert res.returncode == 2
+    assert res.returncode == 1  # a value refused, as in --set (docs/faults-and-errors.md)
+    assert res.stderr.startswith("ctrlunit: error: ")
     assert "'spin' is not one of 'auto', 'poll', 'default'" in res.stderr

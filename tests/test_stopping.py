@@ -14,6 +14,20 @@ from ctrlunit.runtime.roles.stopping import Terminated, held_stops, stop_signals
 from ctrlunit.runtime.transport.node import Inbox
 
 
+@pytest.fixture(autouse=True)
+def stop_signals_as_from_a_terminal():
+    """The three signals as a terminal's program has them, whatever this runner was
+    started with (under ``nohup`` SIGHUP is ignored, and an ignored signal stays so:
+    runtime/roles/stopping.py); put back afterwards."""
+    saved = {s: signal.getsignal(s) for s in (signal.SIGHUP, signal.SIGTERM, signal.SIGINT)}
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    for s, h in saved.items():
+        signal.signal(s, h)
+
+
 class FakeInbox:
     """What :func:`held_stops` needs of an inbox: its checkpoint."""
 
