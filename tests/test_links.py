@@ -66,6 +66,25 @@ def test_a_run_file_naming_such_a_zenoh_file_is_refused_too(tmp_path):
         assert f"--zenoh-config {path}: connect/endpoints tcp/192.0.2.1:7447" in res.stderr
 
 
+@pytest.mark.parametrize(("conf", "says"), [
+    ({"plugins_loading": {"enabled": True}, "plugins": {"rest": {"http_port": "0.0.0.0:8000"}}},
+     "it loads Zenoh plugins (rest)"),
+    ({"plugins_loading": {"enabled": True}}, "it loads Zenoh plugins (plugins_loading)"),
+    ({"adminspace": {"enabled": True, "permissions": {"read": True, "write": True}}},
+     "adminspace/permissions/write is true")])
+def test_a_zenoh_file_that_loads_plugins_or_opens_its_admin_space_is_refused(tmp_path, conf,
+                                                                             says):
+    """A plugin opens ports of its own (the REST plugin's HTTP port on every interface, in
+    an attacker's review that --check passed), past the link rule and the keys; a writable
+    admin space lets a peer change the session. Refused, --insecure or not."""
+    path = zenoh_file(tmp_path, "z", conf)
+    for extra in ((), ("--insecure",)):
+        res = ctrlunit("start", "--zenoh-config", path, *SHORT, "--check", *extra, timeout=120)
+        err = res.stderr.strip().splitlines()
+        assert res.returncode == 1 and len(err) == 1, (extra, res.stderr)
+        assert err[0].startswith(f"ctrlunit: error: --zenoh-config {path}: {says}"), err[0]
+
+
 def test_a_zenoh_file_in_another_mode_than_peer_is_refused(tmp_path):
     path = zenoh_file(tmp_path, "z", {"mode": "router"})
     res = ctrlunit("start", "--zenoh-config", path, *SHORT, "--check", timeout=120)

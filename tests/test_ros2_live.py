@@ -200,7 +200,8 @@ def test_gid_is_rmw_zenohs_xxh3_of_the_token():
 @pytest.mark.parametrize("override", [
     'mode="peer";listen/endpoints={peer:["tcp/0.0.0.0:7447"]}',  # an attacker's review
     'connect/endpoints={client:["tcp/127.0.0.1:7447"],peer:["tcp/192.0.2.1:7447"]}',
-    'listen/endpoints=["tcp/0.0.0.0:7447"]', 'scouting/multicast/enabled=true'])
+    'listen/endpoints=["tcp/0.0.0.0:7447"]', 'scouting/multicast/enabled=true',
+    'plugins_loading/enabled=true;plugins={rest:{http_port:"0.0.0.0:8000"}}'])
 def test_an_override_that_reaches_beyond_the_host_is_refused_in_any_mode(override):
     """The link rule reads every mode's endpoints of a per-mode object: an override that
     also set the mode once opened a keyless listener the check never saw."""

@@ -64,6 +64,13 @@ def check_zenoh_config(path: str) -> None:
     a client cannot listen, a router would route for others) and whose endpoints are
     valid ones (:func:`check_endpoint`)."""
     links = file_links(path)
+    if links.plugins:  # a plugin listens where its own settings say (a REST port, say)
+        raise ValueError(f"--zenoh-config {path}: it loads Zenoh plugins ({links.plugins}), "
+                         "which open ports and keys of their own beyond the unit's link rule "
+                         "and keys: ctrlunit uses none; remove plugins and plugins_loading")
+    if links.admin_write:
+        raise ValueError(f"--zenoh-config {path}: adminspace/permissions/write is true: a "
+                         "peer could change this session's configuration; remove it")
     if links.mode not in (None, "peer"):
         raise ValueError(f"--zenoh-config {path}: mode {links.mode!r}: the unit's roles are "
                          "Zenoh peers (a star around the central); remove mode from the "
@@ -79,13 +86,17 @@ class FileLinks:
     """What a ``--zenoh-config`` file says of the links: the endpoints a peer listens on
     and connects to (a per-mode object read for ``peer``; listen endpoints only where the
     file gives them, not Zenoh's default), whether it turns multicast scouting and gossip
-    on or off (None: it does not say), and its mode (None: not given)."""
+    on or off (None: it does not say), and its mode (None: not given); the plugins it
+    loads (their names, or ``plugins_loading`` where it names none) and whether its admin
+    space may be written."""
 
     listen: list[str]
     connect: list[str]
     multicast: bool | None
     gossip: bool | None
     mode: str | None
+    plugins: str = ""
+    admin_write: bool = False
 
 
 def file_links(path: str) -> FileLinks:
@@ -112,11 +123,17 @@ def file_links(path: str) -> FileLinks:
                              "one per mode), e.g. [\"tcp/127.0.0.1:7447\"]")
         return value
 
+    plugins = json.loads(conf.get_json("plugins")) or {}
+    loading = json.loads(conf.get_json("plugins_loading/enabled")) is True
+    admin = json.loads(conf.get_json("adminspace/permissions")) or {}
     return FileLinks(listen=endpoints("listen/endpoints"),
                      connect=endpoints("connect/endpoints"),
                      multicast=json.loads(conf.get_json("scouting/multicast/enabled")),
                      gossip=json.loads(conf.get_json("scouting/gossip/enabled")),
-                     mode=json.loads(conf.get_json("mode")))
+                     mode=json.loads(conf.get_json("mode")),
+                     plugins=", ".join(sorted(plugins)) or ("plugins_loading" if loading
+                                                            else ""),
+                     admin_write=admin.get("write") is True)
 
 
 def _first_line(exc: BaseException) -> str:
