@@ -36,6 +36,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from .security import reaches_beyond_host
+from .zsession import loaded_plugins
 
 ROUTER = "tcp/localhost:7447"
 """rmw_zenoh's default router (DEFAULT_RMW_ZENOH_SESSION_CONFIG.json5)."""
@@ -120,11 +121,10 @@ def check_links(conf: Any) -> None:
                     "that link is keyed (anyone on the way reads the unit's signals): run "
                     "the ROS 2 router on this host (ros2 run rmw_zenoh_cpp rmw_zenohd) and "
                     "let it connect onward, or --insecure for a lab bench")
-    if json.loads(conf.get_json("plugins")) or \
-            json.loads(conf.get_json("plugins_loading/enabled")) is True:
-        raise ValueError(f"--ros2: {OVERRIDE_ENV} loads Zenoh plugins, which open ports of "
-                         "their own (a REST port, say): ctrlunit uses none; remove them, or "
-                         "--insecure for a lab bench")
+    if plugins := loaded_plugins(conf):
+        raise ValueError(f"--ros2: {OVERRIDE_ENV} loads Zenoh plugins ({plugins}), which "
+                         "open ports of their own (a REST port, say): ctrlunit uses none; "
+                         "remove them, or --insecure for a lab bench")
     if json.loads(conf.get_json("scouting/multicast/enabled")) is True:
         raise ValueError(f"--ros2: {OVERRIDE_ENV} turns multicast scouting on, which "
                          "announces the unit to every host of the network: leave it off, or "

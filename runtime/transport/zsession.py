@@ -123,17 +123,23 @@ def file_links(path: str) -> FileLinks:
                              "one per mode), e.g. [\"tcp/127.0.0.1:7447\"]")
         return value
 
-    plugins = json.loads(conf.get_json("plugins")) or {}
-    loading = json.loads(conf.get_json("plugins_loading/enabled")) is True
     admin = json.loads(conf.get_json("adminspace/permissions")) or {}
     return FileLinks(listen=endpoints("listen/endpoints"),
                      connect=endpoints("connect/endpoints"),
                      multicast=json.loads(conf.get_json("scouting/multicast/enabled")),
                      gossip=json.loads(conf.get_json("scouting/gossip/enabled")),
                      mode=json.loads(conf.get_json("mode")),
-                     plugins=", ".join(sorted(plugins)) or ("plugins_loading" if loading
-                                                            else ""),
+                     plugins=loaded_plugins(conf),
                      admin_write=admin.get("write") is True)
+
+
+def loaded_plugins(conf: zenoh.Config) -> str:
+    """The Zenoh plugins a configuration loads: their names, ``plugins_loading`` where it
+    turns loading on and names none, or empty (ctrlunit uses none: a plugin opens ports
+    and keys of its own, past the link rule and the unit's keys)."""
+    names = sorted(json.loads(conf.get_json("plugins")) or {})
+    loading = json.loads(conf.get_json("plugins_loading/enabled")) is True
+    return ", ".join(names) or ("plugins_loading" if loading else "")
 
 
 def _first_line(exc: BaseException) -> str:
