@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -62,12 +63,14 @@ def _reader(endpoint: str, key: str, seconds: float, keys: Path | None
 
 
 def run_with_readers(tmp_path: Path, tag: str, readers: list[str], *options: str,
-                     keys: Path | None = None, after: int = 200, timeout: float = 240
-                     ) -> tuple[int, dict, str, list[str]]:
+                     keys: Path | None = None, after: int = 200, timeout: float = 240,
+                     stop_after_s: float | None = None) -> tuple[int, dict, str, list[str]]:
     """``ctrlunit start`` listening on a loopback TCP port (TLS with ``keys``) and, once
     ``after`` intervals are done, one frozen reader per key suffix of ``readers``
-    (``**``: everything of the unit). Returns the run's exit code, report and output, and
-    each reader's output (``got 1``: it took a message before it froze)."""
+    (``**``: everything of the unit); with ``stop_after_s``, that long after they connect
+    every reader is stopped whole (SIGSTOP: its keep-alives end too, so Zenoh closes its
+    link). Returns the run's exit code, report and output, and each reader's output
+    (``got 1``: it took a message before it froze)."""
     port, unit = free_port(), unit_id(tag)
     report, status = tmp_path / f"{tag}.json", tmp_path / f"{tag}.status"
     cmd = [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
@@ -91,6 +94,10 @@ def run_with_readers(tmp_path: Path, tag: str, readers: list[str], *options: str
             assert p.stdin is not None
             p.stdin.write("\n")
             p.stdin.flush()
+        if stop_after_s is not None:
+            time.sleep(stop_after_s)
+            for p in procs:
+                os.kill(p.pid, signal.SIGSTOP)
         out, _ = proc.communicate(timeout=timeout)
     finally:
         kill_unit(unit)
@@ -98,7 +105,7 @@ def run_with_readers(tmp_path: Path, tag: str, readers: list[str], *options: str
             proc.kill()
         outs = []
         for p in procs:
-            p.kill()
+            p.kill()  # SIGKILL ends a stopped process too
             outs.append(p.communicate(timeout=10)[0])
     rep = json.loads(report.read_text()) if report.exists() else {}
     return proc.returncode if proc is not None else -1, rep, out, outs
@@ -195,3 +202,25 @@ def test_lockstep_commands_are_bit_identical_with_a_frozen_reader(tmp_path):
     assert code == 0, out[-2000:]
     assert "got 1" in readers[0], readers
     assert rep["command_digest"] == clean["command_digest"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("keyed", [True, False], ids=["keyed-viewers", "loopback-readers"])
+def test_readers_stopped_together_as_many_as_the_listener_admits(tmp_path, unit_keys, keyed):
+    """Four readers (four keyed viewers on the observers' keys, or four readers of the
+    whole unit on a loopback TCP port) stopped whole at the same moment, the central's
+    listener admitting no more (``transport.max_sessions`` 8: the plant, three
+    peripherals and these four). Zenoh closes their links when their keep-alives stop,
+    and each link closed on a peer that does not read holds one of the process's Zenoh
+    worker threads. Before 2026-11-28 the central had two, and such a lockstep run
+    faulted about 12 s after the stop ("no sample from the plant for 2025.4 ms", exit 4);
+    now it runs one per admitted peer plus one, and the run completes."""
+    cycles = 16000  # about 25 s: the fault came 12 s after the stop, at 5 s in
+    code, rep, out, readers = run_with_readers(
+        tmp_path, f"stopped{int(keyed)}", ["view/**" if keyed else "**"] * 4,
+        "--clock", "lockstep", "--cycles", str(cycles), "--peripherals", "3",
+        "--pipeline", "2", "--set", "transport.max_sessions=8",
+        keys=unit_keys if keyed else None, after=1500, stop_after_s=2.0)
+    assert code == 0, out[-2000:]
+    assert all("got 1" in r for r in readers), readers  # each read, then was stopped
+    assert rep["periods"] == cycles

@@ -254,3 +254,27 @@ def test_the_flood_rule_counts_malformed_messages_per_sender():
         before = node.rejects
         node.reject("undecodable", "undecodable: detail")
         blind.check("sample", 0, i, before)
+
+
+def test_the_central_runs_a_zenoh_worker_per_admitted_peer_and_one(monkeypatch):
+    """A TCP or TLS link Zenoh closes on a peer that stopped reading holds a worker thread
+    (its close lingers): a session listening there (the central's) runs one per peer it
+    admits plus one, one that only connects or listens on a unix socket two; a runtime the
+    user's environment sets wins, one make_config set (a launcher's, inherited by its
+    roles) is replaced."""
+    from ctrlunit.runtime.transport.limits import Limits
+    from ctrlunit.runtime.transport.zsession import runtime_workers, set_runtime, zenoh_runtime
+
+    assert runtime_workers(["tcp/127.0.0.1:7447"], Limits(max_sessions=8)) == 9
+    assert runtime_workers(["tcp/127.0.0.1:7447"], Limits()) == 17
+    assert runtime_workers(["tls/127.0.0.1:7447"], Limits()) == 17
+    assert runtime_workers(None, Limits(max_sessions=64)) == 2
+    assert runtime_workers(["unixsock-stream//tmp/x/central.sock"], Limits()) == 2
+    monkeypatch.delenv("ZENOH_RUNTIME", raising=False)
+    set_runtime(17)
+    assert os.environ["ZENOH_RUNTIME"].endswith("app: (worker_threads: 17))")
+    set_runtime(2)  # a role started by the launcher: the launcher's value is replaced
+    assert os.environ["ZENOH_RUNTIME"] == zenoh_runtime(2)
+    monkeypatch.setenv("ZENOH_RUNTIME", "(app: (worker_threads: 3))")
+    set_runtime(17)
+    assert os.environ["ZENOH_RUNTIME"] == "(app: (worker_threads: 3))"

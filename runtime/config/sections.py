@@ -264,9 +264,11 @@ class TransportConfig:
         "drops anything over 65536 whatever Zenoh delivers). Zenoh 1.10.2 drops only some "
         "messages over it (docs/faults-and-errors.md, Security).")
     max_sessions: int = setting(
-        lim.MAX_SESSIONS, bounds=(5, 1000), allowed="5 to 1000 peers",
+        lim.MAX_SESSIONS, bounds=(5, 64), allowed="5 to 64 peers",
         help="Most Zenoh peers this process holds at once (transport/unicast/max_sessions): "
-        "the plant, the peripherals and a few observers.")
+        "the plant, the peripherals and a few observers. A central listening on TCP or TLS "
+        "runs one Zenoh worker thread per peer plus one, so that peers that all stop "
+        "reading at once cannot hold every one.")
     accept_pending: int = setting(
         lim.ACCEPT_PENDING, bounds=(1, 1000), allowed="1 to 1000 handshakes",
         help="Most Zenoh handshakes under way at once on this process's listeners "

@@ -206,17 +206,44 @@ class Keys:
         return f"{self.root}/{role}/control"
 
 
-ZENOH_RUNTIME = ("(rx: (handover: app), tx: (handover: app), acc: (handover: app), "
-                 "net: (handover: app), app: (worker_threads: 2))")
-"""Zenoh's asynchronous runtimes (receive, transmit, accept, network, application) as
-one pool of two worker threads per process, unless the environment already sets
-``ZENOH_RUNTIME``. By default each is a pool of its own, and a message crosses threads on
-its way between the socket and the role's inbox. Measured side by side
-(docs/message-costs.md): a round trip between two processes 30-50 % faster at the median
-and 35-45 % less CPU; the main job at a fixed 2 ms, 3-12 % less CPU per interval, misses
-no worse; one worker and two alike. Two, because a link Zenoh closes while its peer has
-stopped reading holds the worker that closes it: with one, no other link's message was
-received until the run faulted (docs/measurements/2026-11-27-observers.md)."""
+RUNTIME_POOL = ("(rx: (handover: app), tx: (handover: app), acc: (handover: app), "
+                "net: (handover: app), app: (worker_threads: ")
+"""``ZENOH_RUNTIME`` up to its number of worker threads (:func:`zenoh_runtime`)."""
+
+
+def zenoh_runtime(workers: int) -> str:
+    """Zenoh's asynchronous runtimes (receive, transmit, accept, network, application) as
+    one pool of ``workers`` threads. By default each is a pool of its own, and a message
+    crosses threads on its way between the socket and the role's inbox. Measured side by
+    side (docs/message-costs.md): a round trip between two processes 30-50 % faster at
+    the median and 35-45 % less CPU; the main job at a fixed 2 ms, 3-12 % less CPU per
+    interval, misses no worse; one worker and two alike."""
+    return f"{RUNTIME_POOL}{int(workers)}))"
+
+
+def runtime_workers(listen: list[str] | None, limits: Limits) -> int:
+    """Worker threads of a process whose first session listens on ``listen``. Zenoh opens
+    TCP and TLS links with SO_LINGER at 10 s, so closing one whose peer has stopped
+    reading blocks the worker thread that closes it in ``close()`` for up to 10 s (seen
+    in a stack dump; docs/measurements/2026-11-28-stopped-readers.md). A session that
+    only connects has one link, and two workers keep one free. One that listens on TCP or
+    TLS (the central's, with keys or ``--listen tcp/...``) admits up to
+    ``limits.max_sessions`` peers, every one of which may stop together (four stopped
+    readers held both workers the central had until 2026-11-28, and the run faulted): it
+    runs one per admitted peer plus one, so that a worker is always free to receive. A
+    unix socket's close does not linger: two."""
+    lingering = any(e.split("/", 1)[0] in ("tcp", "tls") for e in listen or [])
+    return limits.max_sessions + 1 if lingering else 2
+
+
+def set_runtime(workers: int) -> None:
+    """Set ``ZENOH_RUNTIME`` to :func:`zenoh_runtime` of ``workers`` for this process and
+    its children (read when a process opens its first session), unless the user's
+    environment sets a runtime of its own: a user's setting wins. A value this function
+    wrote (a launcher's, inherited by the roles it starts) is replaced."""
+    current = os.environ.get("ZENOH_RUNTIME")
+    if current is None or current.startswith(RUNTIME_POOL):
+        os.environ["ZENOH_RUNTIME"] = zenoh_runtime(workers)
 
 
 @functools.cache
@@ -292,8 +319,7 @@ def make_config(
         listen = [tls_endpoint(e) for e in listen or []]
         connect = None if connect is None else [tls_endpoint(e) for e in connect]
     zenoh_log()
-    # Zenoh's runtimes on one thread (read when a process opens its first session)
-    os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
+    set_runtime(runtime_workers(listen, limits or Limits()))
     conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     if links is not None:  # no discovery unless the file asks for it
         if links.multicast is not True:
