@@ -373,6 +373,39 @@ def test_leave_rt_puts_only_the_calling_thread_under_the_default_policy() -> Non
     assert got == {"before": "SCHED_FIFO 7", "after": "SCHED_OTHER", "main": "SCHED_FIFO 7"}
 
 
+def test_the_live_views_thread_leaves_fifo_and_leaves_it_again_after_a_restore() -> None:
+    """The observers' view is made after the unit's policy is set, so its thread starts
+    under FIFO; it leaves it before it sends anything (a viewer's work can wait, and at
+    one FIFO priority a thread runs until it blocks), and again after the throttling
+    guard's return to FIFO has put every thread of the process back under it."""
+    if not sched.fifo_permitted():
+        pytest.skip("this process may not use SCHED_FIFO")
+    got = _child(
+        "import json, threading, time\n"
+        "from ctrlunit.runtime.host import sched\n"
+        "from ctrlunit.runtime.observe.viewer import LiveView\n"
+        "class Sink:\n"
+        "    listening, url, port = True, 'test', 0\n"
+        "    def state(self, payload, log_time): pass\n"
+        "    def running(self, payload, log_time): pass\n"
+        "    def close(self): pass\n"
+        "sched.apply_rt(7)\n"
+        "view = LiveView(sink=Sink(), task=None, period_s=1e-3, cycles=10)\n"
+        "tid = view._thread.native_id\n"
+        "def policy_after(seconds):\n"
+        "    time.sleep(seconds)\n"
+        "    return sched.policy_name(tid)\n"
+        "seen = {'first': policy_after(0.2)}\n"
+        "sched.apply_rt(7)  # as the guard's restore: every thread back under FIFO\n"
+        "seen['restored'] = sched.policy_name(tid)\n"
+        "seen['again'] = policy_after(0.2)\n"
+        "seen['main'] = sched.policy_name()\n"
+        "view.close()\n"
+        "print(json.dumps(seen))\n")
+    assert got == {"first": "SCHED_OTHER", "restored": "SCHED_FIFO 7", "again": "SCHED_OTHER",
+                   "main": "SCHED_FIFO 7"}
+
+
 def test_policy_reaches_threads_started_later_and_is_restored() -> None:
     """Every thread (Zenoh's are started later, by the thread that opens the session)
     runs under the unit's policy; restore() puts every one back."""

@@ -39,6 +39,7 @@ from typing import Any
 
 import orjson
 
+from ..host.sched import leave_rt
 from .live import LiveStats
 from .signals import SIGNALS_SCHEMA, Interval, finite_or_none, state_message
 from .tap import IntervalTap
@@ -235,6 +236,10 @@ class LiveView:
     def _run(self) -> None:
         next_running = time.monotonic() + RUNNING_EVERY_S
         while not self._stop.wait(SEND_EVERY_S):
+            # its work can wait: never at the roles' real-time priority, where a thread
+            # runs until it blocks (the observers' view is made after the policy is set,
+            # and the throttling guard's return to it puts every thread back under FIFO)
+            leave_rt()
             with self._lock:
                 self._send_pending()
                 if time.monotonic() >= next_running:

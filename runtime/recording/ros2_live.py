@@ -158,8 +158,10 @@ class Ros2Live:
             return 0
 
     def _run(self) -> None:
-        sched.leave_rt()  # made after the real-time policy: its work can wait
         while not self._stop.wait(SEND_EVERY_S):
+            # made after the real-time policy, and put back under it by the throttling
+            # guard's restore: its work can wait
+            sched.leave_rt()
             now = time.monotonic()
             if now - self._asked >= LISTENING_EVERY_S:
                 self._asked = now
