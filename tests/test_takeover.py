@@ -12,12 +12,14 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 from ctrlunit.runtime.central import Fault
-from ctrlunit.runtime.central.takeover import REJOIN_PARTS
+from ctrlunit.runtime.central.takeover import REJOIN_PARTS, RESUMES
+from ctrlunit.runtime.observe.summary import _degraded_lines
 from ctrlunit.runtime.recording.reader import read
 from ctrlunit.runtime.recording.recorder import Recorder
 from ctrlunit.runtime.recording.replay import verify
@@ -92,6 +94,80 @@ def test_after_a_silent_loss_no_request_is_sent():
     assert 40 <= len(requests) <= 2 * (first_lost + 2), (len(requests), first_lost)
 
 
+def slow_then_back(tag: str, k: int, *, at: int,
+                   then: Callable[[LoopbackUnit, Any], None] | None = None,
+                   on_cycle: Any = None, **kw: Any) -> LoopbackUnit:
+    """A lockstep unit whose peripheral ``k`` is slow, not frozen: from interval ``at``
+    its replies are held back until it has been lost to silence, then they all come (it
+    had read the requests sent before its loss) and it answers again as it should.
+    ``then(unit, central)`` runs after each interval besides."""
+    holder: list[LoopbackUnit] = []
+    state = {"slow": False, "was": False}
+
+    def slow(central: Any, cycle: int, ctx: dict) -> None:
+        if on_cycle is not None:
+            on_cycle(central, cycle, ctx)
+        u = holder[0]
+        if cycle >= at and not state["was"]:
+            state["slow"] = state["was"] = True
+            u.muted.add(k)
+        if state["slow"] and k in central.takeover.lost:
+            state["slow"] = False
+            u.muted.discard(k)
+            for j, reply in u.withheld:
+                u.bus.put(u.node.keys.reply(j + 1), reply)
+            u.withheld.clear()
+        if then is not None:
+            then(u, central)
+
+    u = silenced(tag, {}, on_cycle=slow, **kw)
+    holder.append(u)
+    return u
+
+
+def test_a_peripheral_lost_to_silence_that_answers_after_all_brings_the_requests_back(
+        undisturbed):
+    """A silence that was slowness: the lost peripheral's replies come after its loss,
+    so it is alive and reading. The requests go out again, and every peripheral taken
+    over (the slow one and the two that stood by) serves its rounds again after
+    :data:`REJOIN_PARTS` current replies, the commands those of the undisturbed run."""
+    u = slow_then_back("toslow", 1, at=40)
+    c = u.run()
+    taken = c.takeover.report()
+    print(taken, c.takeover.resumes, c.late.taken_over)
+    assert u.commands() == undisturbed
+    assert c.takeover.resumes == 1 and c.intervals.requests_on
+    assert taken[0]["peripheral"] == 2 and "requests_again_at_interval" in taken[0]
+    assert sorted(d["peripheral"] for d in taken) == [1, 2, 3]
+    assert all(d["back_from_cycle"] > d["from_cycle"] for d in taken)
+    assert not c.takeover.lost and not c.takeover.on_probation
+    assert all(periph.served > 0 for _, periph in u.peripherals)
+    lines = "\n".join(_degraded_lines({"degraded": taken}))
+    assert "peripheral 2 answered after all: requests out again at interval" in lines
+
+
+def test_requests_that_went_out_again_stop_for_good_when_one_stays_silent(undisturbed):
+    """After the requests went out again, a peripheral taken over that does not answer
+    within the silence limit (here peripheral 3, silent from then on) may have stopped
+    reading them: they stop again for the rest of the run, those back since stand by
+    again, and the central computes every round; the commands are those of the
+    undisturbed run."""
+    def mute_third(u: LoopbackUnit, central: Any) -> None:
+        if central.takeover.resumes:
+            u.muted.add(2)
+
+    u = slow_then_back("toslow2", 1, at=40, then=mute_third)
+    c = u.run()
+    taken = c.takeover.report()
+    print(taken, c.takeover.resumes)
+    assert u.commands() == undisturbed
+    assert not c.intervals.requests_on and c.takeover.resumes == RESUMES  # none after it
+    assert "requests_stopped_again" in c.takeover.lost[2]
+    assert set(c.takeover.lost) == {0, 1, 2}
+    lines = "\n".join(_degraded_lines({"degraded": taken}))
+    assert "peripheral 3: requests stopped for good (no answer for" in lines
+
+
 def test_the_fault_policy_stops_the_run_naming_the_peripheral():
     """``peripheral_loss="fault"``: the silence is the fault it was before take-over."""
     u = silenced("tofault", {1: 30}, peripheral_loss="fault")
@@ -128,6 +204,19 @@ def test_a_recorded_take_over_replays_bit_for_bit(tmp_path):
     assert [d["peripheral"] for d in degraded] == [3, 1, 2]  # the others stand by
     assert computed and {m["peripheral"] for m in computed} == {0, 1, 2}
     assert len(computed) == c.late.taken_over
+    n, div = verify(rec)
+    assert div is None, div
+    assert n == c.done
+
+
+def test_requests_going_out_again_replay_bit_for_bit(tmp_path):
+    """A silence that was slowness, recorded: the loss, the rounds the central computed,
+    then every peripheral's replies again; ``replay --verify`` finds every command."""
+    c, rec = recorded(tmp_path / "slow.mcap",
+                      lambda **kw: slow_then_back("toslowrec", 0, at=30, **kw))
+    degraded = [m for _, m in rec.decoded("/faults/degraded")]
+    assert c.takeover.resumes == 1 and not c.takeover.lost
+    assert sorted(d["peripheral"] for d in degraded if "back_from_cycle" in d) == [1, 2, 3]
     n, div = verify(rec)
     assert div is None, div
     assert n == c.done

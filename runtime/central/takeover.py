@@ -20,8 +20,14 @@ and answers the requests it sees. Its replies are dropped, without being counted
 it, until :data:`REJOIN_PARTS` in a row have come for current intervals; from the next
 interval on (whose first request is not out yet) its rounds are its own again, and the
 central, which never waited for it, computes its part only of the intervals begun
-before. A peripheral lost to silence is not asked any more (the others stand by with it,
-see :meth:`TakeOver.take`), so it does not come back.
+before.
+
+A peripheral lost to silence is not asked any more, and the others stand by with it
+(:meth:`TakeOver.take`). If a reply of its own comes after all (it was slow, not frozen:
+it read the requests sent before its loss), it is alive and reading, so the requests go
+out again (at most :data:`RESUMES` times a run) and every peripheral taken over comes
+back as above. Until then each must answer within the silence limit: one that does not
+stops the requests again, for the rest of the run.
 """
 
 from __future__ import annotations
@@ -49,6 +55,9 @@ behind the newest begun."""
 CURRENT_BEHIND = 4
 DUE_KEPT = 64
 """Rounds whose late-data time is kept for judging a lost peripheral's replies."""
+RESUMES = 3
+"""How often in one run the requests go out again after a peripheral's silence, once a
+reply of its own shows it alive (:meth:`TakeOver.sift`)."""
 RESTARTS = 3
 """How often the launcher (``ctrlunit start``) starts a peripheral whose process exited
 anew in one run: a role that keeps failing costs the machine no more starts."""
@@ -94,6 +103,13 @@ class TakeOver:
         """Peripherals started anew that have not answered yet (then :meth:`sift` gives
         them the unit's scheduling policy)."""
         """Lost peripheral -> its current replies in a row (:data:`REJOIN_PARTS`)."""
+        self.resumes = 0
+        """How often the requests went out again after a silence (:data:`RESUMES`)."""
+        self.silent: int | None = None
+        """The peripheral whose silence stopped the requests, until a reply of its own."""
+        self.on_probation: dict[int, int] = {}
+        """While the requests go out again: each peripheral taken over -> when it last
+        answered (or the requests resumed)."""
         self.dropped_replies = 0
         """Replies of lost peripherals that came anyway (dropped, not counted against
         them)."""
@@ -121,6 +137,8 @@ class TakeOver:
             self.starting.add(k)
             restart(fault.process)  # it comes back once it answers (:meth:`sift`)
         if fault.lost == "silent":
+            self.silent = k if self.resumes < RESUMES and not self.on_probation else None
+            self.on_probation.clear()
             for j in range(self.intervals.settings.peripherals):
                 if j not in self.lost:
                     self._lose(j, f"stands by: peripheral {k + 1} fell silent, and a silent "
@@ -172,6 +190,7 @@ class TakeOver:
         if k in self.lost:
             self.lost[k]["replies_while_lost"] = self.lost[k].get("replies_while_lost", 0) \
                 + len(parts)
+            self._alive(k, rx or time.monotonic_ns(), done=done)
             promote = self.silence.supervision.promote
             if k in self.starting and promote is not None:
                 self.starting.discard(k)  # set up: it answers
@@ -189,6 +208,41 @@ class TakeOver:
                 self.silence.watch_again(k, time.monotonic_ns())
                 self._record(record, next_cycle)
         return kept
+
+    def _alive(self, k: int, now: int, *, done: int) -> None:
+        """Lost peripheral ``k`` answered at ``now``: on probation, noted; the one whose
+        silence stopped the requests, proved alive and reading: they go out again."""
+        if k in self.on_probation:
+            self.on_probation[k] = now
+        if k != self.silent or self.intervals.requests_on:
+            return
+        self.silent = None
+        self.resumes += 1
+        self.intervals.requests_on = True
+        self.on_probation = dict.fromkeys(self.lost, now)
+        self.lost[k]["requests_again_at_interval"] = done
+
+    def _probation(self, now: int, intervals: Collection[InFlight]) -> None:
+        """While the requests go out again: a peripheral taken over that has not answered
+        within the silence limit may have stopped reading them (its socket would fill
+        until the central's put waited: :meth:`take`), so they stop for the rest of the
+        run, and those back since stand by again."""
+        for j in [j for j in self.on_probation if j not in self.lost]:
+            del self.on_probation[j]
+        limit = self.silence.limit_ns(self.intervals.done)
+        quiet = sorted(j for j, heard in self.on_probation.items() if now - heard > limit)
+        if not quiet:
+            return
+        self.intervals.requests_on = False
+        self.resumes = RESUMES
+        self.on_probation.clear()
+        why = f"no answer for {limit / 1e6:.1f} ms after the requests went out again"
+        self.lost[quiet[0]]["requests_stopped_again"] = why
+        iv = self.intervals
+        for j in range(iv.settings.peripherals):
+            if j not in self.lost:
+                self._lose(j, f"stands by: peripheral {quiet[0] + 1} gave {why}", intervals,
+                           done=iv.done, next_cycle=iv.next_cycle)
 
     @property
     def covering(self) -> bool:
@@ -211,6 +265,8 @@ class TakeOver:
         be sent). Raises :class:`~.fault.Fault` where a round needs values only a lost
         peripheral held (a round run on values it kept from an earlier round)."""
         went_on = False
+        if self.on_probation:
+            self._probation(time.monotonic_ns(), intervals)
         for k in [k for k in self.settling if all(f.cycle >= self.back[k] for f in intervals)]:
             self.settling.discard(k)
         for f in list(intervals):
@@ -235,4 +291,4 @@ class TakeOver:
         return [dict(r) for r in self.history]
 
 
-__all__ = ["CURRENT_BEHIND", "REJOIN_PARTS", "RESTARTS", "TakeOver"]
+__all__ = ["CURRENT_BEHIND", "REJOIN_PARTS", "RESTARTS", "RESUMES", "TakeOver"]

@@ -71,6 +71,12 @@ def _degraded_lines(r: dict[str, Any]) -> list[str]:
             out.append(f"{head}peripheral {d['peripheral']} lost at interval {d['at_interval']}"
                        f" ({why[:160]}): the central computes its rounds from cycle "
                        f"{d['from_cycle']}")
+        if "requests_again_at_interval" in d:
+            out.append(f"{' ' * 14}peripheral {d['peripheral']} answered after all: requests "
+                       f"out again at interval {d['requests_again_at_interval']}")
+        if "requests_stopped_again" in d:
+            out.append(f"{' ' * 14}peripheral {d['peripheral']}: requests stopped for good "
+                       f"({d['requests_stopped_again']})")
         if "back_from_cycle" in d:
             out.append(f"{' ' * 14}peripheral {d['peripheral']} back at interval "
                        f"{d['back_at_interval']}: it serves its rounds again from cycle "
