@@ -58,11 +58,6 @@ class AxisIK(NamedTuple):
     ipz: float
 
 
-def _check_axis(axis: int) -> None:
-    if axis not in (0, 1, 2):
-        raise ValueError(f"axis must be 0, 1 or 2, got {axis!r}")
-
-
 def to_local(axis: int, x: float, y: float, z: float) -> Vec3:
     """``iR^T v`` (Eq. V.12): a world vector in the auxiliary frame of ``axis``."""
     c, s = _COS[axis], _SIN[axis]

@@ -15,21 +15,13 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
-from typing import Protocol, TypeGuard
+from typing import TypeGuard
 
 import numpy as np
 
 Vec3 = tuple[float, float, float]
 
 _QUAD_NODES = 256  # Gauss-Legendre nodes for arc length
-
-
-class Curve(Protocol):
-    """A curve parametrised by ``u`` in [0, 1]."""
-
-    def point(self, u: float) -> tuple[Vec3, Vec3, Vec3]:
-        """Position, first and second derivatives with respect to ``u``."""
-        ...
 
 
 @dataclass(frozen=True)

@@ -359,13 +359,6 @@ class Plant:
         inc = self.params.increment
         return [round(a / inc) for a in self.sensed_angles()]
 
-    def measured_angles(self) -> list[float]:
-        """Encoder readings converted to radians (quantised unless disabled)."""
-        if not self.config.quantise:
-            return self.sensed_angles()
-        inc = self.params.increment
-        return [c * inc for c in self.encoder_counts()]
-
     # -- diagnostics ----------------------------------------------------------------------
 
     def energy(self) -> float:

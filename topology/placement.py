@@ -59,13 +59,6 @@ class Placement:
         """Processors taking part, the central included (N of Eq. IV.23)."""
         return 1 + self.peripherals
 
-    def owner(self, axis: int) -> int | None:
-        """Peripheral index (0-based) owning ``axis``; None when n = 0."""
-        for k, group in enumerate(self.axes):
-            if axis in group:
-                return k
-        return None
-
     def to_dict(self) -> dict[str, Any]:
         return {
             "peripherals": self.peripherals,

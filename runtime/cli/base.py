@@ -20,8 +20,6 @@ import numpy as np
 
 from ...kernels.params import DELTA_IA, DeltaParams, load_params
 
-EXIT_USAGE = 2
-
 
 def _params(path: str | None) -> DeltaParams:
     return DELTA_IA if path is None else load_params(path)
