@@ -214,7 +214,7 @@ def test_readers_stopped_together_as_many_as_the_listener_admits(tmp_path, unit_
     and each link closed on a peer that does not read holds one of the process's Zenoh
     worker threads. Before 2026-11-28 the central had two, and such a lockstep run
     faulted about 12 s after the stop ("no sample from the plant for 2025.4 ms", exit 4);
-    now it runs one per admitted peer plus one, and the run completes."""
+    now it runs one per admitted peer plus two, and the run completes."""
     cycles = 16000  # about 25 s: the fault came 12 s after the stop, at 5 s in
     code, rep, out, readers = run_with_readers(
         tmp_path, f"stopped{int(keyed)}", ["view/**" if keyed else "**"] * 4,

@@ -115,8 +115,9 @@ def slow_then_back(tag: str, k: int, *, at: int,
             state["slow"] = False
             u.muted.discard(k)
             for j, reply in u.withheld:
-                u.bus.put(u.node.keys.reply(j + 1), reply)
-            u.withheld.clear()
+                if j == k:
+                    u.bus.put(u.node.keys.reply(j + 1), reply)
+            u.withheld[:] = [(j, reply) for j, reply in u.withheld if j != k]
         if then is not None:
             then(u, central)
 
@@ -207,6 +208,33 @@ def test_a_recorded_take_over_replays_bit_for_bit(tmp_path):
     n, div = verify(rec)
     assert div is None, div
     assert n == c.done
+
+
+def test_a_peripheral_whose_process_exited_is_not_on_probation(undisturbed):
+    """Peripheral 3's process exits at interval 30 (not started again), then peripheral 2
+    is slow at 80: the requests go out again once peripheral 2 answers after all, and the
+    two lost to that silence come back, while the exited one, which cannot answer, is not
+    held against them: it stays taken over, and the requests go on."""
+    state = {"dead": False}
+
+    def exit_third(u: LoopbackUnit, central: Any) -> None:
+        if central.done >= 30 and not state["dead"]:
+            state["dead"] = True
+            u.muted.add(2)
+
+    u = slow_then_back("toslowexit", 1, at=80, then=exit_third)
+    supervise(u.central, child_check=lambda skip=(): (
+        ("peripheral-3", -9) if state["dead"] and "peripheral-3" not in skip else None),
+        role_state=lambda role: "exited" if state["dead"] and role == "peripheral-3"
+        else "running")
+    c = u.run()
+    taken = c.takeover.report()
+    print(taken, c.takeover.resumes)
+    assert u.commands() == undisturbed
+    assert c.takeover.resumes == 1 and c.intervals.requests_on
+    assert set(c.takeover.lost) == {2} and "exited" in c.takeover.lost[2]["why"]
+    assert "requests_stopped_again" not in c.takeover.lost[2]
+    assert sorted(d["peripheral"] for d in taken if "back_from_cycle" in d) == [1, 2]
 
 
 def test_requests_going_out_again_replay_bit_for_bit(tmp_path):

@@ -259,22 +259,29 @@ def test_the_flood_rule_counts_malformed_messages_per_sender():
 def test_the_central_runs_a_zenoh_worker_per_admitted_peer_and_one(monkeypatch):
     """A TCP or TLS link Zenoh closes on a peer that stopped reading holds a worker thread
     (its close lingers): a session listening there (the central's) runs one per peer it
-    admits plus one, one that only connects or listens on a unix socket two; a runtime the
-    user's environment sets wins, one make_config set (a launcher's, inherited by its
-    roles) is replaced."""
+    admits, one for a ROS 2 router's link and one free; one that only connects or
+    listens on a unix socket two. A runtime the user's environment sets wins, even one
+    written as make_config writes its own (docs/message-costs.md shows that form); one
+    make_config set (a launcher's, inherited by its roles) is replaced."""
     from ctrlunit.runtime.transport.limits import Limits
-    from ctrlunit.runtime.transport.zsession import runtime_workers, set_runtime, zenoh_runtime
+    from ctrlunit.runtime.transport.zsession import (
+        RUNTIME_MARK,
+        runtime_workers,
+        set_runtime,
+        zenoh_runtime,
+    )
 
-    assert runtime_workers(["tcp/127.0.0.1:7447"], Limits(max_sessions=8)) == 9
-    assert runtime_workers(["tcp/127.0.0.1:7447"], Limits()) == 17
-    assert runtime_workers(["tls/127.0.0.1:7447"], Limits()) == 17
+    assert runtime_workers(["tcp/127.0.0.1:7447"], Limits(max_sessions=8)) == 10
+    assert runtime_workers(["tls/127.0.0.1:7447"], Limits()) == 18
     assert runtime_workers(None, Limits(max_sessions=64)) == 2
     assert runtime_workers(["unixsock-stream//tmp/x/central.sock"], Limits()) == 2
     monkeypatch.delenv("ZENOH_RUNTIME", raising=False)
-    set_runtime(17)
-    assert os.environ["ZENOH_RUNTIME"].endswith("app: (worker_threads: 17))")
+    monkeypatch.delenv(RUNTIME_MARK, raising=False)
+    set_runtime(18)
+    assert os.environ["ZENOH_RUNTIME"] == zenoh_runtime(18)
     set_runtime(2)  # a role started by the launcher: the launcher's value is replaced
     assert os.environ["ZENOH_RUNTIME"] == zenoh_runtime(2)
-    monkeypatch.setenv("ZENOH_RUNTIME", "(app: (worker_threads: 3))")
-    set_runtime(17)
-    assert os.environ["ZENOH_RUNTIME"] == "(app: (worker_threads: 3))"
+    for users in ("(app: (worker_threads: 3))", zenoh_runtime(1)):
+        monkeypatch.setenv("ZENOH_RUNTIME", users)
+        set_runtime(18)
+        assert os.environ["ZENOH_RUNTIME"] == users

@@ -286,6 +286,7 @@ class Central:
                                    done=self.done, plant_awaited=plant_awaited,
                                    newest_sample=self.intake.newest_sample,
                                    started_ns=self.meters.t_start_ns)
+                self.takeover.probation(time.monotonic_ns())
             self.silence.check_children()
         except Fault as fault:
             if not self.takeover.take(fault, self.inflight.values(), done=self.done,

@@ -107,6 +107,9 @@ class TakeOver:
         """How often the requests went out again after a silence (:data:`RESUMES`)."""
         self.silent: int | None = None
         """The peripheral whose silence stopped the requests, until a reply of its own."""
+        self.quiet: set[int] = set()
+        """Peripherals lost to that silence: the silent one and those that stood by (one
+        whose process exited comes back as a restarted one does, not on probation)."""
         self.on_probation: dict[int, int] = {}
         """While the requests go out again: each peripheral taken over -> when it last
         answered (or the requests resumed)."""
@@ -137,10 +140,15 @@ class TakeOver:
             self.starting.add(k)
             restart(fault.process)  # it comes back once it answers (:meth:`sift`)
         if fault.lost == "silent":
-            self.silent = k if self.resumes < RESUMES and not self.on_probation else None
-            self.on_probation.clear()
+            if self.on_probation or self.resumes >= RESUMES:  # the requests stop for good
+                self._for_good(k, "silent again after the requests went out again"
+                               if self.on_probation else f"they went out again {RESUMES} "
+                               "times already")
+            self.silent = k if self.resumes < RESUMES else None
+            self.quiet = {k}
             for j in range(self.intervals.settings.peripherals):
                 if j not in self.lost:
+                    self.quiet.add(j)
                     self._lose(j, f"stands by: peripheral {k + 1} fell silent, and a silent "
                                "process may have stopped reading the requests they share",
                                intervals, done=done, next_cycle=next_cycle)
@@ -211,7 +219,8 @@ class TakeOver:
 
     def _alive(self, k: int, now: int, *, done: int) -> None:
         """Lost peripheral ``k`` answered at ``now``: on probation, noted; the one whose
-        silence stopped the requests, proved alive and reading: they go out again."""
+        silence stopped the requests, proved alive and reading: they go out again (and
+        the recording says so)."""
         if k in self.on_probation:
             self.on_probation[k] = now
         if k != self.silent or self.intervals.requests_on:
@@ -219,30 +228,46 @@ class TakeOver:
         self.silent = None
         self.resumes += 1
         self.intervals.requests_on = True
-        self.on_probation = dict.fromkeys(self.lost, now)
+        self.on_probation = dict.fromkeys(self.quiet & self.lost.keys(), now)
         self.lost[k]["requests_again_at_interval"] = done
+        self._record(self.lost[k], self.intervals.next_cycle)
 
-    def _probation(self, now: int, intervals: Collection[InFlight]) -> None:
-        """While the requests go out again: a peripheral taken over that has not answered
-        within the silence limit may have stopped reading them (its socket would fill
-        until the central's put waited: :meth:`take`), so they stop for the rest of the
-        run, and those back since stand by again."""
-        for j in [j for j in self.on_probation if j not in self.lost]:
-            del self.on_probation[j]
-        limit = self.silence.limit_ns(self.intervals.done)
-        quiet = sorted(j for j, heard in self.on_probation.items() if now - heard > limit)
-        if not quiet:
-            return
+    def _for_good(self, k: int, why: str) -> None:
+        """The requests stop for the rest of the run (``why``, on peripheral ``k``'s
+        record, and in the recording)."""
         self.intervals.requests_on = False
         self.resumes = RESUMES
         self.on_probation.clear()
+        self.silent = None
+        record = self.lost.get(k) or {"peripheral": k + 1}
+        record["requests_stopped_again"] = why
+        self._record(record, self.intervals.next_cycle)
+
+    def probation(self, now: int) -> None:
+        """While the requests go out again (the silence watch's turn, once the inbox is
+        read): a peripheral taken over that has not answered within the silence limit,
+        the central's own stalls and the plant's shared silence allowed as the silence
+        rule allows them (:meth:`~.silence.SilenceWatch.fault_at`), may have stopped
+        reading them (its socket would fill until the central's put waited:
+        :meth:`take`), so they stop for the rest of the run, and those back since stand
+        by again."""
+        if not self.on_probation:
+            return
+        for j in [j for j in self.on_probation if j not in self.lost]:
+            del self.on_probation[j]
+        limit = self.silence.limit_ns(self.intervals.done)
+        quiet = sorted(j for j, heard in self.on_probation.items()
+                       if now > self.silence.fault_at(heard, now, limit))
+        if not quiet:
+            return
         why = f"no answer for {limit / 1e6:.1f} ms after the requests went out again"
-        self.lost[quiet[0]]["requests_stopped_again"] = why
+        self._for_good(quiet[0], why)
         iv = self.intervals
         for j in range(iv.settings.peripherals):
             if j not in self.lost:
-                self._lose(j, f"stands by: peripheral {quiet[0] + 1} gave {why}", intervals,
-                           done=iv.done, next_cycle=iv.next_cycle)
+                self._lose(j, f"stands by: peripheral {quiet[0] + 1} gave {why}",
+                           iv.inflight.values(), done=iv.done, next_cycle=iv.next_cycle)
+        self.cover(iv.inflight.values())
 
     @property
     def covering(self) -> bool:
@@ -265,8 +290,6 @@ class TakeOver:
         be sent). Raises :class:`~.fault.Fault` where a round needs values only a lost
         peripheral held (a round run on values it kept from an earlier round)."""
         went_on = False
-        if self.on_probation:
-            self._probation(time.monotonic_ns(), intervals)
         for k in [k for k in self.settling if all(f.cycle >= self.back[k] for f in intervals)]:
             self.settling.discard(k)
         for f in list(intervals):

@@ -267,7 +267,7 @@ class TransportConfig:
         lim.MAX_SESSIONS, bounds=(5, 64), allowed="5 to 64 peers",
         help="Most Zenoh peers this process holds at once (transport/unicast/max_sessions): "
         "the plant, the peripherals and a few observers. A central listening on TCP or TLS "
-        "runs one Zenoh worker thread per peer plus one, so that peers that all stop "
+        "runs one Zenoh worker thread per peer plus two, so that peers that all stop "
         "reading at once cannot hold every one.")
     accept_pending: int = setting(
         lim.ACCEPT_PENDING, bounds=(1, 1000), allowed="1 to 1000 handshakes",

@@ -206,11 +206,6 @@ class Keys:
         return f"{self.root}/{role}/control"
 
 
-RUNTIME_POOL = ("(rx: (handover: app), tx: (handover: app), acc: (handover: app), "
-                "net: (handover: app), app: (worker_threads: ")
-"""``ZENOH_RUNTIME`` up to its number of worker threads (:func:`zenoh_runtime`)."""
-
-
 def zenoh_runtime(workers: int) -> str:
     """Zenoh's asynchronous runtimes (receive, transmit, accept, network, application) as
     one pool of ``workers`` threads. By default each is a pool of its own, and a message
@@ -218,7 +213,8 @@ def zenoh_runtime(workers: int) -> str:
     side (docs/message-costs.md): a round trip between two processes 30-50 % faster at
     the median and 35-45 % less CPU; the main job at a fixed 2 ms, 3-12 % less CPU per
     interval, misses no worse; one worker and two alike."""
-    return f"{RUNTIME_POOL}{int(workers)}))"
+    return ("(rx: (handover: app), tx: (handover: app), acc: (handover: app), "
+            f"net: (handover: app), app: (worker_threads: {int(workers)}))")
 
 
 def runtime_workers(listen: list[str] | None, limits: Limits) -> int:
@@ -230,20 +226,30 @@ def runtime_workers(listen: list[str] | None, limits: Limits) -> int:
     TLS (the central's, with keys or ``--listen tcp/...``) admits up to
     ``limits.max_sessions`` peers, every one of which may stop together (four stopped
     readers held both workers the central had until 2026-11-28, and the run faulted): it
-    runs one per admitted peer plus one, so that a worker is always free to receive. A
-    unix socket's close does not linger: two."""
+    runs one per admitted peer, one for the ROS 2 router's link (``--ros2``: a session of
+    its own in the same process, on the same workers) and one free to receive. A unix
+    socket's close does not linger: two."""
     lingering = any(e.split("/", 1)[0] in ("tcp", "tls") for e in listen or [])
-    return limits.max_sessions + 1 if lingering else 2
+    return limits.max_sessions + 2 if lingering else 2
+
+
+RUNTIME_MARK = "CTRLUNIT_ZENOH_RUNTIME"
+"""The ``ZENOH_RUNTIME`` value :func:`set_runtime` wrote, so that it knows its own (a
+launcher's, inherited by the roles it starts) from the user's."""
 
 
 def set_runtime(workers: int) -> None:
     """Set ``ZENOH_RUNTIME`` to :func:`zenoh_runtime` of ``workers`` for this process and
     its children (read when a process opens its first session), unless the user's
-    environment sets a runtime of its own: a user's setting wins. A value this function
-    wrote (a launcher's, inherited by the roles it starts) is replaced."""
+    environment sets a runtime of its own: a user's setting wins, whatever it says. A
+    value this function wrote (:data:`RUNTIME_MARK`) is replaced; the environment is
+    written only when the value changes."""
     current = os.environ.get("ZENOH_RUNTIME")
-    if current is None or current.startswith(RUNTIME_POOL):
-        os.environ["ZENOH_RUNTIME"] = zenoh_runtime(workers)
+    if current is not None and current != os.environ.get(RUNTIME_MARK):
+        return
+    want = zenoh_runtime(workers)
+    if current != want:
+        os.environ["ZENOH_RUNTIME"] = os.environ[RUNTIME_MARK] = want
 
 
 @functools.cache
