@@ -176,8 +176,11 @@ def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of
     busy put the roles under FIFO at their priority again; a busy window in between
     starts the count again; at most max_restores times."""
     calls: list[tuple[list[int], int]] = []
-    monkeypatch.setattr(busy_guard, "demote", lambda pids, priority=0:
-                        calls.append((list(pids), priority)) or list(pids))
+    skipped: list[set[int]] = []
+    monkeypatch.setattr(busy_guard, "demote", lambda pids, priority=0, skip=():
+                        skipped.append(set(skip)) or calls.append((list(pids), priority))
+                        or list(pids))
+    monkeypatch.setattr(busy_guard, "default_threads", lambda pids: {77})  # an observer's
     busy = [0]  # cumulative busy ticks of CPU 0; 100 ticks a window
     now = [0.0]
 
@@ -204,6 +207,7 @@ def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of
     assert len(calls) == 1
     window(0.5, 9)  # the fourth calm window in a row
     assert calls[-1] == ([11], 10) and guard.fifo and "SCHED_FIFO 10 again" in said[-1]
+    assert skipped[-1] == {77}  # the threads under the default policy at the fall-back stay
     window(0.96, 10)  # busy under FIFO again: back to the default
     assert calls[-1] == ([11], 0) and not guard.fifo
     for c in range(11, 15):
@@ -248,7 +252,7 @@ def _windows_guard(monkeypatch, **kw):
     ``share`` of 200 ticks in 0.5 s (the reference kernel's 250 Hz tick accounting gives
     125; finer here so that shares are exact) and calls the guard."""
     demoted: list[list[int]] = []
-    monkeypatch.setattr(busy_guard, "demote", lambda pids, priority=0:
+    monkeypatch.setattr(busy_guard, "demote", lambda pids, priority=0, skip=():
                         demoted.append(list(pids)) or list(pids))
     busy, now, stale = [0], [0.0], [False]
     shown = [(0, 0)]
@@ -319,7 +323,7 @@ def test_the_sustained_rule_reads_at_least_one_window() -> None:
 
 def test_a_busy_guard_without_a_priority_never_goes_back_to_fifo(monkeypatch) -> None:
     calls: list[int] = []
-    monkeypatch.setattr(busy_guard, "demote", lambda pids, priority=0:
+    monkeypatch.setattr(busy_guard, "demote", lambda pids, priority=0, skip=():
                         calls.append(priority) or list(pids))
     readings = iter([[(0, 0)], [(100, 100)]] + [[(100 + 10 * k, 100 + 100 * k)]
                                                 for k in range(1, 10)])
@@ -404,6 +408,39 @@ def test_the_live_views_thread_leaves_fifo_and_leaves_it_again_after_a_restore()
         "print(json.dumps(seen))\n")
     assert got == {"first": "SCHED_OTHER", "restored": "SCHED_FIFO 7", "again": "SCHED_OTHER",
                    "main": "SCHED_FIFO 7"}
+
+
+def test_a_return_to_fifo_leaves_the_threads_that_chose_the_default_policy() -> None:
+    """The throttling guard's fall-back puts every thread of the unit under the default
+    policy, and its return puts them back under FIFO, but not those that were under the
+    default policy when it fell back (an observer's thread, a library's server): only
+    the threads that were real-time become real-time again."""
+    if not sched.fifo_permitted():
+        pytest.skip("this process may not use SCHED_FIFO")
+    code = ("import os, threading, time\n"
+            "from ctrlunit.runtime.host import sched\n"
+            "sched.apply_rt(3)\n"
+            "def observer():\n"
+            "    sched.leave_rt(); time.sleep(30)\n"
+            "threading.Thread(target=observer, daemon=True).start()\n"
+            "time.sleep(0.1)\n"
+            "print('ready', flush=True)\n"
+            "time.sleep(30)\n")
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "ready"
+        kept = sched.default_threads([child.pid, 2 ** 22 + 1])
+        assert len(kept) == 1 and child.pid not in kept  # the observer's thread alone
+        sched.demote([child.pid])  # the fall-back
+        tids = [int(t) for t in os.listdir(f"/proc/{child.pid}/task")]
+        assert {sched.policy_name(t) for t in tids} == {"SCHED_OTHER"}
+        sched.demote([child.pid], priority=3, skip=kept)  # the return
+        got = {t: sched.policy_name(t) for t in tids}
+        assert got[child.pid] == "SCHED_FIFO 3"
+        assert {got[t] for t in kept} == {"SCHED_OTHER"}
+    finally:
+        child.kill()
+        child.wait(timeout=10)
 
 
 def test_policy_reaches_threads_started_later_and_is_restored() -> None:

@@ -9,7 +9,7 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from .sched import busy_share, cpu_times, demote
+from .sched import busy_share, cpu_times, default_threads, demote
 from .unit_load import UnitLoad
 
 DEMOTE_BUSY_SHARE = 0.95
@@ -109,6 +109,9 @@ class BusyGuard:
         """The busiest CPU's share in the newest windows (the fall-back's event keeps them:
         how the load came to the limit)."""
         self._calm = 0  # consecutive windows under the restore limit, under the default
+        self._kept_default: set[int] = set()
+        """Threads under the default policy when the guard fell back (an observer's, the
+        recording's writer, a library's server): the return to FIFO leaves them there."""
         self._t = 0.0
         self._last: list[tuple[float, float]] | None = None  # the first call starts the window
         # the readings that began the newest windows: the sustained share
@@ -145,7 +148,7 @@ class BusyGuard:
         self._calm = self._calm + 1 if share <= self.restore_limit else 0
         if (self._calm >= self.restore_windows and self.priority
                 and self.restores < self.max_restores):
-            demote(self.pids(), priority=self.priority)
+            demote(self.pids(), priority=self.priority, skip=self._kept_default)
             self.fifo, self._calm = True, 0
             self.changes.append({"cycle": cycle, "busy_share": share, "policy": "fifo"})
             if self.say is not None:
@@ -157,7 +160,9 @@ class BusyGuard:
         """Every role under the default policy: ``why`` is ``budget`` (the newest window
         alone over the budget) or ``sustained`` (``share`` is the newest ``sustain``
         windows' together, over the limit)."""
-        demoted = demote(self.pids())
+        pids = self.pids()
+        self._kept_default = default_threads(pids)  # an observer's: they stay there
+        demoted = demote(pids)
         self._starts.clear()
         self.fifo, self._calm = False, 0
         self.changes.append({"cycle": cycle, "busy_share": share, "policy": "default"})

@@ -35,7 +35,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from typing import Any
 
 MAX_PRIORITY = 99
@@ -228,10 +228,11 @@ def apply_choice(asked: int | str, *, clock: str, admission: bool,
     return policy, {"asked": asked, "priority": priority, "why": why, "budget": budget}
 
 
-def demote(pids: Iterable[int], *, priority: int = 0) -> list[int]:
+def demote(pids: Iterable[int], *, priority: int = 0,
+           skip: Collection[int] = ()) -> list[int]:
     """Every thread of each process in ``pids`` under the default policy, or with
-    ``priority`` 1-99 under SCHED_FIFO at it; the pids whose threads could be reached (a
-    process that has exited is skipped)."""
+    ``priority`` 1-99 under SCHED_FIFO at it, but the threads ``skip`` names; the pids
+    whose threads could be reached (a process that has exited is skipped)."""
     done = []
     policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
     param = os.sched_param(priority)
@@ -241,10 +242,29 @@ def demote(pids: Iterable[int], *, priority: int = 0) -> list[int]:
         except OSError:
             continue
         for tid in tids:
+            if tid in skip:
+                continue
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.sched_setscheduler(tid, policy, param)
         done.append(pid)
     return done
+
+
+def default_threads(pids: Iterable[int]) -> set[int]:
+    """The threads of the processes in ``pids`` under the default policy (not real-time):
+    those that chose it, such as an observer's or the recording's writer (:func:`leave_rt`),
+    which a return to SCHED_FIFO leaves where they are."""
+    out = set()
+    for pid in pids:
+        try:
+            tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+        except OSError:
+            continue
+        for tid in tids:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                if not fifo_in_force(tid):
+                    out.add(tid)
+    return out
 
 
 def apply_rt(priority: int) -> str:
