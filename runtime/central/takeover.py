@@ -256,16 +256,16 @@ class TakeOver:
         for j in [j for j in self.on_probation if j not in self.lost]:
             del self.on_probation[j]
         limit = self.silence.limit_ns(self.intervals.done)
-        quiet = sorted(j for j, heard in self.on_probation.items()
-                       if now > self.silence.fault_at(heard, now, limit))
-        if not quiet:
+        unheard = sorted(j for j, heard in self.on_probation.items()
+                         if now > self.silence.fault_at(heard, now, limit))
+        if not unheard:
             return
         why = f"no answer for {limit / 1e6:.1f} ms after the requests went out again"
-        self._for_good(quiet[0], why)
+        self._for_good(unheard[0], why)
         iv = self.intervals
         for j in range(iv.settings.peripherals):
             if j not in self.lost:
-                self._lose(j, f"stands by: peripheral {quiet[0] + 1} gave {why}",
+                self._lose(j, f"stands by: peripheral {unheard[0] + 1} gave {why}",
                            iv.inflight.values(), done=iv.done, next_cycle=iv.next_cycle)
         self.cover(iv.inflight.values())
 
