@@ -212,9 +212,10 @@ def test_readers_stopped_together_as_many_as_the_listener_admits(tmp_path, unit_
     listener admitting no more (``transport.max_sessions`` 8: the plant, three
     peripherals and these four). Zenoh closes their links when their keep-alives stop,
     and each link closed on a peer that does not read holds one of the process's Zenoh
-    worker threads. Before 2026-11-28 the central had two, and such a lockstep run
-    faulted about 12 s after the stop ("no sample from the plant for 2025.4 ms", exit 4);
-    now it runs one per admitted peer plus two, and the run completes."""
+    worker threads. With two in the central such a lockstep run faulted about 12 s after
+    the stop ("no sample from the plant for 2025.4 ms", exit 4;
+    docs/measurements/2026-11-28-stopped-readers.md); it runs one per admitted peer plus
+    two, and the run completes."""
     cycles = 16000  # about 25 s: the fault came 12 s after the stop, at 5 s in
     code, rep, out, readers = run_with_readers(
         tmp_path, f"stopped{int(keyed)}", ["view/**" if keyed else "**"] * 4,

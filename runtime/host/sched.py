@@ -237,9 +237,8 @@ def demote(pids: Iterable[int], *, priority: int = 0,
     policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
     param = os.sched_param(priority)
     for pid in pids:
-        try:
-            tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
-        except OSError:
+        tids = _tids_of(pid)
+        if tids is None:
             continue
         for tid in tids:
             if tid in skip:
@@ -256,15 +255,19 @@ def default_threads(pids: Iterable[int]) -> set[int]:
     which a return to SCHED_FIFO leaves where they are."""
     out = set()
     for pid in pids:
-        try:
-            tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
-        except OSError:
-            continue
-        for tid in tids:
+        for tid in _tids_of(pid) or ():
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 if not fifo_in_force(tid):
                     out.add(tid)
     return out
+
+
+def _tids_of(pid: int) -> list[int] | None:
+    """The threads of process ``pid``; None once it has exited."""
+    try:
+        return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except OSError:
+        return None
 
 
 def apply_rt(priority: int) -> str:

@@ -225,7 +225,7 @@ def runtime_workers(listen: list[str] | None, limits: Limits) -> int:
     only connects has one link, and two workers keep one free. One that listens on TCP or
     TLS (the central's, with keys or ``--listen tcp/...``) admits up to
     ``limits.max_sessions`` peers, every one of which may stop together (four stopped
-    readers held both workers the central had until 2026-11-28, and the run faulted): it
+    readers held both workers of a central that had two, and the run faulted): it
     runs one per admitted peer, one for the ROS 2 router's link (``--ros2``: a session of
     its own in the same process, on the same workers) and one free to receive. A unix
     socket's close does not linger: two."""
