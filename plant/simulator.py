@@ -38,17 +38,17 @@ from .limits import (
 _FREE: list[float | None] = [None, None, None]
 """:attr:`Plant.at_stop` while no arm rests at a stop."""
 
-MAX_SUBSTEP_S = 5e-4
+MAX_SUBSTEP_S = 1e-3
 """Longest RK4 sub-step (s) of the rigid plant when no sub-step count is given.
 
-Measured against sub-steps 40 times shorter: in closed loop (pick & place, resolved
-acceleration, depth 2, at 1 and 2 ms) the platform paths differ by 0.26 nm at 0.5 ms and
-0.016 nm at 0.25 ms, both far below one encoder increment; in free fall (the harshest
-case, arms swinging at full speed) the energy drifts by 1e-4 of |E| over 2 s at 0.5 ms,
-6e-6 at 0.25 ms, 1.6e-7 at 0.1 ms. A 1 ms period takes 2 sub-steps: the plant is the
-costliest process of a realtime run, and with sub-steps of 0.5 ms instead of 0.25 ms the
-main job at 2 ms missed 0-6 deadlines in 199 periods instead of 20-61, spending 2.7-3.0 ms
-of CPU per interval instead of 3.3-3.5 (docs/measurements/2026-11-23-realtime.md).
+What the plant must get right is what its encoders see. Measured against sub-steps 40
+times shorter, in closed loop (pick & place, resolved acceleration, 600 periods of 1 ms):
+the platform paths differ by 3.6 nm at 1 ms and 0.22 nm at 0.5 ms, against an encoder
+increment of 8 um at the arm's tip, and the commands come out the same. In free fall (the
+harshest case, arms swinging at full speed, no stops) the energy drifts by 1.6e-3 of |E|
+over 2 s at 1 ms, 1e-4 at 0.5 ms, 1.6e-7 at 0.1 ms (RK4's h^4). The plant is the costliest
+process but one of a realtime run: one sub-step of 1 ms instead of two of 0.5 ms took its
+CPU per interval at a 2 ms period from 829 to 600 us (docs/measurements/2026-11-28-cpu.md).
 ``--plant-substeps`` asks for more."""
 
 MAX_SUBSTEP_BELT_S = 1e-4
