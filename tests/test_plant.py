@@ -269,3 +269,24 @@ def test_written_out_solve_gives_the_loops_bits_and_raises_where_it_raised():
         got = _solve3(a, b)
         assert [_bits(v) for v in got] == [_bits(v) for v in want], (a, b)
     assert 100 < raised < 10_000  # both paths were taken
+
+
+def test_fast_arms_take_more_substeps_where_none_were_asked_for():
+    """Full torque on one arm with no stops flings the others to about 145 rad/s. The turn
+    rule (plant/simulator.py ``MAX_TURN_RAD``) keeps 300 periods of it within 0.05 rad of
+    a run 40 times finer; sub-steps of 1 ms alone end far off."""
+    def fling(substeps: int | None) -> list[float]:
+        plant = Plant(P, PlantConfig(substeps=substeps, arm_stops=None))
+        plant.set_command([-P.tau_max, 0.0, 0.0])
+        for _ in range(300):
+            plant.step()
+        assert plant.fault is None
+        return plant.state.q
+
+    fine, auto, coarse = fling(40), fling(None), fling(1)
+    off = max(abs(a - b) for a, b in zip(auto, fine))
+    off_coarse = max(abs(a - b) for a, b in zip(coarse, fine))
+    print(f"after 300 periods: {off:.3f} rad from the fine run with the rule, "
+          f"{off_coarse:.3f} rad with 1 ms sub-steps")
+    assert off < 0.05
+    assert off_coarse > 4 * off
