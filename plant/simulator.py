@@ -34,42 +34,10 @@ from .limits import (
     singular_message,
     stop_message,
 )
+from .substeps import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S, substeps_for
 
 _FREE: list[float | None] = [None, None, None]
 """:attr:`Plant.at_stop` while no arm rests at a stop."""
-
-MAX_SUBSTEP_S = 1e-3
-"""Longest RK4 sub-step (s) of the rigid plant when no sub-step count is given; shorter
-where an arm turns fast (:data:`MAX_TURN_RAD`).
-
-What the plant must get right is what its encoders see. Against sub-steps 40 times
-shorter, in closed loop at 1 ms (resolved acceleration): over 600 periods of pick & place
-the platform paths differ by 3.6 nm at 1 ms and 0.22 nm at 0.5 ms, against an encoder
-increment of 8 um at the arm's tip, and the commands come out the same; over 3000
-periods, once an encoder reading flips, 3.5 um at 1 ms and 3.0 um at 0.5 ms (pick &
-place, arms up to 18 rad/s), 57 and 38 um (the circle at 10 m/s, arms up to 46 rad/s),
-with tracking errors of 6.6 um and 8.3 mm. In free fall (no stops) the energy drifts by
-1.6e-3 of |E| over 2 s at 1 ms, 1e-4 at 0.5 ms, 1.6e-7 at 0.1 ms (RK4's h^4). Alternated
-at a 2 ms period, sub-steps of 1 ms instead of 0.5 ms took the plant's CPU per interval
-from 829 to 600 us (docs/measurements/2026-11-28-cpu.md). ``--plant-substeps`` fixes the
-count."""
-
-MAX_TURN_RAD = 0.05
-"""Largest angle (rad) an arm may turn in one automatic sub-step, at its rate when the
-period starts: a period of fast motion takes more sub-steps. Full torque on one arm with
-no stops flings the others to 145 rad/s; 300 periods of it end 0.44 rad from a run 40
-times finer with sub-steps of 1 ms, 0.018 rad with 0.5 ms (600 sub-steps), and 0.018 rad
-with this rule (517 sub-steps; 0.02 rad: 4.5e-4 rad in 1074). The tasks' motions (arms up
-to 46 rad/s) keep 1 ms."""
-
-MAX_AUTO_SUBSTEPS = 64
-"""Most sub-steps of one period the turn rule asks for."""
-
-MAX_SUBSTEP_BELT_S = 1e-4
-"""Longest sub-step (s) with the elastic belt: its resonance (about 180 Hz, k_e = 8080
-N m/rad against the motor inertia) needs it; at 0.25 ms one open-loop run is already
-0.65 um off, at 0.1 ms 0.015 um."""
-
 
 class PlantConfigError(ValueError):
     """A plant option is out of range; the message names it."""
@@ -354,14 +322,13 @@ class Plant:
     def step(self) -> None:
         """Advance one control period with the current command (RK4 sub-steps, then one
         projection onto the constraints): :attr:`PlantConfig.n_substeps` of them, more
-        where an arm turns fast (:data:`MAX_TURN_RAD`) unless the count was given."""
+        where an arm turns fast (:func:`~.substeps.substeps_for`) unless the count was
+        given."""
         cfg = self.config
         n = cfg.n_substeps
-        if cfg.substeps is None:  # the turn rule (MAX_TURN_RAD)
+        if cfg.substeps is None:  # the turn rule (plant/substeps.py)
             s = self.state
-            rate = max(map(abs, s.motor_d + s.qd if cfg.belt else s.qd))
-            if rate * cfg.period > n * MAX_TURN_RAD:
-                n = min(MAX_AUTO_SUBSTEPS, math.ceil(rate * cfg.period / MAX_TURN_RAD))
+            n = substeps_for(cfg.period, n, s.motor_d + s.qd if cfg.belt else s.qd)
         h = cfg.period / n
         for _ in range(n):
             self.substep(h)

@@ -273,7 +273,7 @@ def test_written_out_solve_gives_the_loops_bits_and_raises_where_it_raised():
 
 def test_fast_arms_take_more_substeps_where_none_were_asked_for():
     """Full torque on one arm with no stops flings the others to about 145 rad/s. The turn
-    rule (plant/simulator.py ``MAX_TURN_RAD``) keeps 300 periods of it within 0.05 rad of
+    rule (plant/substeps.py) keeps 300 periods of it within 0.05 rad of
     a run 40 times finer; sub-steps of 1 ms alone end far off."""
     def fling(substeps: int | None) -> list[float]:
         plant = Plant(P, PlantConfig(substeps=substeps, arm_stops=None))
@@ -290,3 +290,13 @@ def test_fast_arms_take_more_substeps_where_none_were_asked_for():
           f"{off_coarse:.3f} rad with 1 ms sub-steps")
     assert off < 0.05
     assert off_coarse > 4 * off
+
+
+def test_the_turn_rule_keeps_the_base_count_and_caps_its_own():
+    from ctrlunit.plant.substeps import MAX_AUTO_SUBSTEPS, substeps_for
+
+    assert substeps_for(1e-3, 1, [46.0, -20.0, 0.0]) == 1  # the circle task's fastest arm
+    assert substeps_for(1e-3, 1, [0.0, -145.0, 0.0]) == 3
+    assert substeps_for(2e-3, 2, [60.0, 0.0, 0.0]) == 3
+    assert substeps_for(2e-3, 2, [10.0, 0.0, 0.0]) == 2
+    assert substeps_for(1e-3, 1, [1e9, 0.0, 0.0]) == MAX_AUTO_SUBSTEPS

@@ -18,7 +18,7 @@ import os
 import secrets
 from dataclasses import dataclass
 
-from ...plant.simulator import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S
+from ...plant.substeps import MAX_SUBSTEP_BELT_S, MAX_SUBSTEP_S
 from ...topology.graph import LAWS, MODEL_STATES
 from ...topology.pipeline import HOLD_RULES
 from ..host.idle import IDLE_CHOICES
