@@ -147,3 +147,22 @@ def test_the_machines_load_is_a_growing_pressure_total_in_ns_and_a_count_or_unkn
         return
     assert second.pressure_ns is not None and second.pressure_ns >= first.pressure_ns
     assert first.pressure_ns % 1000 == 0  # the kernel counts microseconds
+
+
+def test_the_kept_pressure_file_reads_what_the_kernel_counts_now(child):
+    """The pressure file stays open and is read from its start each time: the total it
+    gives grows when more tasks want a CPU than the machine has (three busy children per
+    CPU for 0.6 s), as the file opened anew says."""
+    from ctrlunit.runtime.roles.supervise import cpu_pressure_ns
+
+    before = cpu_pressure_ns()
+    if before is None:
+        pytest.skip("no CPU pressure information on this kernel")
+    busy = "import time\nt = time.monotonic()\nwhile time.monotonic() - t < 0.6: pass"
+    for p in [child(busy) for _ in range(3 * (os.cpu_count() or 1))]:
+        p.wait(timeout=30)
+    kept = cpu_pressure_ns()
+    with open("/proc/pressure/cpu") as fh:
+        fresh = int(fh.readline().rsplit("total=", 1)[1]) * 1000
+    assert kept is not None and kept - before > 50 * MS
+    assert 0 <= fresh - kept < 50 * MS  # read just after: the same count, give or take
