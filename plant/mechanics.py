@@ -91,8 +91,8 @@ def body_constants(params: DeltaParams, *, arm_inertia: float | None = None) -> 
 def _solve3(a: list[list[float]], b: Vec) -> Vec:
     """Solve a 3x3 system by Gaussian elimination with partial pivoting (the first row of
     largest magnitude is the pivot), written out: the same operations in the same order as
-    the loop over columns it replaces, so the same bits, at a quarter of its cost (the
-    plant projects once a period)."""
+    the loop over columns it replaces, so the same bits (a NaN's sign aside) and the same
+    ZeroDivisionError, at about a fifth of its cost (the plant projects once a period)."""
     r0, r1, r2 = a[0] + [b[0]], a[1] + [b[1]], a[2] + [b[2]]
     # column 0: the pivot as max(key=abs) picks it (NaN included)
     piv, top = 0, abs(r0[0])

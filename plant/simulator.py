@@ -52,7 +52,8 @@ class PlantConfig:
     period : control period (s): one :meth:`Plant.step` advances this much.
     substeps : RK4 sub-steps per period (>= 1); ``None`` (default): the fewest whose
         length is at most :data:`MAX_SUBSTEP_S` (:data:`MAX_SUBSTEP_BELT_S` with the
-        belt). :attr:`n_substeps` is the count used.
+        belt), :attr:`n_substeps`, and more in a period where an arm turns fast
+        (:func:`~.substeps.substeps_for`).
     lag : actuator time constant (s) of Eq. IV.6; 0 applies the command at once.
     friction : viscous friction on each joint (N m s/rad).
     quantise : round encoder readings to whole increments.
@@ -111,7 +112,8 @@ class PlantConfig:
 
     @property
     def n_substeps(self) -> int:
-        """RK4 sub-steps per period: ``substeps``, or the automatic count."""
+        """RK4 sub-steps per period: ``substeps``, or the automatic base count (the turn
+        rule may add to it: :meth:`Plant.step`)."""
         if self.substeps is not None:
             return self.substeps
         h = MAX_SUBSTEP_BELT_S if self.belt else MAX_SUBSTEP_S

@@ -78,7 +78,7 @@ def test_state_stays_plain_floats_from_numpy_inputs():
 
 def test_default_substep_keeps_the_free_fall_energy_within_its_stated_drift():
     """The default sub-step (1 ms at 1 ms periods): the energy drift of the harshest case
-    is the one plant/simulator.py states (1.6e-3 of |E0| over 2 s), h^4 above 0.5 ms'."""
+    is the one plant/substeps.py states (1.6e-3 of |E0| over 2 s), h^4 above 0.5 ms'."""
     assert PlantConfig().n_substeps == 1
     default, residual, _ = free_fall(None)
     half, _, _ = free_fall(2)
@@ -253,7 +253,8 @@ def test_written_out_solve_gives_the_loops_bits_and_raises_where_it_raised():
     from ctrlunit.plant.mechanics import _solve3
 
     rng = random.Random(7)
-    special = [0.0, 1.0, -1.0, 2.0, -2.0, math.nan, math.inf]
+    special = [0.0, -0.0, 1.0, -1.0, 2.0, -2.0, 5e-324, 1e308, -1e308, math.nan, -math.nan,
+               math.inf, -math.inf]
     raised = 0
     for i in range(20_000):
         pick = (lambda: rng.choice(special)) if i % 3 == 0 else (lambda: rng.gauss(0.0, 1.0))
@@ -293,10 +294,15 @@ def test_fast_arms_take_more_substeps_where_none_were_asked_for():
 
 
 def test_the_turn_rule_keeps_the_base_count_and_caps_its_own():
-    from ctrlunit.plant.substeps import MAX_AUTO_SUBSTEPS, substeps_for
+    from ctrlunit.plant.substeps import MAX_TURN_FACTOR, substeps_for
 
     assert substeps_for(1e-3, 1, [46.0, -20.0, 0.0]) == 1  # the circle task's fastest arm
     assert substeps_for(1e-3, 1, [0.0, -145.0, 0.0]) == 3
     assert substeps_for(2e-3, 2, [60.0, 0.0, 0.0]) == 3
     assert substeps_for(2e-3, 2, [10.0, 0.0, 0.0]) == 2
-    assert substeps_for(1e-3, 1, [1e9, 0.0, 0.0]) == MAX_AUTO_SUBSTEPS
+    assert substeps_for(1e-3, 1, [1e9, 0.0, 0.0]) == MAX_TURN_FACTOR
+    assert substeps_for(0.2, 200, [60.0, 0.0, 0.0]) == 240  # a long period, as a short one
+    assert substeps_for(0.2, 200, [1e9, 0.0, 0.0]) == 200 * MAX_TURN_FACTOR
+    assert substeps_for(1e-3, 10, [600.0, 0.0, 0.0]) == 12  # the belt's base, and more
+    for odd in ([math.inf, 0.0, 0.0], [0.0, math.nan, 1e9], [math.nan, 1e9, 0.0]):
+        assert substeps_for(1e-3, 1, odd) == 1  # the integration stops on such a state

@@ -217,7 +217,8 @@ class PlantOptions:
     substeps: int | None = setting(
         None, flag=Flag(), bounds=(1, 1000),
         help="RK4 sub-steps of the plant per period; default: the fewest of at most "
-        f"{MAX_SUBSTEP_S * 1e3:g} ms ({MAX_SUBSTEP_BELT_S * 1e3:g} ms with --belt).")
+        f"{MAX_SUBSTEP_S * 1e3:g} ms ({MAX_SUBSTEP_BELT_S * 1e3:g} ms with --belt), more "
+        "while an arm turns fast.")
     lag: float = setting(0.0, flag=Flag(kind="duration", default="0s"), bounds=(0.0, 1.0),
                          allowed="0 to 1 s",
                          help="Actuator time constant (Eq. IV.6).")

@@ -78,7 +78,9 @@ def safe_stop(plant: Plant, *, hold_s: float = 0.05, damping: float = 5.0,
     Returns the hold time, the distance moved and the platform speed at the end of it."""
     p0 = list(plant.state.p)
     hold = list(plant.command)
-    # integrated with sub-steps no longer than the plant's own (the belt needs 0.1 ms)
+    # integrated with sub-steps no longer than the plant's base ones (the belt needs 0.1
+    # ms): a quarter of the drive's period; the turn rule (plant/substeps.py) would ask
+    # for shorter ones only above about 200 rad/s, which the braking drive does not meet
     inner = max(1, math.ceil(drive_period * plant.config.n_substeps / plant.config.period
                              - 1e-9))
     for _ in range(max(1, round(hold_s / drive_period))):

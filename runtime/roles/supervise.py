@@ -11,6 +11,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -208,6 +209,7 @@ class MachineLoad(NamedTuple):
 
 _pressure_fd: int | None = None
 """``/proc/pressure/cpu``, opened once per process and read from its start each time."""
+_pressure_open = threading.Lock()
 
 
 def cpu_pressure_ns() -> int | None:
@@ -216,9 +218,17 @@ def cpu_pressure_ns() -> int | None:
     and a close (the central reads it as it sends requests: runtime/central/excuse.py)."""
     global _pressure_fd
     with contextlib.suppress(OSError, IndexError, ValueError):
-        if _pressure_fd is None:
-            _pressure_fd = os.open("/proc/pressure/cpu", os.O_RDONLY | os.O_CLOEXEC)
-        first = os.pread(_pressure_fd, 256, 0).split(b"\n", 1)[0]
+        fd = _pressure_fd
+        if fd is None:
+            with _pressure_open:  # one descriptor, whichever thread asks first
+                if _pressure_fd is None:
+                    _pressure_fd = os.open("/proc/pressure/cpu", os.O_RDONLY | os.O_CLOEXEC)
+                fd = _pressure_fd
+        try:
+            first = os.pread(fd, 256, 0).split(b"\n", 1)[0]
+        except OSError:
+            _pressure_fd = None  # closed under it: opened again at the next reading
+            raise
         return int(first.rsplit(b"total=", 1)[1]) * 1000
     return None
 
