@@ -4,14 +4,16 @@
 ``runs`` times, each followed by the single-process baseline (the same command with
 ``--peripherals 0``, at the period and under the scheduling policy the main job ran
 at, admission off so that it always runs): the machine's own stalls show in the baseline,
-measured in the same minutes. Then
+measured in the same minutes. The same again at each period of ``fixed`` (the thesis's
+0.5 ms, § IV.7.2: ``--period 500us``, admission on as a user runs it, so a period the
+machine cannot hold is a refusal). Then
 one long run of the main job (task repeated), followed by the baseline for as long at the
 long run's period. Every run is a ``ctrlunit start`` process of its own, as a user runs it,
 and is ended by the stage if it overstays.
 
 Figures: the fraction of runs that completed the task, deadline misses per 1000 periods
-over all runs, traversal p99.9, CPU per interval (all processes), the period each run
-chose, and which levers were on.
+over all runs, traversal p99.9, CPU per interval (all processes, and each role's), the
+period each run chose, and which levers were on.
 """
 
 from __future__ import annotations
@@ -33,6 +35,9 @@ from pathlib import Path
 from typing import Any
 
 MAIN_JOB = ("--peripherals", "3", "--pipeline", "2")
+
+THESIS_PERIOD_S = 5e-4
+"""The sampling period the thesis designed its two-stage pipeline for (§ IV.7.2)."""
 
 
 LEVERS = ("period", "admission", "command_delay", "hold_rounds", "replies", "rt_priority",
@@ -107,6 +112,8 @@ def run_row(res: dict[str, Any]) -> dict[str, Any]:
         "deadline_misses": r.get("deadline_misses", 0) or 0,
         "traversal_p999_s": (r.get("traversal_s") or {}).get("p999"),
         "cpu_per_interval_s": (r.get("cpu_per_interval_s") or {}).get("total"),
+        "cpu_by_role_s": {k: v for k, v in (r.get("cpu_per_interval_s") or {}).items()
+                          if k != "total"},
         "tracking_max_m": (r.get("tracking_error_m") or {}).get("max"),
         "fault": fault.get("message"),
         "wall_s": res["wall_s"],
@@ -150,43 +157,73 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
                                             for r in rows)},
             "traversal_p999_s": med("traversal_p999_s"),
             "cpu_per_interval_s": med("cpu_per_interval_s"),
+            "cpu_by_role_s": {role: statistics.median(
+                r["cpu_by_role_s"][role] for r in rows
+                if r["cycles"] and role in r.get("cpu_by_role_s", {}))
+                for role in sorted({k for r in rows if r["cycles"]
+                                    for k in r.get("cpu_by_role_s", {})})},
             "tracking_max_m": med("tracking_max_m"),
             "tracking_worst_m": max((r["tracking_max_m"] for r in rows
                                      if isinstance(r["tracking_max_m"], (int, float))
                                      and r["cycles"]), default=math.nan)}
 
 
-def stage_steps(runs: int, long_s: float) -> int:
+def stage_steps(runs: int, long_s: float, fixed: tuple[float, ...] = (THESIS_PERIOD_S,)
+                ) -> int:
     """How many ``ctrlunit start`` processes the stage runs (for progress)."""
-    return 2 * runs + (2 if long_s > 0 else 0)
+    return 2 * runs * (1 + len(fixed)) + (2 if long_s > 0 else 0)
 
 
-def baseline_args(row: dict[str, Any], *extra: str) -> tuple[str, ...]:
+def baseline_args(row: dict[str, Any], *extra: str,
+                  period_s: float | None = None) -> tuple[str, ...]:
     """The baseline of a main-job run ``row``: one control process at the period it ran
-    and under the policy it ran under (without the admission, ``--rt-priority auto``
-    would leave it at the default policy)."""
-    return ("--peripherals", "0", "--pipeline", "2", "--period", f"{row['period_s'] or 1e-3:g}",
+    (``period_s`` where it was asked for: a refused run ran none) and under the policy it
+    ran under (without the admission, ``--rt-priority auto`` would leave it at the
+    default policy)."""
+    period = period_s or row["period_s"] or 1e-3
+    return ("--peripherals", "0", "--pipeline", "2", "--period", f"{period:g}",
             "--no-admission", "--rt-priority", str(row["rt_priority"] or 0),
             "--idle", row.get("idle") or "default", *extra)
 
 
-def realtime_stage(*, runs: int, long_s: float,
-                   progress: Callable[[str, int, int], None] | None = None, done: int = 0,
-                   total: int = 0, timeout_s: float = 120.0) -> dict[str, Any]:
-    """``runs`` main-job runs, each followed by its baseline, then a long run of
-    ``long_s`` seconds and its baseline (none when 0). See the module's docstring."""
+def _series(runs: int, args: tuple[str, ...], period_s: float | None, *, what: str,
+            progress: Callable[[str, int, int], None] | None, done: int, total: int,
+            timeout_s: float) -> tuple[list[dict[str, Any]], list[dict[str, Any]], int]:
+    """``runs`` main-job runs with ``args``, each followed by its baseline."""
     star: list[dict[str, Any]] = []
     base: list[dict[str, Any]] = []
     for i in range(runs):
         if progress:
-            progress(f"realtime: main job {i + 1}/{runs}", done, total)
-        row = run_row(run_start(MAIN_JOB, timeout_s=timeout_s))
+            progress(f"realtime: {what} {i + 1}/{runs}", done, total)
+        row = run_row(run_start(args, timeout_s=timeout_s))
         star.append(row)
         done += 1
         if progress:
             progress(f"realtime: baseline {i + 1}/{runs}", done, total)
-        base.append(run_row(run_start(baseline_args(row), timeout_s=timeout_s)))
+        base.append(run_row(run_start(baseline_args(row, period_s=period_s),
+                                      timeout_s=timeout_s)))
         done += 1
+    return star, base, done
+
+
+def realtime_stage(*, runs: int, long_s: float,
+                   progress: Callable[[str, int, int], None] | None = None, done: int = 0,
+                   total: int = 0, timeout_s: float = 120.0,
+                   fixed: tuple[float, ...] = (THESIS_PERIOD_S,)) -> dict[str, Any]:
+    """``runs`` main-job runs, each followed by its baseline, the same at each period of
+    ``fixed``, then a long run of ``long_s`` seconds and its baseline (none when 0). See
+    the module's docstring."""
+    star, base, done = _series(runs, MAIN_JOB, None, what="main job", progress=progress,
+                               done=done, total=total, timeout_s=timeout_s)
+    at: list[dict[str, Any]] = []
+    for period in fixed:
+        args = (*MAIN_JOB, "--period", f"{period * 1e6:g}us")
+        s_rows, b_rows, done = _series(runs, args, period, what=f"main job at {period * 1e3:g} ms",
+                                       progress=progress, done=done, total=total,
+                                       timeout_s=timeout_s)
+        at.append({"period_s": period, "command": "ctrlunit start " + " ".join(args),
+                   "main_job": summary(s_rows), "baseline": summary(b_rows),
+                   "rows": {"main_job": s_rows, "baseline": b_rows}})
     long_row = long_base = None
     if long_s > 0:
         if progress:
@@ -203,6 +240,7 @@ def realtime_stage(*, runs: int, long_s: float,
                                 "--period <the main job's> --no-admission "
                                 "--rt-priority <the main job's>",
             "levers": levers(), "main_job": summary(star), "baseline": summary(base),
+            "fixed": at,
             "long": long_row, "long_baseline": long_base, "long_s": long_s,
             "rows": {"main_job": star, "baseline": base}}
 
@@ -237,6 +275,7 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
         "",
         f"`{st['command']}` (default options), {st['main_job']['runs']} run(s), each "
         f"followed by the baseline `{st['baseline_command']}`"
+        + "".join(f"; the same at `{fx['command']}`" for fx in st.get("fixed", []))
         + (f"; then the main job for {st['long_s']:g} s and its baseline as long."
            if st["long"] else "."),
         "Levers on: " + ", ".join(f"{k} {v}" for k, v in st["levers"].items()) + ".",
@@ -246,13 +285,23 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
         "tracking max, median / worst run (mm) |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for name, s in (("main job", st["main_job"]), ("baseline (n = 0)", st["baseline"])):
+    series = [("main job", st["main_job"]), ("baseline (n = 0)", st["baseline"])]
+    for fx in st.get("fixed", []):
+        at = f"{fx['period_s'] * 1e3:g} ms"
+        series += [(f"main job at {at}", fx["main_job"]),
+                   (f"baseline at {at} (n = 0)", fx["baseline"])]
+    for name, s in series:
         lines.append(
             f"| {name} | {s['runs']} | {s['completed']} | {s['refused']} | {s['periods']} | "
             f"{s['deadline_misses']} | {_fmt(s['misses_per_1000'], 1, 2)} | "
             f"{', '.join(_fmt(p, 1e3, 2) for p in s['periods_chosen_s'])} | "
             f"{_fmt(s['traversal_p999_s'], 1e6)} | {_fmt(s['cpu_per_interval_s'], 1e6)} | "
             f"{_fmt(s['tracking_max_m'], 1e3, 2)} / {_fmt(s['tracking_worst_m'], 1e3, 2)} |")
+    by_role = [f"{name}: " + ", ".join(f"{k} {_fmt(v, 1e6)}" for k, v in
+                                       s["cpu_by_role_s"].items())
+               for name, s in series if s.get("cpu_by_role_s")]
+    if by_role:
+        lines += ["", "CPU per interval by role, median (us): " + "; ".join(by_role) + "."]
     sched = ", ".join(f"{k} in {v}" for k, v in st["main_job"].get("scheduling", {}).items())
     if sched:
         lines += ["", f"The main job's runs ran under {sched}; back to the default policy "
@@ -281,13 +330,17 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
                      "at the halved rate)" if r.get("halved_at_interval") is not None else "")
                   + _late_words(r)
                   + (f"; fault: {r['fault']}" if r["fault"] else "") + "."]
-    faults = [(i + 1, r["exit_code"], r["fault"]) for i, r in
-              enumerate(st["rows"]["main_job"]) if not r["completed"]]
-    if faults:
-        lines += ["", "Main-job runs that did not complete: " + "; ".join(
-            f"run {i} exit {c}: {f}" for i, c, f in faults) + "."]
+    for what, rows in [("Main-job runs", st["rows"]["main_job"])] + [
+            (f"Runs at {fx['period_s'] * 1e3:g} ms", fx["rows"]["main_job"])
+            for fx in st.get("fixed", [])]:
+        faults = [(i + 1, r["exit_code"], r["fault"]) for i, r in enumerate(rows)
+                  if not r["completed"]]
+        if faults:
+            lines += ["", f"{what} that did not complete: " + "; ".join(
+                f"run {i} exit {c}: {f}" for i, c, f in faults) + "."]
     return lines + [""]
 
 
-__all__ = ["LEVERS", "MAIN_JOB", "baseline_args", "levers", "markdown_lines", "per_1000",
-           "realtime_stage", "run_row", "run_start", "stage_steps", "summary"]
+__all__ = ["LEVERS", "MAIN_JOB", "THESIS_PERIOD_S", "baseline_args", "levers",
+           "markdown_lines", "per_1000", "realtime_stage", "run_row", "run_start",
+           "stage_steps", "summary"]

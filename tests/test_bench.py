@@ -178,7 +178,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
             "overload": {"policy": "halve", "halved": halved_at and {
                 "at_interval": halved_at, "from_cycle": halved_at + 4}},
             "nominal_period_s": period, "cycles": cycles, "deadline_misses": misses,
-            "traversal_s": {"p999": p999}, "cpu_per_interval_s": {"total": cpu},
+            "traversal_s": {"p999": p999},
+            "cpu_per_interval_s": cpu and {"total": cpu, "central": cpu / 2, "plant": cpu / 4},
             "tracking_error_m": {"max": track}, "fault": fault and {"message": fault},
             "scheduling": {"central": policy}, "scheduling_fallback": fell,
             "scheduling_choice": {"priority": 10 if "FIFO" in policy else 0},
@@ -201,6 +202,7 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     assert s["periods_chosen_s"] == [1e-3, 1.25e-3]
     assert s["traversal_p999_s"] == pytest.approx(1.7e-3)  # median of three runs
     assert s["cpu_per_interval_s"] == pytest.approx(1.2e-3)
+    assert s["cpu_by_role_s"] == pytest.approx({"central": 6e-4, "plant": 3e-4})
     assert s["tracking_max_m"] == pytest.approx(4e-4) and s["tracking_worst_m"] == 2e-3
     assert s["scheduling"] == {"SCHED_FIFO 10": 2, "SCHED_OTHER": 1}  # the refusal ran none
     assert s["fell_back"] == 1 and s["halved"] == 1 and s["idle_poll"] == 2
@@ -214,6 +216,8 @@ def test_the_realtime_stage_counts_runs_misses_and_refusals_over_every_run():
     assert ("| main job | 4 | 2 | 1 | 1200 | 6 | 5.00 | 1.00, 1.25 | 1700 | 1200 | 0.40 / 2.00 |"
             in md)
     assert "run 3 exit 4: no sample from the plant for 5 ms" in md and "run 4 exit 7" in md
+    assert "CPU per interval by role, median (us): main job: central 600, plant 300; " \
+        "baseline (n = 0): central 550, plant 275." in md
     assert "ran under SCHED_FIFO 10 in 2, SCHED_OTHER in 1; back to the default policy " \
         "during the run (the throttling guard) in 1; control rate halved on overload in 1; " \
         "idle CPUs polling (`--idle`) in 2." in md
@@ -247,10 +251,18 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
         return {"exit_code": 0, "report": rep, "wall_s": 1.0, "output_tail": ""}
 
     monkeypatch.setattr(realtime, "run_start", fake_start)
-    assert realtime.stage_steps(1, 2.0) == 4 and realtime.stage_steps(3, 0) == 6
+    assert realtime.stage_steps(1, 2.0) == 6 and realtime.stage_steps(3, 0) == 12
+    assert realtime.stage_steps(1, 2.0, ()) == 4
     st = realtime.realtime_stage(runs=1, long_s=2.0)
-    assert started[2] == (*realtime.MAIN_JOB, "--duration", "2s")
-    assert started[3] == ("--peripherals", "0", "--pipeline", "2", "--period", "0.0016",
+    # the thesis's period: the main job asked for it, its baseline at it (not at the
+    # period the run reported)
+    assert started[2] == (*realtime.MAIN_JOB, "--period", "500us")
+    assert started[3] == ("--peripherals", "0", "--pipeline", "2", "--period", "0.0005",
+                          "--no-admission", "--rt-priority", "10", "--idle", "poll")
+    assert [fx["period_s"] for fx in st["fixed"]] == [realtime.THESIS_PERIOD_S]
+    assert st["fixed"][0]["main_job"]["runs"] == 1
+    assert started[4] == (*realtime.MAIN_JOB, "--duration", "2s")
+    assert started[5] == ("--peripherals", "0", "--pipeline", "2", "--period", "0.0016",
                           "--no-admission", "--rt-priority", "10", "--idle", "poll",
                           "--duration", "2s")
     assert st["long_baseline"]["deadline_misses"] == 1
@@ -261,6 +273,9 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
         "halved rate); the late intervals' work took 1.9x its median (in between)." in md
     assert "Its baseline (2 s, n = 0): exit 0, period 1.60 ms, 1250 periods (1250 " \
         "intervals), 1 misses (0.80 per 1000)" in md
+    assert "the same at `ctrlunit start --peripherals 3 --pipeline 2 --period 500us`" in md
+    assert "| main job at 0.5 ms | 1 | 1 | 0 | 400 | 5 |" in md
+    assert "| baseline at 0.5 ms (n = 0) | 1 | 1 | 0 | 400 | 1 |" in md
 
 
 def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
@@ -281,7 +296,17 @@ def test_bench_only_realtime_runs_the_main_job_and_its_baseline(tmp_path):
     assert base["period_s"] == (star["period_s"] or 1e-3)
     if star["exit_code"] != 7:  # the baseline under the main job's policy
         assert base["scheduling"] == star["scheduling"] or star["fell_back"]
-    assert "Realtime: does the main job hold its period?" in (out / "report.md").read_text()
+        assert set(star["cpu_by_role_s"]) == {"central", "plant", "peripheral_1",
+                                              "peripheral_2", "peripheral_3"}
+    # the thesis's 0.5 ms: asked of the main job (held, faulted or refused), the baseline
+    # at it whatever the main job did
+    (fixed,) = st["fixed"]
+    (star_fx,), (base_fx,) = fixed["rows"]["main_job"], fixed["rows"]["baseline"]
+    assert fixed["period_s"] == 5e-4 and star_fx["exit_code"] in (0, 3, 4, 5, 7), star_fx
+    assert base_fx["cycles"] > 0 and base_fx["period_s"] == 5e-4
+    md = (out / "report.md").read_text()
+    assert "Realtime: does the main job hold its period?" in md
+    assert "| main job at 0.5 ms | 1 |" in md
 
 
 def test_bench_rejects_a_negative_long_run():

@@ -53,7 +53,8 @@ def _duration(_ctx: Any, param: click.Parameter, text: str) -> float:
               "Transputer link did (README, bench).")
 @click.option("--realtime-runs", type=click.IntRange(0, 200), default=None,
               help="Runs of the main job (each followed by its n = 0 baseline) in the "
-                   "realtime stage.  [default: 20; with --quick 2]")
+                   "realtime stage, as many again at --period 500us.  [default: 20; with "
+                   "--quick 2]")
 @click.option("--realtime-long", "rt_long", default=None,
               help="Length of the realtime stage's long run of the main job, e.g. 60s; 0: "
                    "none.  [default: 60s; with --quick 0]")
