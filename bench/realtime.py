@@ -168,10 +168,11 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
                                      and r["cycles"]), default=math.nan)}
 
 
-def stage_steps(runs: int, long_s: float, fixed: tuple[float, ...] = (THESIS_PERIOD_S,)
-                ) -> int:
+def stage_steps(runs: int, long_s: float, fixed: tuple[float, ...] = (THESIS_PERIOD_S,),
+                fixed_runs: int | None = None) -> int:
     """How many ``ctrlunit start`` processes the stage runs (for progress)."""
-    return 2 * runs * (1 + len(fixed)) + (2 if long_s > 0 else 0)
+    at = runs if fixed_runs is None else fixed_runs
+    return 2 * runs + 2 * at * len(fixed) + (2 if long_s > 0 else 0)
 
 
 def baseline_args(row: dict[str, Any], *extra: str,
@@ -209,16 +210,18 @@ def _series(runs: int, args: tuple[str, ...], period_s: float | None, *, what: s
 def realtime_stage(*, runs: int, long_s: float,
                    progress: Callable[[str, int, int], None] | None = None, done: int = 0,
                    total: int = 0, timeout_s: float = 120.0,
-                   fixed: tuple[float, ...] = (THESIS_PERIOD_S,)) -> dict[str, Any]:
+                   fixed: tuple[float, ...] = (THESIS_PERIOD_S,),
+                   fixed_runs: int | None = None) -> dict[str, Any]:
     """``runs`` main-job runs, each followed by its baseline, the same at each period of
-    ``fixed``, then a long run of ``long_s`` seconds and its baseline (none when 0). See
-    the module's docstring."""
+    ``fixed`` (``fixed_runs`` times where given), then a long run of ``long_s`` seconds
+    and its baseline (none when 0). See the module's docstring."""
     star, base, done = _series(runs, MAIN_JOB, None, what="main job", progress=progress,
                                done=done, total=total, timeout_s=timeout_s)
     at: list[dict[str, Any]] = []
     for period in fixed:
         args = (*MAIN_JOB, "--period", f"{period * 1e6:g}us")
-        s_rows, b_rows, done = _series(runs, args, period, what=f"main job at {period * 1e3:g} ms",
+        s_rows, b_rows, done = _series(runs if fixed_runs is None else fixed_runs, args,
+                                       period, what=f"main job at {period * 1e3:g} ms",
                                        progress=progress, done=done, total=total,
                                        timeout_s=timeout_s)
         at.append({"period_s": period, "command": "ctrlunit start " + " ".join(args),

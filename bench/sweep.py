@@ -140,7 +140,7 @@ def bench(out_dir: str | Path, *, stages: tuple[str, ...] = STAGES, quick: bool 
     pairs = thesis_pairs(quick, repeats)
     steps = {"floor": 1, "sweep": 0, "recording": 0, "thesis": 3 * pairs,
              "balance": 2 * 2 * repeats, "target": 4 * repeats,
-             "realtime": stage_steps(rt_runs, rt_long)}
+             "realtime": stage_steps(rt_runs, rt_long, fixed_runs=1 if quick else None)}
     total = len(configs) * repeats + sum(steps[s] for s in stages)
     done = 0
     t_start = time.monotonic()
@@ -177,7 +177,8 @@ def bench(out_dir: str | Path, *, stages: tuple[str, ...] = STAGES, quick: bool 
         done += 4 * repeats
     if "realtime" in stages:
         report["realtime"] = realtime_stage(runs=rt_runs, long_s=rt_long, progress=progress,
-                                            done=done, total=total)
+                                            done=done, total=total,
+                                            fixed_runs=1 if quick else None)
     if "recording" in stages:
         report["recording_cost"] = _recording_cost(report["runs"], configs, results)
     report["wall_s"] = time.monotonic() - t_start

@@ -73,6 +73,8 @@ def test_quick_bench_writes_reports_and_figures(tmp_path):
     assert "us target: freerun period at n = 3, depth 2" in md
     rt = rep["realtime"]  # two runs of the main job and two baselines in the quick bench
     assert rt["main_job"]["runs"] == rt["baseline"]["runs"] == 2 and rt["long"] is None
+    (fixed,) = rt["fixed"]  # and one of each at the thesis's 0.5 ms
+    assert fixed["main_job"]["runs"] == fixed["baseline"]["runs"] == 1
     assert "Realtime: does the main job hold its period?" in md
 
 
@@ -253,6 +255,7 @@ def test_the_long_run_is_followed_by_its_baseline_at_its_period_and_policy(monke
     monkeypatch.setattr(realtime, "run_start", fake_start)
     assert realtime.stage_steps(1, 2.0) == 6 and realtime.stage_steps(3, 0) == 12
     assert realtime.stage_steps(1, 2.0, ()) == 4
+    assert realtime.stage_steps(3, 0, fixed_runs=1) == 8
     st = realtime.realtime_stage(runs=1, long_s=2.0)
     # the thesis's period: the main job asked for it, its baseline at it (not at the
     # period the run reported)
