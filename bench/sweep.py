@@ -86,9 +86,9 @@ def _sweep(configs: list[Config], repeats: int, *, quick: bool, out: Path,
             results[cfg.key].append(rep)
             done += 1
             if central is not None and rep_i == 0:
-                log = central.log
-                c = np.asarray(log.cmd_ns.recent, dtype=np.int64)
-                s = np.asarray(log.sample_ns, dtype=np.int64)
+                times = central.snapshot().times
+                c = np.asarray(times.cmd_ns, dtype=np.int64)
+                s = np.asarray(times.sample_ns, dtype=np.int64)
                 warm = warm_intervals(len(c))
                 samples[cfg.key] = {"period_s": (np.diff(c[warm:]) / 1e9).tolist(),
                                     "traversal_s": ((c[warm:] - s[warm:]) / 1e9).tolist()}
@@ -222,7 +222,7 @@ def _run_kept(cfg: Config, cycles: int, out: Path,
     rep, central = run_one(cfg, cycles, out)
     key = f"depth {cfg.pipeline}"
     if central is not None and cfg.law != "kinematics" and key not in gantt:
-        gantt[key] = gantt_window(central.meters.spans)
+        gantt[key] = gantt_window(list(central.snapshot().times.spans))
     return rep, central
 
 

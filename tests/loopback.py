@@ -22,6 +22,7 @@ from typing import Any
 
 from ctrlunit.plant.simulator import Plant, PlantConfig
 from ctrlunit.runtime.central import Central
+from ctrlunit.runtime.central.snapshot import Progress
 from ctrlunit.runtime.compute.controller import Controller, initial_angles, initial_command
 from ctrlunit.runtime.compute.setup import make_setup
 from ctrlunit.runtime.config import RunConfig
@@ -137,7 +138,7 @@ class LoopbackUnit:
     """
 
     def __init__(self, rc: RunConfig, *,
-                 on_cycle: Callable[[Central, int, dict], None] | None = None,
+                 on_cycle: Callable[[Progress, dict], None] | None = None,
                  on_message: Callable[..., None] | None = None) -> None:
         self.rc = rc
         self.setup = setup = make_setup(rc)
@@ -255,7 +256,7 @@ def record_lockstep(path: str, unit: str, **kw: Any) -> LoopbackUnit:
     try:
         unit_.run()
     finally:
-        recorder.close(unit_.central)
+        recorder.close(unit_.central.snapshot())
         recorder.write_report({})
     return unit_
 

@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 import pytest
-from ctrlunit.runtime.central import Supervision
+from ctrlunit.runtime.central import Central, Supervision
 from ctrlunit.runtime.config import RunConfig
 from ctrlunit.runtime.host import sched
 from ctrlunit.runtime.launch import admission
@@ -170,8 +170,9 @@ def scripted(monkeypatch, verdicts: list[dict[str, Any]], tracking: dict[float, 
                         lambda central, period: (tracking or {}).get(period, 1e-5))
     monkeypatch.setattr(sched, "fifo_in_force", lambda: False)
     monkeypatch.setattr(sched, "fifo_permitted", lambda: True)
-    central = SimpleNamespace(rc=RunConfig.of(clock="realtime", pipeline=2, **rc),
-                              warmup=SimpleNamespace(warm_rtt_s=[0.4 * MS, 0.5 * MS, 0.9 * MS]))
+    run = SimpleNamespace(times=SimpleNamespace(warm_rtt_s=(0.4 * MS, 0.5 * MS, 0.9 * MS)))
+    central = SimpleNamespace(rc=RunConfig.of(clock="realtime", pipeline=2, **rc), run=run,
+                              snapshot=lambda: run)
     return central, calls
 
 
@@ -284,10 +285,10 @@ def test_the_tracking_a_period_predicts_is_the_one_process_loops_at_it():
 
     rc = RunConfig.of(clock="realtime", pipeline=2)
     engine = make_setup(rc).engine()
-    central = SimpleNamespace(rc=rc, engine=engine)
+    central = SimpleNamespace(rc=rc, params=engine.cfg.params)
     assert f"{admission.predicted_tracking(central, 1e-3) * 1e3:.3f}" == "0.019"
     assert f"{admission.predicted_tracking(central, 8e-3) * 1e3:.1f}" == "5.8"
-    kin = SimpleNamespace(rc=rc.replace(law="kinematics"), engine=engine)
+    kin = SimpleNamespace(rc=rc.replace(law="kinematics"), params=engine.cfg.params)
     assert math.isnan(admission.predicted_tracking(kin, 1e-3))
 
 
@@ -307,7 +308,7 @@ def test_a_verdict_at_its_exact_edges():
 
 def test_without_a_warm_up_round_trip_the_transit_is_zero(monkeypatch):
     central, _ = scripted(monkeypatch, [rung(1e-3, held=True)])
-    central.warmup.warm_rtt_s = []
+    central.run.times.warm_rtt_s = ()
     seen = []
     monkeypatch.setattr(admission, "trial",
                         lambda c, period, *, base, transit_s, unit_cpu, rehearse: (
@@ -370,7 +371,7 @@ def test_each_law_is_simulated_as_it_runs():
     from ctrlunit.runtime.compute.setup import make_setup
 
     rc = RunConfig.of(clock="realtime", pipeline=2, law="pd-gravity")
-    central = SimpleNamespace(rc=rc, engine=make_setup(rc).engine())
+    central = SimpleNamespace(rc=rc, params=make_setup(rc).engine().cfg.params)
     assert admission.predicted_tracking(central, 1e-3) > 10 * 0.019e-3
 
 
@@ -391,11 +392,13 @@ class Probe:
         self.on_cycle, self.on_message = on_cycle, on_message
         self.node, self.rc, self.engine, self.ctl, self.n = node, rc, engine, ctl, n
         self.supervision, self.reply_each = supervision, reply_each
-        s = self.script
-        self.log = SimpleNamespace(traversal_ns=SimpleNamespace(
-            recent=[int(t * 1e9) for t in s.get("traversal_s", [])]))
-        self.meters = SimpleNamespace(skipped=s.get("skipped", 0), skip_marks=s.get("marks", []))
         Probe.made.append(self)
+
+    def snapshot(self) -> Any:
+        s = self.script
+        times = SimpleNamespace(traversal_ns=tuple(int(t * 1e9) for t in s.get("traversal_s", [])),
+                                skip_marks=tuple(s.get("marks", [])))
+        return SimpleNamespace(times=times, skipped=s.get("skipped", 0))
 
     def run(self) -> None:
         self.node.rejected["late_reply"] += self.script.get("late_replies", 0)
@@ -405,18 +408,34 @@ class Probe:
             raise Fault(self.script["fault"], process="peripheral-1", code=3)
 
 
+class Outside:
+    """The central as the admission sees it: the run's :class:`Central` methods on parts
+    that stand in for the real ones."""
+
+    trial_central = Central.trial_central
+    say = Central.say
+    role_exited = Central.role_exited
+    end_trial = Central.end_trial
+
+    def __init__(self, **parts: Any) -> None:
+        self.__dict__.update(parts)
+
+    def snapshot(self) -> Any:
+        return SimpleNamespace(rejected=dict(self.node.rejected))
+
+
 def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
-    from ctrlunit.runtime import central as central_module
+    from ctrlunit.runtime.central import scheduler
 
     Probe.script, Probe.made = script, []
-    monkeypatch.setattr(central_module, "Central", Probe)
+    monkeypatch.setattr(scheduler, "Central", Probe)
     monkeypatch.setattr(sched, "cpu_times", lambda: [(0, 0)])
     monkeypatch.setattr(sched, "busy_share", lambda a, b: 0.42)
     monkeypatch.setattr(admission, "fifo_busy_limit", lambda: None)
     said, drained = [], []
     cfg = RunConfig.of(clock="realtime", pipeline=2, **rc)
     ctl = SimpleNamespace(first_cycle=0, q_prev=[1, 2, 3], k_prev=0)
-    return SimpleNamespace(
+    return Outside(
         rc=cfg, node=SimpleNamespace(rejected=Counter()), engine="engine", ctl=ctl,
         silence=SimpleNamespace(supervision=Supervision()),
         intervals=SimpleNamespace(reply_each=True),
@@ -480,19 +499,19 @@ def test_a_run_that_records_does_the_recordings_work_in_each_trial(monkeypatch):
             self.discarded_with: Any = None
             made.append(self)
 
-        def on_cycle(self, central: Any, cycle: int, ctx: dict) -> None: ...
+        def on_cycle(self, progress: Any, ctx: dict) -> None: ...
 
         def on_message(self, *args: Any) -> None: ...
 
-        def discard(self, central: Any) -> None:
-            self.discarded_with = central
+        def discard(self, run: Any) -> None:
+            self.discarded_with = run
 
     for script in ({"traversal_s": [0.4 * MS] * 300}, {"fault": "x"}):
         c = trial_central(monkeypatch, script)
         admission.trial(c, 1e-3, base=5, transit_s=0.0, rehearse=Rehearsal)
         probe, r = Probe.made[0], made[-1]
         assert probe.on_cycle == r.on_cycle and probe.on_message == r.on_message
-        assert r.discarded_with is probe
+        assert r.discarded_with.times == probe.snapshot().times
     assert len(made) == 2
     c = trial_central(monkeypatch, {"traversal_s": [0.4 * MS] * 300})
     admission.trial(c, 1e-3, base=5, transit_s=0.0)
@@ -512,11 +531,10 @@ def test_a_recorders_rehearsal_writes_nowhere_and_ends(tmp_path):
     before = {t.name for t in threading.enumerate()}
     r = Recorder.rehearsal(setup)
     assert r.path == os.devnull
-    central = SimpleNamespace(
-        next_cycle=0, node=SimpleNamespace(rejected={}),
-        meters=SimpleNamespace(plant_misses=0, skipped=0, t_end_ns=0, t_start_ns=0,
-                               wait_ns=0, periph_busy_ns=[], plant_busy_ns=0))
-    r.discard(central)
+    run = SimpleNamespace(next_cycle=0, rejected={}, plant_misses=0, skipped=0,
+                          times=SimpleNamespace(t_end_ns=0, t_start_ns=0, wait_ns=0,
+                                                periph_busy_ns=(), plant_busy_ns=0))
+    r.discard(run)
     assert r.closed and not rec.exists()
     assert {t.name for t in threading.enumerate()} <= before
 

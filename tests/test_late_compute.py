@@ -178,7 +178,7 @@ def test_the_summary_tells_late_replies_from_rejected_messages():
     u = LoopbackUnit(lockstep_config(unit_id("cmpsum"), peripherals=3, pipeline=2,
                                      cycles=20, max_error=1.0))
     u.run()
-    r = finish_report(u.setup, u.central, None)
+    r = finish_report(u.setup, u.central.snapshot(), None)
     r["rejected_messages"] = {"late_reply": 3, "bad_value": 1}
     lines = summary(r).splitlines()
     assert "  late replies 3 (dropped: their rounds were held or computed by the central)" \

@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 import machine
 import pytest
@@ -152,21 +153,21 @@ def test_the_busy_guard_demotes_every_process_once_when_a_window_passes_its_limi
     said: list[str] = []
     guard = BusyGuard(lambda: [11, 12], 0.95, share=0.95, window_s=0.5,
                             read=lambda: next(readings), clock=lambda: now[0], say=said.append)
-    guard(None, 0)  # starts the window at (0, 0)
+    guard(SimpleNamespace(cycle=0), {})  # starts the window at (0, 0)
     now[0] = 0.2
-    guard(None, 1)  # inside the window: nothing read
+    guard(SimpleNamespace(cycle=1), {})  # inside the window: nothing read
     now[0] = 0.6
-    guard(None, 2)  # the busiest CPU 50 of 100 busy: under 0.9025
+    guard(SimpleNamespace(cycle=2), {})  # the busiest CPU 50 of 100 busy: under 0.9025
     assert demoted == [] and guard.event is None
     now[0] = 1.2
-    guard(None, 3)  # 100 of 100 busy: over the budget itself
+    guard(SimpleNamespace(cycle=3), {})  # 100 of 100 busy: over the budget itself
     assert demoted == [[11, 12]]
     assert guard.event == {"cycle": 3, "busy_share": 1.0, "limit": pytest.approx(0.95),
                            "rule": "budget", "window_s": 0.5, "over_s": 0.5,
                            "processes": 2, "windows": [0.5, 1.0]}
     assert "interval 3" in said[0] and "default policy" in said[0]
     now[0] = 2.0
-    guard(None, 4)  # once only
+    guard(SimpleNamespace(cycle=4), {})  # once only
     assert len(demoted) == 1
 
 
@@ -194,9 +195,9 @@ def test_the_busy_guard_goes_back_to_fifo_after_calm_windows_a_bounded_number_of
     def window(share: float, cycle: int) -> None:
         now[0] += 0.5
         busy[0] += round(100 * share)
-        guard(None, cycle)
+        guard(SimpleNamespace(cycle=cycle), {})
 
-    guard(None, 0)
+    guard(SimpleNamespace(cycle=0), {})
     window(1.0, 1)  # over 0.9025: fall back
     assert calls == [([11], 0)] and not guard.fifo
     for c in (2, 3, 4):
@@ -268,9 +269,9 @@ def _windows_guard(monkeypatch, **kw):
         now[0] += 0.5
         busy[0] += round(200 * (0.93 if share is None else share))
         stale[0] = share is None
-        guard(None, cycle)
+        guard(SimpleNamespace(cycle=cycle), {})
 
-    guard(None, 0)
+    guard(SimpleNamespace(cycle=0), {})
     return guard, window, demoted
 
 
@@ -331,7 +332,7 @@ def test_a_busy_guard_without_a_priority_never_goes_back_to_fifo(monkeypatch) ->
     guard = BusyGuard(lambda: [11], 0.95, read=lambda: next(readings),
                             clock=lambda: now[0])
     for k in range(11):
-        guard(None, k)
+        guard(SimpleNamespace(cycle=k), {})
         now[0] += 0.5
     assert calls == [0] and guard.report()["restored"] == 0
 

@@ -43,9 +43,10 @@ def silenced(tag: str, mutes: dict[int, int], *, on_cycle: Any = None,
     kw.setdefault("pipeline", 2)
     holder: list[LoopbackUnit] = []
 
-    def mute(central: Any, cycle: int, ctx: dict) -> None:
+    def mute(progress: Any, ctx: dict) -> None:
         if on_cycle is not None:
-            on_cycle(central, cycle, ctx)
+            on_cycle(progress, ctx)
+        cycle = progress.cycle
         holder[0].muted.update(k for k, at in mutes.items() if cycle >= at)
 
     kw.setdefault("timeout", SILENCE_S)
@@ -108,14 +109,14 @@ def slow_then_back(tag: str, k: int, *, at: int,
     holder: list[LoopbackUnit] = []
     state = {"slow": False, "was": False}
 
-    def slow(central: Any, cycle: int, ctx: dict) -> None:
+    def slow(progress: Any, ctx: dict) -> None:
         if on_cycle is not None:
-            on_cycle(central, cycle, ctx)
-        u = holder[0]
+            on_cycle(progress, ctx)
+        u, cycle = holder[0], progress.cycle
         if cycle >= at and not state["was"]:
             state["slow"] = state["was"] = True
             u.muted.add(k)
-        if state["slow"] and k in central.takeover.lost:
+        if state["slow"] and k in progress.lost:
             state["slow"] = False
             u.muted.discard(k)
             for j, reply in u.withheld:
@@ -123,7 +124,7 @@ def slow_then_back(tag: str, k: int, *, at: int,
                     u.bus.put(u.node.keys.reply(j + 1), reply)
             u.withheld[:] = [(j, reply) for j, reply in u.withheld if j != k]
         if then is not None:
-            then(u, central)
+            then(u, u.central)
 
     kw.setdefault("timeout", SLOW_SILENCE_S)
     u = silenced(tag, {}, on_cycle=slow, **kw)
@@ -195,7 +196,7 @@ def recorded(path: Path, make: Any) -> tuple[Any, Any]:
     try:
         c = u.run()
     finally:
-        recorder.close(u.central)
+        recorder.close(u.central.snapshot())
         recorder.write_report({})
     return c, read(path)
 
@@ -263,9 +264,10 @@ def restarted(tag: str, k: int, *, dies: int, back: int, on_cycle: Any = None,
     answering from then on."""
     state = {"dead": False}
 
-    def restart(central: Any, cycle: int, ctx: dict) -> None:
+    def restart(progress: Any, ctx: dict) -> None:
         if on_cycle is not None:
-            on_cycle(central, cycle, ctx)
+            on_cycle(progress, ctx)
+        cycle = progress.cycle
         if cycle >= dies and cycle < back and not state["dead"]:
             state["dead"] = True
             u.muted.add(k)
@@ -315,7 +317,7 @@ def test_a_peripheral_lost_during_the_warm_up_is_taken_over_and_comes_back(undis
     u.muted.add(1)
     u.dead["dead"] = True  # type: ignore[attr-defined]
     u.plant_muted = True  # the plant's samples begin with the run
-    u.central.warmup.run()
+    u.central.warm_up()
     u.plant_muted = False
     assert set(u.central.takeover.lost) == {1}
     c = u.run()

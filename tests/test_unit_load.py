@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 import pytest
 from ctrlunit.runtime.host import sched
@@ -104,7 +105,7 @@ def test_the_guard_reading_the_units_time_leaves_fifo_alone_on_a_busy_machine():
     unit = iter([[(0.1 * i, 0.5 * i), (0.0, 0.5 * i)] for i in range(100)])
     guard = BusyGuard(lambda: [], 0.95, read=lambda: next(unit), clock=lambda: next(times))
     for cycle in range(20):
-        guard(None, cycle)
+        guard(SimpleNamespace(cycle=cycle), {})
     assert guard.report() is None and guard.fifo
     full = iter([[(0.5 * i, 0.5 * i)] for i in range(100)])
     times = iter(float(i) * 0.5 for i in range(100))

@@ -178,19 +178,18 @@ def test_a_foxglove_client_gets_valid_messages_beside_one_that_does_not_read(tmp
     assert rep["command_digest"] == command_digest([x for c in ref.commands for x in c])
 
 
-def fake_central(cycle: int, t_ns: int) -> tuple[Any, dict]:
-    """What :func:`ctrlunit.runtime.observe.signals.capture` reads of a central after interval
-    ``cycle``."""
-    from types import SimpleNamespace
-
+def fake_progress(cycle: int, t_ns: int) -> tuple[Any, dict]:
+    """What the central hands its ``on_cycle`` hooks after interval ``cycle``
+    (runtime/central/snapshot.py), with the context's values the view reads."""
     from ctrlunit.runtime.central.records import CycleLog
+    from ctrlunit.runtime.central.snapshot import History, Progress
 
     log = CycleLog(true_p={cycle: (0.1, 0.0, -0.35)})
     log.times.append(t_ns, 400_000)
     log.errors.append(1e-4)
-    central = SimpleNamespace(log=log, meters=SimpleNamespace(plant_misses=0, skipped=0),
-                              done=cycle + 1, takeover=SimpleNamespace(report=list))
-    return central, {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
+    progress = Progress(cycle, cycle + 1, cycle + 1, 20_000, t_ns, None, 400_000,
+                        (0.1, 0.0, -0.35), 0, 0, {}, (), (), History(log, list))
+    return progress, {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
 
 
 def test_a_viewer_that_stops_reading_never_blocks_the_callers_thread():
@@ -217,9 +216,9 @@ def test_a_viewer_that_stops_reading_never_blocks_the_callers_thread():
         gc.disable()
         stack.callback(gc.enable)
         for k in range(n):
-            central, ctx = fake_central(k, t0 + k * 1_000_000)
+            progress, ctx = fake_progress(k, t0 + k * 1_000_000)
             c0 = time.perf_counter()
-            view(central, k, ctx)
+            view(progress, ctx)
             slowest = max(slowest, time.perf_counter() - c0)
             if k % 250 == 249:
                 time.sleep(0.02)  # 12.5 kHz in bursts: a fast freerun
@@ -272,23 +271,23 @@ def test_the_foxglove_layout_plots_fields_the_view_sends():
 def test_the_rate_limits_states_and_the_running_figures_count_every_interval():
     """At 100 Hz a 1 kHz run shows every tenth interval; the running figures still come
     from every interval of the central's logs (period, misses, tracking error)."""
-    from types import SimpleNamespace
 
     from ctrlunit.runtime.central.records import CycleLog
+    from ctrlunit.runtime.central.snapshot import History, Progress
     from ctrlunit.runtime.observe.viewer import LiveView
 
     n, t0 = 2000, 10**12
     log = CycleLog()
-    central = SimpleNamespace(log=log, meters=SimpleNamespace(plant_misses=0, skipped=0),
-                              done=0, takeover=SimpleNamespace(report=list))
+    history = History(log, list)
     ctx = {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
     with LiveView(host="127.0.0.1", port=0, task=None, period_s=1e-3, cycles=n,
                   rate_hz=100) as view:
         for k in range(n):
             log.times.append(t0 + k * 1_000_000 + (700_000 if k == 1234 else 0), 300_000)
             log.errors.append(2e-4 if k == 777 else 1e-4)
-            central.done, central.meters.plant_misses = k + 1, k // 500
-            view(central, k, ctx)
+            cmd = log.cmd_ns
+            view(Progress(k, k + 1, k + 1, n, cmd[-1], cmd[-2] if k else None,
+                          log.traversal_ns[-1], None, k // 500, 0, {}, (), (), history), ctx)
         assert view.appended == n // 10  # k = 0, 10, 20, ...
         end = time.monotonic() + 10
         while view.sent < view.appended and time.monotonic() < end:

@@ -4,6 +4,7 @@ model (:mod:`ctrlunit.topology.schedule`) and the Gantt charts. Nothing here dec
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 
@@ -61,6 +62,14 @@ class Meters:
             self.spans.append((proc, cycle, t0, t1))
         if self.keep_cycle_spans:
             self.cycle_spans.setdefault(cycle, []).append((proc, t0, t1))
+
+    def plant_sample(self, cycle: int, span: Sequence[int], misses: int | None) -> None:
+        """Note the plant's compute ``span`` for sample ``cycle`` and its count of late
+        commands (None: not reported)."""
+        self.plant_busy_ns += span[1] - span[0]
+        if misses is not None:
+            self.plant_misses = misses
+        self.span("plant", cycle, span[0], span[1])
 
     def spans_of(self, cycle: int) -> list[tuple[str, int, int]]:
         """The spans kept for ``cycle`` (each process's compute time)."""

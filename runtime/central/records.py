@@ -4,6 +4,7 @@ every finished interval."""
 from __future__ import annotations
 
 import hashlib
+import math
 import struct
 from collections.abc import Generator
 from dataclasses import dataclass, field
@@ -63,6 +64,18 @@ class CycleLog:
     the sample)."""
     late_work_ns: list[int] = field(default_factory=list)
     """Their work as in :attr:`work_ns`, the first :data:`LATE_KEPT` of them."""
+
+    def sampled(self, cycle: int, p: tuple[float, float, float],
+                ref: Any | None) -> None:
+        """Note the plant's true position ``p`` at sample ``cycle`` and, for the run's
+        samples (``ref``, the reference there; None for one past the run's end), the
+        tracking error."""
+        true_p = self.true_p
+        true_p[cycle] = p
+        if len(true_p) > 64:  # the oldest goes, even the one just taken (samples ahead)
+            del true_p[min(true_p)]
+        if ref is not None:
+            self.errors.append(math.dist(p, ref))
 
     def record(self, f: InFlight, cmd: Any, now: int, *, deadline_ns: int) -> bool:
         """Log interval ``f``, whose command ``cmd`` left at ``now``: its times, where

@@ -18,14 +18,13 @@ slot is free from a synthetic sample (the reference's inverse kinematics, quanti
 
 from __future__ import annotations
 
-import math
+import copy
 import queue
 import time
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
-from ...topology.pipeline import finishes_after_next_request
 from ..compute.controller import Controller
 from ..compute.engine import Engine
 from ..config import RunConfig
@@ -42,8 +41,10 @@ from .orders import Orders
 from .overload import Overload
 from .rate import RateChange
 from .records import CycleLog, InFlight
+from .replies import Replies
 from .settings import LoopSettings
 from .silence import SilenceWatch
+from .snapshot import History, Progress, RunSnapshot, progress_of, snapshot_of
 from .state_check import hold_torques, overload_hint
 from .takeover import TakeOver
 from .warmup import WarmUp
@@ -59,7 +60,8 @@ class Central:
     engine : engine built from the run's plan (placement included).
     controller : sources and observer state.
     cycles : number of intervals to run.
-    on_cycle : ``on_cycle(central, cycle, ctx)`` after each interval (recording, progress).
+    on_cycle : ``on_cycle(progress, ctx)`` after each interval (recording, progress,
+        views: :class:`~.snapshot.Progress`).
     on_message : ``on_message(direction, key, cycle, stage, payload, t_ns)`` for every
         exchange (recording).
     supervision : what this central can learn of the role processes it started.
@@ -78,7 +80,7 @@ class Central:
         controller: Controller,
         cycles: int,
         *,
-        on_cycle: Callable[[Central, int, dict], None] | None = None,
+        on_cycle: Callable[[Progress, dict], None] | None = None,
         on_message: Callable[[str, str, int, Any, bytes, int], None] | None = None,
         supervision: Supervision = UNSUPERVISED,
         trial: bool = False,
@@ -117,12 +119,17 @@ class Central:
             node, self.settings, engine, controller, intake=self.intake,
             silence=self.silence, overload=self.overload, expect_late=self.late.expect_late,
             meters=self.meters, log=self.log, hint=self.overload_hint,
-            on_cycle=None if on_cycle is None else (lambda k, ctx: on_cycle(self, k, ctx)),
+            on_cycle=None if on_cycle is None else (
+                lambda k, ctx: on_cycle(progress_of(self, k, self._history), ctx)),
             on_message=on_message)
         self.intervals.reply_each = reply_each
         self.takeover = TakeOver(enabled=sch.peripheral_loss == "takeover", late=self.late,
                                  silence=self.silence, intervals=self.intervals,
                                  on_message=on_message)
+        self._history = History(self.log, self.takeover.report)
+        self.replies = Replies(intervals=self.intervals, intake=self.intake,
+                               takeover=self.takeover, late=self.late, silence=self.silence,
+                               meters=self.meters, keys=keys, on_message=on_message)
         self.orders = Orders(node, peripherals=n, plant=sch.clock != "freerun",
                              startup_timeout_s=rc.transport.startup_timeout,
                              check_children=self.takeover.check_children,
@@ -174,6 +181,70 @@ class Central:
         """The intervals in flight, by cycle."""
         return self.intervals.inflight
 
+    def snapshot(self) -> RunSnapshot:
+        """The run as the report reads it, now (:class:`~.snapshot.RunSnapshot`)."""
+        return snapshot_of(self)
+
+    def handshake(self) -> None:
+        """Wait for every role's hello and hand out the run (:meth:`Orders.handshake`)."""
+        self.orders.handshake()
+
+    def warm_up(self) -> None:
+        """Round trips before measuring (:meth:`WarmUp.run`)."""
+        self.warmup.run()
+
+    def choose_placement(self) -> dict[str, Any]:
+        """``--placement auto``'s choice from the warm-up (:meth:`WarmUp.choose_placement`)."""
+        return self.warmup.choose_placement()
+
+    def say(self, stage: str, **fields: Any) -> None:
+        """Tell every role ``stage`` (:meth:`Orders.say`)."""
+        self.orders.say(stage, **fields)
+
+    def zenoh_identity(self) -> dict[str, Any]:
+        """This node's Zenoh id and its peers' (:meth:`Orders.zenoh_identity`)."""
+        return self.orders.zenoh_identity()
+
+    @property
+    def params(self) -> Any:
+        """The robot's parameters the run's plan computes with."""
+        return self.engine.cfg.params
+
+    def trial_central(self, period: float, *, ticks: int, base: int,
+                      on_cycle: Callable[[Progress, dict], None] | None = None,
+                      on_message: Callable[[str, str, int, Any, bytes, int], None] | None = None
+                      ) -> Central:
+        """A central for one admission trial (runtime/launch/admission.py) of ``ticks``
+        intervals at ``period``, numbered from ``base``: on this node, with this plan, a
+        copy of the controller, the same reply mode and the same watch over the role
+        processes (the trial's own samples and commands are flagged ``probe``)."""
+        trc = self.rc.replace(period=period, t1_cycles=0, record=None, report=None)
+        ctl = copy.copy(self.ctl)
+        ctl.first_cycle, ctl.q_prev, ctl.k_prev = base, None, base
+        child_check = self.silence.supervision.child_check
+        return Central(self.node, trc, self.engine, ctl, ticks, trial=True,
+                       supervision=Supervision(child_check=child_check),
+                       reply_each=self.intervals.reply_each, on_cycle=on_cycle,
+                       on_message=on_message)
+
+    def role_exited(self) -> bool:
+        """Whether a role process this central watches has exited."""
+        child_check = self.silence.supervision.child_check
+        return child_check is not None and child_check() is not None
+
+    def end_trial(self, *, late_before: int, drain_s: float) -> int:
+        """After a trial: drop what arrives for ``drain_s`` (:meth:`Orders.drain`) and
+        forget the late replies counted since there were ``late_before`` (the trial's, not
+        the run's); returns how many those were."""
+        self.orders.drain(seconds=drain_s)
+        rejected = self.node.rejected
+        late = rejected["late_reply"] - late_before
+        if late_before:
+            rejected["late_reply"] = late_before
+        else:
+            rejected.pop("late_reply", None)
+        return late
+
     def choose_replies(self) -> dict[str, Any]:
         """Decide how peripherals answer fused requests (:meth:`WarmUp.choose_replies`)
         and follow the decision; returns it (for the report)."""
@@ -216,9 +287,9 @@ class Central:
         cpu0 = time.process_time()
         try:
             self._loop()
-        finally:  # a fault too: where the CPU went is part of its diagnosis
+        finally:  # a fault too: where the CPU went, and when, are part of its diagnosis
             m.cpu_s = time.process_time() - cpu0
-        m.t_end_ns = time.monotonic_ns()
+            m.t_end_ns = time.monotonic_ns()
         m.rss_end = rss_kb()
 
     def _loop(self) -> None:
@@ -302,7 +373,7 @@ class Central:
         kind, index, data, rx = ev
         before = self.node.rejects
         if kind == "reply":
-            self._on_reply(index, data, rx)
+            self.replies.take(index, data, rx)
         elif kind == "sample":
             self._on_sample(data, rx)
         elif kind == "hello":
@@ -318,83 +389,11 @@ class Central:
         if s is None:
             return
         self.silence.heard_sample(rx)
-        true_p = self.log.true_p
-        true_p[s.cycle] = s.p
-        if len(true_p) > 64:  # the oldest goes, even the one just taken (samples ahead)
-            del true_p[min(true_p)]
-        if s.cycle < self.settings.end:  # the run's samples only: the plant may send one more
-            ref = self.engine.cfg.task.position(self.ctl.time_of(s.cycle))  # type: ignore[union-attr]
-            self.log.errors.append(math.dist(s.p, ref))
-        self.meters.plant_busy_ns += s.span[1] - s.span[0]
-        if s.misses is not None:
-            self.meters.plant_misses = s.misses
-        self.meters.span("plant", s.cycle, s.span[0], s.span[1])
+        self.log.sampled(s.cycle, s.p, self.engine.cfg.task.position(  # type: ignore[union-attr]
+            self.ctl.time_of(s.cycle)) if s.cycle < self.settings.end else None)
+        self.meters.plant_sample(s.cycle, s.span, s.misses)
         if self.on_message is not None:
             self.on_message("in", self.node.keys.sample, s.cycle, "sample", data, rx)
-
-    def _on_reply(self, k: int, data: bytes, rx: int) -> None:
-        t_in = time.perf_counter_ns()
-        got = self.intake.reply(data)
-        if got is None:
-            return
-        msg, parts = got
-        parts = self.takeover.sift(k, parts, next_cycle=self.next_cycle, done=self.done, rx=rx)
-        axes = self.engine.plan.placement.axes[k]
-        complete = []
-        accepted = False
-        for part in parts:
-            f = self.inflight.get(part["cycle"])
-            if (f is None or f.round is None or part["stage"] != f.round.index
-                    or k not in f.waiting):
-                if self.late.came_late(part["cycle"], part["stage"], k):
-                    self.silence.heard_reply(k, rx)  # its values were held: alive, late
-                    self.intake.reject("late_reply")
-                else:
-                    self.intake.unexpected_reply(part["cycle"])
-                continue
-            checked = self.intake.reply_part(part, f.round.recv, len(axes))
-            if checked is None:
-                continue
-            vals, span = checked
-            accepted = True
-            Engine.merge(f.ctx, vals, axes)
-            self.late.remember(vals, axes)  # replies hold per-axis values only
-            self.meters.periph_busy_ns[k] += span[1] - span[0]
-            f.work_ns = max(f.work_ns, min(span[1] - span[0], 2**31 - 1))
-            self.meters.span(f"peripheral_{k + 1}", f.cycle, span[0], span[1])
-            f.waiting.discard(k)
-            if not f.waiting:
-                complete.append(f)
-        if not accepted:
-            return
-        self.meters.reply_ns += time.perf_counter_ns() - t_in
-        self.meters.reply_msgs += 1
-        self.silence.heard_reply(k, rx)
-        if self.on_message is not None:
-            self.on_message("in", self.node.keys.reply(k + 1), msg["cycle"], msg["stage"],
-                            data, rx)
-        self._complete(complete)
-
-    def _complete(self, complete: list[InFlight]) -> None:
-        """Go on with the intervals whose round is complete. Depth 2: intervals with more
-        rounds first; those whose last round this was finish after the next request is
-        out (their last central blocks, command, recording and progress overlap the
-        peripherals' work)."""
-        finishing = [f for f in complete if f.round is not None
-                     and f.round.index >= self.intervals.shape.ahead_rounds
-                     and finishes_after_next_request(depth=self.settings.depth,
-                                                     round_index=f.round.index,
-                                                     last_round=self.intervals.shape.last_round)]
-        for f in complete:
-            if f not in finishing:
-                self.intervals.advance(f)
-        if finishing:
-            for f in finishing:
-                f.finishing = True
-            self.intervals.start_ready()
-            self.intervals.flush(time.monotonic_ns())
-            for f in finishing:
-                self.intervals.advance(f)
 
 
 __all__ = ["Central"]

@@ -121,7 +121,10 @@ class BusyGuard:
     def restores(self) -> int:
         return sum(1 for c in self.changes if c["policy"] == "fifo")
 
-    def __call__(self, _central: Any = None, cycle: int | None = None, *_: Any) -> None:
+    def __call__(self, progress: Any = None, *_: Any) -> None:
+        """``on_cycle``: once per window, read the busy share and act on it (the class's
+        notes); ``progress`` is the interval just finished (its ``cycle`` is noted)."""
+        cycle = getattr(progress, "cycle", None)
         now = self.clock()
         if self._last is not None and now - self._t < self.window_s:
             return

@@ -36,7 +36,6 @@ its setup from the period). The decision and its figures go in the report
 
 from __future__ import annotations
 
-import copy
 import math
 import statistics
 import time
@@ -158,12 +157,12 @@ CpuTimes = Callable[[], list[tuple[float, float]]]
 class Rehearsal(Protocol):
     """What a run does besides the control, done in a trial and kept nowhere."""
 
-    def on_cycle(self, central: Any, cycle: int, ctx: dict) -> None: ...
+    def on_cycle(self, progress: Any, ctx: dict) -> None: ...
 
     def on_message(self, direction: str, key: str, cycle: int, stage: Any, data: bytes,
                    t_ns: int) -> None: ...
 
-    def discard(self, central: Any) -> None: ...
+    def discard(self, run: Any) -> None: ...
 
 
 Rehearse = Callable[[], Rehearsal]
@@ -183,7 +182,8 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
     the machine's. ``rehearse`` makes, for each trial, what the run does after each
     interval besides the control (its recorder, writing nowhere: :data:`Rehearse`)."""
     rc = central.rc
-    transit = statistics.median(central.warmup.warm_rtt_s) / 2 if central.warmup.warm_rtt_s else 0.0
+    rtt = central.snapshot().times.warm_rtt_s
+    transit = statistics.median(rtt) / 2 if rtt else 0.0
     asked = rc.schedule.period
     rungs: list[dict[str, Any]] = []
     held_at: float | None = None
@@ -257,7 +257,7 @@ def predicted_tracking(central: Central, period: float) -> float:
     if rc.control.law == "kinematics":
         return math.nan
     task = get_task(rc.control.task)
-    res = simulate(central.engine.cfg.params, task, law=rc.control.law, model=rc.control.model,
+    res = simulate(central.params, task, law=rc.control.law, model=rc.control.model,
                    gains=Gains.from_bandwidth(rc.bandwidth), period=period,
                    cycles=min(rc.total_cycles(task.period), round(task.period / period) + 1),
                    delay=rc.delay_periods,
@@ -287,57 +287,48 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
     a fault of the run. The busy share judged is the unit's own (``unit_cpu``, read before
     the plant ticks and after the trial) where given, else the machine's; the rung keeps
     the machine's too (``machine_busy_share``)."""
-    from ..central import Central, Fault, Supervision
+    from ..central import Fault
 
     rc = central.rc
     n = trial_intervals(period)
-    trc = rc.replace(period=period, t1_cycles=0, record=None, report=None)
-    ctl = copy.copy(central.ctl)
-    ctl.first_cycle, ctl.q_prev, ctl.k_prev = base, None, base
-    child_check = central.silence.supervision.child_check
+    late0 = central.snapshot().rejected.get("late_reply", 0)
     rehearsal = rehearse() if rehearse is not None else None
-    probe = Central(central.node, trc, central.engine, ctl, n, trial=True,
-                    supervision=Supervision(child_check=child_check),
-                    reply_each=central.intervals.reply_each,
-                    on_cycle=None if rehearsal is None else rehearsal.on_cycle,
-                    on_message=None if rehearsal is None else rehearsal.on_message)
+    probe = central.trial_central(
+        period, ticks=n, base=base,
+        on_cycle=None if rehearsal is None else rehearsal.on_cycle,
+        on_message=None if rehearsal is None else rehearsal.on_message)
     unit0 = unit_cpu() if unit_cpu is not None else None  # 2-10 ms: before the ticks
-    late0 = central.node.rejected["late_reply"]
-    central.orders.say("probe", period=period, ticks=n, base=base)
+    central.say("probe", period=period, ticks=n, base=base)
     t0 = time.monotonic()
     busy0 = sched.cpu_times()
     fault = None
     try:
         probe.run()
     except Fault as exc:
-        if child_check is not None and child_check() is not None:
+        if central.role_exited():
             raise
         fault = str(exc)
     finally:
+        run = probe.snapshot()
         if rehearsal is not None:
-            rehearsal.discard(probe)
+            rehearsal.discard(run)
     machine = sched.busy_share(busy0, sched.cpu_times())
     busy = machine if unit_cpu is None or unit0 is None else sched.busy_share(unit0, unit_cpu())
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
-    trav = np.asarray(probe.log.traversal_ns.recent, dtype=float) / 1e9
+    trav = np.asarray(run.times.traversal_ns, dtype=float) / 1e9
     out: dict[str, Any] = {"period_s": period, "machine_busy_share": machine,
                            "busy_of": "machine" if unit_cpu is None else "unit"}
-    out |= rung_verdict(trav, skipped=probe.meters.skipped, budget_s=budget, transit_s=transit_s,
+    out |= rung_verdict(trav, skipped=run.skipped, budget_s=budget, transit_s=transit_s,
                         busy_share=busy, busy_limit=fifo_busy_limit(),
-                        skip_marks=probe.meters.skip_marks)
+                        skip_marks=list(run.times.skip_marks))
     if fault is not None:
         out["held"] = out["one_stall"] = False
         out["fault"] = fault
         out["intervals"] = n
         out["late"] = max(out["late"], n - int(trav.size))
     out["wall_s"] = time.monotonic() - t0
-    central.orders.drain(seconds=min(0.2, 50 * period) if fault else 0.0)
     # the replies of the trial's rounds it computed itself: the trial's, not the run's
     # (they once made the run's summary say 23 late replies for 1 late round)
-    rejected = central.node.rejected
-    out["late_replies"] = rejected["late_reply"] - late0
-    if late0:
-        rejected["late_reply"] = late0
-    else:
-        rejected.pop("late_reply", None)
+    out["late_replies"] = central.end_trial(
+        late_before=late0, drain_s=min(0.2, 50 * period) if fault else 0.0)
     return out

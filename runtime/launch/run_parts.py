@@ -11,7 +11,8 @@ import threading
 from collections.abc import Callable, Collection
 from typing import Any
 
-from ..central import Central, Supervision
+from ..central import Supervision
+from ..central.snapshot import Progress, RunSnapshot
 from ..compute.setup import Setup
 from ..config import RunConfig, parse_host_port
 from ..host import sched
@@ -152,10 +153,10 @@ def status_writer(path: str | None) -> Any:
         return None
     tmp = path + ".tmp"
 
-    def write(central: Central, _cycle: int, _ctx: dict) -> None:
-        if central.done % 10 == 0:
+    def write(progress: Progress, _ctx: dict) -> None:
+        if progress.done % 10 == 0:
             with open(tmp, "w") as fh:
-                fh.write(str(central.done))
+                fh.write(str(progress.done))
             os.replace(tmp, path)
 
     return write
@@ -174,26 +175,25 @@ def chain(*fns: Any) -> Any:
     return call
 
 
-def report_extras(rc: RunConfig, setup: Setup, central: Central, *, cores: int | None,
+def report_extras(rc: RunConfig, setup: Setup, run: RunSnapshot, *, cores: int | None,
                   spawn: bool) -> dict[str, Any]:
     """The report's late data, memory, CPU budget, scheduling policies and the plant's
-    own word on its safe stop: from the central's parts and the roles' final reports."""
-    reports = central.orders.role_reports
+    own word on its safe stop: from the central's run and the roles' final reports."""
+    reports = run.role_reports
     names = child_names(rc, setup)
-    m = central.meters
     out: dict[str, Any] = {
         "late": {"policy": rc.schedule.late_policy, "blocks": dict(rc.schedule.late),
-                 "misses_per_axis": list(central.late.late_per_axis),
-                 "computed": central.late.computed, "taken_over": central.late.taken_over},
-        "degraded": central.takeover.report(),
-        "memory_kb": {"central": {"warm": m.rss_warm,
-                                  "end": m.rss_end if m.rss_end > 0 else rss_kb(),
-                                  "series": m.rss_series}},
+                 "misses_per_axis": list(run.late.per_axis),
+                 "computed": run.late.computed, "taken_over": run.late.taken_over},
+        "degraded": [dict(d) for d in run.degraded],
+        "memory_kb": {"central": {"warm": run.memory_kb[0],
+                                  "end": run.memory_kb[1] if run.memory_kb[1] > 0 else rss_kb(),
+                                  "series": list(run.memory_kb[2])}},
     }
     for role, rep in reports.items():
         if isinstance(rep.get("rss_kb"), dict):
             out["memory_kb"][role] = rep["rss_kb"]
-    out.update(cpu_budget(central, names, cores))
+    out.update(cpu_budget(run, names, cores))
     out["scheduling"] = {"central": sched.policy_name()} | {
         name.replace("-", "_"): text_or_none((reports.get(name) or {}).get("sched"))
         for name in (names if spawn else [])}

@@ -19,7 +19,6 @@ import signal
 import subprocess
 import tempfile
 import threading
-import time
 from pathlib import Path
 from typing import Any
 
@@ -213,8 +212,8 @@ class UnitStart:
         the placement (``auto``) and the admission (realtime)."""
         self._spawn()
         central, rc = self.central, self.rc
-        central.orders.handshake()
-        central.warmup.run()
+        central.handshake()
+        central.warm_up()
         central.choose_replies()
         if (rc.schedule.placement_auto and rc.schedule.central_blocks is None
                 and self.setup.placement.peripherals):
@@ -249,7 +248,7 @@ class UnitStart:
     def _place(self) -> None:
         """``--placement auto``: the warm-up's choice; if it differs, the roles take the
         new plan where they are (no start again), warmed up anew."""
-        choice = self.decided["placement_choice"] = self.central.warmup.choose_placement()
+        choice = self.decided["placement_choice"] = self.central.choose_placement()
         if choice["central_blocks"] == sorted(self.setup.placement.central_blocks):
             return
         self.setup = setup = self.setup.with_central_blocks(choice["central_blocks"])
@@ -257,7 +256,7 @@ class UnitStart:
         engine = setup.engine()
         self.central.place(self.rc, engine, setup.controller(engine))
         self.echo(f"ctrlunit: --placement auto: {choice['why']}")
-        self.central.warmup.run()  # the new plan's path, and its round trip
+        self.central.warm_up()  # the new plan's path, and its round trip
         self.central.choose_replies()
 
     # -- run --------------------------------------------------------------------------
@@ -269,8 +268,8 @@ class UnitStart:
         freeze_heap(collect=True)  # this process may host many runs (bench, tests)
         if self.recorder is not None:
             self.recorder.begin(self.setup)
-        self.central.orders.zenoh_identity()  # the peers now (others may leave before the end)
-        self.central.orders.say("start")
+        self.central.zenoh_identity()  # the peers now (others may leave before the end)
+        self.central.say("start")
         self.central.run()
 
     # -- deactivate -------------------------------------------------------------------
@@ -285,10 +284,8 @@ class UnitStart:
                 signal.signal(s, lambda signum, _f: ctrl_c.append(signum))
         gc.unfreeze()  # what the run kept alive may be collected again
         central = self.central
-        if central.meters.t_start_ns:  # a run that never started has no length
-            central.meters.t_end_ns = central.meters.t_end_ns or time.monotonic_ns()
         try:
-            self.decided["zenoh"] = central.orders.zenoh_identity()
+            self.decided["zenoh"] = central.zenoh_identity()
         except Exception:
             self.decided["zenoh"] = {}
         interrupted = stopped_by_user({"fault": self.fault})
@@ -308,7 +305,7 @@ class UnitStart:
                 self.ros2.close(join_s=OBSERVERS_JOIN_S)
             self.node.close()
             if self.recorder is not None:
-                self.recorder.close(central)
+                self.recorder.close(central.snapshot())
             if self.viewer is not None:
                 self.viewer.flush()
             if main:
@@ -322,7 +319,7 @@ class UnitStart:
         fault). A directory kept is the report's ``logs_kept``, which ``ctrlunit start``
         names after the summary."""
         central = getattr(self, "central", None)  # None: the start failed before it
-        taken = ({f"peripheral-{d['peripheral']}" for d in central.takeover.history}
+        taken = ({f"peripheral-{d['peripheral']}" for d in central.snapshot().degraded}
                  if central else set())
         for p, name in zip(self.children, child_names(self.rc, self.setup), strict=False):
             if (p.returncode not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM)
@@ -344,7 +341,8 @@ class UnitStart:
     def report(self) -> dict[str, Any]:
         """The run's report (runtime/observe/report.py) with what this start decided."""
         rc, central = self.rc, self.central
-        report = finish_report(self.setup, central, self.fault)
+        run = central.snapshot()
+        report = finish_report(self.setup, run, self.fault)
         for key in ("admission", "placement_choice"):
             if self.decided.get(key) is not None:
                 report[key] = self.decided[key]
@@ -355,7 +353,7 @@ class UnitStart:
         report["link_list"] = rc.links(central=self.endpoint)  # the central's, the default's too
         report["links"] = rc.link_security(check_files=False, central=self.endpoint)
         cores = unit_cores(*self.cpus) if self.spawn else None
-        report.update(report_extras(rc, self.setup, central, cores=cores, spawn=self.spawn))
+        report.update(report_extras(rc, self.setup, run, cores=cores, spawn=self.spawn))
         if self.inspect is not None:
             self.inspect["central"] = central
             self.inspect["setup"] = self.setup

@@ -14,7 +14,7 @@ import math
 import shutil
 import threading
 import time
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
@@ -29,6 +29,9 @@ COARSE = 1000
 """Fine bins per coarse bin: a percentile reads the coarse counts (101) and then one
 coarse bin's fine counts, not all 100 001 of them (reading them all took 1.3 ms per line
 in the central's thread)."""
+
+if TYPE_CHECKING:
+    from ..central.snapshot import Progress
 
 
 class LiveStats:
@@ -130,21 +133,20 @@ class LiveLine:
         self.stats: LiveStats | None = None
         self._next = 0.0
 
-    def __call__(self, central: Any, cycle: int, ctx: dict) -> None:
+    def __call__(self, progress: Progress, ctx: dict) -> None:
+        p = progress
         if self.stats is None:
-            self.stats = LiveStats(central.cycles)
-        self.stats.add(done=central.done, cmd_ns=central.log.cmd_ns[-1],
-                       misses=central.meters.plant_misses, skipped=central.meters.skipped,
+            self.stats = LiveStats(p.planned)
+        self.stats.add(done=p.done, cmd_ns=p.cmd_ns, misses=p.misses, skipped=p.skipped,
                        p=ctx.get("p"), pc=ctx.get("pc"))
         now = time.monotonic()
         # the bar counts periods covered: intervals fall behind them where samples were
         # skipped or the control rate was halved (``--overload``)
-        reached = cycle - central.ctl.first_cycle + central.ctl.hold_of(cycle)
-        if now >= self._next or reached >= central.cycles:
+        if now >= self._next or p.reached >= p.planned:
             self._next = now + REFRESH_S
-            lost = sorted(central.takeover.lost)  # peripherals taken over (degraded), first:
+            lost = p.lost  # peripherals taken over (degraded), first:
             self.show(("taken over " + ",".join(f"P{k + 1}" for k in lost) + "  " if lost
-                       else "") + self.stats.line(), reached, central.cycles)  # a cut keeps it
+                       else "") + self.stats.line(), p.reached, p.planned)  # a cut keeps it
 
 
 class TerminalLine:

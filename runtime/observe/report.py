@@ -17,7 +17,7 @@ from ..compute.stride import StrideSchedule
 from ..config import RunConfig
 
 if TYPE_CHECKING:
-    from ..central import Central
+    from ..central.snapshot import RunSnapshot
     from ..compute.setup import Setup
 
 CPU_KEYS = ("cpu_per_interval_s", "cpu_cores", "cpu_bound_period_s")
@@ -294,7 +294,7 @@ def text_or_none(x: Any) -> str | None:
     return x if isinstance(x, str) else None
 
 
-def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[str, Any]:
+def cpu_budget(run: RunSnapshot, roles: list[str], cores: int | None) -> dict[str, Any]:
     """CPU time per interval of every process (all its threads, Zenoh's included) between
     the central's ``start`` and ``stop``, and what it implies: on ``cores`` CPUs, the
     freerun period cannot be shorter than the total divided by ``cores``, whatever the
@@ -305,12 +305,12 @@ def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[st
     period's figures leave those out), so a short run shows a higher figure. When units
     run inside another program (``ctrlunit bench``), the central's share also counts
     that program's other threads."""
-    done = max(1, central.done)
+    done = max(1, run.done)
     per: dict[str, float] = {}
-    if central.meters.cpu_s is not None:
-        per["central"] = central.meters.cpu_s / done
+    if run.times.cpu_s is not None:
+        per["central"] = run.times.cpu_s / done
     for role in roles:
-        cpu = (central.orders.role_reports.get(role) or {}).get("cpu_s")
+        cpu = (run.role_reports.get(role) or {}).get("cpu_s")
         if isinstance(cpu, (int, float)) and not isinstance(cpu, bool) and cpu >= 0:
             per[role.replace("-", "_")] = cpu / done
     complete = len(per) == len(roles) + 1
@@ -319,20 +319,21 @@ def cpu_budget(central: Central, roles: list[str], cores: int | None) -> dict[st
         per["total"] = total
     return {"cpu_per_interval_s": per,
             "cpu_cores": cores,
-            "cpu_bound_period_s": total / cores if cores and complete and central.done
+            "cpu_bound_period_s": total / cores if cores and complete and run.done
             else None}
 
 
-def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[str, Any]:
-    """The report of a live run, from the central's logs and the roles' final reports
+def finish_report(setup: Setup, run: RunSnapshot, fault: dict | None) -> dict[str, Any]:
+    """The report of a live run, from the central's ``run`` and the roles' final reports
     (``t_1`` is measured here, on the run's recorded inputs)."""
     rc = setup.rc
-    wall = max(1, central.meters.t_end_ns - central.meters.t_start_ns)
-    business = {"central": max(0.0, 1.0 - central.meters.wait_ns / wall)}
+    t = run.times
+    wall = max(1, t.t_end_ns - t.t_start_ns)
+    business = {"central": max(0.0, 1.0 - t.wait_ns / wall)}
     for k in range(setup.placement.peripherals):
-        business[f"peripheral_{k + 1}"] = central.meters.periph_busy_ns[k] / wall
+        business[f"peripheral_{k + 1}"] = t.periph_busy_ns[k] / wall
     if rc.schedule.clock != "freerun":
-        business["plant"] = central.meters.plant_busy_ns / wall
+        business["plant"] = t.plant_busy_ns / wall
     t1 = math.nan
     per_block: dict[str, Any] = {}
     t1_engines: list[Engine] = []
@@ -341,49 +342,45 @@ def finish_report(setup: Setup, central: Central, fault: dict | None) -> dict[st
         t1_engines.append(setup.engine(peripherals_plan=False))
         return t1_engines[-1]
 
-    if central.meters.t1_inputs:
+    if run.t1_inputs:
         count = None
         if rc.control.cost_model == "t800":  # each interval takes its T-800 time: 2 s at most
             t_single = sum(b.t800_s(rc.control.cost_scale) for b in setup.plan.graph.blocks)
             count = max(10, min(50, int(T1_T800_S / t_single))) if t_single > 0 else 50
-        t1, per_block = measure_t1(t1_engine, central.meters.t1_inputs[:count])
+        t1, per_block = measure_t1(t1_engine, list(run.t1_inputs[:count]))
     cost_err = None
     if rc.control.cost_model == "t800":
         # block costs are the emulated T-800 times; the emulation's error is measured
         per_block = {b.name: b.t800_s(rc.control.cost_scale) for b in setup.plan.graph.blocks}
-        errs = sorted(central.engine.cost.errors_ns + [e for g in t1_engines
-                                                       for e in g.cost.errors_ns])
+        errs = sorted(list(t.cost_errors_ns) + [e for g in t1_engines for e in g.cost.errors_ns])
         if errs:
             cost_err = {"p50": errs[len(errs) // 2] / 1e9,
                         "p99": errs[int(len(errs) * 0.99)] / 1e9, "max": errs[-1] / 1e9,
                         "method": "sleep to twice the mean sleep overshoot (50 us to 1 ms) "
                                   "before the T-800 deadline, then spin; "
                                   "one settle per message sent"}
-    rejected = dict(central.node.rejected)
-    for role, rep in central.orders.role_reports.items():
+    rejected = dict(run.rejected)
+    for role, rep in run.role_reports.items():
         for k, v in (rep.get("rejected") or {}).items():
             rejected[f"{role}:{k}"] = v
     report = build_report(
-        rc=rc, plan=setup.plan, task=setup.task, timing=central.log.times.figures(),
-        digest=central.log.digest.hexdigest(),
-        torque_max=central.log.torque_max, tracking=central.log.errors.stats(),
-        business=business,
-        deadline_misses=central.meters.plant_misses, skipped=central.meters.skipped,
+        rc=rc, plan=setup.plan, task=setup.task, timing=run.timing, digest=run.digest,
+        torque_max=run.torque_max, tracking=run.tracking, business=business,
+        deadline_misses=run.plant_misses, skipped=run.skipped,
         rejected=rejected,
         t1_s=t1, per_block_s=per_block, fault=fault,
-        wall_s=(central.meters.t_end_ns - central.meters.t_start_ns) / 1e9,
+        wall_s=(t.t_end_ns - t.t_start_ns) / 1e9,
         cost_error_s=cost_err,
-        exchanges=central.meters.exchanges if setup.placement.peripherals else None,
-        replies=central.warmup.replies_info if setup.placement.peripherals else None,
-        central_costs=central.meters.costs(central.done), gantt=gantt_window(central.meters.spans),
-        silences_excused=central.silence.excuses,
+        exchanges=run.exchanges if setup.placement.peripherals else None,
+        replies=run.replies_info if setup.placement.peripherals else None,
+        central_costs=t.central_costs, gantt=gantt_window(list(t.spans)),
+        silences_excused=run.silences_excused,
     )
-    report["periods"] = max(0, central.next_cycle - central.ctl.first_cycle) \
-        if central.done else 0
-    report["overload"] = overload_figures(central.overload.rate_changes, central.overload.enabled,
-                                          central.ctl.grid, end=central.next_cycle)
-    if central.settings.deadline_ns:
-        log = central.log
-        report["late_intervals"] = late_work_figures(log.work_ns.recent, log.late_work_ns,
-                                                     log.late)
+    report["periods"] = run.periods
+    report["overload"] = overload_figures(list(run.late.rate_changes),
+                                          run.late.halves_on_overload, run.late.grid,
+                                          end=run.next_cycle)
+    if run.late.deadline_ns:
+        lf = run.late
+        report["late_intervals"] = late_work_figures(lf.work_ns, lf.late_work_ns, lf.late)
     return report

@@ -12,7 +12,10 @@ the message (:func:`state_message`) can then happen on another thread.
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+if TYPE_CHECKING:
+    from ..central.snapshot import Progress
 
 SIGNALS_SCHEMA: dict[str, Any] = {
     "title": "ctrlunit.State",
@@ -70,17 +73,13 @@ class Interval(NamedTuple):
     """Measured joint velocities (rad/s), when the interval has them."""
 
 
-def capture(central: Any, cycle: int, ctx: dict) -> Interval:
-    """The interval ``cycle`` that the central has just finished (call from its
-    ``on_cycle``)."""
-    log = central.log
-    cmd = log.cmd_ns
+def capture(p: Progress, ctx: dict) -> Interval:
+    """The interval that the central has just finished (call from its ``on_cycle``)."""
     qd = ctx.get("qdmeas_i")
-    return Interval(cycle, cmd[-1], log.traversal_ns[-1], log.true_p.get(cycle),
+    return Interval(p.cycle, p.cmd_ns, p.traversal_ns, p.true_p,
                     tuple(float(x) for x in ctx["qmeas_i"]),
                     tuple(float(x) for x in ctx["cmd"]),
-                    central.meters.plant_misses, central.meters.skipped,
-                    cmd[-2] if len(cmd) > 1 else None,
+                    p.misses, p.skipped, p.previous_cmd_ns,
                     None if qd is None else tuple(float(x) for x in qd))
 
 

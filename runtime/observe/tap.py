@@ -15,9 +15,12 @@ from __future__ import annotations
 import collections
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
 
 from .signals import Interval, capture
+
+if TYPE_CHECKING:
+    from ..central.snapshot import Progress
 
 QUEUE_INTERVALS = 4096
 """Intervals the central may be ahead of an observer's thread before the oldest are
@@ -42,14 +45,14 @@ class IntervalTap:
         self._every_ns = round(1e9 / rate_hz) if rate_hz > 0 else 0
         self._due_ns: int | None = None
 
-    def offer(self, central: Any, cycle: int, ctx: dict) -> None:
-        """On the central's thread, after interval ``cycle``: note it if it is due (its
-        command left at least ``1 / rate_hz`` after the last one noted)."""
-        t = central.log.cmd_ns[-1]
+    def offer(self, progress: Progress, ctx: dict) -> None:
+        """On the central's thread, after an interval: note it if it is due (its command
+        left at least ``1 / rate_hz`` after the last one noted)."""
+        t = progress.cmd_ns
         if self._due_ns is not None and t < self._due_ns:
             return
         self._due_ns = t + self._every_ns
-        self.queue.append(capture(central, cycle, ctx))
+        self.queue.append(capture(progress, ctx))
         self.appended += 1
 
     def drain(self, handle: Callable[[Interval], None]) -> None:

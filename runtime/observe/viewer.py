@@ -35,7 +35,7 @@ from __future__ import annotations
 import json
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import orjson
 
@@ -55,6 +55,9 @@ STOP_WAIT_S = 1.0
 """How long the end of a run waits for the server to stop."""
 BACKLOG = 2048
 """Messages the server queues for one client before it drops for that client."""
+
+if TYPE_CHECKING:
+    from ..central.snapshot import Progress
 
 
 RUNNING_SCHEMA: dict[str, Any] = {
@@ -155,7 +158,7 @@ class LiveView:
         self.tap = IntervalTap(rate_hz=rate_hz)
         self.sent = 0
         self.stats = LiveStats(cycles)
-        self._central: Any = None
+        self._progress: Progress | None = None
         self._read = 0  # intervals of the central's logs read into the running figures
         self._errors_read = 0
         self._wall_offset_ns = time.time_ns() - time.monotonic_ns()
@@ -177,12 +180,12 @@ class LiveView:
 
     # -- the central's thread ----------------------------------------------------------
 
-    def __call__(self, central: Any, cycle: int, ctx: dict) -> None:
+    def __call__(self, progress: Progress, ctx: dict) -> None:
         """``on_cycle``: note the interval if it is due to be shown (a tuple into a bounded
         deque; nothing waits)."""
-        self._central = central
+        self._progress = progress
         if self.sink.listening:  # nobody reads: nothing is built
-            self.tap.offer(central, cycle, ctx)
+            self.tap.offer(progress, ctx)
 
     # -- the view's thread -------------------------------------------------------------
 
@@ -208,14 +211,13 @@ class LiveView:
     def _read_logs(self) -> None:
         """Bring the running figures up to the central's logs (its thread only appends
         to them; a slice is taken under the GIL)."""
-        c = self._central
-        if c is None:
+        p = self._progress
+        if p is None:
             return
-        log = c.log
-        cmd, self._read = log.cmd_ns.since(self._read)
-        errors, self._errors_read = log.errors.since(self._errors_read)
-        self.stats.add_many(done=c.done, cmd_ns=cmd, misses=c.meters.plant_misses,
-                            skipped=c.meters.skipped, errors=errors)
+        cmd, self._read = p.history.commands_since(self._read)
+        errors, self._errors_read = p.history.errors_since(self._errors_read)
+        self.stats.add_many(done=p.done, cmd_ns=cmd, misses=p.misses, skipped=p.skipped,
+                            errors=errors)
 
     def running(self) -> dict[str, Any]:
         """The ``/report/running`` message: the figures so far."""
@@ -227,7 +229,7 @@ class LiveView:
                 "deadline_misses": s.misses, "skipped_samples": s.skipped,
                 "tracking_error_m": {"now": finite_or_none(s.error),
                                      "max": finite_or_none(s.error_max)},
-                "degraded": [] if self._central is None else self._central.takeover.report(),
+                "degraded": [] if self._progress is None else self._progress.history.degraded(),
                 "dropped": self.dropped}
 
     def _send_running(self) -> None:
@@ -260,7 +262,7 @@ class LiveView:
             self.tap.clear()
             self.task, self.period_s, self.cycles = task, period_s, cycles
             self.stats = LiveStats(cycles)
-            self._central = None
+            self._progress = None
             self._read = self._errors_read = 0
             self.sent = 0
 

@@ -53,6 +53,7 @@ from typing import Any
 import msgpack
 import orjson
 
+from ..central.snapshot import Progress, RunSnapshot
 from ..host import sched
 from ..observe.report import CPU_KEYS, RESULT_KEYS
 from ..observe.signals import SIGNALS_SCHEMA, capture, state_message
@@ -105,9 +106,9 @@ class Recorder:
         with :meth:`discard`."""
         return cls(os.devnull, setup)
 
-    def discard(self, central: Any) -> None:
-        """End a :meth:`rehearsal` (its last records and footer go nowhere)."""
-        self.close(central)
+    def discard(self, run: RunSnapshot) -> None:
+        """End a :meth:`rehearsal` of ``run`` (its last records and footer go nowhere)."""
+        self.close(run)
         self.write_report({})
 
     def _ros2_channel(self, topic: str, msgtype: str, definition: bytes) -> int:
@@ -184,15 +185,16 @@ class Recorder:
             self._add(topic, t_ns, data)
         self.pending.clear()
 
-    def on_cycle(self, central: Any, cycle: int, ctx: dict) -> None:
+    def on_cycle(self, progress: Progress, ctx: dict) -> None:
         """After each interval (at depth 2 once the next request is out): the exchanges
         noted since the last one, spans, signals, deadline and rejection events."""
         self._drain()
-        iv = capture(central, cycle, ctx)
+        p, cycle = progress, progress.cycle
+        iv = capture(p, ctx)
         now = iv.cmd_ns
-        spans = [s for s in central.meters.spans_of(cycle)]
+        spans = list(p.spans)
         self._add("/timing/spans", now, msgpack.packb({"cycle": cycle, "spans": spans}))
-        sch = central.rc.schedule
+        sch = self.setup.rc.schedule
         sig = state_message(iv, period_s=sch.period,
                             task=self.setup.task if sch.clock != "freerun" else None,
                             previous_cmd_ns=self.last_cmd_ns)
@@ -200,43 +202,40 @@ class Recorder:
         self._add("/signals/state", now, orjson.dumps(sig), json_signals=True)
         ros2 = self.ros2
         ros2.interval(now, sig, ctx.get("qdmeas_i"))
-        meters = central.meters
         if ros2.due(now):
-            ros2.status(now, misses=meters.plant_misses, skipped=meters.skipped,
-                        rejected=sum(central.node.rejected.values()))
+            ros2.status(now, misses=p.misses, skipped=p.skipped,
+                        rejected=sum(p.rejected.values()))
         self._add("/trace/central", now, msgpack.packb(
             {"cycle": cycle, "vals": {n: ctx[n] for n in self.central_outputs
                                       if n in ctx}}, use_single_float=False))
-        misses = central.meters.plant_misses + central.meters.skipped
+        misses = p.misses + p.skipped
         if misses != self.last_misses:
             self._add("/faults/deadline", now, msgpack.packb(
-                {"cycle": cycle, "deadline_misses": central.meters.plant_misses,
-                 "skipped_samples": central.meters.skipped}))
+                {"cycle": cycle, "deadline_misses": p.misses, "skipped_samples": p.skipped}))
             self.last_misses = misses
-        if central.done % 500 == 0:
-            self._add("/faults/rejected", now, msgpack.packb(dict(central.node.rejected)))
+        if p.done % 500 == 0:
+            self._add("/faults/rejected", now, msgpack.packb(dict(p.rejected)))
 
     # -- end ------------------------------------------------------------------------------
 
-    def close(self, central: Any) -> None:
-        """Write the last counters (the report follows in :meth:`write_report`)."""
+    def close(self, run: RunSnapshot) -> None:
+        """Write the last counters of ``run`` (the central's at the end; the report
+        follows in :meth:`write_report`)."""
         if self.closed:
             return
         self.begin(self.setup)  # a run that ended before its first interval: still a header
         self._drain()
         now = time.monotonic_ns()
-        self._add("/faults/rejected", now, msgpack.packb(dict(central.node.rejected)))
+        self._add("/faults/rejected", now, msgpack.packb(dict(run.rejected)))
         self._add("/faults/deadline", now, msgpack.packb(
-            {"cycle": central.next_cycle, "deadline_misses": central.meters.plant_misses,
-             "skipped_samples": central.meters.skipped}))
-        self.ros2.status(now, misses=central.meters.plant_misses,
-                         skipped=central.meters.skipped,
-                         rejected=sum(central.node.rejected.values()))
-        self.t_end_ns = central.meters.t_end_ns
-        self.t_start_ns = central.meters.t_start_ns
-        self.busy = {"central_wait_ns": central.meters.wait_ns,
-                     "periph_busy_ns": list(central.meters.periph_busy_ns),
-                     "plant_busy_ns": central.meters.plant_busy_ns}
+            {"cycle": run.next_cycle, "deadline_misses": run.plant_misses,
+             "skipped_samples": run.skipped}))
+        self.ros2.status(now, misses=run.plant_misses, skipped=run.skipped,
+                         rejected=sum(run.rejected.values()))
+        t = run.times
+        self.t_end_ns, self.t_start_ns = t.t_end_ns, t.t_start_ns
+        self.busy = {"central_wait_ns": t.wait_ns, "periph_busy_ns": list(t.periph_busy_ns),
+                     "plant_busy_ns": t.plant_busy_ns}
 
     def write_report(self, report: dict[str, Any]) -> None:
         """Store what only the live run knows (t_1, block costs, wall times, and under

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..host import sched
 from ..observe.signals import Interval, state_message
@@ -34,6 +34,9 @@ from .ros2 import TOPICS, Ros2Channels, typestore
 
 CLOSE_WAIT_S = 1.0
 """How long the end of a run waits for the session to close."""
+
+if TYPE_CHECKING:
+    from ..central.snapshot import Progress
 
 
 class Ros2Publishers:
@@ -113,7 +116,7 @@ class Ros2Live:
         self.channels = Ros2Channels(self.pubs.register, self.pubs.add, unit)
         self.tap = IntervalTap(rate_hz=rate_hz)
         self._listening, self._asked = False, 0.0
-        self._central: Any = None
+        self._rejected_total = 0  # messages rejected, as of the last interval
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ctrlunit-ros2", daemon=True)
         self._thread.start()
@@ -130,11 +133,11 @@ class Ros2Live:
 
     # -- the central's thread ----------------------------------------------------------
 
-    def __call__(self, central: Any, cycle: int, ctx: dict) -> None:
+    def __call__(self, progress: Progress, ctx: dict) -> None:
         """``on_cycle``: note the interval if it is due (a tuple into a bounded deque)."""
-        self._central = central
+        self._rejected_total = sum(progress.rejected.values())
         if self._listening:
-            self.tap.offer(central, cycle, ctx)
+            self.tap.offer(progress, ctx)
 
     # -- its own thread ----------------------------------------------------------------
 
@@ -148,14 +151,7 @@ class Ros2Live:
         ch.interval(iv.cmd_ns, sig, iv.qd)
         if ch.due(iv.cmd_ns):
             ch.status(iv.cmd_ns, misses=iv.misses, skipped=iv.skipped,
-                      rejected=self._rejected())
-
-    def _rejected(self) -> int:
-        c = self._central
-        try:
-            return sum(dict(c.node.rejected).values()) if c is not None else 0
-        except Exception:  # read while the central's thread changed it: next time
-            return 0
+                      rejected=self._rejected_total)
 
     def _run(self) -> None:
         while not self._stop.wait(SEND_EVERY_S):
