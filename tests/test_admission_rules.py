@@ -378,6 +378,16 @@ def test_each_law_is_simulated_as_it_runs():
 # -- one trial, its probe scripted ------------------------------------------------------
 
 
+class Publisher:
+    """Stands for a Zenoh publisher the trial central declares."""
+
+    def __init__(self) -> None:
+        self.undeclared = 0
+
+    def undeclare(self) -> None:
+        self.undeclared += 1
+
+
 class Probe:
     """Stands for the trial central (runtime/central/, ``Central(trial=True)``): ``run``
     makes the traversals, skips and fault the test scripts."""
@@ -392,7 +402,12 @@ class Probe:
         self.on_cycle, self.on_message = on_cycle, on_message
         self.node, self.rc, self.engine, self.ctl, self.n = node, rc, engine, ctl, n
         self.supervision, self.reply_each = supervision, reply_each
+        self.intervals = SimpleNamespace(pub_req=Publisher(), pub_cmd=Publisher())
+        self.orders = SimpleNamespace(pubs=[Publisher(), Publisher()])
         Probe.made.append(self)
+
+    def publishers(self) -> list[Publisher]:
+        return [self.intervals.pub_req, self.intervals.pub_cmd, *self.orders.pubs]
 
     def snapshot(self) -> Any:
         s = self.script
@@ -412,10 +427,7 @@ class Outside:
     """The central as the admission sees it: the run's :class:`Central` methods on parts
     that stand in for the real ones."""
 
-    trial_central = Central.trial_central
     say = Central.say
-    role_exited = Central.role_exited
-    end_trial = Central.end_trial
 
     def __init__(self, **parts: Any) -> None:
         self.__dict__.update(parts)
@@ -425,10 +437,10 @@ class Outside:
 
 
 def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
-    from ctrlunit.runtime.central import scheduler
+    from ctrlunit.runtime.central import trial
 
     Probe.script, Probe.made = script, []
-    monkeypatch.setattr(scheduler, "Central", Probe)
+    monkeypatch.setattr(trial, "Central", Probe)
     monkeypatch.setattr(sched, "cpu_times", lambda: [(0, 0)])
     monkeypatch.setattr(sched, "busy_share", lambda a, b: 0.42)
     monkeypatch.setattr(admission, "fifo_busy_limit", lambda: None)
@@ -460,6 +472,8 @@ def test_a_trial_runs_its_intervals_on_a_copy_of_the_controller_and_judges_them(
     assert out["intervals"] == 301 and out["late"] == 2 and out["busy_share"] == 0.42
     assert out["traversal_max_s"] == pytest.approx(3.1 * MS)
     assert "fault" not in out and out["wall_s"] >= 0 and c.drained == [0.0]
+    # what the trial central declared on the run's node is undeclared, once
+    assert [p.undeclared for p in probe.publishers()] == [1, 1, 1, 1]
 
 
 def test_the_late_replies_of_a_trials_rounds_are_the_trials_not_the_runs(monkeypatch):
@@ -483,6 +497,7 @@ def test_a_trial_that_faults_does_not_hold_and_drains_its_stragglers(monkeypatch
     assert out["fault"] == "peripheral 1 has not answered"
     assert out["intervals"] == 300 and out["late"] == 200  # the 200 that never ran
     assert c.drained == [pytest.approx(0.05)]  # 50 periods, at most 0.2 s
+    assert all(p.undeclared == 1 for p in Probe.made[0].publishers())  # a fault's trial too
     c = trial_central(monkeypatch, {"fault": "x"})
     admission.trial(c, 10e-3, base=5, transit_s=0.0)
     assert c.drained == [0.2]

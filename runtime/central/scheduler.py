@@ -18,7 +18,6 @@ slot is free from a synthetic sample (the reference's inverse kinematics, quanti
 
 from __future__ import annotations
 
-import copy
 import queue
 import time
 from collections import OrderedDict
@@ -209,41 +208,6 @@ class Central:
     def params(self) -> Any:
         """The robot's parameters the run's plan computes with."""
         return self.engine.cfg.params
-
-    def trial_central(self, period: float, *, ticks: int, base: int,
-                      on_cycle: Callable[[Progress, dict], None] | None = None,
-                      on_message: Callable[[str, str, int, Any, bytes, int], None] | None = None
-                      ) -> Central:
-        """A central for one admission trial (runtime/launch/admission.py) of ``ticks``
-        intervals at ``period``, numbered from ``base``: on this node, with this plan, a
-        copy of the controller, the same reply mode and the same watch over the role
-        processes (the trial's own samples and commands are flagged ``probe``)."""
-        trc = self.rc.replace(period=period, t1_cycles=0, record=None, report=None)
-        ctl = copy.copy(self.ctl)
-        ctl.first_cycle, ctl.q_prev, ctl.k_prev = base, None, base
-        child_check = self.silence.supervision.child_check
-        return Central(self.node, trc, self.engine, ctl, ticks, trial=True,
-                       supervision=Supervision(child_check=child_check),
-                       reply_each=self.intervals.reply_each, on_cycle=on_cycle,
-                       on_message=on_message)
-
-    def role_exited(self) -> bool:
-        """Whether a role process this central watches has exited."""
-        child_check = self.silence.supervision.child_check
-        return child_check is not None and child_check() is not None
-
-    def end_trial(self, *, late_before: int, drain_s: float) -> int:
-        """After a trial: drop what arrives for ``drain_s`` (:meth:`Orders.drain`) and
-        forget the late replies counted since there were ``late_before`` (the trial's, not
-        the run's); returns how many those were."""
-        self.orders.drain(seconds=drain_s)
-        rejected = self.node.rejected
-        late = rejected["late_reply"] - late_before
-        if late_before:
-            rejected["late_reply"] = late_before
-        else:
-            rejected.pop("late_reply", None)
-        return late
 
     def choose_replies(self) -> dict[str, Any]:
         """Decide how peripherals answer fused requests (:meth:`WarmUp.choose_replies`)

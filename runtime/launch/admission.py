@@ -288,13 +288,14 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
     the plant ticks and after the trial) where given, else the machine's; the rung keeps
     the machine's too (``machine_busy_share``)."""
     from ..central import Fault
+    from ..central.trial import end_trial, role_exited, trial_central
 
     rc = central.rc
     n = trial_intervals(period)
     late0 = central.snapshot().rejected.get("late_reply", 0)
     rehearsal = rehearse() if rehearse is not None else None
-    probe = central.trial_central(
-        period, ticks=n, base=base,
+    probe = trial_central(
+        central, period, ticks=n, base=base,
         on_cycle=None if rehearsal is None else rehearsal.on_cycle,
         on_message=None if rehearsal is None else rehearsal.on_message)
     unit0 = unit_cpu() if unit_cpu is not None else None  # 2-10 ms: before the ticks
@@ -305,7 +306,7 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
     try:
         probe.run()
     except Fault as exc:
-        if central.role_exited():
+        if role_exited(central):
             raise
         fault = str(exc)
     finally:
@@ -329,6 +330,6 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
     out["wall_s"] = time.monotonic() - t0
     # the replies of the trial's rounds it computed itself: the trial's, not the run's
     # (they once made the run's summary say 23 late replies for 1 late round)
-    out["late_replies"] = central.end_trial(
-        late_before=late0, drain_s=min(0.2, 50 * period) if fault else 0.0)
+    out["late_replies"] = end_trial(
+        central, probe, late_before=late0, drain_s=min(0.2, 50 * period) if fault else 0.0)
     return out
