@@ -120,7 +120,8 @@ def _admit_with_trials(monkeypatch, verdicts: list[dict], *, period: float = 1e-
     monkeypatch.setattr(admission, "predicted_tracking", lambda central, p: 0.0)
     rc = SimpleNamespace(schedule=SimpleNamespace(period=period, period_auto=False, pipeline=2),
                          control=SimpleNamespace(max_error=0.02))
-    central = SimpleNamespace(rc=rc, warmup=SimpleNamespace(warm_rtt_s=[]))
+    run = SimpleNamespace(times=SimpleNamespace(warm_rtt_s=()))
+    central = SimpleNamespace(rc=rc, snapshot=lambda: run)
     return admission, central, tried
 
 
@@ -278,10 +279,9 @@ def test_the_tracking_prediction_of_a_long_run_simulates_one_loop_of_the_task(mo
         return real(*a, cycles=cycles, **kw)
 
     monkeypatch.setattr(controller, "simulate", counted)
-    engine = SimpleNamespace(cfg=SimpleNamespace(params=DELTA_IA))
     loop = get_task("pick-place").period
-    short = predicted_tracking(SimpleNamespace(rc=RunConfig.of(), engine=engine), 2e-3)
+    short = predicted_tracking(SimpleNamespace(rc=RunConfig.of(), params=DELTA_IA), 2e-3)
     long = predicted_tracking(SimpleNamespace(rc=RunConfig.of(duration=3600.0),
-                                              engine=engine), 2e-3)
+                                              params=DELTA_IA), 2e-3)
     assert asked == [round(loop / 2e-3) + 1] * 2
     assert long == short and 0 < short < 0.02

@@ -24,6 +24,7 @@ from .intake import Intake, synthetic_counts
 from .meters import Meters
 from .overload import Overload
 from .records import CycleLog, InFlight
+from .samples import sample_source
 from .settings import CommandAhead, LoopSettings, PlanShape, t1_input
 from .silence import SilenceWatch
 from .state_check import check_state
@@ -77,6 +78,9 @@ class Intervals:
         self.requests_on = True
         """Requests are published (off once every peripheral is taken over: .takeover)."""
         self.ahead = CommandAhead(settings.extrapolate)
+        self.samples = sample_source(
+            settings.clock, intake, synthetic=self._synthetic_sample, trial=settings.trial,
+            on_skip=self._skipped, note=None if on_message is None else self._note_synthetic)
         self.use(engine, controller)
 
     def use(self, engine: Engine, controller: Controller) -> None:
@@ -104,12 +108,10 @@ class Intervals:
         and has its sample (freerun: a synthetic one), up to its first round."""
         while self._may_start():
             t_in = time.perf_counter_ns()
-            k = self.next_cycle
-            taken = self._sample_for(k)
+            taken = self.samples.take(self.next_cycle)
             if taken is None:
                 return
-            counts, t_ns = taken
-            k = self.next_cycle  # realtime and behind: the newest sample's
+            k, counts, t_ns = taken  # realtime and behind: the newest sample's
             self.next_cycle = k + self.ctl.hold_of(k)
             t0 = time.monotonic_ns()
             primed = self._take_primed(k)
@@ -131,38 +133,24 @@ class Intervals:
             self.meters.admit_ns += time.perf_counter_ns() - t_in
             self.advance(f)
 
-    def _sample_for(self, k: int) -> tuple[list[int], int] | None:
-        """The sample interval ``k`` starts from (counts, time), or None while it has not
-        come. Freerun: a synthetic one. Realtime and behind the plant's clock: the newest
-        sample, never a queue (``next_cycle`` moves to it; the skipped ones are counted).
-        In the admission's trial the robot rests, and the trial follows the reference."""
-        sch = self.settings
-        if sch.clock == "freerun":
-            counts, t_ns = self._synthetic_sample(k), time.monotonic_ns()
-            if self.on_message is not None:
-                self.on_message("in", self.node.keys.sample, k, "sample", encode(
-                    self.node.unit, k, "sample", counts=counts, t_ns=t_ns, synthetic=True),
-                    t_ns)
-            return counts, t_ns
-        newest = self.intake.newest_waiting()
-        if sch.clock == "realtime" and newest is not None and newest > k:
-            if self.ctl.stride > 1:  # the rate is halved: the grid's samples only
-                skipped = sum(1 for c in range(k, newest) if self.ctl.on_grid(c))
-            else:
-                skipped = newest - k
-            self.meters.skipped += skipped
-            self.overload.mark_late(self.done, self.ctl.stride)  # one, however long the stall
-            if sch.trial:
-                self.meters.skip_marks.append((len(self.log.traversal_ns), skipped))
-            self.intake.keep_only(newest)
-            self.next_cycle = k = newest
-        taken = self.intake.take(k)
-        if taken is None:
-            return None
-        counts, t_ns = taken
-        if sch.trial:
-            counts = self._synthetic_sample(k)
-        return counts, t_ns
+    def _skipped(self, k: int, newest: int) -> None:
+        """Realtime and behind the plant's clock: interval ``k`` starts from the newest
+        sample, ``newest``'s; count the samples skipped (on the control rate's grid where
+        it is halved) as one late mark, however long the stall."""
+        if self.ctl.stride > 1:  # the rate is halved: the grid's samples only
+            skipped = sum(1 for c in range(k, newest) if self.ctl.on_grid(c))
+        else:
+            skipped = newest - k
+        self.meters.skipped += skipped
+        self.overload.mark_late(self.done, self.ctl.stride)
+        if self.settings.trial:
+            self.meters.skip_marks.append((len(self.log.traversal_ns), skipped))
+        self.next_cycle = newest
+
+    def _note_synthetic(self, k: int, counts: list[int], t_ns: int) -> None:
+        assert self.on_message is not None
+        self.on_message("in", self.node.keys.sample, k, "sample", encode(
+            self.node.unit, k, "sample", counts=counts, t_ns=t_ns, synthetic=True), t_ns)
 
     def _sample_came(self, f: InFlight, k: int, counts: list[int], t_ns: int, t0: int,
                      t_in: int) -> None:
