@@ -19,7 +19,7 @@ def late_data(*, late: dict[str, str] | None = None, pending: bool = False,
     setup = make_setup(RunConfig.of(clock="realtime", peripherals=3, placement_auto=False)
                        .validate())
     advanced: list[InFlight] = []
-    ld = LateData(setup.engine(), realtime=True, late=late or {}, late_policy=policy,
+    ld = LateData(setup.engine(), late=late or {}, late_policy=policy,
                   faults_key="ctrlunit/u/faults", pending=lambda: pending,
                   advance=advanced.append, span=lambda *a: None)
     return ld, advanced

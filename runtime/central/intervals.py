@@ -23,6 +23,7 @@ from .fault import Fault
 from .intake import Intake, synthetic_counts
 from .meters import Meters
 from .overload import Overload
+from .pace import pace_of
 from .records import CycleLog, InFlight
 from .samples import sample_source
 from .settings import CommandAhead, LoopSettings, PlanShape, t1_input
@@ -78,6 +79,7 @@ class Intervals:
         self.requests_on = True
         """Requests are published (off once every peripheral is taken over: .takeover)."""
         self.ahead = CommandAhead(settings.extrapolate)
+        self.pace = pace_of(settings)
         self.samples = sample_source(
             settings.clock, intake, synthetic=self._synthetic_sample, trial=settings.trial,
             on_skip=self._skipped, note=None if on_message is None else self._note_synthetic)
@@ -161,8 +163,8 @@ class Intervals:
             self.meters.t1_inputs.append(t1_input(f.ctx))
         f.sample_ns, f.start_ns = t_ns, t0
         f.awaiting_sample = False
-        if f.waiting and self.settings.clock == "realtime":
-            f.late_ns = t_ns  # a round run ahead is late once its sample is here
+        if f.waiting:  # a round run ahead is late once its sample is here (realtime)
+            f.late_ns = self.pace.sample_late_at(f, t_ns)
         self.meters.admit_ns += time.perf_counter_ns() - t_in
         if f.gated:  # its rounds are back: on from the sample's steps
             f.gated = False
@@ -310,9 +312,7 @@ class Intervals:
             assert rnd is not None
             f.waiting = set(range(sch.peripherals))
             f.deadline_ns = now + limit_ns
-            if sch.clock == "realtime" and round_trips and not f.awaiting_sample:
-                share = (rnd.index + 1) / round_trips
-                f.late_ns = f.sample_ns + int(sch.depth * sch.period_ns * share)
+            f.late_ns = self.pace.round_late_at(f, rnd.index, round_trips)
             parts.append({"cycle": f.cycle, "stage": rnd.index,
                           "vals": Engine.request_vals(rnd, f.ctx, (0, 1, 2))})
         self.outbox.clear()
@@ -342,9 +342,7 @@ class Intervals:
                                 handed_off=f.handed_off, cycle=f.cycle,
                                 next_cycle=self.next_cycle, cycles=sch.end, hold=sch.hold):
             return 0
-        if sch.clock == "realtime":
-            return f.sample_ns + sch.period_ns + sch.period_ns // 4
-        return time.monotonic_ns() + self.silence.limit_ns(self.done)
+        return self.pace.hold_until(f, self.silence.limit_ns(self.done))
 
     def _finish(self, f: InFlight) -> None:
         t_in = time.perf_counter_ns()

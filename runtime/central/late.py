@@ -43,7 +43,6 @@ class LateData:
     Parameters
     ----------
     engine : the engine of the run's plan (:meth:`use` when it changes).
-    realtime : late data exists in realtime only.
     late, late_policy : the policy per block and the default (``rc.schedule``).
     faults_key : where held and computed rounds are recorded (``<root>/faults``).
     pending : whether events wait in the central's inbox.
@@ -52,12 +51,11 @@ class LateData:
     on_message : the recording's hook, or None.
     """
 
-    def __init__(self, engine: Engine, *, realtime: bool, late: dict[str, str],
+    def __init__(self, engine: Engine, *, late: dict[str, str],
                  late_policy: str, faults_key: str, pending: Callable[[], bool],
                  advance: Callable[[InFlight], None],
                  span: Callable[[str, int, int, int], None],
                  on_message: Callable[..., None] | None = None) -> None:
-        self.realtime = realtime
         self.late = late
         self.default = late_policy
         self.faults_key = faults_key
@@ -114,9 +112,8 @@ class LateData:
         return min(times) if times else None
 
     def check(self, now: int, intervals: Collection[InFlight]) -> None:
-        """Apply each waiting round's policy once its late-data time has passed."""
-        if not self.realtime:
-            return
+        """Apply each waiting round's policy once its late-data time has passed (only
+        the realtime clock sets one: runtime/central/pace.py)."""
         for f in list(intervals):
             if not f.waiting or f.round is None or not f.late_ns or now < f.late_ns:
                 continue

@@ -107,7 +107,7 @@ class Central:
             peripherals=n, realtime=realtime, period_s=sch.period,
             fault_periods=sch.fault_periods, timeout_s=rc.transport.timeout,
             stride=lambda: self.ctl.stride, supervision=supervision, hint=self.overload_hint)
-        self.late = LateData(engine, realtime=realtime, late=sch.late,
+        self.late = LateData(engine, late=sch.late,
                              late_policy=sch.late_policy, faults_key=f"{keys.root}/faults",
                              pending=node.events.pending,
                              advance=lambda f: self.intervals.advance(f),
