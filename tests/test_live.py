@@ -9,6 +9,7 @@ import select
 import subprocess
 import sys
 import time
+from typing import Any
 
 import numpy as np
 import pytest
@@ -149,48 +150,39 @@ def test_a_message_during_the_run_is_written_on_a_cleared_line():
     assert "interval 1/2  0 s left\r\x1b[2Kctrlunit: a message\n" in text
 
 
+def progress(cycle: int, done: int, *, planned: int, hold: int = 1,
+             lost: tuple[int, ...] = ()) -> Any:
+    """What the central hands ``on_cycle`` after interval ``cycle`` (runtime/central/
+    snapshot.py), the interval's command a millisecond after the last."""
+    from ctrlunit.runtime.central.records import CycleLog
+    from ctrlunit.runtime.central.snapshot import History, Progress
+
+    return Progress(cycle, done, cycle + hold, planned, done * 1_000_000, None, 0, None, 0,
+                    0, {}, lost, (), History(CycleLog(), list))
+
+
 def test_the_bar_counts_periods_covered_when_the_control_rate_is_halved():
     """Halved from cycle 10 of 20: 15 intervals cover the 20 periods, and the bar ends
     full, not at 15 of 20."""
-    from types import SimpleNamespace
-
     from ctrlunit.runtime.observe.live import LiveLine
 
     shown: list[tuple[int, int]] = []
     line = LiveLine(lambda text, done, total: shown.append((done, total)))
-    central = SimpleNamespace(cycles=20, done=0,
-                              meters=SimpleNamespace(plant_misses=0, skipped=0),
-                              log=SimpleNamespace(cmd_ns=[0]),
-                              ctl=SimpleNamespace(first_cycle=0,
-                                                  hold_of=lambda k: 2 if k >= 10 else 1),
-                              takeover=SimpleNamespace(lost={}))
     cycles = list(range(10)) + list(range(10, 20, 2))
-    for k in cycles:
-        central.done += 1
-        central.log.cmd_ns.append(central.log.cmd_ns[-1] + 1_000_000)
-        line(central, k, {})
-    assert central.done == 15
+    for done, k in enumerate(cycles, 1):
+        line(progress(k, done, planned=20, hold=2 if k >= 10 else 1), {})
+    assert len(cycles) == 15
     assert shown[-1] == (20, 20)
 
 
 def test_the_line_names_the_peripherals_taken_over():
     """A peripheral lost and taken over (runtime/central/takeover.py) is named on the
     live line from the next refresh on."""
-    from types import SimpleNamespace
-
     from ctrlunit.runtime.observe.live import LiveLine
 
     shown: list[str] = []
     line = LiveLine(lambda text, done, total: shown.append(text))
-    central = SimpleNamespace(cycles=4, done=0, meters=SimpleNamespace(plant_misses=0, skipped=0),
-                              log=SimpleNamespace(cmd_ns=[0]),
-                              ctl=SimpleNamespace(first_cycle=0, hold_of=lambda k: 1),
-                              takeover=SimpleNamespace(lost={}))
     for k in range(4):
-        if k == 3:
-            central.takeover.lost = {1: {}}
-        central.done += 1
-        central.log.cmd_ns.append(central.log.cmd_ns[-1] + 1_000_000)
-        line(central, k, {})
+        line(progress(k, k + 1, planned=4, lost=(1,) if k == 3 else ()), {})
     assert "taken over" not in shown[0]
     assert shown[-1].startswith("taken over P2  interval 4/4")  # first: a narrow line keeps it

@@ -152,6 +152,13 @@ def test_a_viewer_reads_the_observers_keys_and_nothing_else(tmp_path, unit_keys)
     assert all("/view/" in k for k in control), sorted(set(control))[:5]
 
 
+def taken_over_and_back(rep: dict) -> bool:
+    """No peripheral was taken over, or each one taken over was lost to a silence and
+    served its rounds again before the end (a slow peripheral, not a cut-off one)."""
+    return all("answer" in str(d.get("why")) and "back_from_cycle" in d
+               for d in rep.get("degraded") or [])
+
+
 @pytest.mark.slow
 def test_a_frozen_viewer_costs_a_keyed_run_nothing(tmp_path, unit_keys):
     """A viewer that subscribes to the observers' keys and to the whole unit, then stops
@@ -159,7 +166,12 @@ def test_a_frozen_viewer_costs_a_keyed_run_nothing(tmp_path, unit_keys):
     the viewer got the view, never the control path. Before, the central's puts waited
     for such a reader, and when Zenoh closed its link (its keep-alives stopped) the
     worker that closed it was the central's only one: no reply came, and the run faulted
-    about 10 s after the reader froze."""
+    about 10 s after the reader froze.
+
+    Under the default policy a peripheral the machine keeps from its CPU past the silence
+    limit may be taken over for a while (once in CI, 2026-11-28: silent 6.3 ms of a 6.0 ms
+    limit): that is the host's, and it comes back (:func:`taken_over_and_back`). A reader
+    that held the puts back would have left every peripheral without requests for good."""
     code, rep, out, readers = run_with_readers(
         tmp_path, "frozenkeyed", ["view/**", "**"], "--peripherals", "3", "--pipeline", "2",
         "--duration", "20s", "--task", slow_task(tmp_path), "--rt-priority", "0", keys=unit_keys)
@@ -167,7 +179,7 @@ def test_a_frozen_viewer_costs_a_keyed_run_nothing(tmp_path, unit_keys):
           f"overload {rep.get('overload')}, observers {rep.get('observers')}, "
           f"readers {readers}")
     assert code == 0, out[-2000:]
-    assert not rep.get("degraded"), rep.get("degraded")  # no peripheral was taken over
+    assert taken_over_and_back(rep), rep.get("degraded")
     assert "got 1" in readers[0], readers  # it read the view, then froze
     assert "got 1" not in readers[1], readers  # denied the control path: nothing came
     # the whole run (a command at the halved rate that ends it covers one period more)
@@ -186,7 +198,7 @@ def test_a_frozen_loopback_reader_costs_a_run_without_keys_nothing(tmp_path):
     print(f"exit {code}, misses {rep.get('deadline_misses')} of {rep.get('periods')}, "
           f"overload {rep.get('overload')}, readers {readers}")
     assert code == 0, out[-2000:]
-    assert not rep.get("degraded"), rep.get("degraded")  # no peripheral was taken over
+    assert taken_over_and_back(rep), rep.get("degraded")
     assert "got 1" in readers[0], readers  # it read, then froze
     # the whole run (a command at the halved rate that ends it covers one period more)
     assert 0 <= rep["periods"] - round(20 / rep["nominal_period_s"]) <= 1
