@@ -132,10 +132,14 @@ def test_one_stall_is_one_episode_without_which_at_least_half_the_trial_holds():
     assert verdict(held)["held"] and not verdict(held)["one_stall"]
 
 
-def test_the_fifo_busy_limit_is_85_percent_of_the_real_time_budget(monkeypatch):
+def test_the_fifo_busy_limit_is_75_percent_of_the_real_time_budget(monkeypatch):
+    """A tenth below the guard's restore share (runtime/host/busy_guard.py)."""
+    from ctrlunit.runtime.host.busy_guard import RESTORE_BUSY_SHARE
+
     monkeypatch.setattr(sched, "rt_budget", lambda: 0.95)
     monkeypatch.setattr(sched, "fifo_in_force", lambda: True)
-    assert fifo_busy_limit() == pytest.approx(0.85 * 0.95)
+    assert fifo_busy_limit() == pytest.approx(0.75 * 0.95)
+    assert fifo_busy_limit() == pytest.approx((RESTORE_BUSY_SHARE - 0.1) * 0.95)
     monkeypatch.setattr(sched, "fifo_in_force", lambda: False)
     assert fifo_busy_limit() is None
     monkeypatch.setattr(sched, "fifo_in_force", lambda: True)
@@ -241,12 +245,12 @@ def test_a_refusal_suggests_a_rung_higher_than_one_that_held_near_a_limit(monkey
 
 
 def test_a_busy_cpu_is_named_in_the_refusal(monkeypatch):
-    central, _ = scripted(monkeypatch, [rung(1e-3, held=False, busy=0.9, limit=0.8075)]
+    central, _ = scripted(monkeypatch, [rung(1e-3, held=False, busy=0.9, limit=0.7125)]
                           + [rung(p, held=False) for p in LADDER_S[1:]])
     with pytest.raises(Unsustainable) as e:
         admit(central)
     msg = str(e.value)
-    assert ("; a CPU was 90% busy under SCHED_FIFO, over the limit of 81% of the CPU (85% "
+    assert ("; a CPU was 90% busy under SCHED_FIFO, over the limit of 71% of the CPU (75% "
             "of the kernel's real-time budget); ") in msg
     assert msg.endswith("or a placement from ctrlunit balance (less of the unit's CPU "
                         "time). ctrlunit latency measures what this machine holds.")
@@ -579,11 +583,11 @@ def test_a_trial_judges_the_units_own_cpu_time_where_it_is_read(monkeypatch):
 
 
 def test_a_refusal_for_the_units_own_load_says_whose_time_it_was(monkeypatch):
-    busy = rung(1e-3, held=False, busy=0.9, limit=0.8075) | {"busy_of": "unit"}
+    busy = rung(1e-3, held=False, busy=0.9, limit=0.7125) | {"busy_of": "unit"}
     central, _ = scripted(monkeypatch, [busy] + [rung(p, held=False) for p in LADDER_S[1:]])
     with pytest.raises(Unsustainable) as e:
         admit(central)
-    assert "; the unit kept a CPU 90% busy under SCHED_FIFO, over the limit of 81% of the CPU" \
+    assert "; the unit kept a CPU 90% busy under SCHED_FIFO, over the limit of 71% of the CPU" \
         in str(e.value)
 
 

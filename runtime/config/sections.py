@@ -190,7 +190,7 @@ class ScheduleConfig:
         "start); 0: leave the policy as it is (1-99 needs root, CAP_SYS_NICE or ulimit -r). "
         "auto: FIFO at 10 in realtime with the admission, where permitted and the kernel "
         "throttles real-time tasks; the admission then refuses a period that keeps a CPU "
-        "over 85 % of the kernel's real-time budget, and the run goes back to the default "
+        "over 75 % of the kernel's real-time budget, and the run goes back to the default "
         "policy if it stays over 95 % of it for a second or passes it (the report says "
         "which and why).")
     idle: str = setting(
