@@ -330,7 +330,12 @@ def test_a_role_reads_its_own_inbox_alone(unit_keys, role, widened):
 # -- a real keyed unit ------------------------------------------------------------------------
 
 CYCLES = "3000"
-"""Long enough (a second or two in lockstep) for every thief to have its turn."""
+"""Long enough (a second or two in lockstep) for one thief to have its turn."""
+
+ALL_THIEVES_CYCLES = "6000"
+"""Long enough for the three thieves of :data:`THIEVES` to have their turns one after the
+other: at 3000 intervals CI's suite twice saw the run end before the last one connected
+(``Unable to connect``, 2026-11-28)."""
 
 WIDENED = '''import json, os
 from ctrlunit.runtime.transport import security
@@ -380,7 +385,8 @@ def _thief(conf: Any) -> Any:
 
 
 def keyed_run(tmp_path: Path, tag: str, keys: Path, thieves: list[Forgery],
-              policy: Policy | None = None) -> tuple[int, dict, str, dict[str, int]]:
+              policy: Policy | None = None, cycles: str = CYCLES
+              ) -> tuple[int, dict, str, dict[str, int]]:
     """A lockstep unit with ``keys`` (under ``policy`` if given) listening on a TLS
     loopback port while each thief connects with its role's certificate, as a client
     without a policy of its own, and puts its forgeries. Returns the exit code, report,
@@ -397,7 +403,7 @@ def keyed_run(tmp_path: Path, tag: str, keys: Path, thieves: list[Forgery],
                 "CTRLUNIT_TEST_POLICY": str(tmp_path / f"{tag}-policy.json")}
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit, "--listen",
-         f"tcp/127.0.0.1:{port}", "--keys", str(keys), "--clock", "lockstep", "--cycles", CYCLES,
+         f"tcp/127.0.0.1:{port}", "--keys", str(keys), "--clock", "lockstep", "--cycles", cycles,
          "--peripherals", "3", "--pipeline", "2", "--report", str(report), "--status-file",
          str(status)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
         start_new_session=True)
@@ -408,6 +414,8 @@ def keyed_run(tmp_path: Path, tag: str, keys: Path, thieves: list[Forgery],
             time.sleep(0.02)
         k = Keys(unit)
         for role, key, forge in thieves:
+            # the premise: each thief meets the run (else it is refused at a closed door)
+            assert proc.poll() is None, f"the run ended before the {role} thief's turn"
             with _thief(thief_config(f"tls/127.0.0.1:{port}", keys, role)) as thief:
                 time.sleep(0.2)
                 connected[role] = len(list(thief.info.routers_zid()) + list(thief.info.peers_zid()))
@@ -425,22 +433,28 @@ def keyed_run(tmp_path: Path, tag: str, keys: Path, thieves: list[Forgery],
     return proc.returncode, rep, out, connected
 
 
-@pytest.fixture(scope="module")
-def clean(tmp_path_factory) -> dict:
+def clean_run(tmp_path: Path, cycles: str) -> dict:
     """The report of the same run undisturbed (one process: the star's commands equal its
     bit for bit)."""
-    _, rep, _ = start_json(tmp_path_factory.mktemp("clean"), "--clock", "lockstep",
-                           "--cycles", CYCLES, "--peripherals", "0", "--pipeline", "2",
-                           tag="aclclean")
+    _, rep, _ = start_json(tmp_path, "--clock", "lockstep", "--cycles", cycles,
+                           "--peripherals", "0", "--pipeline", "2", tag="aclclean")
     return rep
 
 
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory) -> dict:
+    """:func:`clean_run` of :data:`CYCLES` intervals."""
+    return clean_run(tmp_path_factory.mktemp("clean"), CYCLES)
+
+
 @pytest.mark.zenoh
-def test_a_keyed_unit_never_sees_what_a_role_may_not_publish(tmp_path, unit_keys, clean):
+def test_a_keyed_unit_never_sees_what_a_role_may_not_publish(tmp_path, unit_keys):
     """Thieves with a peripheral's, the plant's and the viewer's certificates, admitted to
     the unit, forge on every key of :data:`CASES`: the unit's commands are a clean run's
     bit for bit and no role rejected anything (nothing forged reached one)."""
-    code, rep, out, connected = keyed_run(tmp_path, "aclkeys", unit_keys, THIEVES)
+    clean = clean_run(tmp_path, ALL_THIEVES_CYCLES)
+    code, rep, out, connected = keyed_run(tmp_path, "aclkeys", unit_keys, THIEVES,
+                                          cycles=ALL_THIEVES_CYCLES)
     print(f"policy: exit {code}, connected {connected}, rejected {rep.get('rejected_messages')}")
     assert code == 0, out[-2000:]
     assert connected == {"peripheral-1": 1, "plant": 1, "viewer": 1}, out[-2000:]

@@ -56,7 +56,6 @@ class Intervals:
                  on_message: Callable[..., None] | None = None) -> None:
         self.node = node
         self.settings = settings
-        self.intake = intake
         self.silence = silence
         self.overload = overload
         self.expect_late = expect_late

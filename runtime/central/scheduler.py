@@ -353,6 +353,7 @@ class Central:
         if s is None:
             return
         self.silence.heard_sample(rx)
+        # the tracking error of the run's samples only: the plant may send one more
         self.log.sampled(s.cycle, s.p, self.engine.cfg.task.position(  # type: ignore[union-attr]
             self.ctl.time_of(s.cycle)) if s.cycle < self.settings.end else None)
         self.meters.plant_sample(s.cycle, s.span, s.misses)
