@@ -242,7 +242,8 @@ class Task:
 
         After :meth:`align`, times on the aligned grid are cached by their index within
         one loop (a run meets the same times again every loop; the cache stays bounded by
-        the loop's length); other times are computed."""
+        the loop's length), with the time within the loop they were computed at; other
+        times are computed."""
         step = self._step
         if step:
             x = t / step
@@ -251,15 +252,26 @@ class Task:
                 key = k % self._grid
                 hit = self._cache.get(key)
                 if hit is None:
-                    hit = self._cache[key] = self._sample(t)
-                return hit
+                    hit = self._cache[key] = (t % self.period, self._sample(t))
+                return hit[1]
         return self._sample(t)
 
     def position(self, t: float) -> Vec3:
-        """Reference position at ``t``, computed afresh (Eq. II.33): the tracking error's
-        reference. :meth:`sample` caches a grid time's value from whichever nearby ``t``
-        (a few ulps apart) asked first, so two runs of the same intervals may see it in
-        different last bits; this does not depend on what was asked before."""
+        """Reference position at ``t`` exactly as computed afresh (Eq. II.33): the tracking
+        error's reference. :meth:`sample` caches a grid time's value from whichever nearby
+        ``t`` (a few ulps apart) asked first, so two runs of the same intervals may see it
+        in different last bits; this does not depend on what was asked before. The
+        reference depends on ``t`` only through the time within the loop (``t`` modulo
+        :attr:`period`, :meth:`_sample`'s first step), so a cached value computed at that
+        very time is the same value, and is taken instead of computing it again."""
+        step = self._step
+        if step:
+            x = t / step
+            k = round(x)
+            if abs(x - k) < 1e-6:
+                hit = self._cache.get(k % self._grid)
+                if hit is not None and hit[0] == t % self.period:
+                    return hit[1][0]
         return self._sample(t)[0]
 
     def _sample(self, t: float) -> tuple[Vec3, Vec3, Vec3]:

@@ -54,3 +54,33 @@ def test_task_loops_forward_and_back_and_rests_at_ends():
 def test_arc_rejects_inconsistent_radius():
     with pytest.raises(ValueError, match="same non-zero distance"):
         arc((0, 0, 0), (1, 0, 0), (0, 2, 0))
+
+
+@pytest.mark.parametrize("make", [circle_task, pick_place_task])
+def test_the_tracking_reference_is_the_fresh_value_whatever_the_cache_holds(make):
+    """``Task.position`` equals the reference computed afresh, bit for bit, however the
+    cache of ``Task.sample`` was filled (times a few ulps apart, later loops, the order of
+    the asks), and it takes the cached value where that was computed at the same time
+    within the loop. A position taken from a value cached at a nearby time would differ
+    in its last bits (it did before the cache kept its time)."""
+    import random
+
+    period = 1e-3
+    task = make().align(period / 2)
+    fresh = make().align(period / 2)
+    rng = random.Random(1994)
+    loop = round(task.period / period)
+    times = [k * period for k in range(3 * loop)]
+    nearby = [t + rng.choice((-2, -1, 1, 2)) * math.ulp(t or 1e-9) for t in times]
+    shifted = [(k - 2) * period + 2 * period for k in range(2, 3 * loop)]  # the run's asks
+    asks = times + nearby + shifted
+    rng.shuffle(asks)
+    for t in asks:
+        task.sample(t)
+    taken = 0
+    for t in times + nearby + shifted + [rng.uniform(0, 3 * task.period) for _ in range(500)]:
+        slot = task._cache.get(round(t / task._step) % task._grid)
+        if slot is not None and slot[0] == t % task.period:
+            taken += 1
+        assert task.position(t) == fresh._sample(t)[0], t
+    assert taken > len(times) // 2  # the cache serves most grid times
