@@ -423,6 +423,7 @@ def keyed_run(tmp_path: Path, tag: str, keys: Path, thieves: list[Forgery],
                 for data in forge(unit, done + 2):
                     thief.put(key(k), data)
                 time.sleep(0.1)
+            assert proc.poll() is None, f"the run ended during the {role} thief's turn"
         out, _ = proc.communicate(timeout=300)
     finally:
         kill_unit(unit)

@@ -6,8 +6,8 @@ through what it hands out (runtime/central/snapshot.py) and its own methods
 Read from the source with ``ast``: a part is whatever ``Central.__init__`` assigns to
 ``self`` (the run configuration and the hooks it was given aside), or a property of
 ``Central`` that returns one; a reach into one is ``<central>.<part>`` where
-``<central>`` is a name or attribute called ``central`` (``u.central``,
-``self.central``, ...)."""
+``<central>`` is a name or attribute called as :data:`CENTRAL_NAMES` says
+(``central``, ``u.central``, ``self._central``, ``probe``, ...)."""
 
 from __future__ import annotations
 
@@ -33,9 +33,13 @@ def parts() -> set[str]:
     return (names - GIVEN) | PART_PROPERTIES
 
 
+CENTRAL_NAMES = {"central", "_central", "probe"}
+"""What a central is called outside: the run's, a view's copy, the admission's trial's."""
+
+
 def is_central(node: ast.AST) -> bool:
-    return (isinstance(node, ast.Name) and node.id == "central") or (
-        isinstance(node, ast.Attribute) and node.attr == "central")
+    return (isinstance(node, ast.Name) and node.id in CENTRAL_NAMES) or (
+        isinstance(node, ast.Attribute) and node.attr in CENTRAL_NAMES)
 
 
 def reaches(path: Path, part_names: set[str]) -> list[str]:

@@ -157,8 +157,8 @@ def progress(cycle: int, done: int, *, planned: int, hold: int = 1,
     from ctrlunit.runtime.central.records import CycleLog
     from ctrlunit.runtime.central.snapshot import History, Progress
 
-    return Progress(cycle, done, cycle + hold, planned, done * 1_000_000, None, 0, None, 0,
-                    0, {}, lost, (), History(CycleLog(), list))
+    return Progress(cycle, done, cycle + hold, planned, 1e-3, done * 1_000_000, None, 0, None,
+                    0, 0, {}, lost, (), History(CycleLog(), list))
 
 
 def test_the_bar_counts_periods_covered_when_the_control_rate_is_halved():

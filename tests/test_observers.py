@@ -153,9 +153,10 @@ def test_a_viewer_reads_the_observers_keys_and_nothing_else(tmp_path, unit_keys)
 
 
 def taken_over_and_back(rep: dict) -> bool:
-    """No peripheral was taken over, or each one taken over was lost to a silence and
-    served its rounds again before the end (a slow peripheral, not a cut-off one)."""
-    return all("answer" in str(d.get("why")) and "back_from_cycle" in d
+    """No peripheral was taken over, or each one taken over (the silent one and those
+    that stood by with it) served its rounds again before the end, the requests never
+    stopped for good: a slow peripheral, not one cut off."""
+    return all("back_from_cycle" in d and not d.get("requests_stopped_again")
                for d in rep.get("degraded") or [])
 
 

@@ -187,7 +187,7 @@ def fake_progress(cycle: int, t_ns: int) -> tuple[Any, dict]:
     log = CycleLog(true_p={cycle: (0.1, 0.0, -0.35)})
     log.times.append(t_ns, 400_000)
     log.errors.append(1e-4)
-    progress = Progress(cycle, cycle + 1, cycle + 1, 20_000, t_ns, None, 400_000,
+    progress = Progress(cycle, cycle + 1, cycle + 1, 20_000, 1e-3, t_ns, None, 400_000,
                         (0.1, 0.0, -0.35), 0, 0, {}, (), (), History(log, list))
     return progress, {"qmeas_i": [0.1, 0.2, 0.3], "cmd": [1.0, -2.0, 3.0]}
 
@@ -286,7 +286,7 @@ def test_the_rate_limits_states_and_the_running_figures_count_every_interval():
             log.times.append(t0 + k * 1_000_000 + (700_000 if k == 1234 else 0), 300_000)
             log.errors.append(2e-4 if k == 777 else 1e-4)
             cmd = log.cmd_ns
-            view(Progress(k, k + 1, k + 1, n, cmd[-1], cmd[-2] if k else None,
+            view(Progress(k, k + 1, k + 1, n, 1e-3, cmd[-1], cmd[-2] if k else None,
                           log.traversal_ns[-1], None, k // 500, 0, {}, (), (), history), ctx)
         assert view.appended == n // 10  # k = 0, 10, 20, ...
         end = time.monotonic() + 10

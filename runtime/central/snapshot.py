@@ -17,7 +17,7 @@ through :class:`History`, whose reads are safe from a thread that does not appen
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -34,7 +34,7 @@ class History:
     errors from an index on (:meth:`~..compute.timing.BoundedSeries.since`), and the
     peripherals taken over so far."""
 
-    def __init__(self, log: CycleLog, degraded: Any) -> None:
+    def __init__(self, log: CycleLog, degraded: Callable[[], list[dict[str, Any]]]) -> None:
         self._log = log
         self._degraded = degraded
 
@@ -64,6 +64,8 @@ class Progress(NamedTuple):
     control rate was halved)."""
     planned: int
     """The cycle number after the run's last."""
+    period_s: float
+    """The sampling period of this central's run (an admission trial's own)."""
     cmd_ns: int
     """When this interval's command left (``time.monotonic_ns``)."""
     previous_cmd_ns: int | None
@@ -127,13 +129,13 @@ class LateFigures:
     rate_changes: tuple[dict[str, Any], ...]
     halves_on_overload: bool
     grid: StrideSchedule
-    """The control rate's changes (a copy)."""
+    """Which cycles ran at which control rate (a copy of the controller's)."""
 
 
 @dataclass(frozen=True)
 class RunSnapshot:
     """The central's run as the report reads it (copies: later intervals change nothing
-    here)."""
+    here; its dicts are the snapshot's own, not to be changed by a reader)."""
 
     done: int
     next_cycle: int
@@ -172,9 +174,10 @@ def progress_of(central: Central, cycle: int, history: History) -> Progress:
     cmd = log.cmd_ns
     return Progress(
         cycle, central.done, cycle - ctl.first_cycle + ctl.hold_of(cycle), central.cycles,
-        cmd[-1], cmd[-2] if len(cmd) > 1 else None, log.traversal_ns[-1],
-        log.true_p.get(cycle), m.plant_misses, m.skipped, dict(central.node.rejected),
-        tuple(sorted(central.takeover.lost)), tuple(m.spans_of(cycle)), history)
+        central.rc.schedule.period, cmd[-1], cmd[-2] if len(cmd) > 1 else None,
+        log.traversal_ns[-1], log.true_p.get(cycle), m.plant_misses, m.skipped,
+        dict(central.node.rejected), tuple(sorted(central.takeover.lost)),
+        tuple(m.spans_of(cycle)), history)
 
 
 def snapshot_of(central: Central) -> RunSnapshot:

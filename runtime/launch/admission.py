@@ -310,12 +310,12 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
             raise
         fault = str(exc)
     finally:
-        run = probe.snapshot()
-        if rehearsal is not None:
-            rehearsal.discard(run)
+        if rehearsal is not None:  # as the run's recorder would end (within the window)
+            rehearsal.discard(probe.snapshot())
     machine = sched.busy_share(busy0, sched.cpu_times())
     busy = machine if unit_cpu is None or unit0 is None else sched.busy_share(unit0, unit_cpu())
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
+    run = probe.snapshot()  # after the readings: not the trial's work
     trav = np.asarray(run.times.traversal_ns, dtype=float) / 1e9
     out: dict[str, Any] = {"period_s": period, "machine_busy_share": machine,
                            "busy_of": "machine" if unit_cpu is None else "unit"}

@@ -107,7 +107,7 @@ def state_message(iv: Interval, *, period_s: float, task: Any | None,
     previous_cmd_ns : when the previous interval's command left, or ``None``.
     """
     t = iv.cycle * period_s
-    ref = task.position(t) if task is not None else None  # not the central's cache
+    ref = task.position(t) if task is not None else None  # the fresh value, bit for bit
     err = math.dist(iv.true_p, ref) if (iv.true_p is not None and ref is not None) \
         else math.nan
     period = (iv.cmd_ns - previous_cmd_ns) / 1e9 if previous_cmd_ns is not None else math.nan

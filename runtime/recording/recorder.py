@@ -195,7 +195,7 @@ class Recorder:
         spans = list(p.spans)
         self._add("/timing/spans", now, msgpack.packb({"cycle": cycle, "spans": spans}))
         sch = self.setup.rc.schedule
-        sig = state_message(iv, period_s=sch.period,
+        sig = state_message(iv, period_s=p.period_s,
                             task=self.setup.task if sch.clock != "freerun" else None,
                             previous_cmd_ns=self.last_cmd_ns)
         self.last_cmd_ns = now
