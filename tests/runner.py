@@ -88,3 +88,11 @@ def slow_task(tmp_path: Path) -> str:
         {"type": "half-ellipse", "start": [0.125, 0.0, -0.35], "top": [0.0, 0.0, -0.31],
          "end": [-0.125, 0.0, -0.35], "accel": 2.0}]}))
     return str(path)
+
+
+def taken_over_and_back(rep: dict) -> bool:
+    """No peripheral was taken over, or each one taken over (the silent one and those
+    that stood by with it) served its rounds again before the end, the requests never
+    stopped for good: a slow peripheral, not one cut off."""
+    return all("back_from_cycle" in d and not d.get("requests_stopped_again")
+               for d in rep.get("degraded") or [])

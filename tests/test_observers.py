@@ -30,7 +30,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from ctrlunit.runtime.transport.zsession import Keys
-from runner import kill_unit, slow_task, start_json, unit_id
+from runner import kill_unit, slow_task, start_json, taken_over_and_back, unit_id
 from test_fuzz import free_port
 
 pytestmark = pytest.mark.zenoh
@@ -150,14 +150,6 @@ def test_a_viewer_reads_the_observers_keys_and_nothing_else(tmp_path, unit_keys)
     assert states, views[:2]
     # the whole unit's key space was denied: only what the view key space also matches
     assert all("/view/" in k for k in control), sorted(set(control))[:5]
-
-
-def taken_over_and_back(rep: dict) -> bool:
-    """No peripheral was taken over, or each one taken over (the silent one and those
-    that stood by with it) served its rounds again before the end, the requests never
-    stopped for good: a slow peripheral, not one cut off."""
-    return all("back_from_cycle" in d and not d.get("requests_stopped_again")
-               for d in rep.get("degraded") or [])
 
 
 @pytest.mark.slow
