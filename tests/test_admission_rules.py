@@ -406,12 +406,12 @@ class Probe:
         self.on_cycle, self.on_message = on_cycle, on_message
         self.node, self.rc, self.engine, self.ctl, self.n = node, rc, engine, ctl, n
         self.supervision, self.reply_each = supervision, reply_each
-        self.intervals = SimpleNamespace(pub_req=Publisher(), pub_cmd=Publisher())
+        self.outgoing = SimpleNamespace(publishers=[Publisher(), Publisher()])
         self.orders = SimpleNamespace(pubs=[Publisher(), Publisher()])
         Probe.made.append(self)
 
     def publishers(self) -> list[Publisher]:
-        return [self.intervals.pub_req, self.intervals.pub_cmd, *self.orders.pubs]
+        return [*self.outgoing.publishers, *self.orders.pubs]
 
     def snapshot(self) -> Any:
         s = self.script
@@ -454,7 +454,7 @@ def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
     return Outside(
         rc=cfg, node=SimpleNamespace(rejected=Counter()), engine="engine", ctl=ctl,
         silence=SimpleNamespace(supervision=Supervision()),
-        intervals=SimpleNamespace(reply_each=True),
+        outgoing=SimpleNamespace(reply_each=True),
         orders=SimpleNamespace(say=lambda stage, **kw: said.append((stage, kw)),
                                drain=lambda *, seconds: drained.append(seconds)),
         said=said, drained=drained)

@@ -12,7 +12,7 @@ from typing import Any
 import msgpack
 import pytest
 from ctrlunit.kernels.dynamics import gravity_torques
-from ctrlunit.runtime.central import Fault, scheduler, silence
+from ctrlunit.runtime.central import Fault, exits, scheduler, silence
 from ctrlunit.runtime.central.state_check import check_state
 from ctrlunit.runtime.compute.controller import Estimate
 from ctrlunit.runtime.config import (
@@ -31,7 +31,7 @@ MS = 1_000_000
 
 
 class Clock:
-    """The guard's clock (``time`` in runtime/central/scheduler.py and silence.py), moved
+    """The guard's clock (``time`` in runtime/central/scheduler.py and exits.py), moved
     by the test."""
 
     def __init__(self, now_ns: int) -> None:
@@ -48,7 +48,7 @@ class Clock:
 
     def install(self, monkeypatch: Any) -> Clock:
         """The central's checks read this clock."""
-        for module in (scheduler, silence):
+        for module in (scheduler, exits):
             monkeypatch.setattr(module, "time", self)
         return self
 

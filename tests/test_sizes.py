@@ -1,6 +1,7 @@
 """The house stays readable (docs/architecture.md): no module over 400 lines, no function
-over 80, no class with more than 25 attributes, the central composed of its parts rather
-than inheriting them, and tests that drive runtime objects through what they expose.
+over 80 (350 and 60 in the central's package), no class with more than 25 attributes, the
+central composed of its parts rather than inheriting them, and tests that drive runtime
+objects through what they expose.
 
 Each limit is read from the source with ``ast``. The modules and functions that are over
 a limit today are listed in :data:`OVER` with their size now: such an entry may shrink,
@@ -73,9 +74,15 @@ def test_the_list_of_what_is_over_only_shrinks():
     assert not stale, f"within the limit now, take off OVER: {stale}"
 
 
+CENTRAL_MODULE_LINES, CENTRAL_FUNCTION_LINES = 350, 60
+"""The central's own limits, under the house's: room for what it will take on (the
+interval's phase, the modes) without meeting a wall."""
+
+
 def test_the_central_package_is_within_every_limit():
-    over = {k: v for k, v in sizes().items()
-            if k.startswith("runtime/central/") and v[0] > v[1]}
+    tight = {MODULE_LINES: CENTRAL_MODULE_LINES, FUNCTION_LINES: CENTRAL_FUNCTION_LINES}
+    over = {k: (n, tight.get(lim, lim)) for k, (n, lim) in sizes().items()
+            if k.startswith("runtime/central/") and n > tight.get(lim, lim)}
     assert not over, over
 
 

@@ -92,7 +92,7 @@ def test_after_a_silent_loss_no_request_is_sent():
     u = silenced("tooff", {1: 40})
     c = u.run()
     requests = [k for k, _ in u.bus.log if k == u.node.keys.request]
-    assert not c.intervals.requests_on
+    assert not c.outgoing.requests_on
     first_lost = c.takeover.report()[0]["from_cycle"]
     assert 40 <= first_lost < c.done
     # depth 2: at most two requests (fused rounds) an interval up to the loss, none after
@@ -143,7 +143,7 @@ def test_a_peripheral_lost_to_silence_that_answers_after_all_brings_the_requests
     taken = c.takeover.report()
     print(taken, c.takeover.resumes, c.late.taken_over)
     assert u.commands() == undisturbed
-    assert c.takeover.resumes >= 1 and c.intervals.requests_on
+    assert c.takeover.resumes >= 1 and c.outgoing.requests_on
     assert taken[0]["peripheral"] == 2 and "requests_again_at_interval" in taken[0]
     assert {d["peripheral"] for d in taken} == {1, 2, 3}
     assert all(d["back_from_cycle"] > d["from_cycle"] for d in taken)
@@ -168,7 +168,7 @@ def test_requests_that_went_out_again_stop_for_good_when_one_stays_silent(undist
     taken = c.takeover.report()
     print(taken, c.takeover.resumes)
     assert u.commands() == undisturbed
-    assert not c.intervals.requests_on and c.takeover.resumes == RESUMES  # none after it
+    assert not c.outgoing.requests_on and c.takeover.resumes == RESUMES  # none after it
     assert any("requests_stopped_again" in d for d in taken)
     assert set(c.takeover.lost) == {0, 1, 2}
     lines = "\n".join(_degraded_lines({"degraded": taken}))
@@ -237,7 +237,7 @@ def test_a_peripheral_whose_process_exited_is_not_on_probation(undisturbed):
     taken = c.takeover.report()
     print(taken, c.takeover.resumes)
     assert u.commands() == undisturbed
-    assert c.takeover.resumes >= 1 and c.intervals.requests_on
+    assert c.takeover.resumes >= 1 and c.outgoing.requests_on
     assert set(c.takeover.lost) == {2} and "exited" in c.takeover.lost[2]["why"]
     assert not any("requests_stopped_again" in d for d in taken)
     assert {d["peripheral"] for d in taken if "back_from_cycle" in d} == {1, 2}

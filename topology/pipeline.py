@@ -68,6 +68,19 @@ def may_prime(*, depth: int, primed: bool, next_cycle: int, cycles: int,
     return newest_handed_off is None or newest_handed_off
 
 
+def prime_cycles(*, next_cycle: int, cycles: int, foresight: int, next_is_one: bool,
+                 after_on_grid: bool) -> list[int]:
+    """The intervals whose sample-free steps run ahead (:func:`may_prime`): the next one,
+    and, where the sample-free steps read the estimate of two intervals back (``foresight``
+    2) and the next interval after it comes a period later (``next_is_one``: it holds for
+    one period; ``after_on_grid``: its successor is on the control rate's grid), that one
+    too: its estimate two back is final already, and both intervals' rounds go in one
+    request (one exchange per two intervals)."""
+    if foresight > 1 and next_is_one and next_cycle + 1 < cycles and after_on_grid:
+        return [next_cycle, next_cycle + 1]
+    return [next_cycle]
+
+
 HOLD_RULES = ("auto", "always", "never")
 """``--hold-rounds``: whether a lone round ready early waits to be fused with the next
 interval's first round (``always``: one exchange per interval instead of two), or goes at

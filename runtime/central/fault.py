@@ -30,6 +30,11 @@ ROLE_REPORT_FIELDS: dict[str, tuple[type, ...]] = {
 """What a role's ``bye`` report may hold, by field; anything else is left out."""
 
 
+def role_of(k: int) -> str:
+    """The role name of peripheral index ``k`` (0-based): the process a fault names."""
+    return f"peripheral-{k + 1}"
+
+
 def plant_fault_of(fault: dict[str, Any]) -> dict[str, Any] | None:
     """The plant's fault of its report (``name`` and ``message``, short texts; ``time``,
     a number), or None if it is not one (plant/limits.py, runtime/roles/plant_orders.py)."""
@@ -67,4 +72,5 @@ def role_report(report: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-__all__ = ["ROLE_REPORT_FIELDS", "Fault", "plant_fault", "plant_fault_of", "role_report"]
+__all__ = ["ROLE_REPORT_FIELDS", "Fault", "plant_fault", "plant_fault_of", "role_of",
+           "role_report"]

@@ -24,9 +24,8 @@ from typing import Any
 
 from ..config import EXIT_PERIPHERAL, EXIT_PLANT
 from ..transport.node import Node
-from .fault import Fault
+from .fault import Fault, role_of
 from .orders import HELLO_ROLES
-from .silence import role_of
 
 MALFORMED = frozenset({"too_large", "undecodable", "not_a_map", "schema_version",
                        "foreign_unit", "bad_cycle", "bad_stage", "bad_parts", "bad_value",

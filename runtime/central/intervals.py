@@ -11,7 +11,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
-from ...topology.pipeline import holds_lone_round, may_prime, may_start
+from ...topology.pipeline import holds_lone_round, may_prime, may_start, prime_cycles
 from ...topology.plan import Round
 from ..compute.blocks import ObserverDiverged
 from ..compute.controller import Controller
@@ -22,11 +22,12 @@ from ..transport.node import WARM_RSS_AT, Node, rss_kb
 from .fault import Fault
 from .intake import Intake, synthetic_counts
 from .meters import Meters
+from .outgoing import Outgoing
 from .overload import Overload
 from .pace import pace_of
 from .records import CycleLog, InFlight
 from .samples import sample_source
-from .settings import CommandAhead, LoopSettings, PlanShape, t1_input
+from .settings import LoopSettings, PlanShape, t1_input
 from .silence import SilenceWatch
 from .state_check import check_state
 
@@ -36,7 +37,8 @@ class Intervals:
 
     Parameters
     ----------
-    node, settings : the central's node (its publishers are made here) and settings.
+    node, settings : the central's node and settings.
+    outgoing : what the central sends (:class:`~.outgoing.Outgoing`).
     engine, controller : the plan and its sources (:meth:`use` when they change).
     intake : the samples taken (each interval starts from one).
     silence : told when requests go out; gives the silence limit.
@@ -49,7 +51,8 @@ class Intervals:
     """
 
     def __init__(self, node: Node, settings: LoopSettings, engine: Engine,
-                 controller: Controller, *, intake: Intake, silence: SilenceWatch,
+                 controller: Controller, *, outgoing: Outgoing, intake: Intake,
+                 silence: SilenceWatch,
                  overload: Overload, expect_late: Callable[[int, int, int], None],
                  meters: Meters, log: CycleLog, hint: Callable[[], str],
                  on_cycle: Callable[[int, dict], None] | None = None,
@@ -64,8 +67,7 @@ class Intervals:
         self.hint = hint
         self.on_cycle = on_cycle
         self.on_message = on_message
-        self.pub_req = node.publisher(node.keys.request) if settings.peripherals else None
-        self.pub_cmd = node.publisher(node.keys.command)
+        self.out = outgoing
         self.inflight: OrderedDict[int, InFlight] = OrderedDict()
         self.outbox: list[InFlight] = []
         """Intervals whose next round waits to be sent."""
@@ -73,11 +75,6 @@ class Intervals:
         """Next intervals whose sample-free steps ran."""
         self.next_cycle = controller.first_cycle
         self.done = 0
-        self.reply_each = False
-        """Peripherals answer each part of a fused request as soon as it is computed."""
-        self.requests_on = True
-        """Requests are published (off once every peripheral is taken over: .takeover)."""
-        self.ahead = CommandAhead(settings.extrapolate)
         self.pace = pace_of(settings)
         self.samples = sample_source(
             settings.clock, intake, synthetic=self._synthetic_sample, trial=settings.trial,
@@ -215,7 +212,11 @@ class Intervals:
                          next_cycle=self.next_cycle, cycles=self.settings.end,
                          newest_handed_off=self._newest_handed_off()):
             return False
-        for k in self._prime_cycles():
+        k0 = self.next_cycle
+        for k in prime_cycles(next_cycle=k0, cycles=self.settings.end,
+                              foresight=self.engine.plan.graph.foresight,
+                              next_is_one=self.ctl.hold_of(k0) == 1,
+                              after_on_grid=self.ctl.on_grid(k0 + 1)):
             t0 = time.monotonic_ns()
             ctx = self.ctl.context(k)
             if self.shape.ahead_rounds:  # its rounds run ahead of the sample too
@@ -233,18 +234,6 @@ class Intervals:
             self.primed.append((k, ctx))
             self.meters.span("central", k, t0, time.monotonic_ns())
         return True
-
-    def _prime_cycles(self) -> list[int]:
-        """The intervals :meth:`prime` starts: the next one, and where the graph's
-        sample-free steps read the estimate of two intervals back (foresight 2) and the
-        next interval comes a period after it, that one too: its ``est2`` is final
-        already, and the two intervals' rounds go in one request (one exchange per two
-        intervals)."""
-        k = self.next_cycle
-        if (self.engine.plan.graph.foresight > 1 and self.ctl.hold_of(k) == 1
-                and k + 1 < self.settings.end and self.ctl.on_grid(k + 1)):
-            return [k, k + 1]
-        return [k]
 
     def _synthetic_sample(self, k: int) -> list[int]:
         task = self.engine.cfg.task
@@ -287,11 +276,6 @@ class Intervals:
 
     # -- messages out -----------------------------------------------------------------
 
-    def publish_request(self, payload: bytes) -> None:
-        """Put ``payload`` on the request key."""
-        assert self.pub_req is not None
-        self.pub_req.put(payload)
-
     def flush(self, now: int) -> int:
         """Send every queued round as the parts of one request; returns, when a round is
         held back to be fused with the next interval's first round (realtime, depth 2),
@@ -316,16 +300,7 @@ class Intervals:
                           "vals": Engine.request_vals(rnd, f.ctx, (0, 1, 2))})
         self.outbox.clear()
         self.silence.asked(now)
-        extra = {"each": True} if self.reply_each and len(parts) > 1 else {}
-        payload = encode(self.node.unit, parts[0]["cycle"], parts[0]["stage"], parts=parts,
-                         **extra)
-        if self.requests_on:
-            self.publish_request(payload)
-        self.meters.exchanges += 1
-        self.meters.send_ns += time.perf_counter_ns() - t_in
-        if self.on_message is not None:
-            self.on_message("out", self.node.keys.request, parts[0]["cycle"],
-                            parts[0]["stage"], payload, time.monotonic_ns())
+        self.out.request(parts, since_ns=t_in)
         return 0
 
     def _hold_until(self) -> int:
@@ -350,17 +325,8 @@ class Intervals:
         check_state(f.cycle, f.ctx.get("p"), f.ctx.get("pc"), params=self.engine.cfg.params,
                     max_error=sch.max_error, hint=self.hint)
         cmd = f.ctx["cmd"]
-        tau = [float(x) for x in cmd]
-        nxt = self.ahead.after(f.cycle, tau, grid=self.ctl)
-        extra: dict[str, Any] = {} if nxt is None else {"next": nxt}
-        if sch.trial:  # sent as the run's are (their cost is the run's), never applied
-            extra["probe"] = True
-        payload = encode(self.node.unit, f.cycle, "command", tau=tau, **extra)
-        self.pub_cmd.put(payload)
-        now = time.monotonic_ns()
+        now = self.out.command(f.cycle, cmd, grid=self.ctl)
         self.meters.span("central", f.cycle, f.start_ns, now)
-        if self.on_message is not None:
-            self.on_message("out", self.node.keys.command, f.cycle, "command", payload, now)
         del self.inflight[f.cycle]
         self._log(f, cmd, now)
         if self.on_cycle is not None:

@@ -32,11 +32,13 @@ from ..transport.node import Event, Node, rss_kb
 from .excuse import UNSUPERVISED, Supervision
 from .fault import Fault
 from .flood import FloodWatch
+from .inbox import Inbox
 from .intake import Intake
 from .intervals import Intervals
 from .late import LateData
 from .meters import Meters
 from .orders import Orders
+from .outgoing import Outgoing
 from .overload import Overload
 from .rate import RateChange
 from .records import CycleLog, InFlight
@@ -71,20 +73,11 @@ class Central:
         the run's choice; otherwise :meth:`WarmUp.choose_replies` makes it).
     """
 
-    def __init__(
-        self,
-        node: Node,
-        rc: RunConfig,
-        engine: Engine,
-        controller: Controller,
-        cycles: int,
-        *,
-        on_cycle: Callable[[Progress, dict], None] | None = None,
-        on_message: Callable[[str, str, int, Any, bytes, int], None] | None = None,
-        supervision: Supervision = UNSUPERVISED,
-        trial: bool = False,
-        reply_each: bool = False,
-    ) -> None:
+    def __init__(self, node: Node, rc: RunConfig, engine: Engine, controller: Controller,
+                 cycles: int, *, on_cycle: Callable[[Progress, dict], None] | None = None,
+                 on_message: Callable[[str, str, int, Any, bytes, int], None] | None = None,
+                 supervision: Supervision = UNSUPERVISED, trial: bool = False,
+                 reply_each: bool = False) -> None:
         sch = rc.schedule
         n = engine.plan.placement.peripherals
         self.node = node
@@ -94,19 +87,11 @@ class Central:
         self.on_cycle = on_cycle
         self.on_message = on_message
         keys = node.keys
-        for k in range(n):
-            node.route(keys.reply(k + 1), "reply", k)
-        if sch.clock != "freerun":
-            node.route(keys.sample, "sample")
         self.log = CycleLog()
         self.meters = Meters(n, keep_cycle_spans=on_cycle is not None)
         self.intake = Intake(node, trial=trial)
-        self.flood = FloodWatch.of(node, rc.transport)
-        realtime = sch.clock == "realtime"
-        self.silence = SilenceWatch(
-            peripherals=n, realtime=realtime, period_s=sch.period,
-            fault_periods=sch.fault_periods, timeout_s=rc.transport.timeout,
-            stride=lambda: self.ctl.stride, supervision=supervision, hint=self.overload_hint)
+        self.silence = SilenceWatch.of(rc, peripherals=n, stride=lambda: self.ctl.stride,
+                                       supervision=supervision, hint=self.overload_hint)
         self.late = LateData(engine, late=sch.late,
                              late_policy=sch.late_policy, faults_key=f"{keys.root}/faults",
                              pending=node.events.pending,
@@ -114,28 +99,33 @@ class Central:
                              span=self.meters.span, on_message=on_message)
         self.overload = Overload(enabled=not trial and rc.halves_on_overload, period_s=sch.period,
                                  change_rate=lambda stride, why: self.rate(stride, why))
+        self.outgoing = Outgoing(node, self.settings, meters=self.meters, reply_each=reply_each,
+                                 on_message=on_message)
         self.intervals = Intervals(
-            node, self.settings, engine, controller, intake=self.intake,
+            node, self.settings, engine, controller, outgoing=self.outgoing, intake=self.intake,
             silence=self.silence, overload=self.overload, expect_late=self.late.expect_late,
             meters=self.meters, log=self.log, hint=self.overload_hint,
             on_cycle=None if on_cycle is None else (
                 lambda k, ctx: on_cycle(progress_of(self, k, self._history), ctx)),
             on_message=on_message)
-        self.intervals.reply_each = reply_each
         self.takeover = TakeOver(enabled=sch.peripheral_loss == "takeover", late=self.late,
                                  silence=self.silence, intervals=self.intervals,
-                                 on_message=on_message)
+                                 outgoing=self.outgoing, on_message=on_message)
         self._history = History(self.log, self.takeover.report)
         self.replies = Replies(intervals=self.intervals, intake=self.intake,
                                takeover=self.takeover, late=self.late, silence=self.silence,
                                meters=self.meters, keys=keys, on_message=on_message)
+        self.inbox = Inbox(node, self.settings, intervals=self.intervals, replies=self.replies,
+                           intake=self.intake, flood=FloodWatch.of(node, rc.transport),
+                           silence=self.silence, log=self.log, meters=self.meters,
+                           on_hello=lambda ev: self.orders.on_hello(ev), on_message=on_message)
         self.orders = Orders(node, peripherals=n, plant=sch.clock != "freerun",
                              startup_timeout_s=rc.transport.startup_timeout,
                              check_children=self.takeover.check_children,
-                             take_sample=self._on_sample, config=config_message(rc),
+                             take_sample=self.inbox.sample, config=config_message(rc),
                              may_join=self.takeover.may_rejoin)
         self.warmup = WarmUp(node, engine, controller,
-                             publish=self.intervals.publish_request, depth=sch.pipeline,
+                             publish=self.outgoing.publish_request, depth=sch.pipeline,
                              asked=sch.replies, startup_timeout_s=rc.transport.startup_timeout,
                              check_children=self.takeover.check_children, other=self.handle,
                              lost=lambda: self.takeover.lost)
@@ -213,7 +203,7 @@ class Central:
         """Decide how peripherals answer fused requests (:meth:`WarmUp.choose_replies`)
         and follow the decision; returns it (for the report)."""
         info = self.warmup.choose_replies()
-        self.intervals.reply_each = info["mode"] == "each"
+        self.outgoing.reply_each = info["mode"] == "each"
         return info
 
     def place(self, rc: RunConfig, engine: Engine, controller: Controller) -> None:
@@ -331,34 +321,8 @@ class Central:
     # -- messages in ------------------------------------------------------------------
 
     def handle(self, ev: Event) -> None:
-        """Take one event of the inbox: a reply, a sample, or a message on the hello key
-        (:meth:`Orders.on_hello`); a malformed one counts against its sender (raises
-        :class:`~.fault.Fault` past its bound: :class:`~.flood.FloodWatch`)."""
-        kind, index, data, rx = ev
-        before = self.node.rejects
-        if kind == "reply":
-            self.replies.take(index, data, rx)
-        elif kind == "sample":
-            self._on_sample(data, rx)
-        elif kind == "hello":
-            self.orders.on_hello(ev)
-        else:
-            self.intake.reject("unexpected_key")
-        self.flood.check(kind, index, rx, before)
-
-    def _on_sample(self, data: bytes, rx: int) -> None:
-        s = self.intake.sample(data, first=self.next_cycle,
-                               end=self.settings.end + self.settings.depth + 1,
-                               on_grid=self.ctl.on_grid)
-        if s is None:
-            return
-        self.silence.heard_sample(rx)
-        # the tracking error of the run's samples only: the plant may send one more
-        self.log.sampled(s.cycle, s.p, self.engine.cfg.task.position(  # type: ignore[union-attr]
-            self.ctl.time_of(s.cycle)) if s.cycle < self.settings.end else None)
-        self.meters.plant_sample(s.cycle, s.span, s.misses)
-        if self.on_message is not None:
-            self.on_message("in", self.node.keys.sample, s.cycle, "sample", data, rx)
+        """Take one event of the inbox (:meth:`Inbox.handle`)."""
+        self.inbox.handle(ev)
 
 
 __all__ = ["Central"]

@@ -16,28 +16,20 @@ it (:meth:`SilenceWatch.heard_sample`, :meth:`~SilenceWatch.heard_reply`,
 
 from __future__ import annotations
 
-import time
 from collections import deque
 from collections.abc import Callable, Collection
 
-from ..config import EXIT_PERIPHERAL, EXIT_PLANT
+from ..config import EXIT_PERIPHERAL, EXIT_PLANT, RunConfig
 from . import silence_rule
 from .excuse import UNSUPERVISED, Excuse, Excuses, Supervision
-from .fault import Fault
+from .exits import ExitWatch
+from .fault import Fault, role_of
 from .records import InFlight
 
 STARTUP_INTERVALS = 20
 STARTUP_LIMIT_S = 0.020
 """Realtime: until :data:`STARTUP_INTERVALS` intervals are done the silence limit is at
 least this (first samples, first real values through every process)."""
-
-CHILD_CHECK_S = 0.05
-"""How often the watch asks whether a role process has exited."""
-
-
-def role_of(k: int) -> str:
-    """The role name of peripheral index ``k`` (0-based)."""
-    return f"peripheral-{k + 1}"
 
 
 class SilenceWatch:
@@ -76,11 +68,19 @@ class SilenceWatch:
         """The plant's silences over two sample intervals (from, to), the newest."""
         self.own_gaps: deque[tuple[int, int]] = deque(maxlen=8)
         """The central's own stalls (from, to): it woke more than a period late."""
-        self._next_child_check = 0.0
         self.gone: set[int] = set()
         """Peripherals taken over (:meth:`forget`): their silence is no longer watched."""
-        self.let_go: set[str] = set()
-        """Roles whose process's exit is no fault any more (a lost peripheral's)."""
+        self.exits = ExitWatch(supervision)
+
+    @classmethod
+    def of(cls, rc: RunConfig, *, peripherals: int, stride: Callable[[], int],
+           supervision: Supervision, hint: Callable[[], str]) -> SilenceWatch:
+        """The watch of a run of ``rc`` (its clock, period, fault periods and time-out)."""
+        sch = rc.schedule
+        return cls(peripherals=peripherals, realtime=sch.clock == "realtime",
+                   period_s=sch.period, fault_periods=sch.fault_periods,
+                   timeout_s=rc.transport.timeout, stride=stride, supervision=supervision,
+                   hint=hint)
 
     # -- what the scheduler tells it ------------------------------------------------------
 
@@ -123,12 +123,12 @@ class SilenceWatch:
         """Watch peripheral ``k`` no more: its rounds are taken over (.takeover). Its
         process, if this central started it, is let go for good."""
         self.gone.add(k)
-        self.let_go.add(role_of(k))
+        self.exits.let_go.add(role_of(k))
 
     def watch_again(self, k: int, now: int) -> None:
         """Peripheral ``k`` is back (.takeover): watch its silence again from ``now``."""
         self.gone.discard(k)
-        self.let_go.discard(role_of(k))
+        self.exits.let_go.discard(role_of(k))
         self.last_reply_ns[k] = now
         self.asked_ns[k] = 0
 
@@ -156,7 +156,7 @@ class SilenceWatch:
         silence limit would lose a period of its margin. A peripheral whose rounds the
         central computes is still asked, so a hung one is caught within the limit of the
         first request it did not answer (one that exits, within
-        :data:`CHILD_CHECK_S`: :meth:`check_children`)."""
+        :data:`~.exits.CHILD_CHECK_S`: :meth:`check_children`)."""
         return max(self.last_reply_ns[k], self.asked_ns[k])
 
     def _own_stall(self, since: int, now: int) -> int:
@@ -208,7 +208,7 @@ class SilenceWatch:
 
     def supervise(self, supervision: Supervision) -> None:
         """Learn the roles' processes from ``supervision`` from now on."""
-        self.supervision = self.excuse.supervision = supervision
+        self.supervision = self.excuse.supervision = self.exits.supervision = supervision
 
     @property
     def excuses(self) -> int:
@@ -290,9 +290,8 @@ class SilenceWatch:
                         wake = min(wake, excused_end(k, end_of(self.silent_since(k))))
         if self.realtime and self.last_sample_ns:
             wake = min(wake, self.silence_ends("plant", self.last_sample_ns, now, limit_ns))
-        if self.supervision.child_check is not None:  # an exit is seen within the check's time
-            wake = min(wake, now + int(CHILD_CHECK_S * 1e9))
-        return wake
+        exit_check = self.exits.wake_at(now)  # an exit is seen within the check's time
+        return wake if exit_check is None else min(wake, exit_check)
 
     def check(self, now: int, limit_ns: int, intervals: Collection[InFlight], *,
               done: int, plant_awaited: int | None, newest_sample: int,
@@ -342,21 +341,9 @@ class SilenceWatch:
                             f"{self.hint()}", process="plant", code=EXIT_PLANT)
 
     def check_children(self) -> None:
-        """Fault at once when a role process this central started has exited (looked at
-        every :data:`CHILD_CHECK_S` at most)."""
-        child_check = self.supervision.child_check
-        if child_check is None:
-            return
-        now = time.monotonic()
-        if now < self._next_child_check:
-            return
-        self._next_child_check = now + CHILD_CHECK_S
-        dead = child_check(skip=self.let_go)
-        if dead is not None:
-            name, rc = dead
-            code = EXIT_PLANT if name == "plant" else EXIT_PERIPHERAL
-            raise Fault(f"{name} exited (status {rc})", process=name, code=code,
-                        lost="" if name == "plant" else "exited")
+        """Fault at once when a role process this central started has exited
+        (:meth:`ExitWatch.check`)."""
+        self.exits.check()
 
 
-__all__ = ["STARTUP_INTERVALS", "STARTUP_LIMIT_S", "SilenceWatch", "role_of"]
+__all__ = ["STARTUP_INTERVALS", "STARTUP_LIMIT_S", "SilenceWatch"]

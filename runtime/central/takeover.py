@@ -43,6 +43,7 @@ from ..config import EXIT_PERIPHERAL
 from .fault import Fault
 from .intervals import Intervals
 from .late import LateData
+from .outgoing import Outgoing
 from .records import InFlight
 from .silence import SilenceWatch
 
@@ -71,16 +72,20 @@ class TakeOver:
     enabled : ``--peripheral-loss takeover``.
     late : the late-data part, which computes a round for given peripherals.
     silence : the silence watch, told to watch a lost peripheral no more.
-    intervals : the intervals' part (its requests stop once every peripheral is taken over).
+    intervals : the intervals' part.
+    outgoing : what the central sends (its requests stop once every peripheral is taken
+        over).
     on_message : the recording's hook, or None.
     """
 
     def __init__(self, *, enabled: bool, late: LateData, silence: SilenceWatch,
-                 intervals: Intervals, on_message: Callable[..., None] | None = None) -> None:
+                 intervals: Intervals, outgoing: Outgoing,
+                 on_message: Callable[..., None] | None = None) -> None:
         self.enabled = enabled
         self.late = late
         self.silence = silence
         self.intervals = intervals
+        self.outgoing = outgoing
         self.on_message = on_message
         self.lost: dict[int, dict[str, Any]] = {}
         """Lost peripheral (0-based) -> its record: ``peripheral`` (1-based),
@@ -152,7 +157,7 @@ class TakeOver:
                     self._lose(j, f"stands by: peripheral {k + 1} fell silent, and a silent "
                                "process may have stopped reading the requests they share",
                                intervals, done=done, next_cycle=next_cycle)
-            self.intervals.requests_on = False
+            self.outgoing.requests_on = False
         self.cover(intervals)
         return True
 
@@ -180,7 +185,7 @@ class TakeOver:
         """Whether ``role`` (``peripheral-K``) is lost and could come back: requests still
         go out (:meth:`take`)."""
         k = int(role.rsplit("-", 1)[1]) - 1 if role.startswith("peripheral-") else -1
-        return k in self.lost and self.intervals.requests_on
+        return k in self.lost and self.outgoing.requests_on
 
     def sift(self, k: int, parts: list[dict[str, Any]], *, next_cycle: int, done: int,
              rx: int = 0) -> list[dict[str, Any]]:
@@ -223,11 +228,11 @@ class TakeOver:
         the recording says so)."""
         if k in self.on_probation:
             self.on_probation[k] = now
-        if k != self.silent or self.intervals.requests_on:
+        if k != self.silent or self.outgoing.requests_on:
             return
         self.silent = None
         self.resumes += 1
-        self.intervals.requests_on = True
+        self.outgoing.requests_on = True
         self.on_probation = dict.fromkeys(self.quiet & self.lost.keys(), now)
         self.lost[k]["requests_again_at_interval"] = done
         self._record(self.lost[k], self.intervals.next_cycle)
@@ -235,7 +240,7 @@ class TakeOver:
     def _for_good(self, k: int, why: str) -> None:
         """The requests stop for the rest of the run (``why``, on peripheral ``k``'s
         record, and in the recording)."""
-        self.intervals.requests_on = False
+        self.outgoing.requests_on = False
         self.resumes = RESUMES
         self.on_probation.clear()
         self.silent = None

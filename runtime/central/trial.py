@@ -30,7 +30,7 @@ def trial_central(central: Central, period: float, *, ticks: int, base: int,
     ctl.first_cycle, ctl.q_prev, ctl.k_prev = base, None, base
     return Central(central.node, trc, central.engine, ctl, ticks, trial=True,
                    supervision=Supervision(child_check=central.silence.supervision.child_check),
-                   reply_each=central.intervals.reply_each, on_cycle=on_cycle,
+                   reply_each=central.outgoing.reply_each, on_cycle=on_cycle,
                    on_message=on_message)
 
 
@@ -47,7 +47,7 @@ def end_trial(central: Central, probe: Central, *, late_before: int, drain_s: fl
     trial's, not the run's: they once made the run's summary say 23 late replies for 1
     late round); returns how many those were."""
     central.orders.drain(seconds=drain_s)
-    for pub in (probe.intervals.pub_req, probe.intervals.pub_cmd, *probe.orders.pubs):
+    for pub in (*probe.outgoing.publishers, *probe.orders.pubs):
         if pub is not None:
             try:
                 pub.undeclare()
