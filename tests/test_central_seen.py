@@ -77,3 +77,53 @@ def test_the_rule_sees_a_reach(tmp_path):
                    "    return central.log.digest, central.rc, central.snapshot()\n")
     assert sorted(reaches(mod, parts())) == ["2: central.meters", "3: central.meters",
                                              "4: central.log"]
+
+
+RECORDS = ROOT / "runtime" / "central" / "records.py"
+PHASE = {"round", "waiting", "handed_off", "started", "finishing", "dropped",
+         "awaiting_sample", "gated", "late_ns", "deadline_ns"}
+"""An interval's phase: the fields of ``InFlight`` (runtime/central/records.py) that say
+where it stands in the pipeline (its times and its work are measurements)."""
+MUTATORS = {"add", "discard", "remove", "clear", "update", "pop",
+            "difference_update", "intersection_update", "symmetric_difference_update"}
+
+
+def phase_writes(path: Path) -> list[str]:
+    """Writes of an interval's phase in ``path`` other than an object's own (``self``):
+    an assignment to one of :data:`PHASE`, or a call that changes one of its sets."""
+    found = []
+    for n in ast.walk(ast.parse(path.read_text())):
+        if isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store | ast.Del) \
+                and n.attr in PHASE and not (isinstance(n.value, ast.Name)
+                                             and n.value.id == "self"):
+            found.append(f"{n.lineno}: {ast.unparse(n)}")
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) \
+                and n.func.attr in MUTATORS and isinstance(n.func.value, ast.Attribute) \
+                and n.func.value.attr in PHASE and not (
+                    isinstance(n.func.value.value, ast.Name)
+                    and n.func.value.value.id == "self"):
+            found.append(f"{n.lineno}: {ast.unparse(n.func)}")
+    return found
+
+
+def test_only_the_interval_itself_changes_its_phase():
+    """Issue 58: the interval's phase as one state machine. ``InFlight``'s own methods
+    (``sent``, ``answered``, ``stood_in``, ``gate``, ``sampled``, ...) are its transitions;
+    the pipeline (intervals.py), the replies, the late data and the take-over call them
+    and assign none of its phase fields themselves."""
+    mods = [p for pkg in ("runtime", "bench") for p in sorted((ROOT / pkg).rglob("*.py"))]
+    bad = [f"{p.relative_to(ROOT)}:{w}" for p in mods for w in phase_writes(p)]
+    assert not bad, "\n".join(bad)
+    inflight = next(n for n in ast.parse(RECORDS.read_text()).body
+                    if isinstance(n, ast.ClassDef) and n.name == "InFlight")
+    fields = {s.target.id for s in inflight.body
+              if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)}
+    assert PHASE <= fields, PHASE - fields  # the rule follows the record
+
+
+def test_the_phase_rule_sees_a_write(tmp_path):
+    mod = tmp_path / "m.py"
+    mod.write_text("def f(f, g):\n    f.waiting = set()\n    g.dropped.add(1)\n"
+                   "    f.finishing, x = True, 1\n    f.work_ns = 3\n    f.answered(1)\n"
+                   "class C:\n    def m(self):\n        self.gated = True\n")
+    assert sorted(phase_writes(mod)) == ["2: f.waiting", "3: g.dropped.add", "4: f.finishing"]

@@ -157,13 +157,11 @@ class Intervals:
         self.ctl.measure(f.ctx, k, counts)
         if len(self.meters.t1_inputs) < self.settings.t1_cycles:
             self.meters.t1_inputs.append(t1_input(f.ctx))
-        f.sample_ns, f.start_ns = t_ns, t0
-        f.awaiting_sample = False
+        gated = f.sampled(t_ns, t0)
         if f.waiting:  # a round run ahead is late once its sample is here (realtime)
-            f.late_ns = self.pace.sample_late_at(f, t_ns)
+            f.late_at(self.pace.sample_late_at(f, t_ns))
         self.meters.admit_ns += time.perf_counter_ns() - t_in
-        if f.gated:  # its rounds are back: on from the sample's steps
-            f.gated = False
+        if gated:  # its rounds are back: on from the sample's steps
             self.advance(f)
 
     def _take_primed(self, k: int) -> dict | None:
@@ -246,18 +244,18 @@ class Intervals:
         rnd = self._step(f)
         while rnd is AWAIT_SAMPLE:  # run ahead: its sample-free steps and rounds are done
             if f.awaiting_sample:
-                f.gated, f.round = True, None
+                f.gate()
                 self.meters.span("central", f.cycle, f.start_ns, time.monotonic_ns())
                 return
             rnd = self._step(f)  # the sample came while its rounds were out
         if not f.handed_off and (rnd is None or self.shape.round_step[rnd.index]
                                  > self.shape.handoff):
             self.ctl.handoff(f.ctx)
-            f.handed_off = True
+            f.handed()
         if rnd is None:
             self._finish(f)
             return
-        f.round = rnd
+        f.at_round(rnd)
         self.outbox.append(f)
         self.meters.span("central", f.cycle, f.start_ns, time.monotonic_ns())
 
@@ -271,7 +269,7 @@ class Intervals:
         except ObserverDiverged as exc:
             raise Fault(f"cycle {f.cycle}: {exc}", process="central",
                         code=EXIT_OBSERVER) from None
-        f.started = True
+        f.stepped()
         return rnd
 
     # -- messages out -----------------------------------------------------------------
@@ -293,9 +291,8 @@ class Intervals:
         for f in self.outbox:
             rnd = f.round
             assert rnd is not None
-            f.waiting = set(range(sch.peripherals))
-            f.deadline_ns = now + limit_ns
-            f.late_ns = self.pace.round_late_at(f, rnd.index, round_trips)
+            f.sent(sch.peripherals, deadline_ns=now + limit_ns,
+                   late_ns=self.pace.round_late_at(f, rnd.index, round_trips))
             parts.append({"cycle": f.cycle, "stage": rnd.index,
                           "vals": Engine.request_vals(rnd, f.ctx, (0, 1, 2))})
         self.outbox.clear()

@@ -119,13 +119,13 @@ class LateData:
                 continue
             policy = self.policy[f.round.index]
             if policy == "wait":
-                f.late_ns = 0
+                f.late_at(0)
                 continue
             if policy == "compute":
                 if self.pending():
                     continue  # a reply may be among them: read first, look again after
                 if not self._compute(f):
-                    f.late_ns = 0  # it needs values the peripherals kept: wait
+                    f.late_at(0)  # it needs values the peripherals kept: wait
                 continue
             if policy == "fault":
                 late = [b.name for b in f.round.blocks]
@@ -134,10 +134,9 @@ class LateData:
                             f"{f.round.index} ({', '.join(late)}) of cycle {f.cycle}",
                             process=f"peripheral-{k + 1}", code=EXIT_PERIPHERAL)
             if self._hold(f, now):
-                f.waiting.clear()
                 self.advance(f)
             else:
-                f.late_ns = 0  # nothing to hold yet: wait
+                f.late_at(0)  # nothing to hold yet: wait
 
     def _hold(self, f: InFlight, now: int) -> bool:
         """``hold``: the last values of the missing peripherals' axes into ``f``; False,
@@ -155,7 +154,7 @@ class LateData:
             Engine.merge(f.ctx, held, axes)
             for a in axes:
                 self.late_per_axis[a] += 1
-            f.dropped.add(p)
+            f.stood_in(p, late=True)
             self.held.add((f.cycle, rnd.index, p))
             if self.on_message is not None:  # the recording, so that replay holds too
                 self.on_message("held", f"{self.faults_key}/held", f.cycle, rnd.index,
@@ -201,12 +200,11 @@ class LateData:
             if late:
                 for a in paxes:
                     self.late_per_axis[a] += 1
-                f.dropped.add(p)
                 self.held.add((f.cycle, rnd.index, p))
                 self.computed += 1
             else:
                 self.taken_over += 1
-            f.waiting.discard(p)
+            f.stood_in(p, late=late)
             if self.on_message is not None:  # the recording: replay knows the reply is missing
                 self.on_message("computed", f"{self.faults_key}/computed", f.cycle,
                                 rnd.index, msgpack.packb({"cycle": f.cycle, "stage": rnd.index,

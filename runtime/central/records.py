@@ -39,6 +39,62 @@ class InFlight:
     then)."""
     gated: bool = False  # its steps are done up to the sample: resume once it is here
 
+    # -- its phase: these methods are the only writers (tests/test_central_seen.py) -----
+
+    def stepped(self) -> None:
+        """Its steps' generator has been started (it is resumed from now on)."""
+        self.started = True
+
+    def handed(self) -> None:
+        """Its estimate is final: the next interval may use it (Fig. 24's hand-off)."""
+        self.handed_off = True
+
+    def at_round(self, rnd: Round) -> None:
+        """Its steps reached ``rnd``, the next round to exchange."""
+        self.round = rnd
+
+    def gate(self) -> None:
+        """Run ahead of its sample, its sample-free steps and rounds are done: it waits
+        for its sample."""
+        self.gated, self.round = True, None
+
+    def sampled(self, sample_ns: int, start_ns: int) -> bool:
+        """Its sample came at ``sample_ns``; returns whether it was gated (its rounds run
+        ahead are back: it goes on from the sample's steps), and is no longer."""
+        self.sample_ns, self.start_ns = sample_ns, start_ns
+        self.awaiting_sample = False
+        gated, self.gated = self.gated, False
+        return gated
+
+    def sent(self, peripherals: int, *, deadline_ns: int, late_ns: int) -> None:
+        """Its round went out: it waits for every peripheral, a silence past
+        ``deadline_ns`` is a fault, its data is late past ``late_ns`` (0: never)."""
+        self.waiting = set(range(peripherals))
+        self.deadline_ns = deadline_ns
+        self.late_ns = late_ns
+
+    def late_at(self, late_ns: int) -> None:
+        """Its round's data is late past ``late_ns`` (0: not judged late any more)."""
+        self.late_ns = late_ns
+
+    def answered(self, k: int, work_ns: int = 0) -> bool:
+        """Peripheral ``k``'s part of its round came (after ``work_ns`` of work); returns
+        whether the round is complete."""
+        self.work_ns = max(self.work_ns, work_ns)
+        self.waiting.discard(k)
+        return not self.waiting
+
+    def stood_in(self, k: int, *, late: bool) -> None:
+        """The central supplied peripheral ``k``'s part (held or computed values); ``late``:
+        its reply, when it comes, is a late one."""
+        if late:
+            self.dropped.add(k)
+        self.waiting.discard(k)
+
+    def finish_after_request(self) -> None:
+        """Its last round is complete; its last steps run once the next request is out."""
+        self.finishing = True
+
 
 LATE_KEPT = 4096
 """How many late intervals' work :class:`CycleLog` keeps (bounded memory)."""

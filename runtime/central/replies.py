@@ -67,10 +67,8 @@ class Replies:
             Engine.merge(f.ctx, vals, axes)
             self.late.remember(vals, axes)  # replies hold per-axis values only
             self.meters.periph_busy_ns[k] += span[1] - span[0]
-            f.work_ns = max(f.work_ns, min(span[1] - span[0], 2**31 - 1))
             self.meters.span(f"peripheral_{k + 1}", f.cycle, span[0], span[1])
-            f.waiting.discard(k)
-            if not f.waiting:
+            if f.answered(k, min(span[1] - span[0], 2**31 - 1)):
                 complete.append(f)
         if not accepted:
             return
@@ -97,7 +95,7 @@ class Replies:
                 self.intervals.advance(f)
         if finishing:
             for f in finishing:
-                f.finishing = True
+                f.finish_after_request()
             self.intervals.start_ready()
             self.intervals.flush(time.monotonic_ns())
             for f in finishing:
