@@ -541,3 +541,15 @@ def test_auto_keeps_the_default_policy_for_pinned_roles():
     pinned = choose(AUTO, clock="realtime", admission=True, budget=0.95, pinned=True)
     assert pinned[0] == 0 and "pinned" in (pinned[1] or "")
     assert choose(10, clock="realtime", admission=True, budget=0.95, pinned=True) == (10, None)
+
+
+def test_stolen_time_is_the_cpu_lines_eighth_field_in_seconds(tmp_path) -> None:
+    """``steal`` of ``/proc/stat``'s first line (all CPUs), in clock ticks; a line
+    without it, or no file, is None (not a 0 that would read as "nothing taken")."""
+    stat = tmp_path / "stat"
+    stat.write_text("cpu  10 0 5 900 3 0 1 250 0 0\ncpu0 5 0 2 450 1 0 0 125 0 0\n")
+    assert sched.stolen_s(str(stat)) == 250 / os.sysconf("SC_CLK_TCK")
+    stat.write_text("cpu  10 0 5 900\n")
+    assert sched.stolen_s(str(stat)) is None
+    assert sched.stolen_s(str(tmp_path / "none")) is None
+    assert sched.stolen_s() is None or sched.stolen_s() >= 0  # this machine's

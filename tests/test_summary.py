@@ -201,3 +201,16 @@ def test_the_last_line_says_how_a_run_ended_and_what_it_gave_up(runs):
     assert not any(x.startswith("  late replies") for x in lines)
     r["fault"] = {"process": "central", "message": "cycle 9: tracking", "code": 5}
     assert not any(x.startswith("  result") for x in summary(r).splitlines())
+
+
+def test_the_hypervisors_stolen_time_is_said_in_realtime_only(runs):
+    """The CPU time a virtual machine's host took during the run (every role stood still
+    meanwhile) is in the report of a realtime run, and the summary says it where it is
+    not 0; lockstep has no deadline to miss, so it says nothing there."""
+    _, rt, _, _ = runs["realtime"]
+    assert isinstance(rt["host_stolen_s"], float) and rt["host_stolen_s"] >= 0.0
+    _, rep, _, _ = runs["lockstep"]
+    host = "  host        0.42 s of CPU time taken by the hypervisor during the run"
+    assert host in summary(dict(rep, clock="realtime", host_stolen_s=0.42))
+    assert "  host " not in summary(dict(rep, clock="realtime", host_stolen_s=0.0))
+    assert "  host " not in summary(dict(rep, clock="lockstep", host_stolen_s=0.42))

@@ -141,6 +141,22 @@ def cpu_times() -> list[tuple[float, float]]:
     return out
 
 
+def stolen_s(stat: str = "/proc/stat") -> float | None:
+    """CPU time the hypervisor gave to others while this machine's CPUs had work to run
+    (``steal``, the eighth field of ``/proc/stat``'s ``cpu`` line, all CPUs), in seconds
+    since boot; None where the kernel does not count it. During such time every thread
+    of the machine stands still, whatever its policy: the difference of two readings is
+    how long a virtual machine's roles all stalled together, summed over its CPUs."""
+    try:
+        with open(stat) as fh:
+            name, *values = fh.readline().split()
+        if name != "cpu" or len(values) < 8:
+            return None
+        return int(values[7]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError):
+        return None
+
+
 def busy_share(before: list[tuple[float, float]],
                after: list[tuple[float, float]]) -> float | None:
     """The busiest CPU's share of busy time between two :func:`cpu_times` readings (the

@@ -270,7 +270,13 @@ class UnitStart:
             self.recorder.begin(self.setup)
         self.central.zenoh_identity()  # the peers now (others may leave before the end)
         self.central.say("start")
-        self.central.run()
+        stolen0 = sched.stolen_s()
+        try:
+            self.central.run()
+        finally:  # a fault's report too: a stall of the whole machine may be its cause
+            stolen1 = sched.stolen_s()
+            self.decided["host_stolen_s"] = None if stolen0 is None or stolen1 is None \
+                else round(stolen1 - stolen0, 3)
 
     # -- deactivate -------------------------------------------------------------------
 
@@ -347,6 +353,7 @@ class UnitStart:
             if self.decided.get(key) is not None:
                 report[key] = self.decided[key]
         report["scheduling_choice"] = self.sched_choice
+        report["host_stolen_s"] = self.decided.get("host_stolen_s")
         report["idle"] = self.idle
         report["scheduling_fallback"] = self.guard.report() if self.guard is not None else None
         report["zenoh"] = self.decided.get("zenoh", {})

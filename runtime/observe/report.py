@@ -47,6 +47,7 @@ RESULT_KEYS: dict[str, str] = {
     "link_list": "the links' endpoints",
     "links": "the links' endpoints",
     "safe_stop": "safe stop",
+    "host_stolen_s": "host",
 }
 """Report keys the summary reads that only the live run knows (what it decided, what the
 central counted, the roles' own reports), each with the summary line it feeds: a

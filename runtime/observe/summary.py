@@ -271,6 +271,17 @@ def _misses_lines(r: dict[str, Any]) -> list[str]:
                "was slow)" if r.get("silences_excused") else "")]
 
 
+def _host_lines(r: dict[str, Any]) -> list[str]:
+    """Realtime: the CPU time the hypervisor took from this machine during the run, where
+    it took any (every role stalls together then, whatever its priority: misses and
+    skipped samples the unit could not have avoided)."""
+    stolen = r.get("host_stolen_s")
+    if r["clock"] != "realtime" or not stolen:
+        return []
+    return [f"  host        {stolen:.2f} s of CPU time taken by the hypervisor during the run "
+            "(steal: every role stood still meanwhile, whatever its priority)"]
+
+
 def _tracking_line(r: dict[str, Any]) -> str:
     torque = f"peak torque {r['torque_nm']['max']:.2f} N m"
     if r["clock"] == "freerun":
@@ -315,6 +326,7 @@ def summary(r: dict[str, Any]) -> str:
         _exchange_line(r),
         *_timing_lines(r),
         *_misses_lines(r),
+        *_host_lines(r),
         *_late_lines(r),
         *_overload_lines(r),
         "  business    " + "  ".join(f"{k} {v * 100:.0f} %" for k, v in r["business"].items()),

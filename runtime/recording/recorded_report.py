@@ -120,6 +120,7 @@ def _live_facts(rep: dict[str, Any], rec: Recording, rc: RunConfig, *, cpu_known
         "scheduling_fallback": sch.clock == "realtime",
         "placement_choice": sch.placement_auto and n > 0,
         "plant_spares": sch.clock == "realtime", "silences_excused": sch.clock == "realtime",
+        "host_stolen_s": sch.clock == "realtime",
         "safe_stop": bool(rep.get("fault")) and sch.clock != "freerun",
         "links": False,  # the weakest protection: the configuration's, rebuilt
     }
