@@ -446,6 +446,7 @@ def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
     Probe.script, Probe.made = script, []
     monkeypatch.setattr(trial, "Central", Probe)
     monkeypatch.setattr(sched, "cpu_times", lambda: [(0, 0)])
+    monkeypatch.setattr(sched, "stolen_s", lambda: 12.5)  # none taken during the trial
     monkeypatch.setattr(sched, "busy_share", lambda a, b: 0.42)
     monkeypatch.setattr(admission, "fifo_busy_limit", lambda: None)
     said, drained = [], []
@@ -577,6 +578,7 @@ def test_a_trial_judges_the_units_own_cpu_time_where_it_is_read(monkeypatch):
     out = admission.trial(c, 1e-3, base=1 << 41, transit_s=0.1 * MS,
                           unit_cpu=lambda: next(readings))
     assert out["busy_of"] == "unit" and out["machine_busy_share"] == 0.42
+    assert out["stolen_s"] == 0.0  # the hypervisor's take over the trial (scripted: none)
     assert out["busy_share"] == 0.42  # busy_share itself is scripted here: the same call
     machine = admission.trial(c, 1e-3, base=1 << 41, transit_s=0.1 * MS)
     assert machine["busy_of"] == "machine"
@@ -604,3 +606,8 @@ def test_a_trials_findings_say_which_rule_it_broke():
     assert trial_findings(rung, 1) == (  # the new user's case: over by 0.01 ms
         "0 were late; the traversal p99 was 2.86 ms, over the 2.85 ms allowed (95% of a "
         "3.00 ms budget: 1 period(s))")
+    # a virtual machine's host took CPU time during the trial: the cause measured, said
+    assert trial_findings(rung | {"stolen_s": 0.04}, 1).endswith(
+        "; the hypervisor took 40 ms of this machine's CPU time meanwhile (steal: every role "
+        "stood still then)")
+    assert trial_findings(rung | {"stolen_s": 0.0}, 1) == trial_findings(rung, 1)
