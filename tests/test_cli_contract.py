@@ -29,7 +29,7 @@ from runner import ctrlunit, kill_unit, unit_id
 
 pytestmark = pytest.mark.filterwarnings("ignore::hypothesis.errors.HypothesisWarning")
 EXAMPLES = int(os.environ.get("CTRLUNIT_CLI_EXAMPLES", "100"))
-SLOW_EXAMPLES = 500
+SLOW_EXAMPLES = 300
 DOCUMENTED = {0, 1, 2, 3, 4, 5, 6, 7, 130}
 NON_FINITE = re.compile(r"\b(nan|-?inf(inity)?)\b", re.IGNORECASE)
 QUOTED_TASK = re.compile(r'\btask(?:": | )"(?:[^"\\]|\\.)*"')
@@ -583,10 +583,11 @@ def test_bench_keeps_the_contract(work, periods, repeats, scale, quick, stages):
 
 
 @pytest.mark.slow
-def test_every_command_keeps_the_contract_on_five_hundred_examples():
-    """``pytest -m slow``: this module again with 500 examples per command (2000 took
-    147-383 s on the 2-core reference machine, 1000 took 182-216 s; docs/measurements/
-    has the dated runs)."""
+def test_every_command_keeps_the_contract_on_three_hundred_examples():
+    """``pytest -m slow``: this module again with 300 examples per command, three times
+    the fast suite's (2000 took 147-383 s on the 2-core reference machine, 1000 took
+    182-216 s, 500 took 121 s of a CI run that a slow hour of the host brought within 93 s
+    of its 30 minutes on 2026-11-28; docs/measurements/ has the dated runs)."""
     import subprocess
     import sys
 

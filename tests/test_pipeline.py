@@ -13,6 +13,7 @@ from ctrlunit.topology.pipeline import (
     holds_lone_round,
     may_prime,
     may_start,
+    prime_cycles,
     reply_mode,
     reply_order,
 )
@@ -118,3 +119,16 @@ def test_reply_modes_and_their_reasons():
     kw = dict(depth=2, peripherals=1)
     assert reply_mode("auto", **kw, between_s=2e-4, round_trip_s=1e-4) == ("each", why)
     assert reply_mode("auto", **kw, between_s=1e-4, round_trip_s=1e-4) == ("fused", why)
+
+
+def test_two_intervals_are_primed_only_where_foresight_2_lets_their_rounds_share_a_request():
+    """Foresight 2 (the estimate two intervals back) primes the next interval and the one
+    after it, when that one comes a period later and is on the control rate's grid, and
+    still belongs to the run; otherwise the next one alone."""
+    both = dict(next_cycle=4, cycles=10, foresight=2, next_is_one=True, after_on_grid=True)
+    assert prime_cycles(**both) == [4, 5]
+    assert prime_cycles(**both | {"foresight": 1}) == [4]
+    assert prime_cycles(**both | {"next_is_one": False}) == [4]  # held two periods: halved
+    assert prime_cycles(**both | {"after_on_grid": False}) == [4]
+    assert prime_cycles(**both | {"next_cycle": 9}) == [9]  # the run's last interval
+    assert prime_cycles(**both | {"next_cycle": 8}) == [8, 9]

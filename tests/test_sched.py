@@ -543,13 +543,24 @@ def test_auto_keeps_the_default_policy_for_pinned_roles():
     assert choose(10, clock="realtime", admission=True, budget=0.95, pinned=True) == (10, None)
 
 
-def test_stolen_time_is_the_cpu_lines_eighth_field_in_seconds(tmp_path) -> None:
-    """``steal`` of ``/proc/stat``'s first line (all CPUs), in clock ticks; a line
-    without it, or no file, is None (not a 0 that would read as "nothing taken")."""
+def test_stolen_time_is_read_cpu_by_cpu_and_the_most_one_lost_is_said(tmp_path) -> None:
+    """``steal`` of each ``cpuN`` line of ``/proc/stat`` (the eighth field, in clock
+    ticks): steal on one CPU of two stops only what runs there, so the figure is the most
+    one CPU lost, never the sum; a reading without it, or readings that do not match,
+    give None (not a 0 that would read as "nothing taken")."""
+    tick = os.sysconf("SC_CLK_TCK")
     stat = tmp_path / "stat"
-    stat.write_text("cpu  10 0 5 900 3 0 1 250 0 0\ncpu0 5 0 2 450 1 0 0 125 0 0\n")
-    assert sched.stolen_s(str(stat)) == 250 / os.sysconf("SC_CLK_TCK")
-    stat.write_text("cpu  10 0 5 900\n")
+    stat.write_text("cpu  10 0 5 900 3 0 1 250 0 0\ncpu0 5 0 2 450 1 0 0 50 0 0\n"
+                    "cpu1 5 0 3 450 2 0 1 200 0 0\nintr 1 2 3\n")
+    before = sched.stolen_s(str(stat))
+    assert before == [50 / tick, 200 / tick]
+    stat.write_text("cpu  10 0 5 900 3 0 1 250 0 0\ncpu0 5 0 2 450 1 0 0 80 0 0\n"
+                    "cpu1 5 0 3 450 2 0 1 210 0 0\n")
+    assert sched.most_stolen(before, sched.stolen_s(str(stat))) == round(30 / tick, 3)
+    assert sched.most_stolen([1.0, 1.0], [0.5, 0.9]) == 0.0  # never negative
+    assert sched.most_stolen(before, [1.0]) is None and sched.most_stolen(None, before) is None
+    stat.write_text("cpu  10 0 5 900\ncpu0 10 0 5 900\n")
     assert sched.stolen_s(str(stat)) is None
     assert sched.stolen_s(str(tmp_path / "none")) is None
-    assert sched.stolen_s() is None or sched.stolen_s() >= 0  # this machine's
+    mine = sched.stolen_s()  # this machine's: one reading per CPU, or none at all
+    assert mine is None or (len(mine) == os.cpu_count() and min(mine) >= 0)

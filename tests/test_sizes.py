@@ -42,19 +42,30 @@ def class_attributes(node: ast.ClassDef) -> set[str]:
 
 
 def sizes() -> dict[str, tuple[int, int]]:
-    """Everything measured: name -> (size, limit)."""
+    """Everything measured: name -> (size, limit). A function is named by its module and
+    its qualified name (``records.py:InFlight.sampled``), so that two methods of one name
+    in one module are both measured."""
     out: dict[str, tuple[int, int]] = {}
+
+    def visit(node: ast.AST, rel: str, prefix: str) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef):
+                assert child.end_lineno is not None
+                name = prefix + child.name
+                out[f"{rel}:{name}"] = (child.end_lineno - child.lineno + 1, FUNCTION_LINES)
+                visit(child, rel, name + ".")
+            elif isinstance(child, ast.ClassDef):
+                name = prefix + child.name
+                out[f"{rel}:{name}"] = (len(class_attributes(child)), CLASS_ATTRIBUTES)
+                visit(child, rel, name + ".")
+            else:
+                visit(child, rel, prefix)
+
     for path in sources():
         rel = path.relative_to(ROOT).as_posix()
         text = path.read_text()
         out[rel] = (len(text.splitlines()), MODULE_LINES)
-        for node in ast.walk(ast.parse(text)):
-            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
-                assert node.end_lineno is not None
-                out[f"{rel}:{node.name}"] = (node.end_lineno - node.lineno + 1,
-                                             FUNCTION_LINES)
-            elif isinstance(node, ast.ClassDef):
-                out[f"{rel}:{node.name}"] = (len(class_attributes(node)), CLASS_ATTRIBUTES)
+        visit(ast.parse(text), rel, "")
     return out
 
 
@@ -80,9 +91,12 @@ interval's phase, the modes) without meeting a wall."""
 
 
 def test_the_central_package_is_within_every_limit():
-    tight = {MODULE_LINES: CENTRAL_MODULE_LINES, FUNCTION_LINES: CENTRAL_FUNCTION_LINES}
-    over = {k: (n, tight.get(lim, lim)) for k, (n, lim) in sizes().items()
-            if k.startswith("runtime/central/") and n > tight.get(lim, lim)}
+    measured = {k: v for k, v in sizes().items() if k.startswith("runtime/central/")}
+    functions = [k for k in measured if ":" in k and measured[k][1] == FUNCTION_LINES]
+    assert len(functions) > 100  # the rule reads the package, methods by class included
+    over = {k: n for k, (n, lim) in measured.items()
+            if n > (CENTRAL_MODULE_LINES if ":" not in k
+                    else CENTRAL_FUNCTION_LINES if k in functions else lim)}
     assert not over, over
 
 

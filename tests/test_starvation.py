@@ -132,14 +132,15 @@ def run_starved(tmp_path: Path, *options: str, tag: str) -> tuple[int, dict, str
 def test_the_main_job_rides_out_a_cpu_taken_from_its_roles_for_10_ms_at_a_time(tmp_path):
     """The main job as a user starts it (``--rt-priority auto``: SCHED_FIFO 10 where
     permitted) rides out every burst: it ends normally, on its whole path, within the
-    state check's tracking bound (a burst holds the robot's torque for up to 10 ms: 1.3-1.5
-    mm at most on 2026-11-28, against 0.05-0.09 mm without bursts). A burst that holds a
-    reply in transit on a Zenoh worker is excused by the machine's CPU pressure since the
-    silence began (runtime/central/excuse.py); one that is not excused costs the silent
-    peripheral its rounds, which the central takes over until it answers again
-    (runtime/central/takeover.py): the commands are the same, so that is riding it out
-    too, as long as every peripheral taken over is back before the end
-    (:func:`runner.taken_over_and_back`): docs/measurements/2026-11-27-starvation.md."""
+    state check's tracking bound (a burst holds the robot's torque for up to 10 ms:
+    1.3-1.5 mm at most on 2026-11-28, against 0.04-0.09 mm outside the host's stalls
+    without one). A burst that holds a reply in transit on a Zenoh worker is excused by
+    the machine's CPU pressure since the silence began (runtime/central/excuse.py); one
+    that is not excused costs the silent peripheral its rounds, which the central takes
+    over until it answers again (runtime/central/takeover.py): the commands are the
+    same, so that is riding it out too, as long as every peripheral taken over is back
+    before the end (:func:`runner.taken_over_and_back`):
+    docs/measurements/2026-11-27-starvation.md."""
     if len(os.sched_getaffinity(0)) < 2 or not fifo_permitted():
         pytest.skip("needs SCHED_FIFO and two CPUs")
     code, rep, out, bursts, central = run_starved(tmp_path, tag="starve")

@@ -141,20 +141,36 @@ def cpu_times() -> list[tuple[float, float]]:
     return out
 
 
-def stolen_s(stat: str = "/proc/stat") -> float | None:
-    """CPU time the hypervisor gave to others while this machine's CPUs had work to run
-    (``steal``, the eighth field of ``/proc/stat``'s ``cpu`` line, all CPUs), in seconds
-    since boot; None where the kernel does not count it. During such time every thread
-    of the machine stands still, whatever its policy: the difference of two readings is
-    how long a virtual machine's roles all stalled together, summed over its CPUs."""
+def stolen_s(stat: str = "/proc/stat") -> list[float] | None:
+    """CPU time the hypervisor gave to others while each of this machine's CPUs had work
+    to run (``steal``, the eighth field of each ``cpuN`` line of ``/proc/stat``), in
+    seconds since boot, CPU by CPU; None where the kernel does not count it. Meanwhile
+    that CPU runs nothing of this machine, whatever the policy: :func:`most_stolen` of
+    two readings is how long the CPU that lost the most stood still."""
+    out: list[float] = []
     try:
         with open(stat) as fh:
-            name, *values = fh.readline().split()
-        if name != "cpu" or len(values) < 8:
-            return None
-        return int(values[7]) / os.sysconf("SC_CLK_TCK")
+            for line in fh:
+                name, *values = line.split()
+                if not name.startswith("cpu"):
+                    break
+                if name == "cpu":
+                    continue
+                if len(values) < 8:
+                    return None
+                out.append(int(values[7]) / os.sysconf("SC_CLK_TCK"))
     except (OSError, ValueError):
         return None
+    return out or None
+
+
+def most_stolen(before: list[float] | None, after: list[float] | None) -> float | None:
+    """The most CPU time the hypervisor took from one CPU between two :func:`stolen_s`
+    readings (s, at least 0); None where either is missing or they do not match (a CPU
+    taken offline between them)."""
+    if before is None or after is None or len(before) != len(after) or not before:
+        return None
+    return round(max(0.0, *(a - b for b, a in zip(before, after, strict=True))), 3)
 
 
 def busy_share(before: list[tuple[float, float]],

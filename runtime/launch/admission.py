@@ -299,9 +299,10 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
         on_cycle=None if rehearsal is None else rehearsal.on_cycle,
         on_message=None if rehearsal is None else rehearsal.on_message)
     unit0 = unit_cpu() if unit_cpu is not None else None  # 2-10 ms: before the ticks
+    stolen0 = sched.stolen_s()
     central.say("probe", period=period, ticks=n, base=base)
     t0 = time.monotonic()
-    busy0, stolen0 = sched.cpu_times(), sched.stolen_s()
+    busy0 = sched.cpu_times()
     fault = None
     try:
         probe.run()
@@ -313,15 +314,14 @@ def trial(central: Central, period: float, *, base: int, transit_s: float,
         if rehearsal is not None:  # as the run's recorder would end (within the window)
             rehearsal.discard(probe.snapshot())
     machine = sched.busy_share(busy0, sched.cpu_times())
-    stolen1 = sched.stolen_s()
+    stolen = sched.most_stolen(stolen0, sched.stolen_s())
     busy = machine if unit_cpu is None or unit0 is None else sched.busy_share(unit0, unit_cpu())
     budget = rc.schedule.pipeline * period  # the command of sample k is due at tick k + depth
     run = probe.snapshot()  # after the readings: not the trial's work
     trav = np.asarray(run.times.traversal_ns, dtype=float) / 1e9
     out: dict[str, Any] = {"period_s": period, "machine_busy_share": machine,
                            "busy_of": "machine" if unit_cpu is None else "unit",
-                           "stolen_s": None if stolen0 is None or stolen1 is None
-                           else round(stolen1 - stolen0, 3)}
+                           "stolen_s": stolen}
     out |= rung_verdict(trav, skipped=run.skipped, budget_s=budget, transit_s=transit_s,
                         busy_share=busy, busy_limit=fifo_busy_limit(),
                         skip_marks=list(run.times.skip_marks))

@@ -53,8 +53,8 @@ def trial_findings(rung: dict[str, Any], depth: int) -> str:
                      f"limit of {rung['busy_limit']:.0%} of the CPU ({ADMIT_BUSY_SHARE:.0%} "
                      "of the kernel's real-time budget)")
     if rung.get("stolen_s"):  # a stall of the whole machine, which no option of ours undoes
-        found.append(f"the hypervisor took {rung['stolen_s'] * 1e3:.0f} ms of this machine's "
-                     "CPU time meanwhile (steal: every role stood still then)")
+        found.append(f"the hypervisor took up to {rung['stolen_s'] * 1e3:.0f} ms from one of "
+                     "this machine's CPUs meanwhile (steal: what ran there stood still)")
     return "; ".join(found)
 
 

@@ -269,14 +269,12 @@ class UnitStart:
         if self.recorder is not None:
             self.recorder.begin(self.setup)
         self.central.zenoh_identity()  # the peers now (others may leave before the end)
+        stolen0 = sched.stolen_s()  # before the plant ticks: off the timed path
         self.central.say("start")
-        stolen0 = sched.stolen_s()
         try:
             self.central.run()
-        finally:  # a fault's report too: a stall of the whole machine may be its cause
-            stolen1 = sched.stolen_s()
-            self.decided["host_stolen_s"] = None if stolen0 is None or stolen1 is None \
-                else round(stolen1 - stolen0, 3)
+        finally:  # a fault's report too: the host's stall may be its cause
+            self.decided["host_stolen_s"] = sched.most_stolen(stolen0, sched.stolen_s())
 
     # -- deactivate -------------------------------------------------------------------
 

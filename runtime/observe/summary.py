@@ -272,14 +272,15 @@ def _misses_lines(r: dict[str, Any]) -> list[str]:
 
 
 def _host_lines(r: dict[str, Any]) -> list[str]:
-    """Realtime: the CPU time the hypervisor took from this machine during the run, where
-    it took any (every role stalls together then, whatever its priority: misses and
-    skipped samples the unit could not have avoided)."""
+    """Realtime: the most CPU time the hypervisor took from one of this machine's CPUs
+    during the run, where it took any (what ran there stood still, whatever its
+    priority: misses and skipped samples the unit could not have avoided)."""
     stolen = r.get("host_stolen_s")
     if r["clock"] != "realtime" or not stolen:
         return []
-    return [f"  host        {stolen:.2f} s of CPU time taken by the hypervisor during the run "
-            "(steal: every role stood still meanwhile, whatever its priority)"]
+    return [f"  host        the hypervisor took up to {stolen:.2f} s from one of this "
+            "machine's CPUs during the run (steal: what ran there stood still, whatever its "
+            "priority)"]
 
 
 def _tracking_line(r: dict[str, Any]) -> str:
