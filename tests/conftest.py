@@ -54,6 +54,15 @@ def _temporary_files_under_pytest(tmp_path_factory: pytest.TempPathFactory) -> I
 
 
 @pytest.fixture
+def socket_endpoint() -> str:
+    """A unix socket endpoint in a folder of its own (under the session's temporary
+    folder: short, where a test's ``tmp_path`` may pass the 107 bytes a socket's path may
+    have). Without keys the unit's roles reach the central over a unix socket alone
+    (runtime/transport/security.py, ``socket_rule``)."""
+    return f"unixsock-stream/{tempfile.mkdtemp(prefix='sock-')}/central.sock"
+
+
+@pytest.fixture
 def params() -> DeltaParams:
     return DELTA_IA
 

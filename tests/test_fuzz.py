@@ -116,6 +116,9 @@ def run_unit(tmp_path, unit: str, cycles: int) -> tuple[int, dict, str, int, Cou
     """The roles one by one (as on several hosts), each also listening on its own loopback
     endpoint, so that a stranger can reach every key: in peer mode the central does not
     route for others, so a peer connected to it alone only reaches the central's keys.
+    ``--insecure``: without it such a link carries the observers' keys alone (the roles
+    meet on a unix socket, runtime/transport/security.py), and no stranger's payload
+    would reach a decoder.
 
     Returns the central's exit code, its report, its output, the intervals done when
     the last payload was sent, and how many payloads went to each receiving role."""
@@ -123,7 +126,7 @@ def run_unit(tmp_path, unit: str, cycles: int) -> tuple[int, dict, str, int, Cou
     eps = [f"tcp/127.0.0.1:{p}" for p in ports]
     report, status = tmp_path / f"{unit}.json", tmp_path / f"{unit}.status"
     common = ["--unit", unit, "--clock", "lockstep", "--cycles", str(cycles), "--peripherals",
-              "3"]
+              "3", "--insecure"]
     cli = [sys.executable, "-m", "ctrlunit.runtime.cli"]
     central = subprocess.Popen(cli + ["central", *common, "--listen", eps[0], "--report",
                                       str(report), "--status-file", str(status)],

@@ -19,7 +19,6 @@ from ctrlunit.runtime.transport.codec import decode, encode
 from ctrlunit.runtime.transport.node import Event
 from loopback import Bus, LoopbackNode
 from runner import ctrlunit, kill_unit, unit_id
-from test_fuzz import free_port
 
 CENTRAL = dict(peripherals=2, pipeline=2, clock="lockstep", law="computed-torque",
                observer="previous", plant_friction=0.5, period=2e-3, cycles=123,
@@ -204,8 +203,9 @@ def test_the_message_fits_the_codec_s_bounds():
 
 
 @pytest.mark.zenoh
-def test_roles_started_by_hand_with_only_their_links_run_the_central_s_commands(tmp_path):
-    unit, endpoint = unit_id("hand"), f"tcp/127.0.0.1:{free_port()}"
+def test_roles_started_by_hand_with_only_their_links_run_the_central_s_commands(
+        tmp_path, socket_endpoint):
+    unit, endpoint = unit_id("hand"), socket_endpoint
     options = ["--clock", "lockstep", "--peripherals", "2", "--pipeline", "2", "--law",
                "computed-torque", "--cycles", "200", "--placement", "axes"]
     py = [sys.executable, "-m", "ctrlunit.runtime.cli"]
@@ -248,8 +248,8 @@ def test_a_role_by_hand_needs_the_unit_id_and_its_help_shows_what_it_keeps():
 
 
 @pytest.mark.zenoh
-def test_a_role_the_unit_does_not_have_is_told_at_once(tmp_path):
-    unit, endpoint = unit_id("nohand"), f"tcp/127.0.0.1:{free_port()}"
+def test_a_role_the_unit_does_not_have_is_told_at_once(socket_endpoint):
+    unit, endpoint = unit_id("nohand"), socket_endpoint
     py = [sys.executable, "-m", "ctrlunit.runtime.cli"]
     central = subprocess.Popen([*py, "central", "--unit", unit, "--listen", endpoint,
                                 "--clock", "freerun", "--peripherals", "1", "--cycles", "50"],

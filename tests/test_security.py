@@ -161,22 +161,34 @@ def attacked_run(tmp_path, tag: str, attackers: Any, *options: str
 
 def test_with_keys_a_peer_without_them_cannot_connect_and_a_viewer_cannot_write(
         tmp_path, unit_keys):
-    """The attack of the issue, twice: on a loopback TCP port without keys the forged
-    samples reach the central and change its commands; with --keys the same port is
-    mutual TLS, a peer without a certificate is never admitted (it reads nothing), and a
-    peer with the viewer's certificate reads none of the control path (the observers'
-    keys alone: tests/test_observers.py) and its samples, replies and commands are
-    dropped by the access control: the commands are the undisturbed run's bit for bit.
-    (Zenoh drops what the policy denies before the unit sees it: the unit's own
-    rejection counters stay empty.)"""
+    """The attack of the issue, three times: on a loopback TCP port without keys under
+    ``--insecure`` the forged samples reach the central and change its commands (the
+    attack works); without ``--insecure`` the port carries the observers' keys alone (the
+    roles meet on the local socket): the intruder connects, reads nothing of the
+    control path, and its samples, replies and commands are dropped; with --keys the same
+    port is mutual TLS, a peer without a certificate is never admitted (it reads
+    nothing), and a peer with the viewer's certificate reads none of the control path
+    (the observers' keys alone: tests/test_observers.py) and its samples, replies and
+    commands are dropped by the access control: the commands are the undisturbed run's
+    bit for bit. (Zenoh drops what the policy denies before the unit sees it: the unit's
+    own rejection counters stay empty.)"""
     _, clean, _ = start_json(tmp_path, "--clock", "lockstep", "--cycles", CYCLES,
                              "--peripherals", "0", "--pipeline", "2", tag="tlsclean")
     code, open_rep, out, open_seen = attacked_run(
-        tmp_path, "tlsopen", lambda port: [("anyone", peer_config(port))])
-    print(f"without keys: exit {code}, the intruder read {open_seen['anyone']['received']} "
-          f"messages, rejected {open_rep.get('rejected_messages')}")
+        tmp_path, "tlsopen", lambda port: [("anyone", peer_config(port))], "--insecure")
+    print(f"without keys, --insecure: exit {code}, the intruder read "
+          f"{open_seen['anyone']['received']} messages, rejected "
+          f"{open_rep.get('rejected_messages')}")
     assert open_seen["anyone"]["received"] > 0, out  # it read the traffic
     assert open_rep.get("command_digest") != clean["command_digest"], out
+    assert open_rep["links"] == "insecure" and "INSECURE" in out
+    code, rep, out, seen = attacked_run(
+        tmp_path, "loopback", lambda port: [("anyone", peer_config(port))])
+    print(f"without keys: exit {code}, {seen}")
+    assert code == 0, out
+    assert seen["anyone"] == {"received": 0, "peers": 1}  # connected, denied the requests
+    assert rep["command_digest"] == clean["command_digest"]
+    assert rep["links"] == "loopback"
     code, rep, out, seen = attacked_run(
         tmp_path, "tlskeys", lambda port: [("no certificate", peer_config(port, unit_keys)),
                                            ("viewer", peer_config(port, unit_keys, "viewer"))],
@@ -205,6 +217,27 @@ def test_a_link_beyond_the_host_without_keys_is_refused_and_names_the_fix(tmp_pa
         assert "can be reached from other hosts" in err[0]
         assert "ctrlunit keys init DIR" in err[0] and "--keys DIR" in err[0]
         assert "--insecure" in err[0]
+
+
+def test_a_role_by_hand_without_keys_on_a_tcp_link_alone_is_refused_and_names_the_fix():
+    """Without keys a TCP port carries the observers' keys alone: a central that listens,
+    or a role that connects, on nothing else could never reach the control path (the
+    central's roles would say no hello). Refused before anything starts, naming the
+    socket, the keys and ``--insecure``, each of which the check then lets pass."""
+    port, cli = free_port(), [sys.executable, "-m", "ctrlunit.runtime.cli"]
+    for args, way in ((["central", "--listen", f"tcp/127.0.0.1:{port}"], "listen"),
+                      (["plant", "--unit", "u", "--connect", f"tcp/127.0.0.1:{port}"],
+                       "connect")):
+        res = subprocess.run([*cli, *args, "--check"], capture_output=True, text=True,
+                             timeout=60)
+        assert res.returncode == 1, (args, res.stdout, res.stderr)
+        err = res.stderr.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"ctrlunit: error: --{way} tcp/127"), err
+        assert "unixsock-stream/PATH" in err[0] and "--keys DIR" in err[0]
+        assert "--insecure" in err[0]
+        ok = subprocess.run([*cli, *args, "--check", "--insecure"], capture_output=True,
+                            text=True, timeout=60)
+        assert ok.returncode == 0, (args, ok.stderr)
 
 
 def test_keys_init_writes_an_authority_and_a_certificate_per_role(tmp_path):

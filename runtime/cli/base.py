@@ -146,3 +146,10 @@ def cli() -> None:
 
 
 NUMERIC = {"ignore_unknown_options": True}  # so that -0.35 is a number, not an option
+
+
+def kept_note(report: dict[str, Any]) -> str:
+    """Where the run directory of a faulted run was kept (its spec and the roles' logs),
+    as the end of a line."""
+    kept = report.get("logs_kept")
+    return f"; the roles' logs are kept in {kept}" if kept else ""

@@ -4,6 +4,7 @@ configuration they resolve to: the defaults, then ``--profile``, the run file
 
 from __future__ import annotations
 
+import contextlib
 import typing
 from typing import Any
 
@@ -248,4 +249,19 @@ _READ_AFTER = {flat for section in SECTIONS for flat, _, _, a in settings_of(sec
 """Flags read with the configuration (an error exits 1, as ``--set``'s), not by click."""
 
 
-__all__ = ["CLI_SECTIONS", "given_settings", "make_rc", "role_options", "run_options"]
+def given_in(kw: dict[str, Any]) -> set[str]:
+    """The settings (flat names) given rather than defaulted: by flag, ``--set`` or the
+    run file; one that cannot be read is :func:`make_rc`'s error to report."""
+    from ..config.run_file import parse_set, read_run_file
+
+    given = given_settings()
+    with contextlib.suppress(ConfigError):
+        given |= set(parse_set(kw.get("set_items") or ()))
+    if kw.get("config_file"):
+        with contextlib.suppress(ConfigError):
+            given |= set(read_run_file(kw["config_file"]))
+    return given
+
+
+__all__ = ["CLI_SECTIONS", "given_in", "given_settings", "make_rc", "role_options",
+           "run_options"]

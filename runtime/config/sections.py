@@ -235,8 +235,10 @@ class TransportConfig:
     unit: str = setting(factory=lambda: "u" + secrets.token_hex(4), flag=Flag(),
                         help="Unit id (keys ctrlunit/<unit>/...); default: a random one (a "
                         "role started by hand: give the central's).")
-    listen: list[str] | None = setting(None, flag=Flag(kind="many"),
-                                       help="Zenoh endpoint to listen on.")
+    listen: list[str] | None = setting(
+        None, flag=Flag(kind="many"),
+        help="Zenoh endpoint to listen on. Without --keys the roles meet on a unix socket, "
+        "and a TCP port carries the observers' keys (view/) alone.")
     connect: list[str] | None = setting(None, flag=Flag(kind="many"),
                                         help="Zenoh endpoint to connect to.")
     zenoh_config: str | None = setting(
@@ -248,7 +250,9 @@ class TransportConfig:
         help="The unit's credentials (ctrlunit keys init DIR): every link is mutual TLS "
         "under the unit's access control (the default one too: TLS on a loopback port).")
     insecure: bool = setting(False, flag=Flag(kind="flag"),
-                             help="Allow links beyond this host without --keys (a lab bench).")
+                             help="Without --keys, let links beyond this host, and any "
+                             "link other than a unix socket, carry the control path (a lab "
+                             "bench).")
     timeout: float = setting(
         2.0, flag=Flag(kind="duration", default="2s"), bounds=(0.01, 600.0),
         allowed="0.01 to 600 s",

@@ -173,18 +173,21 @@ class UnitStart:
             if self.spawn else Supervision())
 
     def _central_node(self) -> Node:
-        """The central's node, listening on ``--listen``, else on the default endpoint
-        (the children connect to it): the local socket, or with keys, whose links must
-        carry the roles' certificates, TLS on a free loopback port (another on a port
-        taken meanwhile, up to 5 tries). ``--connect`` joins the central to another Zenoh
-        network (e.g. another unit's)."""
+        """The central's node, listening on the endpoint the children connect to and on
+        ``--listen``. Without keys that endpoint is the local socket, and any other link
+        carries the observers' keys alone unless ``--insecure``
+        (runtime/transport/security.py, ``socket_rule``); with keys, whose links must
+        carry the roles' certificates, the first ``--listen`` endpoint, else TLS on a free
+        loopback port (another on a port taken meanwhile, up to 5 tries). ``--connect``
+        joins the central to another Zenoh network (e.g. another unit's)."""
         t = self.rc.transport
         for attempt in range(5):
-            self.endpoint = t.listen[0] if t.listen else loopback_endpoint("tls") \
+            self.endpoint = (t.listen[0] if t.listen else loopback_endpoint("tls")) \
                 if t.keys else default_endpoint(self.run_dir)
-            conf = make_config(listen=[self.endpoint], connect=t.connect,
+            listen = [self.endpoint, *(e for e in t.listen or [] if e != self.endpoint)]
+            conf = make_config(listen=listen, connect=t.connect,
                                config_file=t.zenoh_config, keys=t.keys, role="central",
-                               limits=Limits.of(t))
+                               limits=Limits.of(t), control=not t.insecure)
             try:
                 return Node(conf, t.unit, "central")
             except Exception:  # ZError: the port was taken meanwhile

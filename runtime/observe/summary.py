@@ -142,9 +142,10 @@ LINK_LINES = {
     "local": "a unix socket: who may enter its directory may connect (the default's: "
              "this user alone)",
     "loopback": "TCP on a loopback address without keys: any process on this host may "
-                "connect (--keys DIR makes it TLS)",
-    "insecure": "INSECURE: links beyond this host without keys (--insecure): anyone who "
-                "reaches them may read the unit's traffic and move the robot",
+                "connect and read the observers' keys (view/) alone; the roles use the "
+                "local socket (--keys DIR makes it TLS)",
+    "insecure": "INSECURE: links without keys that carry the control path (--insecure): "
+                "anyone who reaches them may read the unit's traffic and move the robot",
 }
 """The summary's line on what protects a run's links, by protection
 (runtime/transport/security.py, ``PROTECTIONS``)."""

@@ -130,6 +130,57 @@ def access_control(peripherals: int = MAX_PERIPHERALS) -> dict[str, Any]:
             "subjects": subjects, "policies": policies}
 
 
+SOCKET = "unixsock-stream"
+"""The link whose peers are the unit's own user's processes (its directory is theirs)."""
+OTHER_LINKS = ("tcp", "udp", "tls", "quic", "ws", "serial", "unixpipe", "vsock")
+"""Every other link protocol Zenoh's access control names (``link_protocols``)."""
+EVERY_MESSAGE = ("put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
+                 "liveliness_token", "declare_liveliness_subscriber", "liveliness_query")
+
+
+def socket_rule() -> dict[str, Any]:
+    """The unit's access control without keys (Zenoh's ``access_control``, subjects by
+    link protocol, default deny), on the session of each of a unit's roles that has a
+    link other than a unix socket, unless ``--insecure``: a unix socket's peers (the
+    processes of the user who may enter its directory: the unit's roles) everything; a
+    peer on any other link (a loopback TCP port, where any process of the host may
+    connect) the observers' keys ``view/`` alone, to subscribe to and be sent, and it may
+    publish nothing. The control path then never goes to such a peer, so one that stops
+    reading holds back no put of it, and a forged sample, reply or order from it is
+    dropped before any role sees it. Without keys the roles cannot tell one another
+    apart: on the socket each may publish anything (with keys each its own keys alone:
+    :func:`access_control`)."""
+    view = f"ctrlunit/*/{VIEWER_KEYS}/**"
+    rules = [_rule("socket", list(EVERY_MESSAGE), ["**"], ["ingress", "egress"]),
+             _rule("sub-view", ["declare_subscriber"], [view], ["ingress"]),
+             _rule("to-view", ["put"], [view], ["egress"])]
+    subjects = [{"id": "socket", "link_protocols": [SOCKET]},
+                {"id": "observers", "link_protocols": list(OTHER_LINKS)}]
+    policies = [{"id": "socket", "rules": ["socket"], "subjects": ["socket"]},
+                {"id": "observers", "rules": ["sub-view", "to-view"],
+                 "subjects": ["observers"]}]
+    return {"enabled": True, "default_permission": "deny", "rules": rules,
+            "subjects": subjects, "policies": policies}
+
+
+def control_link_error(endpoints: list[str], *, way: str, keys: str | None,
+                       insecure: bool) -> str | None:
+    """Why a role started by hand could not reach the unit's control path over
+    ``endpoints`` (the central: where it listens; another role: where it connects), or
+    None: without keys and without ``--insecure`` only a unix socket carries it
+    (:func:`socket_rule`). None too without endpoints (another check's)."""
+    if keys or insecure or not endpoints or any(e.startswith(SOCKET) for e in endpoints):
+        return None
+    fix = ("add --listen unixsock-stream/PATH (the other roles --connect to it)"
+           if way == "listen" else "--connect to the unix socket the central listens on "
+           "(unixsock-stream/PATH)")
+    return (f"--{way} {', '.join(endpoints)}: without keys the unit's roles reach the "
+            "central over a unix socket alone, and any other link carries the observers' "
+            f"keys (view/) alone, to anyone on this host: {fix}, or give every role "
+            "--keys DIR (ctrlunit keys init DIR); --insecure lets every link carry the "
+            "control path (a lab bench)")
+
+
 def secure(conf: Any, directory: str | Path, role: str) -> None:
     """Make ``conf`` (a ``zenoh.Config``) authenticate as ``role`` with the unit's keys in
     ``directory`` and enforce :func:`access_control`. Names in certificates are roles, not
@@ -167,10 +218,12 @@ def reaches_beyond_host(endpoint: str) -> bool:
 
 
 PROTECTIONS = ("insecure", "loopback", "local", "tls")
-"""What protects a link, the weakest first: ``insecure`` (beyond the host without keys,
-``--insecure``), ``loopback`` (a loopback address without keys: any process on this
-host may connect), ``local`` (a unix socket: who may enter its directory; the default
-one's is this user's alone) and ``tls`` (mutual TLS under the unit's access control)."""
+"""What protects a link, the weakest first: ``insecure`` (a link other than a unix socket
+without keys, with ``--insecure``: it carries the control path to whoever reaches it),
+``loopback`` (a loopback address without keys: any process on this host may connect,
+and gets the observers' keys alone, :func:`socket_rule`), ``local`` (a unix socket: who
+may enter its directory; the default one's is this user's alone) and ``tls`` (mutual
+TLS under the unit's access control)."""
 
 CERTIFIED = ("tcp", "tls")
 """The protocols whose links carry the roles' certificates with ``--keys`` (``tcp``
@@ -223,8 +276,10 @@ def protect(links: list[Link], *, keys: str | None, insecure: bool,
                     "control would drop all of its traffic): use a tcp/ endpoint (it becomes "
                     "tls/), e.g. tcp/127.0.0.1:7447")
             prot = "tls"
-        elif not reaches_beyond_host(endpoint):
-            prot = "local" if proto.startswith("unixsock") else "loopback"
+        elif proto.startswith("unixsock"):
+            prot = "local"
+        elif not reaches_beyond_host(endpoint) and not insecure:
+            prot = "loopback"
         elif insecure:
             prot = "insecure"
         else:
@@ -256,7 +311,7 @@ def unit_links(transport: Any, *, central: str | None = None,
                file: Any = None) -> list[dict[str, str]]:
     """The links of a unit whose transport settings are ``transport`` (a
     ``TransportConfig``), each with its protection (:func:`protect`): the endpoints
-    listened on (``--listen``, else the launcher's ``central`` endpoint if given, and the
+    listened on (the launcher's ``central`` endpoint if given, ``--listen`` and the
     ``--zenoh-config`` file's), those connected to (``--connect``, else the file's) and
     the file's multicast scouting if it turns it on; ``file``: what the file says
     (runtime/transport/zsession.py, ``file_links``), given when there is one.
@@ -266,8 +321,10 @@ def unit_links(transport: Any, *, central: str | None = None,
     ValueError
         As :func:`protect`."""
     t = transport
-    listen = t.listen or ([central] if central else [])
-    links: list[Link] = [(e, "listen", "--listen" if t.listen else "default") for e in listen]
+    given = list(t.listen or [])
+    listen = [*([central] if central and central not in given else []), *given]
+    links: list[Link] = [(e, "listen", "--listen" if e in given else "default")
+                         for e in listen]
     links += [(e, "connect", "--connect") for e in t.connect or []]
     multicast = None
     if file is not None:

@@ -294,6 +294,7 @@ def make_config(
     keys: str | None = None,
     role: str = "central",
     limits: Limits | None = None,
+    control: bool = False,
 ) -> zenoh.Config:
     """A Zenoh configuration for one role.
 
@@ -314,6 +315,10 @@ def make_config(
     limits : what the session accepts from its links (runtime/transport/limits.py; the
         run's ``transport`` settings); None: the defaults. They apply over a
         ``config_file``'s own.
+    control : the session carries the unit's control path (a role without
+        ``--insecure``): without keys, each of its links other than a unix socket carries
+        the observers' keys alone (runtime/transport/security.py, ``socket_rule``, over a
+        ``config_file``'s own access control, as the keys' policy is).
     """
     links = file_links(config_file) if config_file else None
     if links is not None:
@@ -353,6 +358,11 @@ def make_config(
         from .security import secure
 
         secure(conf, keys, role)
+    elif control and not all(e.startswith("unixsock") for e in [*(listen or []),
+                                                                 *(connect or [])]):
+        from .security import socket_rule
+
+        conf.insert_json5("access_control", json.dumps(socket_rule()))
     return conf
 
 
