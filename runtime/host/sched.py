@@ -110,6 +110,24 @@ def rt_budget() -> float | None:
     return runtime / period if 0 <= runtime < period and period > 0 else None
 
 
+def cpu_counters(stat: str = "/proc/stat") -> list[list[int]] | None:
+    """The counters of each ``cpuN`` line of ``/proc/stat``, CPU by CPU, in clock ticks
+    (``SC_CLK_TCK``): user, nice, system, idle, iowait, irq, softirq, steal, ...; None
+    where it cannot be read."""
+    out: list[list[int]] = []
+    try:
+        with open(stat) as fh:
+            for line in fh:
+                name, *values = line.split()
+                if not name.startswith("cpu"):
+                    break
+                if name != "cpu":
+                    out.append([int(v) for v in values])
+    except (OSError, ValueError):
+        return None
+    return out
+
+
 def cpu_times() -> list[tuple[float, float]]:
     """``(busy, elapsed)`` of each CPU in clock ticks (``SC_CLK_TCK``): ``elapsed`` the
     monotonic clock, ``busy`` that less the CPU's idle, iowait and steal time from
@@ -123,21 +141,13 @@ def cpu_times() -> list[tuple[float, float]]:
     (docs/measurements/2026-11-24-realtime.md). Busy time is therefore taken as the time
     a CPU was not idle. Stolen time is not busy: the kernel's real-time throttling does
     not count it either."""
+    counters = cpu_counters() or []
+    now = time.monotonic() * os.sysconf("SC_CLK_TCK")
     out: list[tuple[float, float]] = []
-    try:
-        with open("/proc/stat") as fh:
-            now = time.monotonic() * os.sysconf("SC_CLK_TCK")
-            for line in fh:
-                name, *values = line.split()
-                if not name.startswith("cpu"):
-                    break
-                if name == "cpu":
-                    continue
-                fields = [int(v) for v in values[:8]] + [0] * (8 - len(values[:8]))
-                not_busy = fields[3] + fields[4] + fields[7]  # idle, iowait, steal
-                out.append((now - not_busy, now))
-    except (OSError, ValueError):
-        return []
+    for values in counters:
+        fields = values[:8] + [0] * (8 - len(values[:8]))
+        not_busy = fields[3] + fields[4] + fields[7]  # idle, iowait, steal
+        out.append((now - not_busy, now))
     return out
 
 
@@ -147,21 +157,10 @@ def stolen_s(stat: str = "/proc/stat") -> list[float] | None:
     seconds since boot, CPU by CPU; None where the kernel does not count it. Meanwhile
     that CPU runs nothing of this machine, whatever the policy: :func:`most_stolen` of
     two readings is how long the CPU that lost the most stood still."""
-    out: list[float] = []
-    try:
-        with open(stat) as fh:
-            for line in fh:
-                name, *values = line.split()
-                if not name.startswith("cpu"):
-                    break
-                if name == "cpu":
-                    continue
-                if len(values) < 8:
-                    return None
-                out.append(int(values[7]) / os.sysconf("SC_CLK_TCK"))
-    except (OSError, ValueError):
+    counters = cpu_counters(stat)
+    if not counters or any(len(values) < 8 for values in counters):
         return None
-    return out or None
+    return [values[7] / os.sysconf("SC_CLK_TCK") for values in counters]
 
 
 def most_stolen(before: list[float] | None, after: list[float] | None) -> float | None:
