@@ -1,7 +1,11 @@
 """What one reader costs a put: a session configured as the central is (``make_config``,
-DROP congestion control, a loopback TCP listener) puts 300-byte messages every 0.5 ms,
-with no reader, with one that reads everything, and with one that takes a message and
-then never reads again (docs/measurements/2026-11-28-stopped-readers.md).
+DROP congestion control, a loopback TCP listener) puts 300-byte messages on a key of
+the control path every 0.5 ms, with no reader, with one that subscribes to every key
+and reads, and with one that takes a message and then never reads again
+(docs/measurements/2026-11-28-stopped-readers.md). Each twice: as a unit's role is
+without keys (the link rule: the TCP peer gets the observers' keys alone,
+runtime/transport/security.py ``socket_rule``) and as with ``--insecure`` (it gets
+everything).
 
 ``python -m ctrlunit.bench.reader_cost [--seconds 12]`` prints, per reader, the put's
 wall time (p50, p99, max) and thread CPU in the first 2 s and in the second half.
@@ -48,13 +52,13 @@ def _quantile(xs: list[int], q: float) -> float:
     return sorted(xs)[int(q * (len(xs) - 1))] / 1e3
 
 
-def measure(mode: str, seconds: float) -> list[str]:
-    """Put for ``seconds`` beside a reader (``none``, ``reading``, ``frozen``); the lines
-    of its table."""
+def measure(mode: str, seconds: float, *, insecure: bool = False) -> list[str]:
+    """Put for ``seconds`` beside a reader (``none``, ``reading``, ``frozen``), under the
+    link rule or ``insecure``; the lines of its table."""
     endpoint = f"tcp/127.0.0.1:{_port()}"
     reader = None
-    with zenoh.open(make_config(listen=[endpoint])) as session:
-        pub = session.declare_publisher("ctrlunit/bench/central/x",
+    with zenoh.open(make_config(listen=[endpoint], control=not insecure)) as session:
+        pub = session.declare_publisher("ctrlunit/bench/peripheral/request",
                                         congestion_control=zenoh.CongestionControl.DROP)
         try:
             if mode != "none":
@@ -85,7 +89,8 @@ def measure(mode: str, seconds: float) -> list[str]:
     lines = []
     for label, part in (("first 2 s", slice(0, first)), ("second half", slice(n // 2, n))):
         w, c = wall[part], cpu[part]
-        lines.append(f"| {mode} | {label} | {len(w)} | {_quantile(w, 0.5):.1f} | "
+        lines.append(f"| {'insecure' if insecure else 'rule'} | {mode} | {label} | "
+                     f"{len(w)} | {_quantile(w, 0.5):.1f} | "
                      f"{_quantile(w, 0.99):.1f} | {max(w) / 1e3:.0f} | "
                      f"{statistics.mean(c) / 1e3:.1f} |")
     return lines
@@ -96,10 +101,12 @@ def main(argv: list[str] | None = None) -> None:
                                  description=(__doc__ or "").split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=12.0, help="puts per reader, seconds")
     args = ap.parse_args(argv)
-    print("| reader | window | puts | wall p50 (us) | p99 (us) | max (us) | CPU mean (us) |")
-    print("|---|---|---|---|---|---|---|")
+    print("| links | reader | window | puts | wall p50 (us) | p99 (us) | max (us) | "
+          "CPU mean (us) |")
+    print("|---|---|---|---|---|---|---|---|")
     for mode in ("none", "reading", "frozen"):
-        print("\n".join(measure(mode, args.seconds)), flush=True)
+        for insecure in (False, True):  # side by side
+            print("\n".join(measure(mode, args.seconds, insecure=insecure)), flush=True)
 
 
 if __name__ == "__main__":
