@@ -36,6 +36,11 @@ REFUSED = {
         "listen/endpoints tcp/0.0.0.0:0 can be reached from other hosts"),
     "multicast scouting": ({"scouting": {"multicast": {"enabled": True}}},
                            "scouting/multicast/enabled is true"),
+    # gossip passes a peer's address on: a reader of the observers' port that gossips its
+    # own listener would have the plant connect to it, past the central's rule (an
+    # attacker's review, 2026-11-28)
+    "gossip scouting": ({"scouting": {"gossip": {"enabled": True}}},
+                        "scouting/gossip/enabled is true"),
 }
 
 
@@ -71,7 +76,8 @@ def test_a_run_file_naming_such_a_zenoh_file_is_refused_too(tmp_path):
      "it loads Zenoh plugins (rest)"),
     ({"plugins_loading": {"enabled": True}}, "it loads Zenoh plugins (plugins_loading)"),
     ({"adminspace": {"enabled": True, "permissions": {"read": True, "write": True}}},
-     "adminspace/permissions/write is true")])
+     "adminspace/permissions/write is true"),
+    ({"namespace": "ctrlunit/x/view"}, "namespace 'ctrlunit/x/view'")])
 def test_a_zenoh_file_that_loads_plugins_or_opens_its_admin_space_is_refused(tmp_path, conf,
                                                                              says):
     """A plugin opens ports of its own (the REST plugin's HTTP port on every interface, in
@@ -83,6 +89,30 @@ def test_a_zenoh_file_that_loads_plugins_or_opens_its_admin_space_is_refused(tmp
         err = res.stderr.strip().splitlines()
         assert res.returncode == 1 and len(err) == 1, (extra, res.stderr)
         assert err[0].startswith(f"ctrlunit: error: --zenoh-config {path}: {says}"), err[0]
+
+
+def test_a_unix_socket_in_a_folder_others_may_write_is_refused_without_insecure(tmp_path):
+    """In /tmp (or any folder others may write) another user could bind the socket's path
+    first and pose as the central to every role that connects there: refused, naming the
+    folder, for start, a role by hand and replay alike; a folder of one's own will do."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o1777)
+    endpoint = f"unixsock-stream/{shared}/c.sock"
+    for args in (("start", "--listen", endpoint, *SHORT, "--check"),
+                 ("central", "--listen", endpoint, *SHORT, "--check"),
+                 ("plant", "--unit", "u", "--connect", endpoint, "--check")):
+        res = ctrlunit(*args, timeout=120)
+        err = res.stderr.strip().splitlines()
+        assert res.returncode == 1 and len(err) == 1, (args, res.stderr)
+        assert f"its folder {shared} may be written by others (mode 1777)" in err[0], err[0]
+        assert "mkdir -m 700" in err[0] and "--insecure" in err[0], err[0]
+        assert ctrlunit(*args, "--insecure", timeout=120).returncode == 0, args
+    own = tmp_path / "own"
+    own.mkdir(mode=0o700)
+    res = ctrlunit("start", "--listen", f"unixsock-stream/{own}/c.sock", *SHORT, "--check",
+                   timeout=120)
+    assert res.returncode == 0, res.stderr
 
 
 def test_a_zenoh_file_in_another_mode_than_peer_is_refused(tmp_path):

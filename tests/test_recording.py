@@ -228,6 +228,27 @@ def test_replay_options_do_what_they_say(short):
     assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(10, 20))
 
 
+def test_replay_follows_the_link_rule(short, tmp_path):
+    """A republished recording carries the run's samples and commands: an endpoint
+    another host can reach, or a unix socket in a folder others may write, is refused
+    (exit 1, naming it and --insecure) before anything is sent, as the unit's own links
+    are (an attacker's review, 2026-11-28, found replay unchecked)."""
+    from click.testing import CliRunner
+    from ctrlunit.runtime.cli import cli
+
+    path, _ = short
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o1777)
+    for args, says in ((["--listen", "tcp/0.0.0.0:0"], "can be reached from other hosts"),
+                       (["--connect", "tcp/192.0.2.1:7447"], "can be reached from other hosts"),
+                       (["--connect", f"unixsock-stream/{shared}/c.sock"],
+                        f"its folder {shared} may be written by others")):
+        res = CliRunner().invoke(cli, ["replay", str(path), *args])
+        assert res.exit_code == 1, (args, res.output)
+        assert says in res.output and "--insecure" in res.output, res.output
+
+
 def test_replay_waits_for_subscribers_at_most_the_time_asked(short, monkeypatch):
     """With nobody listening, ``replay --wait-subscribers S`` polls Zenoh's matching
     status for S seconds, then sends anyway: the CLI with a real session, on a clock the

@@ -52,6 +52,9 @@ def _open_recording(path: str) -> Any:
 @click.option("--unit", default=None, help="Unit id to republish under (default: replay-<id>).")
 @click.option("--connect", multiple=True, help="Zenoh endpoint to connect to.")
 @click.option("--listen", multiple=True, help="Zenoh endpoint to listen on.")
+@click.option("--insecure", is_flag=True,
+              help="Allow endpoints beyond this host (the recording's samples and commands "
+              "go to whoever reaches them).")
 @click.option("--wait-subscribers", type=click.FloatRange(min=0.0, max=60.0), default=1.0,
               show_default=True, metavar="SECONDS",
               help="Wait up to this long for a subscriber to every topic before sending.")
@@ -59,14 +62,15 @@ def _open_recording(path: str) -> Any:
 def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir: str | None,
            rate: float, loop: bool, start_offset: float, topics: tuple[str, ...],
            unit: str | None, connect: tuple[str, ...], listen: tuple[str, ...],
-           wait_subscribers: float, max_seconds: float | None) -> None:
+           insecure: bool, wait_subscribers: float, max_seconds: float | None) -> None:
     """Replay a recording: --verify bit-compares every block; --csv exports; otherwise
     republish its messages on Zenoh at the recorded pace."""
     from ..recording import replay as rp
     from ..recording import republish
 
     rec = _open_recording(file)
-    _check_replay_options(rec, cycle_range, start_offset, topics, unit, connect, listen)
+    _check_replay_options(rec, cycle_range, start_offset, topics, unit, connect, listen,
+                          insecure=insecure)
     if verify:
         n, div = rp.verify(rec, cycles=cycle_range)
         if div is not None:
@@ -89,12 +93,20 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
     click.echo(f"republished {sent} messages under ctrlunit/{target}/")
 
 
+BEYOND = ("it can be reached from other hosts, and the recording's samples and commands "
+          "would go to whoever reaches it: use a loopback address or a unix socket, or "
+          "--insecure")
+
+
 def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_offset: float,
                           topics: tuple[str, ...], unit: str | None,
-                          connect: tuple[str, ...], listen: tuple[str, ...]) -> None:
+                          connect: tuple[str, ...], listen: tuple[str, ...], *,
+                          insecure: bool) -> None:
     """What replay's options ask of this recording, checked before anything is sent:
     intervals it holds, a start inside it, topics it has, a unit id and endpoints Zenoh
-    can use."""
+    can use, under the unit's link rule (beyond the host, or a unix socket in a folder
+    others may write, only with ``--insecure``: runtime/transport/security.py)."""
+    from ..transport.security import reaches_beyond_host, shared_folder
     from ..transport.zsession import check_endpoint, check_unit_id
 
     cycles = sorted(m["cycle"] for _, m in rec.decoded("/plant/command")
@@ -118,6 +130,10 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
         for option, endpoints in (("--connect", connect), ("--listen", listen)):
             for e in endpoints:
                 check_endpoint(e, option=option)
+                why = None if insecure else shared_folder(e) if e.startswith("unixsock") \
+                    else BEYOND if reaches_beyond_host(e) else None
+                if why:
+                    _fail(f"{option} {e}: {why}")
     except ValueError as exc:
         _fail(f"--unit: {exc}" if "unit id" in str(exc) else str(exc))
 

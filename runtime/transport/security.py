@@ -250,21 +250,34 @@ def _beyond(endpoint: str, way: str, source: str) -> ValueError:
         "a lab bench")
 
 
+SCOUTING_WHY = {
+    "multicast": "multicast scouting announces the unit to every host of the network and "
+                 "connects to what answers",
+    "gossip": "gossip scouting passes every peer's address on to the others, which then "
+              "connect to it past the unit's links (a reader of the observers' port "
+              "would reach the plant)",
+}
+"""Why a file's scouting is a link of its own, by kind."""
+
+
 def protect(links: list[Link], *, keys: str | None, insecure: bool,
-            multicast: str | None = None) -> list[dict[str, str]]:
+            scouting: dict[str, str] | None = None) -> list[dict[str, str]]:
     """Each link with what protects it (:data:`PROTECTIONS`), as the report lists them:
     ``{"endpoint", "way", "from", "protection"}``; with keys, ``tcp`` endpoints as the
-    ``tls`` ones they become. ``multicast`` names the file that turns multicast scouting
-    on (it announces the unit to, and lets it connect to, anything on the network): a
-    link of its own, ``scouting``.
+    ``tls`` ones they become. ``scouting`` names, by kind (``multicast``, ``gossip``),
+    the file that turns that scouting on (it makes links the unit did not give,
+    :data:`SCOUTING_WHY`): each a link of its own, ``scouting``. A unix socket whose
+    folder others may write is refused without ``--insecure``: another user could put a
+    socket of their own in its place and pose as the central.
 
     Raises
     ------
     ValueError
-        Without keys or ``--insecure``: a link beyond the host, or multicast scouting
-        (naming the endpoint or ``scouting/multicast/enabled``, the file, and the fix).
-        With keys: a link that cannot carry a certificate (a unix socket, udp, ...): the
-        unit's access control would drop all of its traffic."""
+        Without keys or ``--insecure``: a link beyond the host, scouting (naming the
+        endpoint or ``scouting/<kind>/enabled``, the file, and the fix), or a unix socket
+        in a folder others may write (naming the folder). With keys: a link that cannot
+        carry a certificate (a unix socket, udp, ...): the unit's access control would
+        drop all of its traffic."""
     out = []
     for endpoint, way, source in links:
         proto = endpoint.partition("/")[0]
@@ -277,6 +290,8 @@ def protect(links: list[Link], *, keys: str | None, insecure: bool,
                     "tls/), e.g. tcp/127.0.0.1:7447")
             prot = "tls"
         elif proto.startswith("unixsock"):
+            if not insecure and (why := shared_folder(endpoint)):
+                raise ValueError(f"{_where(endpoint, way, source)}: {why}")
             prot = "local"
         elif not reaches_beyond_host(endpoint) and not insecure:
             prot = "loopback"
@@ -286,17 +301,33 @@ def protect(links: list[Link], *, keys: str | None, insecure: bool,
             raise _beyond(endpoint, way, source)
         out.append({"endpoint": tls_endpoint(endpoint) if keys else endpoint, "way": way,
                     "from": source, "protection": prot})
-    if multicast is not None:
+    for kind, source in (scouting or {}).items():
         if not keys and not insecure:
             raise ValueError(
-                f"{multicast}: scouting/multicast/enabled is true, and without keys multicast "
-                "scouting announces the unit to every host of the network and connects to "
-                "what answers, which may then read its traffic and move the robot: remove it "
-                "from the file (ctrlunit turns scouting off), or make keys with 'ctrlunit keys "
-                "init DIR' and give --keys DIR to every role, or --insecure for a lab bench")
-        out.append({"endpoint": "scouting/multicast", "way": "scouting", "from": multicast,
+                f"{source}: scouting/{kind}/enabled is true, and without keys "
+                f"{SCOUTING_WHY[kind]}, which may then read the unit's traffic and move the "
+                "robot: remove it from the file (ctrlunit turns scouting off), or make keys "
+                "with 'ctrlunit keys init DIR' and give --keys DIR to every role, or "
+                "--insecure for a lab bench")
+        out.append({"endpoint": f"scouting/{kind}", "way": "scouting", "from": source,
                     "protection": "tls" if keys else "insecure"})
     return out
+
+
+def shared_folder(endpoint: str) -> str | None:
+    """Why a unix socket's folder will not do, or None: one that others (group or anyone)
+    may write, such as /tmp, where another user could bind the socket's path first and
+    pose as the central. A folder that does not exist yet is Zenoh's to refuse."""
+    folder = Path(endpoint.partition("/")[2]).parent
+    try:
+        mode = folder.stat().st_mode
+    except OSError:
+        return None
+    if mode & 0o022 == 0:
+        return None
+    return (f"its folder {folder} may be written by others (mode {mode & 0o7777:o}): "
+            "another user could bind the socket there first and pose as the central; put "
+            "it in a folder of your own (mkdir -m 700 DIR), or --insecure for a lab bench")
 
 
 def weakest(links: list[dict[str, str]], *, keys: str | None) -> str:
@@ -313,7 +344,7 @@ def unit_links(transport: Any, *, central: str | None = None,
     ``TransportConfig``), each with its protection (:func:`protect`): the endpoints
     listened on (the launcher's ``central`` endpoint if given, ``--listen`` and the
     ``--zenoh-config`` file's), those connected to (``--connect``, else the file's) and
-    the file's multicast scouting if it turns it on; ``file``: what the file says
+    the file's multicast and gossip scouting if it turns them on; ``file``: what the file says
     (runtime/transport/zsession.py, ``file_links``), given when there is one.
 
     Raises
@@ -326,14 +357,15 @@ def unit_links(transport: Any, *, central: str | None = None,
     links: list[Link] = [(e, "listen", "--listen" if e in given else "default")
                          for e in listen]
     links += [(e, "connect", "--connect") for e in t.connect or []]
-    multicast = None
+    scouting: dict[str, str] = {}
     if file is not None:
         f, source = file, f"--zenoh-config {t.zenoh_config}"
         links += [(e, "listen", source) for e in f.listen if e not in listen]
         if t.connect is None:
             links += [(e, "connect", source) for e in f.connect]
-        multicast = source if f.multicast else None
-    return protect(links, keys=t.keys, insecure=t.insecure, multicast=multicast)
+        scouting = {kind: source for kind, on in (("multicast", f.multicast),
+                                                   ("gossip", f.gossip)) if on}
+    return protect(links, keys=t.keys, insecure=t.insecure, scouting=scouting)
 
 
 def link_security(listen: list[str] | None, connect: list[str] | None, keys: str | None,

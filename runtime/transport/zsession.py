@@ -68,6 +68,11 @@ def check_zenoh_config(path: str) -> None:
         raise ValueError(f"--zenoh-config {path}: it loads Zenoh plugins ({links.plugins}), "
                          "which open ports and keys of their own beyond the unit's link rule "
                          "and keys: ctrlunit uses none; remove plugins and plugins_loading")
+    if links.namespace:
+        raise ValueError(f"--zenoh-config {path}: namespace {links.namespace!r}: the unit's "
+                         "keys are ctrlunit/<unit>/..., and its access control is written "
+                         "for them (under a namespace the whole unit could fall inside the "
+                         "observers' keys); remove namespace")
     if links.admin_write:
         raise ValueError(f"--zenoh-config {path}: adminspace/permissions/write is true: a "
                          "peer could change this session's configuration; remove it")
@@ -87,8 +92,8 @@ class FileLinks:
     and connects to (a per-mode object read for ``peer``; listen endpoints only where the
     file gives them, not Zenoh's default), whether it turns multicast scouting and gossip
     on or off (None: it does not say), and its mode (None: not given); the plugins it
-    loads (their names, or ``plugins_loading`` where it names none) and whether its admin
-    space may be written."""
+    loads (their names, or ``plugins_loading`` where it names none), whether its admin
+    space may be written, and the namespace it puts every key under (None: none)."""
 
     listen: list[str]
     connect: list[str]
@@ -97,6 +102,7 @@ class FileLinks:
     mode: str | None
     plugins: str = ""
     admin_write: bool = False
+    namespace: str | None = None
 
 
 def file_links(path: str) -> FileLinks:
@@ -130,7 +136,8 @@ def file_links(path: str) -> FileLinks:
                      gossip=json.loads(conf.get_json("scouting/gossip/enabled")),
                      mode=json.loads(conf.get_json("mode")),
                      plugins=loaded_plugins(conf),
-                     admin_write=admin.get("write") is True)
+                     admin_write=admin.get("write") is True,
+                     namespace=json.loads(conf.get_json("namespace")))
 
 
 def loaded_plugins(conf: zenoh.Config) -> str:
