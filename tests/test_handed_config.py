@@ -126,12 +126,30 @@ def test_a_lost_peripheral_started_again_may_join_the_running_unit():
 
 
 def test_the_role_keeps_its_own_endpoints_keys_and_cpus():
-    rc = RunConfig.of(**CENTRAL, keys="/central/keys", pin="0", startup_timeout=30.0)
+    rc = RunConfig.of(**CENTRAL, keys="/central/keys", pin="0", startup_timeout=30.0,
+                      insecure=True)
     own = RunConfig.of(unit="u1", connect=["tcp/10.0.0.1:7447"], keys=None, pin="1",
                        insecure=True, startup_timeout=5.0, zenoh_config=None)
     got, _ = handed(config_message(rc), own, set())
     assert {f: got.option(f) for f in ROLE_OWN} == {f: own.option(f) for f in ROLE_OWN}
     assert got.replace(**{f: rc.option(f) for f in ROLE_OWN}).to_dict() == rc.to_dict()
+
+
+def test_a_role_may_not_be_insecure_where_the_central_is_not():
+    """A role with --insecure under a central without it would carry the control path
+    over its own links (and route for a Zenoh client connected to it), where the
+    central's carry the observers' keys alone (an attacker's review, 2026-11-28): refused,
+    naming the option and both fixes. Without --insecure, or under an insecure central,
+    it runs; a message without the field (an older central) is not refused."""
+    own = RunConfig.of(unit="u1", connect=["unixsock-stream/x/c.sock"], insecure=True)
+    with pytest.raises(ConfigError, match=r"^--insecure: the unit's central runs without it"):
+        handed(_message_through_the_codec(RunConfig.of(**CENTRAL)), own, set())
+    handed(_message_through_the_codec(RunConfig.of(**CENTRAL, insecure=True)), own, set())
+    handed(_message_through_the_codec(RunConfig.of(**CENTRAL)),
+           own.replace(insecure=False), set())
+    older = _message_through_the_codec(RunConfig.of(**CENTRAL))
+    older.pop("insecure")
+    handed(older, own, set())
 
 
 def _message_through_codec(msg: dict) -> dict:

@@ -48,9 +48,11 @@ def _digest(path: str) -> str:
 def config_message(rc: RunConfig) -> dict[str, Any]:
     """The fields of the central's ``config`` message: ``settings``, each of :data:`SENT`
     by section and flat name (each map well under the codec's bound on a map's entries),
-    and ``files``, the SHA-256 of each :data:`FILE_SETTINGS` setting that names a file on
-    the central's host; or ``error`` alone, saying why the configuration cannot be handed
-    (a text longer than the codec passes)."""
+    ``files``, the SHA-256 of each :data:`FILE_SETTINGS` setting that names a file on
+    the central's host, and ``insecure``, whether the central runs with ``--insecure``
+    (a role keeps its own, but may not be insecure alone: :func:`handed`); or ``error``
+    alone, saying why the configuration cannot be handed (a text longer than the codec
+    passes)."""
     settings: dict[str, dict[str, Any]] = {name: {} for name in SECTIONS}
     for flat, value in rc.to_dict().items():
         if flat not in SENT:
@@ -64,7 +66,7 @@ def config_message(rc: RunConfig) -> dict[str, Any]:
         settings[FLAT[flat][0]][flat] = value
     files = {flat: _digest(path) for flat in FILE_SETTINGS
              if isinstance(path := rc.option(flat), str) and os.path.isfile(path)}
-    return {"settings": settings, "files": files}
+    return {"settings": settings, "files": files, "insecure": rc.transport.insecure}
 
 
 def _flat_settings(msg: dict[str, Any]) -> dict[str, Any]:
@@ -128,10 +130,17 @@ def handed(msg: dict[str, Any], own: RunConfig, given: set[str]
     Raises
     ------
     ConfigError
-        On a malformed or incomplete configuration (naming the section or settings), or a
-        file the unit names that is missing on this host or differs from the central's.
+        On a malformed or incomplete configuration (naming the section or settings), a
+        file the unit names that is missing on this host or differs from the central's,
+        or ``--insecure`` here where the central runs without it.
     """
     unit = RunConfig.from_dict(_flat_settings(msg), source="the central's configuration")
+    if own.transport.insecure and msg.get("insecure") is False:
+        raise ConfigError(
+            "--insecure: the unit's central runs without it, so that a link other than its "
+            "unix socket carries the observers' keys alone; this role's links would carry "
+            "the control path to whoever reaches them, and route for them: drop --insecure "
+            "here, or start the central with it too")
     digests = msg.get("files", {})
     if not isinstance(digests, dict):
         raise ConfigError("the central's configuration: 'files' is not a table")
