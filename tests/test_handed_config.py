@@ -135,13 +135,13 @@ def test_the_role_keeps_its_own_endpoints_keys_and_cpus():
     assert got.replace(**{f: rc.option(f) for f in ROLE_OWN}).to_dict() == rc.to_dict()
 
 
-def test_a_role_may_not_be_insecure_where_the_central_is_not():
+def test_a_role_may_not_be_insecure_where_the_central_is_not(socket_endpoint):
     """A role with --insecure under a central without it would carry the control path
     over its own links (and route for a Zenoh client connected to it), where the
     central's carry the observers' keys alone (an attacker's review, 2026-11-28): refused,
     naming the option and both fixes. Without --insecure, or under an insecure central,
     it runs; a message without the field (an older central) is not refused."""
-    own = RunConfig.of(unit="u1", connect=["unixsock-stream/x/c.sock"], insecure=True)
+    own = RunConfig.of(unit="u1", connect=[socket_endpoint], insecure=True)
     with pytest.raises(ConfigError, match=r"^--insecure: the unit's central runs without it"):
         handed(_message_through_the_codec(RunConfig.of(**CENTRAL)), own, set())
     handed(_message_through_the_codec(RunConfig.of(**CENTRAL, insecure=True)), own, set())
@@ -244,6 +244,7 @@ def test_roles_started_by_hand_with_only_their_links_run_the_central_s_commands(
                 p.kill()
                 p.wait()
     assert [p.returncode for p in procs] == [0, 0, 0, 0], (out, errs)
+    assert f"start the other roles with --unit {unit} --connect {endpoint}" in out
     assert "schedule.pipeline = 2 of the unit over 1 given" in errs[1]
     assert ctrlunit("start", *options, "--report", str(tmp_path / "start.json")).returncode == 0
     hand, start = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("hand", "start"))

@@ -115,6 +115,17 @@ def test_a_unix_socket_in_a_folder_others_may_write_is_refused_without_insecure(
     assert res.returncode == 0, res.stderr
 
 
+@pytest.mark.parametrize("endpoint", ["unixsock-stream/tmp/c.sock",
+                                      "unixsock-stream//no/such/folder/c.sock"])
+def test_a_unix_socket_needs_an_absolute_path_in_a_folder_that_exists(endpoint):
+    """``unixsock-stream/tmp/x`` is a path relative to where the role starts: it passed
+    --check, then the run ended in Zenoh's traceback (a new user's review, 2026-11-28)."""
+    res = ctrlunit("central", "--listen", endpoint, *SHORT, "--check", timeout=120)
+    err = res.stderr.strip().splitlines()
+    assert res.returncode == 1 and len(err) == 1, res.stderr
+    assert "expected unixsock-stream//FOLDER/NAME, an absolute path" in err[0], err[0]
+
+
 def test_a_zenoh_file_in_another_mode_than_peer_is_refused(tmp_path):
     path = zenoh_file(tmp_path, "z", {"mode": "router"})
     res = ctrlunit("start", "--zenoh-config", path, *SHORT, "--check", timeout=120)

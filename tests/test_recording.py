@@ -249,6 +249,23 @@ def test_replay_follows_the_link_rule(short, tmp_path):
         assert says in res.output and "--insecure" in res.output, res.output
 
 
+def test_replay_selects_the_intervals_of_json_channels_too(short):
+    """``--cycles A:B`` keeps the messages of those intervals on every channel that names
+    its interval, the JSON ``/signals/state`` too (it used to keep none of them: only
+    msgpack was read, and replay printed "republished 0 messages")."""
+    from ctrlunit.runtime.recording import republish
+
+    path, _ = short
+    rec = read(path)
+    want = [json.loads(d)["cycle"] for _, d in rec.topics["/signals/state"]]
+    want = [c for c in want if 50 <= c < 100]
+    assert want  # the recording holds states there
+    sent = republish.republish(rec, unit=unit_id("json"), rate=1000.0,
+                               topics=["/signals/state"], cycles=(50, 100),
+                               wait_subscribers=0.0)
+    assert sent == len(want)
+
+
 def test_replay_waits_for_subscribers_at_most_the_time_asked(short, monkeypatch):
     """With nobody listening, ``replay --wait-subscribers S`` polls Zenoh's matching
     status for S seconds, then sends anyway: the CLI with a real session, on a clock the

@@ -186,6 +186,7 @@ def test_with_keys_a_peer_without_them_cannot_connect_and_a_viewer_cannot_write(
         tmp_path, "loopback", lambda port: [("anyone", peer_config(port))])
     print(f"without keys: exit {code}, {seen}")
     assert code == 0, out
+    assert "observers read ctrlunit/" in out and "/view/** on tcp/127.0.0.1:" in out
     assert seen["anyone"] == {"received": 0, "peers": 1}  # connected, denied the requests
     assert rep["command_digest"] == clean["command_digest"]
     assert rep["links"] == "loopback"

@@ -185,9 +185,11 @@ def central(as_json: bool, **kw: Any) -> None:
     if check:
         click.echo("ctrlunit central: the options are valid; nothing was started.")
         sys.exit(0)
-    click.echo(f"ctrlunit central: unit {rc.transport.unit} on "
-               f"{', '.join(rc.transport.listen or [])}: start the other roles with --unit "
-               f"{rc.transport.unit} --connect ENDPOINT", err=True)
+    t = rc.transport
+    roles_at = next((e for e in t.listen or [] if t.keys or e.startswith("unixsock")),
+                    (t.listen or ["ENDPOINT"])[0])
+    click.echo(f"ctrlunit central: unit {t.unit} on {', '.join(t.listen or [])}: start the "
+               f"other roles with --unit {t.unit} --connect {roles_at}", err=True)
     code, report = central_only(rc)
     from ..observe.summary import summary
 

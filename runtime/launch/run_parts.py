@@ -96,12 +96,20 @@ def live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
     return view
 
 
-def observers_view(rc: RunConfig, setup: Setup, node: Any) -> Any:
+def observers_view(rc: RunConfig, setup: Setup, node: Any, echo: Any) -> Any:
     """The observers' view on ``ctrlunit/<unit>/view/`` (runtime/observe/zview.py) in the
-    central's session ``node``: built only while someone subscribes."""
+    central's session ``node``: built only while someone subscribes. Where ``--listen``
+    gives observers a way in, ``echo`` says where, and the keys they read."""
     from ..observe.viewer import LiveView
     from ..observe.zview import ZenohSink
+    from ..transport.security import tls_endpoint
 
+    t = rc.transport
+    ports = [tls_endpoint(e) if t.keys else e for e in t.listen or []
+             if not e.startswith("unixsock")]
+    if ports:
+        echo(f"ctrlunit: unit {t.unit}: observers read {node.keys.view('**')} on "
+             f"{', '.join(ports)}" + (" (the viewer's certificate)" if t.keys else ""))
     return LiveView(sink=ZenohSink(node.session, node.keys), task=view_task(rc, setup),
                     period_s=rc.schedule.period, cycles=setup.cycles,
                     rate_hz=rc.run.foxglove_rate)

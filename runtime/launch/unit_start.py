@@ -153,7 +153,7 @@ class UnitStart:
             os.sched_setaffinity(0, self.cpus[0])  # before zenoh.open: its threads inherit it
         self.node = self._central_node()
         self.guard = self._busy_guard()
-        self.observers = observers_view(rc, setup, self.node)
+        self.observers = observers_view(rc, setup, self.node, self.echo)
         # after the node's session: Zenoh's threads, shared, are made under the RT policy
         self.ros2 = ros2_live(rc, setup, self.echo)
         self.recorder = None
@@ -174,16 +174,18 @@ class UnitStart:
 
     def _central_node(self) -> Node:
         """The central's node, listening on the endpoint the children connect to and on
-        ``--listen``. Without keys that endpoint is the local socket, and any other link
+        ``--listen``. Without keys that endpoint is the first unix socket of ``--listen``,
+        else the local socket in the run's folder, and any other link
         carries the observers' keys alone unless ``--insecure``
         (runtime/transport/security.py, ``socket_rule``); with keys, whose links must
         carry the roles' certificates, the first ``--listen`` endpoint, else TLS on a free
         loopback port (another on a port taken meanwhile, up to 5 tries). ``--connect``
         joins the central to another Zenoh network (e.g. another unit's)."""
         t = self.rc.transport
+        socket = next((e for e in t.listen or [] if e.startswith("unixsock")), None)
         for attempt in range(5):
             self.endpoint = (t.listen[0] if t.listen else loopback_endpoint("tls")) \
-                if t.keys else default_endpoint(self.run_dir)
+                if t.keys else socket or default_endpoint(self.run_dir)
             listen = [self.endpoint, *(e for e in t.listen or [] if e != self.endpoint)]
             conf = make_config(listen=listen, connect=t.connect,
                                config_file=t.zenoh_config, keys=t.keys, role="central",

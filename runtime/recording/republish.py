@@ -5,6 +5,7 @@ Zenoh at their recorded pace (rosbag2's ``--rate``, ``--loop``, ``--start-offset
 from __future__ import annotations
 
 import csv
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -17,8 +18,6 @@ from .reader import Recording
 def export_csv(rec: Recording, out_dir: str | Path, *, cycles: tuple[int, int] | None = None
                ) -> list[Path]:
     """Write the plottable signals (and commands) as CSV files in ``out_dir``."""
-    import json
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "signals.csv"
@@ -37,6 +36,18 @@ def export_csv(rec: Recording, out_dir: str | Path, *, cycles: tuple[int, int] |
                         r.get("y"), r.get("z"), *s["q"], *s["torque"], s["tracking_error"],
                         s["period"], s["traversal"]])
     return [path]
+
+
+def _cycle_of(data: bytes) -> int | None:
+    """The interval a recorded message names (``cycle``), msgpack or JSON (the
+    ``/signals/state`` channel's), or None."""
+    for load in (lambda b: msgpack.unpackb(b, raw=False), json.loads):
+        try:
+            c = load(data).get("cycle")
+        except Exception:  # not this encoding, or not a map
+            continue
+        return c if isinstance(c, int) else None
+    return None
 
 
 def republish(rec: Recording, *, unit: str, rate: float = 1.0, loop: bool = False,
@@ -61,10 +72,7 @@ def republish(rec: Recording, *, unit: str, rate: float = 1.0, loop: bool = Fals
             continue
         for t, data in items:
             if cycles is not None:
-                try:
-                    c = msgpack.unpackb(data, raw=False).get("cycle")
-                except Exception:
-                    c = None
+                c = _cycle_of(data)
                 if c is None or not cycles[0] <= c < cycles[1]:
                     continue
             msgs.append((t, topic, data))

@@ -43,7 +43,10 @@ def check_endpoint(endpoint: str, *, option: str) -> str:
     if not isinstance(endpoint, str) or "/" not in endpoint or endpoint.startswith("/"):
         raise ValueError(f"{option} = {endpoint!r}: expected <protocol>/<address>, e.g. "
                          "tcp/127.0.0.1:7447 or unixsock-stream/PATH")
-    proto = endpoint.split("/", 1)[0]
+    proto, _, address = endpoint.partition("/")
+    if proto.startswith("unixsock") and not (address[:1] == "/" and Path(address).parent.is_dir()):
+        raise ValueError(f"{option} = {endpoint!r}: expected {proto}//FOLDER/NAME, an absolute "
+                         "path (the protocol's slash and the path's) in a folder that exists")
     if proto in ("tcp", "udp", "tls", "quic", "ws"):
         m = _IP_ENDPOINT.match(endpoint)
         port = m.group("port") if m else ""
@@ -68,11 +71,10 @@ def check_zenoh_config(path: str) -> None:
         raise ValueError(f"--zenoh-config {path}: it loads Zenoh plugins ({links.plugins}), "
                          "which open ports and keys of their own beyond the unit's link rule "
                          "and keys: ctrlunit uses none; remove plugins and plugins_loading")
-    if links.namespace:
+    if links.namespace:  # the access control is written for ctrlunit/<unit>/...
         raise ValueError(f"--zenoh-config {path}: namespace {links.namespace!r}: the unit's "
-                         "keys are ctrlunit/<unit>/..., and its access control is written "
-                         "for them (under a namespace the whole unit could fall inside the "
-                         "observers' keys); remove namespace")
+                         "keys would move, and could fall inside the observers' keys; remove "
+                         "namespace")
     if links.admin_write:
         raise ValueError(f"--zenoh-config {path}: adminspace/permissions/write is true: a "
                          "peer could change this session's configuration; remove it")
