@@ -125,10 +125,9 @@ def test_a_lost_peripheral_started_again_may_join_the_running_unit():
     assert [k for k, _ in _sent(bus, "u1", "start")][-1] == "ctrlunit/u1/peripheral/control"
 
 
-def test_the_role_keeps_its_own_endpoints_keys_and_cpus():
-    rc = RunConfig.of(**CENTRAL, keys="/central/keys", pin="0", startup_timeout=30.0,
-                      insecure=True)
-    own = RunConfig.of(unit="u1", connect=["tcp/10.0.0.1:7447"], keys=None, pin="1",
+def test_the_role_keeps_its_own_endpoints_keys_and_cpus(socket_endpoint):
+    rc = RunConfig.of(**CENTRAL, keys="/central/keys", pin="0", startup_timeout=30.0)
+    own = RunConfig.of(unit="u1", connect=[socket_endpoint], keys=None, pin="1",
                        insecure=True, startup_timeout=5.0, zenoh_config=None)
     got, _ = handed(config_message(rc), own, set())
     assert {f: got.option(f) for f in ROLE_OWN} == {f: own.option(f) for f in ROLE_OWN}
@@ -139,11 +138,16 @@ def test_a_role_may_not_be_insecure_where_the_central_is_not(socket_endpoint):
     """A role with --insecure under a central without it would carry the control path
     over its own links (and route for a Zenoh client connected to it), where the
     central's carry the observers' keys alone (an attacker's review, 2026-11-28): refused,
-    naming the option and both fixes. Without --insecure, or under an insecure central,
-    it runs; a message without the field (an older central) is not refused."""
-    own = RunConfig.of(unit="u1", connect=[socket_endpoint], insecure=True)
+    naming the option and both fixes. Without --insecure, with the socket alone, or under
+    an insecure central, it runs; a message without the field (an older central) is not
+    refused."""
+    own = RunConfig.of(unit="u1", connect=[socket_endpoint], listen=["tcp/127.0.0.1:0"],
+                       insecure=True)
     with pytest.raises(ConfigError, match=r"^--insecure: the unit's central runs without it"):
         handed(_message_through_the_codec(RunConfig.of(**CENTRAL)), own, set())
+    # on the socket alone it has nothing to relay on
+    handed(_message_through_the_codec(RunConfig.of(**CENTRAL)),
+           own.replace(listen=None), set())
     handed(_message_through_the_codec(RunConfig.of(**CENTRAL, insecure=True)), own, set())
     handed(_message_through_the_codec(RunConfig.of(**CENTRAL)),
            own.replace(insecure=False), set())

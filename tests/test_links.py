@@ -115,8 +115,25 @@ def test_a_unix_socket_in_a_folder_others_may_write_is_refused_without_insecure(
     assert res.returncode == 0, res.stderr
 
 
+def test_a_socket_folder_another_user_owns_will_not_do(tmp_path):
+    """Owned by another user, a folder closed to others is still theirs to bind in."""
+    import os
+
+    from ctrlunit.runtime.transport.security import shared_folder
+
+    theirs = tmp_path / "theirs"
+    theirs.mkdir(mode=0o755)
+    assert shared_folder(f"unixsock-stream/{theirs}/c.sock") is None  # ours
+    if os.geteuid() != 0:
+        pytest.skip("giving a folder to another user needs root")
+    os.chown(theirs, 65534, 65534)
+    why = shared_folder(f"unixsock-stream/{theirs}/c.sock")
+    assert why is not None and "is another user's (uid 65534)" in why, why
+
+
 @pytest.mark.parametrize("endpoint", ["unixsock-stream/tmp/c.sock",
-                                      "unixsock-stream//no/such/folder/c.sock"])
+                                      "unixsock-stream//no/such/folder/c.sock",
+                                      "unixsock-stream//tmp/" + "c" * 110 + ".sock"])
 def test_a_unix_socket_needs_an_absolute_path_in_a_folder_that_exists(endpoint):
     """``unixsock-stream/tmp/x`` is a path relative to where the role starts: it passed
     --check, then the run ended in Zenoh's traceback (a new user's review, 2026-11-28)."""

@@ -132,10 +132,14 @@ def handed(msg: dict[str, Any], own: RunConfig, given: set[str]
     ConfigError
         On a malformed or incomplete configuration (naming the section or settings), a
         file the unit names that is missing on this host or differs from the central's,
-        or ``--insecure`` here where the central runs without it.
+        or ``--insecure`` here, without keys and with a link other than a unix socket,
+        where the central runs without it.
     """
     unit = RunConfig.from_dict(_flat_settings(msg), source="the central's configuration")
-    if own.transport.insecure and msg.get("insecure") is False:
+    mine = own.transport
+    if mine.insecure and msg.get("insecure") is False and not mine.keys and any(
+            not e.startswith("unixsock") for e in [*(mine.listen or []),
+                                                   *(mine.connect or [])]):
         raise ConfigError(
             "--insecure: the unit's central runs without it, so that a link other than its "
             "unix socket carries the observers' keys alone; this role's links would carry "

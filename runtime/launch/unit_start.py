@@ -186,7 +186,7 @@ class UnitStart:
         for attempt in range(5):
             self.endpoint = (t.listen[0] if t.listen else loopback_endpoint("tls")) \
                 if t.keys else socket or default_endpoint(self.run_dir)
-            listen = [self.endpoint, *(e for e in t.listen or [] if e != self.endpoint)]
+            listen = list(dict.fromkeys([self.endpoint, *(t.listen or [])]))  # once each
             conf = make_config(listen=listen, connect=t.connect,
                                config_file=t.zenoh_config, keys=t.keys, role="central",
                                limits=Limits.of(t), control=not t.insecure)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -168,7 +169,8 @@ def control_link_error(endpoints: list[str], *, way: str, keys: str | None,
     """Why a role started by hand could not reach the unit's control path over
     ``endpoints`` (the central: where it listens; another role: where it connects), or
     None: without keys and without ``--insecure`` only a unix socket carries it
-    (:func:`socket_rule`). None too without endpoints (another check's)."""
+    (:func:`socket_rule`). None too without endpoints: such a role reaches nothing, and
+    waits for the central's configuration until ``--startup-timeout``."""
     if keys or insecure or not endpoints or any(e.startswith(SOCKET) for e in endpoints):
         return None
     fix = ("add --listen unixsock-stream/PATH (the other roles --connect to it)"
@@ -316,18 +318,21 @@ def protect(links: list[Link], *, keys: str | None, insecure: bool,
 
 def shared_folder(endpoint: str) -> str | None:
     """Why a unix socket's folder will not do, or None: one that others (group or anyone)
-    may write, such as /tmp, where another user could bind the socket's path first and
-    pose as the central. A folder that does not exist yet is Zenoh's to refuse."""
+    may write, such as /tmp, or that another user owns, where another user could bind the
+    socket's path first and pose as the central. A folder that does not exist yet is
+    Zenoh's to refuse."""
     folder = Path(endpoint.partition("/")[2]).parent
     try:
-        mode = folder.stat().st_mode
+        st = folder.stat()
     except OSError:
         return None
-    if mode & 0o022 == 0:
+    if st.st_mode & 0o022 == 0 and st.st_uid in (os.geteuid(), 0):
         return None
-    return (f"its folder {folder} may be written by others (mode {mode & 0o7777:o}): "
-            "another user could bind the socket there first and pose as the central; put "
-            "it in a folder of your own (mkdir -m 700 DIR), or --insecure for a lab bench")
+    why = f"may be written by others (mode {st.st_mode & 0o7777:o})" \
+        if st.st_mode & 0o022 else f"is another user's (uid {st.st_uid})"
+    return (f"its folder {folder} {why}: another user could bind the socket there first "
+            "and pose as the central; put it in a folder of your own (mkdir -m 700 DIR), "
+            "or --insecure for a lab bench")
 
 
 def weakest(links: list[dict[str, str]], *, keys: str | None) -> str:
@@ -352,7 +357,7 @@ def unit_links(transport: Any, *, central: str | None = None,
     ValueError
         As :func:`protect`."""
     t = transport
-    given = list(t.listen or [])
+    given = list(dict.fromkeys(t.listen or []))  # one link however often given
     listen = [*([central] if central and central not in given else []), *given]
     links: list[Link] = [(e, "listen", "--listen" if e in given else "default")
                          for e in listen]

@@ -44,9 +44,10 @@ def check_endpoint(endpoint: str, *, option: str) -> str:
         raise ValueError(f"{option} = {endpoint!r}: expected <protocol>/<address>, e.g. "
                          "tcp/127.0.0.1:7447 or unixsock-stream/PATH")
     proto, _, address = endpoint.partition("/")
-    if proto.startswith("unixsock") and not (address[:1] == "/" and Path(address).parent.is_dir()):
+    if proto.startswith("unixsock") and not (address[:1] == "/" and len(address.encode()) < 108
+                                             and Path(address).parent.is_dir()):
         raise ValueError(f"{option} = {endpoint!r}: expected {proto}//FOLDER/NAME, an absolute "
-                         "path (the protocol's slash and the path's) in a folder that exists")
+                         "path (two slashes) of at most 107 bytes in a folder that exists")
     if proto in ("tcp", "udp", "tls", "quic", "ws"):
         m = _IP_ENDPOINT.match(endpoint)
         port = m.group("port") if m else ""
