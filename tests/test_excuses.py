@@ -25,6 +25,7 @@ class Machine:
         self.pressure: int | None = 0
         self.pressure_step = 0
         self.waiting: int | None = 0
+        self.stolen: list[float] | None = [0.0, 0.0]
         self.load_reads = 0
         self.stalls: list[tuple[int, int]] = []
         self.own = 0
@@ -33,7 +34,8 @@ class Machine:
         self.load_reads += 1
         if self.pressure is not None:
             self.pressure += self.pressure_step
-        return MachineLoad(self.pressure, self.waiting)
+        stolen = list(self.stolen) if self.stolen is not None else None
+        return MachineLoad(self.pressure, self.waiting, stolen)
 
     def excuses(self, *, times: bool = True) -> Excuses:
         sup = Supervision(role_state=lambda r: self.state[r],
@@ -60,7 +62,7 @@ def test_a_grant_records_the_silence_its_end_and_the_accounting_read_once():
     assert (e.since, e.until, e.at, e.renewals, e.seen) == (1000, 1000 + 2 * LIMIT, 4 * MS,
                                                              0, None)
     # the machine's load read once: the pressure recorded is the one the grant judged by
-    assert m.load_reads == 1 and e.times == ({11: (0, 0)}, {31: (0, 0)}, 5)
+    assert m.load_reads == 1 and e.times == ({11: (0, 0)}, {31: (0, 0)}, 5, [0.0, 0.0])
     assert e.runnable is True and ex.count == 1
 
 
@@ -110,9 +112,9 @@ def test_a_runnable_process_that_got_little_cpu_is_renewed_with_what_was_seen():
     m.pressure = 400
     assert renew(m, ex, 7 * MS)
     e = ex.granted["peripheral-1"]
-    assert e.seen == (3 * MS, 2 * MS, 1 * MS, 400)
+    assert e.seen == (3 * MS, 2 * MS, 1 * MS, 400, 0)
     assert (e.at, e.until, e.renewals, e.runnable) == (7 * MS, 10 * MS, 1, True)
-    assert e.times == ({11: (1 * MS, 0)}, {31: (0, 0)}, 400)
+    assert e.times == ({11: (1 * MS, 0)}, {31: (0, 0)}, 400, [0.0, 0.0])
     assert m.stalls == [(0, 7 * MS)] and ex.count == 2
 
 
@@ -123,7 +125,7 @@ def test_a_process_asleep_now_is_judged_by_its_waits_alone():
     m.state["peripheral-1"] = "sleeping"  # was runnable: CPU not got is no evidence now
     m.times["peripheral-1"] = {11: (1 * MS, 0)}
     assert not renew(m, ex, 7 * MS)
-    assert ex.granted["peripheral-1"].seen == (3 * MS, 0, 1 * MS, 0)
+    assert ex.granted["peripheral-1"].seen == (3 * MS, 0, 1 * MS, 0, 0)
     m.times["peripheral-1"] = {11: (1 * MS, 2 * MS)}  # but a 2 ms runqueue wait is
     assert renew(m, ex, 7 * MS)
     assert ex.granted["peripheral-1"].runnable is False
@@ -147,7 +149,7 @@ def test_pressure_read_for_the_first_time_at_a_renewal_is_no_evidence():
     m.pressure = 10 * MS
     m.state["peripheral-1"] = "sleeping"
     assert not renew(m, ex, 7 * MS)
-    assert ex.granted["peripheral-1"].seen == (3 * MS, 0, 0, 0)
+    assert ex.granted["peripheral-1"].seen == (3 * MS, 0, 0, 0, 0)
 
 
 def test_an_unchanged_pressure_is_no_wait():
@@ -157,7 +159,7 @@ def test_an_unchanged_pressure_is_no_wait():
     assert grant(m, ex, now=4 * MS)
     m.times["peripheral-1"] = {11: (3 * MS, 0)}  # ran the whole window
     assert not renew(m, ex, 7 * MS)
-    assert ex.granted["peripheral-1"].seen == (3 * MS, 0, 3 * MS, 0)
+    assert ex.granted["peripheral-1"].seen == (3 * MS, 0, 3 * MS, 0, 0)
 
 
 def test_the_renewals_stop_at_the_cap_which_the_central_s_own_stalls_extend():
@@ -240,3 +242,26 @@ def test_no_note_before_the_silence_or_no_pressure_is_no_evidence():
     unsupervised = Excuses(Supervision(), own_stall=lambda since, now: 0)
     unsupervised.mark(0, read=lambda: 0)
     assert not unsupervised.marks  # roles not started here: nothing read
+
+
+def test_a_cpu_the_hypervisor_took_renews_the_excuse_of_a_plant_that_neither_ran_nor_waited():
+    """The plant asleep at its excuse, runnable at its end, had run nothing and waited
+    0.7 ms in it (CI, 2026-11-28: a fault): a tick of steal on one CPU in the window is
+    the machine's doing; steal the kernel does not count, or on no CPU, is no evidence."""
+    for stolen_then, stolen_now, renewed in (([0.0, 0.5], [0.0, 0.51], True),
+                                             ([0.0, 0.5], [0.0, 0.5], False),
+                                             (None, [0.0, 0.51], False),
+                                             ([0.5], [0.0, 0.51], False)):
+        m = Machine()
+        m.stolen = stolen_then
+        ex = m.excuses()
+        assert ex.ask("plant", 0, 4 * MS, LIMIT, answered=-1, limit_end=lambda: LIMIT)
+        m.state["plant"] = "runnable"
+        m.times["plant"] = {21: (0, 7 * MS // 10)}
+        m.stolen = stolen_now
+        assert ex.ask("plant", 0, 7 * MS, LIMIT, answered=-1,
+                      limit_end=lambda: LIMIT) is renewed
+        seen = ex.granted["plant"].seen
+        assert seen is not None and seen[4] == (10 * MS if renewed else 0)
+        note = ex.note("plant", -1)
+        assert ("the hypervisor took 10 ms of a CPU" in note) is renewed, note

@@ -12,6 +12,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import NamedTuple
 
+from ..host.sched import most_stolen
 from ..roles.supervise import MachineLoad, ThreadTimes, cpu_denied, cpu_pressure_ns
 from . import silence_rule
 
@@ -72,17 +73,18 @@ class Excuse(NamedTuple):
     """No fault before this."""
     at: int
     """When it was granted or last renewed."""
-    times: tuple[ThreadTimes, ThreadTimes, int | None] | None
+    times: tuple[ThreadTimes, ThreadTimes, int | None, list[float] | None] | None
     """The silent process's and the central's Zenoh threads' scheduler accounting then,
-    and the machine's CPU pressure
-    (:attr:`~ctrlunit.runtime.roles.supervise.MachineLoad.pressure_ns`)."""
+    the machine's CPU pressure and what the hypervisor had taken from each CPU
+    (:attr:`~ctrlunit.runtime.roles.supervise.MachineLoad.pressure_ns`, ``stolen_s``)."""
     runnable: bool
     """Whether the silent process was runnable then."""
     renewals: int = 0
-    seen: tuple[int, int, int, int] | None = None
+    seen: tuple[int, int, int, int, int] | None = None
     """Of the last window looked at: its length, how long the machine kept the process
     (or the central's Zenoh threads) from a CPU, how much CPU it got, how long tasks
-    waited for a CPU in it (ns); for the fault's message."""
+    waited for a CPU in it, the most the hypervisor took from one CPU in it (ns); for
+    the fault's message."""
 
 
 class Excuses:
@@ -178,15 +180,15 @@ class Excuses:
         return True
 
     def _times(self, role: str, load: MachineLoad | None = None
-               ) -> tuple[ThreadTimes, ThreadTimes, int | None] | None:
+               ) -> tuple[ThreadTimes, ThreadTimes, int | None, list[float] | None] | None:
         """The scheduler accounting of ``role``'s threads and of the central's Zenoh
-        threads, and the machine's CPU pressure (from ``load`` where the caller has just
-        read it); None where this central cannot read them."""
+        threads, the machine's CPU pressure and the hypervisor's steal (from ``load``
+        where the caller has just read it); None where this central cannot read them."""
         role_times = self.supervision.role_times
         if role_times is None:
             return None
         load = load or self._machine()
-        return role_times(role), role_times("central"), load.pressure_ns
+        return role_times(role), role_times("central"), load.pressure_ns, load.stolen_s
 
     def _machine(self) -> MachineLoad:
         """How short of CPUs the machine is, where this central can read it."""
@@ -196,9 +198,10 @@ class Excuses:
     def _renew(self, role: str, prev: Excuse, now: int, limit_ns: int) -> bool:
         """Extend an excused silence by one more limit if, in the window since it was
         granted or last renewed, the machine kept the silent process or the central's
-        Zenoh threads from a CPU (:func:`~ctrlunit.runtime.roles.supervise.cpu_denied`), or kept
-        some task waiting for one (the CPU pressure, which counts a wait still going on:
-        a thread's own wait is added up only when it runs again), for at least half the
+        Zenoh threads from a CPU (:func:`~ctrlunit.runtime.roles.supervise.cpu_denied`),
+        or kept some task waiting for one (the CPU pressure, which counts a wait still
+        going on: a thread's own wait is added up only when it runs again), or the
+        hypervisor took a CPU (its steal, in whole ticks of 10 ms), for at least half the
         window, and the silence is shorter than :data:`EXCUSED_LIMITS` limits (plus the
         central's own stalls). A process that was not denied its CPU and did not answer
         is not excused again, nor one stopped or exited meanwhile."""
@@ -217,8 +220,9 @@ class Excuses:
         ours, _ = cpu_denied(prev.times[1], times[1], window_ns=window, runnable=False)
         waited = 0 if prev.times[2] is None or times[2] is None \
             else min(window, max(0, times[2] - prev.times[2]))
-        seen = (window, max(denied, ours), ran, waited)
-        if not silence_rule.renewal_holds(window, denied, ours, waited):
+        stolen = round((most_stolen(prev.times[3], times[3]) or 0.0) * 1e9)
+        seen = (window, max(denied, ours), ran, waited, stolen)
+        if not silence_rule.renewal_holds(window, denied, ours, waited, stolen):
             self.granted[role] = prev._replace(seen=seen)
             return False
         self.granted[role] = Excuse(prev.since, min(now + limit_ns, last), now, times,
@@ -241,10 +245,13 @@ class Excuses:
             note = (" (after one extension of its limit" if n == 1
                     else f" (after {n} extensions of its limit")
             if excused.seen is not None:
-                window, denied, ran, waited = excused.seen
+                window, denied, ran, waited, stolen = excused.seen
                 note += (f"; in the last {window / 1e6:.1f} ms it was kept from a CPU "
                          f"{denied / 1e6:.1f} ms and ran {ran / 1e6:.1f} ms, and tasks "
                          f"waited for a CPU {waited / 1e6:.1f} ms")
+                if stolen:
+                    note += (f", and the hypervisor took {stolen / 1e6:.0f} ms of a CPU "
+                             "(counted in ticks of 10 ms)")
             note += ")"
         return f"; its process was {role_state(role)}{note}"
 

@@ -45,12 +45,15 @@ def fault_at(since: int, now: int, limit_ns: int, *, own_ns: int, realtime: bool
     return end + (shared or 0)
 
 
-def renewal_holds(window_ns: int, denied_ns: int, ours_ns: int, waited_ns: int) -> bool:
+def renewal_holds(window_ns: int, denied_ns: int, ours_ns: int, waited_ns: int,
+                  stolen_ns: int) -> bool:
     """Whether an excused silence gets one more limit: over the window since it was
     granted or last renewed, the machine kept the silent process (``denied_ns``), the
     central's Zenoh threads (``ours_ns``) or its own tasks (``waited_ns``, the CPU
-    pressure) from a CPU for at least half of it."""
-    return 2 * max(denied_ns, ours_ns, waited_ns) >= window_ns
+    pressure) from a CPU, or the hypervisor took one of its CPUs (``stolen_ns``: what
+    stood on it neither ran nor waited in the machine's own accounting), for at least
+    half of it."""
+    return 2 * max(denied_ns, ours_ns, waited_ns, stolen_ns) >= window_ns
 
 
 def renewal_cap(since: int, limit_ns: int, limits: int, own_ns: int) -> int:
