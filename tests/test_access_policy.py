@@ -35,8 +35,9 @@ from typing import Any
 import pytest
 import zenoh
 from ctrlunit.runtime.transport.codec import encode
+from ctrlunit.runtime.transport.endpoints import loopback_endpoint
 from ctrlunit.runtime.transport.security import access_control, role_names
-from ctrlunit.runtime.transport.zsession import Keys, loopback_endpoint, make_config
+from ctrlunit.runtime.transport.zsession import Keys, make_config
 from runner import kill_unit, start_json, unit_id
 from test_fuzz import free_port
 

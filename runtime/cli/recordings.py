@@ -106,8 +106,8 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
     intervals it holds, a start inside it, topics it has, a unit id and endpoints Zenoh
     can use, under the unit's link rule (beyond the host, or a unix socket in a folder
     others may write, only with ``--insecure``: runtime/transport/security.py)."""
+    from ..transport.endpoints import check_endpoint, check_unit_id, is_socket
     from ..transport.security import reaches_beyond_host, shared_folder
-    from ..transport.zsession import check_endpoint, check_unit_id
 
     cycles = sorted(m["cycle"] for _, m in rec.decoded("/plant/command")
                     if isinstance(m.get("cycle"), int))
@@ -130,7 +130,7 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
         for option, endpoints in (("--connect", connect), ("--listen", listen)):
             for e in endpoints:
                 check_endpoint(e, option=option)
-                why = None if insecure else shared_folder(e) if e.startswith("unixsock") \
+                why = None if insecure else shared_folder(e) if is_socket(e) \
                     else BEYOND if reaches_beyond_host(e) else None
                 if why:
                     _fail(f"{option} {e}: {why}")

@@ -170,6 +170,7 @@ def central(as_json: bool, **kw: Any) -> None:
     configuration from this process at the handshake)."""
     from ..compute.setup import make_setup
     from ..launch.launcher import central_only
+    from ..transport.endpoints import is_socket
 
     check = kw.pop("check", False)
     rc = make_rc(kw)
@@ -186,7 +187,7 @@ def central(as_json: bool, **kw: Any) -> None:
         click.echo("ctrlunit central: the options are valid; nothing was started.")
         sys.exit(0)
     t = rc.transport
-    roles_at = next((e for e in t.listen or [] if t.keys or e.startswith("unixsock")),
+    roles_at = next((e for e in t.listen or [] if t.keys or is_socket(e)),
                     (t.listen or ["ENDPOINT"])[0])
     click.echo(f"ctrlunit central: unit {t.unit} on {', '.join(t.listen or [])}: start the "
                f"other roles with --unit {t.unit} --connect {roles_at}", err=True)

@@ -219,7 +219,8 @@ class RunConfig:
             check_idle(self.schedule.idle)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        from ..transport.zsession import check_endpoint, check_unit_id, check_zenoh_config
+        from ..transport.endpoints import check_endpoint, check_unit_id
+        from ..transport.zsession import check_zenoh_config
 
         try:
             check_unit_id(self.transport.unit)

@@ -17,6 +17,7 @@ import os
 from typing import Any
 
 from ..transport.codec import MAX_STR_BYTES
+from ..transport.endpoints import is_socket
 from . import FLAT, ConfigError, RunConfig
 from .sections import SECTIONS
 
@@ -137,9 +138,8 @@ def handed(msg: dict[str, Any], own: RunConfig, given: set[str]
     """
     unit = RunConfig.from_dict(_flat_settings(msg), source="the central's configuration")
     mine = own.transport
-    if mine.insecure and msg.get("insecure") is False and not mine.keys and any(
-            not e.startswith("unixsock") for e in [*(mine.listen or []),
-                                                   *(mine.connect or [])]):
+    if mine.insecure and msg.get("insecure") is False and not mine.keys and not all(
+            map(is_socket, [*(mine.listen or []), *(mine.connect or [])])):
         raise ConfigError(
             "--insecure: the unit's central runs without it, so that a link other than its "
             "unix socket carries the observers' keys alone; this role's links would carry "

@@ -18,6 +18,7 @@ from ..config import RunConfig, parse_host_port
 from ..host import sched
 from ..observe.report import cpu_budget, text_or_none
 from ..roles.supervise import ZENOH_THREADS, ThreadTimes, machine_load, process_state, thread_times
+from ..transport.endpoints import is_socket
 from ..transport.node import rss_kb
 
 STOP_REPORTS_WAIT_S = 0.5
@@ -106,7 +107,7 @@ def observers_view(rc: RunConfig, setup: Setup, node: Any, echo: Any) -> Any:
 
     t = rc.transport
     ports = [tls_endpoint(e) if t.keys else e for e in t.listen or []
-             if not e.startswith("unixsock")]
+             if not is_socket(e)]
     if ports:
         echo(f"ctrlunit: unit {t.unit}: observers read {node.keys.view('**')} on "
              f"{', '.join(ports)}" + (" (the viewer's certificate)" if t.keys else ""))

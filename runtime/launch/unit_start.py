@@ -31,9 +31,10 @@ from ..host.unit_load import UnitLoad
 from ..observe.report import finish_report
 from ..roles.stopping import STOP_SIGNALS, held_stops, not_ignored, stop_of, stopped_by_user
 from ..roles.supervise import end_children, role_cpus, spawn_role, unit_cores
+from ..transport.endpoints import default_endpoint, is_socket, loopback_endpoint
 from ..transport.limits import Limits
 from ..transport.node import Node, freeze_heap
-from ..transport.zsession import default_endpoint, loopback_endpoint, make_config
+from ..transport.zsession import make_config
 from .admission import Unsustainable, admit
 from .run_parts import (
     STOP_REPORTS_WAIT_S,
@@ -182,7 +183,7 @@ class UnitStart:
         loopback port (another on a port taken meanwhile, up to 5 tries). ``--connect``
         joins the central to another Zenoh network (e.g. another unit's)."""
         t = self.rc.transport
-        socket = next((e for e in t.listen or [] if e.startswith("unixsock")), None)
+        socket = next(filter(is_socket, t.listen or []), None)
         for attempt in range(5):
             self.endpoint = (t.listen[0] if t.listen else loopback_endpoint("tls")) \
                 if t.keys else socket or default_endpoint(self.run_dir)

@@ -34,6 +34,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from .endpoints import SOCKET, is_socket
 from .keycheck import CA_CERT, CA_KEY
 from .keycheck import check_credentials as check_credentials  # the checks live apart
 
@@ -131,8 +132,6 @@ def access_control(peripherals: int = MAX_PERIPHERALS) -> dict[str, Any]:
             "subjects": subjects, "policies": policies}
 
 
-SOCKET = "unixsock-stream"
-"""The link whose peers are the unit's own user's processes (its directory is theirs)."""
 OTHER_LINKS = ("tcp", "udp", "tls", "quic", "ws", "serial", "unixpipe", "vsock")
 """Every other link protocol Zenoh's access control names (``link_protocols``)."""
 EVERY_MESSAGE = ("put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
@@ -171,7 +170,7 @@ def control_link_error(endpoints: list[str], *, way: str, keys: str | None,
     None: without keys and without ``--insecure`` only a unix socket carries it
     (:func:`socket_rule`). None too without endpoints: such a role reaches nothing, and
     waits for the central's configuration until ``--startup-timeout``."""
-    if keys or insecure or not endpoints or any(e.startswith(SOCKET) for e in endpoints):
+    if keys or insecure or not endpoints or any(map(is_socket, endpoints)):
         return None
     fix = ("add --listen unixsock-stream/PATH (the other roles --connect to it)"
            if way == "listen" else "--connect to the unix socket the central listens on "
@@ -206,8 +205,8 @@ def tls_endpoint(endpoint: str) -> str:
 def reaches_beyond_host(endpoint: str) -> bool:
     """Whether an endpoint can be reached from another host: anything but a unix socket
     or a loopback address (127.0.0.0/8, ::1, localhost)."""
-    proto, _, addr = endpoint.partition("/")
-    if proto.startswith("unixsock"):
+    addr = endpoint.partition("/")[2]
+    if is_socket(endpoint):
         return False
     host = addr.rsplit(":", 1)[0].strip("[]") if ":" in addr else addr
     host = host.split("?")[0].split("#")[0]
@@ -291,7 +290,7 @@ def protect(links: list[Link], *, keys: str | None, insecure: bool,
                     "control would drop all of its traffic): use a tcp/ endpoint (it becomes "
                     "tls/), e.g. tcp/127.0.0.1:7447")
             prot = "tls"
-        elif proto.startswith("unixsock"):
+        elif is_socket(endpoint):
             if not insecure and (why := shared_folder(endpoint)):
                 raise ValueError(f"{_where(endpoint, way, source)}: {why}")
             prot = "local"
