@@ -58,19 +58,25 @@ def test_the_plant_shares_only_gaps_over_two_sample_intervals_less_one_interval(
 
 
 def test_a_fault_comes_a_limit_after_the_silence_began_plus_what_is_not_counted():
-    assert fault_at(100 * MS, 101 * MS, 3 * MS, own_ns=0, realtime=True,
-                    shared=5 * MS) == 103 * MS  # not yet past: the plant not looked at
-    assert fault_at(100 * MS, 103 * MS, 3 * MS, own_ns=0, realtime=True,
-                    shared=5 * MS) == 103 * MS  # at the limit exactly: not past it
-    assert fault_at(100 * MS, 104 * MS, 3 * MS, own_ns=0, realtime=True,
-                    shared=5 * MS) == 108 * MS
-    assert fault_at(100 * MS, 104 * MS, 3 * MS, own_ns=2 * MS, realtime=True,
-                    shared=5 * MS) == 105 * MS  # within limit + own stall
-    assert fault_at(100 * MS, 106 * MS, 3 * MS, own_ns=2 * MS, realtime=True,
-                    shared=1 * MS) == 106 * MS
-    assert fault_at(100 * MS, 104 * MS, 3 * MS, own_ns=0, realtime=False,
-                    shared=5 * MS) == 103 * MS  # outside realtime: the limit alone
-    assert fault_at(100 * MS, 104 * MS, 3 * MS, own_ns=0, realtime=True) == 103 * MS
+    looked: list[int] = []
+
+    def shared(ms: int):
+        def at() -> int:
+            looked.append(ms)
+            return ms * MS
+        return at
+
+    assert fault_at(100 * MS, 101 * MS, 3 * MS, own_ns=0,
+                    shared=shared(5)) == 103 * MS  # not yet past: the plant not looked at
+    assert fault_at(100 * MS, 103 * MS, 3 * MS, own_ns=0,
+                    shared=shared(5)) == 103 * MS  # at the limit exactly: not past it
+    assert not looked
+    assert fault_at(100 * MS, 104 * MS, 3 * MS, own_ns=0, shared=shared(5)) == 108 * MS
+    assert fault_at(100 * MS, 104 * MS, 3 * MS, own_ns=2 * MS,
+                    shared=shared(5)) == 105 * MS  # within limit + own stall
+    assert fault_at(100 * MS, 106 * MS, 3 * MS, own_ns=2 * MS,
+                    shared=shared(1)) == 106 * MS
+    assert looked == [5, 1]
 
 
 def test_an_excuse_is_renewed_when_half_the_window_or_more_was_kept_from_a_cpu():

@@ -146,3 +146,42 @@ def test_the_private_call_counter_counts_what_it_should(tmp_path, monkeypatch, t
     (tmp_path / "tests" / "test_x.py").write_text(text)
     monkeypatch.setitem(globals(), "ROOT", tmp_path)
     assert len(private_method_calls()) == calls
+
+
+CLOCK_BRANCHES = 5
+"""Issue 58: the clock chooses the central's parts once (its pace, sample source and
+silence limits, and the settings derived from it), not a branch in every part."""
+
+
+def _is_clock(node: ast.expr) -> bool:
+    name = node.attr if isinstance(node, ast.Attribute) else getattr(node, "id", "")
+    return name == "clock"
+
+
+def clock_branches(root: Path = ROOT) -> list[str]:
+    """Where runtime/central/ asks which clock the run has: a comparison of a clock
+    (a name or attribute ``clock``) with anything, or a ``match`` on one."""
+    found = []
+    for path in sorted((root / "runtime" / "central").glob("*.py")):
+        for n in ast.walk(ast.parse(path.read_text())):
+            if isinstance(n, ast.Compare) and any(map(_is_clock, [n.left, *n.comparators])) \
+                    or isinstance(n, ast.Match) and _is_clock(n.subject):
+                found.append(f"{path.name}:{n.lineno}")
+    return found
+
+
+def test_the_clock_is_asked_in_few_places():
+    found = clock_branches()
+    assert len(found) <= CLOCK_BRANCHES, found
+
+
+@pytest.mark.parametrize("text, branches", [
+    ("if settings.clock == 'realtime':\n    pass\n", 1),
+    ("x = 'freerun' != clock\n", 1),
+    ("match rc.clock:\n    case 'lockstep':\n        pass\n", 1),
+    ("if realtime:\n    pass\nx = settings.clock\n", 0),
+])
+def test_the_clock_branch_counter_counts_what_it_should(tmp_path, text, branches):
+    (tmp_path / "runtime" / "central").mkdir(parents=True)
+    (tmp_path / "runtime" / "central" / "x.py").write_text(text)
+    assert len(clock_branches(tmp_path)) == branches

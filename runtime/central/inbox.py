@@ -40,7 +40,7 @@ class Inbox:
         keys = node.keys
         for k in range(settings.peripherals):
             node.route(keys.reply(k + 1), "reply", k)
-        if settings.clock != "freerun":
+        if settings.plant:
             node.route(keys.sample, "sample")
         self.node = node
         self.settings = settings

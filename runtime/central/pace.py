@@ -38,12 +38,18 @@ class Pace(Protocol):
         """Until when the lone round of ``f`` waits for the next interval's first round;
         ``limit_ns`` is the silence limit now."""
 
+    def overload_hint(self, *, misses: int, skipped: int, periods: int) -> str:
+        """For a fault's message: when most deadlines were missed (more than 5 and a tenth
+        of ``periods``), that the machine, not a process, is the likely cause; "" where
+        the clock sets no deadline."""
+
 
 class Realtime:
     """The realtime clock's deadlines (module notes)."""
 
     def __init__(self, settings: LoopSettings) -> None:
         self.depth, self.period_ns = settings.depth, settings.period_ns
+        self.peripherals = settings.peripherals
 
     def round_late_at(self, f: InFlight, index: int, round_trips: int) -> int:
         if not round_trips or f.awaiting_sample:
@@ -57,6 +63,15 @@ class Realtime:
     def hold_until(self, f: InFlight, limit_ns: int) -> int:
         return f.sample_ns + self.period_ns + self.period_ns // 4
 
+    def overload_hint(self, *, misses: int, skipped: int, periods: int) -> str:
+        periods = max(1, periods)
+        if misses + skipped <= max(5, periods // 10):
+            return ""
+        return (f"; {misses} commands missed their deadline and {skipped} "
+                f"samples were skipped in {periods} periods: this machine does not sustain "
+                f"a {self.period_ns / 1e6:g} ms period with {self.peripherals} peripheral(s) "
+                "(try a longer --period or --fault-periods, or --clock lockstep)")
+
 
 class Virtual:
     """Lockstep and freerun: no data is late (module notes)."""
@@ -69,6 +84,9 @@ class Virtual:
 
     def hold_until(self, f: InFlight, limit_ns: int) -> int:
         return time.monotonic_ns() + limit_ns
+
+    def overload_hint(self, *, misses: int, skipped: int, periods: int) -> str:
+        return ""
 
 
 def pace_of(settings: LoopSettings) -> Pace:

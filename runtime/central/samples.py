@@ -31,6 +31,10 @@ class SampleSource(Protocol):
         """The sample interval ``cycle`` starts from, no longer waiting, or None while it
         has not come. Its cycle is ``cycle``'s, or later where samples were skipped."""
 
+    def awaited(self, cycle: int) -> int | None:
+        """``cycle`` while the interval waits for the plant's sample (none has come that
+        it could start from), else None; never for a synthetic sample."""
+
 
 class Synthetic:
     """Freerun: a synthetic sample at once; ``note(cycle, counts, t_ns)`` is told of each
@@ -45,6 +49,9 @@ class Synthetic:
         if self.note is not None:
             self.note(cycle, counts, t_ns)
         return cycle, counts, t_ns
+
+    def awaited(self, cycle: int) -> int | None:
+        return None
 
 
 class FromPlant:
@@ -64,6 +71,9 @@ class FromPlant:
             counts = self.resting(cycle)
         return cycle, counts, t_ns
 
+    def awaited(self, cycle: int) -> int | None:
+        return None if self.intake.samples else cycle
+
 
 class Newest:
     """Realtime: the newest sample waiting when it is past the cycle asked for (those
@@ -82,16 +92,22 @@ class Newest:
             cycle = newest
         return self.plant.take(cycle)
 
+    def awaited(self, cycle: int) -> int | None:
+        return self.plant.awaited(cycle)
+
 
 def sample_source(clock: str, intake: Intake, *, synthetic: Callable[[int], list[int]],
                   trial: bool, on_skip: Callable[[int, int], None],
                   note: Callable[[int, list[int], int], None] | None = None) -> SampleSource:
     """The source of ``clock`` (module notes); ``synthetic(cycle)`` gives a synthetic
     sample's counts (freerun, and the trial's resting robot)."""
-    if clock == "freerun":
-        return Synthetic(synthetic, note)
-    plant = FromPlant(intake, resting=synthetic if trial else None)
-    return Newest(plant, on_skip) if clock == "realtime" else plant
+    match clock:
+        case "freerun":
+            return Synthetic(synthetic, note)
+        case "realtime":
+            return Newest(FromPlant(intake, resting=synthetic if trial else None), on_skip)
+        case _:
+            return FromPlant(intake, resting=synthetic if trial else None)
 
 
 __all__ = ["FromPlant", "Newest", "SampleSource", "Synthetic", "Taken", "sample_source"]

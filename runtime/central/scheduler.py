@@ -46,7 +46,7 @@ from .replies import Replies
 from .settings import LoopSettings
 from .silence import SilenceWatch
 from .snapshot import History, Progress, RunSnapshot, progress_of, snapshot_of
-from .state_check import hold_torques, overload_hint
+from .state_check import hold_torques
 from .takeover import TakeOver
 from .warmup import WarmUp
 
@@ -119,7 +119,7 @@ class Central:
                            intake=self.intake, flood=FloodWatch.of(node, rc.transport),
                            silence=self.silence, log=self.log, meters=self.meters,
                            on_hello=lambda ev: self.orders.on_hello(ev), on_message=on_message)
-        self.orders = Orders(node, peripherals=n, plant=sch.clock != "freerun",
+        self.orders = Orders(node, peripherals=n, plant=self.settings.plant,
                              startup_timeout_s=rc.transport.startup_timeout,
                              check_children=self.takeover.check_children,
                              take_sample=self.inbox.sample, config=config_message(rc),
@@ -227,10 +227,9 @@ class Central:
     def overload_hint(self) -> str:
         """For a fault's message: in realtime, when most deadlines were missed, that the
         machine, not a process, is the likely cause."""
-        return overload_hint(realtime=self.settings.clock == "realtime",
-                             misses=self.meters.plant_misses, skipped=self.meters.skipped,
-                             periods=self.next_cycle, period_s=self.rc.schedule.period,
-                             peripherals=self.settings.peripherals)
+        return self.intervals.pace.overload_hint(
+            misses=self.meters.plant_misses, skipped=self.meters.skipped,
+            periods=self.next_cycle)
 
     # -- the loop ---------------------------------------------------------------------
 
@@ -304,9 +303,8 @@ class Central:
         where ``--peripheral-loss`` says so (:class:`~.takeover.TakeOver`)."""
         try:
             if not self.node.events.pending():  # else the check runs after each event
-                plant_awaited = self.next_cycle if (
-                    self.settings.clock != "freerun" and not self.intake.samples
-                    and self.next_cycle < self.settings.end) else None
+                plant_awaited = self.intervals.samples.awaited(self.next_cycle) \
+                    if self.next_cycle < self.settings.end else None
                 self.silence.check(time.monotonic_ns(), limit_ns, self.inflight.values(),
                                    done=self.done, plant_awaited=plant_awaited,
                                    newest_sample=self.intake.newest_sample,

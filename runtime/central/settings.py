@@ -59,6 +59,8 @@ class LoopSettings:
     depth: int
     """The pipeline depth: intervals in flight at most."""
     clock: str
+    plant: bool
+    """Samples come from the plant's process (in freerun there is none)."""
     period_ns: int
     end: int
     """The cycle number after the run's last."""
@@ -83,7 +85,8 @@ class LoopSettings:
         period_ns = int(sch.period * 1e9)
         realtime = sch.clock == "realtime"
         return cls(peripherals=peripherals, depth=sch.pipeline, clock=sch.clock,
-                   period_ns=period_ns, end=cycles + first_cycle, trial=trial,
+                   plant=sch.clock != "freerun", period_ns=period_ns,
+                   end=cycles + first_cycle, trial=trial,
                    hold=hold_rule(sch.hold_rounds, clock=sch.clock),
                    deadline_ns=sch.pipeline * period_ns if realtime and peripherals else 0,
                    extrapolate=realtime and not trial and sch.missed_command == "extrapolate",

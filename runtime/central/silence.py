@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Collection
+from functools import partial
 
 from ..config import EXIT_PERIPHERAL, EXIT_PLANT, RunConfig
 from . import silence_rule
@@ -25,11 +26,7 @@ from .excuse import UNSUPERVISED, Excuse, Excuses, Supervision
 from .exits import ExitWatch
 from .fault import Fault, role_of
 from .records import InFlight
-
-STARTUP_INTERVALS = 20
-STARTUP_LIMIT_S = 0.020
-"""Realtime: until :data:`STARTUP_INTERVALS` intervals are done the silence limit is at
-least this (first samples, first real values through every process)."""
+from .silence_limits import STARTUP_INTERVALS, STARTUP_LIMIT_S, Paced, Timeout
 
 
 class SilenceWatch:
@@ -38,7 +35,8 @@ class SilenceWatch:
     Parameters
     ----------
     peripherals : how many peripherals the unit has.
-    realtime : the clock is ``realtime`` (else the limit is ``timeout_s``, and no excuse).
+    realtime : the clock is ``realtime``: its limits are :class:`~.silence_limits.Paced`
+        (else :class:`~.silence_limits.Timeout`, ``timeout_s``), chosen here once.
     period_s : the sampling period.
     fault_periods : realtime: the limit in periods (at the current control rate).
     timeout_s : the limit in the other clocks.
@@ -51,13 +49,8 @@ class SilenceWatch:
                  fault_periods: float, timeout_s: float, stride: Callable[[], int],
                  supervision: Supervision = UNSUPERVISED,
                  hint: Callable[[], str] = str) -> None:
-        self.realtime = realtime
-        self.period_s = period_s
         self.period_ns = int(period_s * 1e9)
-        self.fault_periods = fault_periods
-        self.timeout_s = timeout_s
         self.supervision = supervision
-        self.excuse = Excuses(supervision, own_stall=self._own_stall)
         self.hint = hint
         self.stride = stride
         self.last_sample_ns = 0
@@ -68,6 +61,13 @@ class SilenceWatch:
         """The plant's silences over two sample intervals (from, to), the newest."""
         self.own_gaps: deque[tuple[int, int]] = deque(maxlen=8)
         """The central's own stalls (from, to): it woke more than a period late."""
+        self.excuse = Excuses(supervision, own_stall=partial(silence_rule.overlap, self.own_gaps))
+        self.limits: Paced | Timeout = Paced(
+            period_s=period_s, fault_periods=fault_periods, stride=stride,
+            own_gaps=self.own_gaps, plant_gaps=self.plant_gaps,
+            last_sample=lambda: self.last_sample_ns, excuse=self.excuse,
+        ) if realtime else Timeout(timeout_s)
+        """How long a silence may last, by the run's clock."""
         self.gone: set[int] = set()
         """Peripherals taken over (:meth:`forget`): their silence is no longer watched."""
         self.exits = ExitWatch(supervision)
@@ -99,8 +99,7 @@ class SilenceWatch:
         for k in range(len(self.asked_ns)):
             if self.asked_ns[k] <= self.last_reply_ns[k]:
                 self.asked_ns[k] = now
-        if self.realtime:
-            self.excuse.mark(now)
+        self.limits.asked(now)
 
     def woke(self, meant_ns: int, now: int, *, slept_from: int | None = None) -> None:
         """The central meant to be awake again by ``meant_ns`` and woke at ``now``: more
@@ -136,17 +135,10 @@ class SilenceWatch:
 
     def limit_ns(self, done: int) -> int:
         """How long a reply or a sample may be missing before it is a fault, after
-        ``done`` intervals: ``timeout_s`` in lockstep and freerun; in realtime
-        ``fault_periods`` periods at the current rate (during the first
-        :data:`STARTUP_INTERVALS` intervals at least :data:`STARTUP_LIMIT_S`). A reply
+        ``done`` intervals (the clock's :meth:`~.silence_limits.Paced.limit_ns`). A reply
         later than its deadline but within that is lateness (a miss at the plant, or the
         late-data policy); silence for that long is a failed process or link."""
-        if self.realtime:  # samples every stride periods
-            limit = self.fault_periods * self.period_s * self.stride()
-            if done < STARTUP_INTERVALS:  # first real intervals: start-up
-                limit = max(limit, STARTUP_LIMIT_S)
-            return int(limit * 1e9)
-        return int(self.timeout_s * 1e9)
+        return self.limits.limit_ns(done)
 
     def silent_since(self, k: int) -> int:
         """Since when peripheral ``k`` has been silent: its last reply, or the first
@@ -160,35 +152,15 @@ class SilenceWatch:
         return max(self.last_reply_ns[k], self.asked_ns[k])
 
     def _own_stall(self, since: int, now: int) -> int:
-        """Realtime: how much of ``[since, now]`` the central itself did not run
-        (``own_gaps``). No silence can be judged while the judge is stopped; a process
-        that failed in that time is named within the limit after the central runs
-        again."""
-        if not self.realtime:
-            return 0
-        return silence_rule.overlap(self.own_gaps, since, now)
-
-    def _plant_shared(self, since: int, now: int, limit_ns: int) -> int:
-        """The part of a silence since ``since`` that the plant's samples shared (gaps in
-        them longer than two sample intervals, less the interval a sample takes anyway)
-        beyond the central's own stalls, up to one limit."""
-        return silence_rule.plant_shared(
-            self.plant_gaps, self.last_sample_ns, since, now,
-            every_ns=self.period_ns * self.stride(),  # how often the plant samples
-            own_ns=self._own_stall(since, now), limit_ns=limit_ns)
+        """How much of ``[since, now]`` the central itself did not run, where the clock
+        counts it (:meth:`~.silence_limits.Paced.own_stall`)."""
+        return self.limits.own_stall(since, now)
 
     def fault_at(self, since: int, now: int, limit_ns: int) -> int:
-        """When a peripheral silent since ``since`` becomes a fault: ``since +
-        limit_ns``; in realtime, later by the part of the silence in which the central
-        itself did not run, and once that has passed, by the part the plant's samples
-        shared, up to one more limit. A silence the whole unit shares is a stall of the
-        machine, not a failed process; a frozen process is still named while the plant
-        goes on talking."""
-        end = silence_rule.fault_at(since, now, limit_ns,
-                                    own_ns=self._own_stall(since, now), realtime=self.realtime)
-        if end >= now or not self.realtime:
-            return end
-        return end + self._plant_shared(since, now, limit_ns)
+        """When a peripheral silent since ``since`` becomes a fault
+        (:meth:`~.silence_limits.Paced.fault_at`: in realtime later by the central's own
+        stalls and by a silence the plant shared)."""
+        return self.limits.fault_at(since, now, limit_ns)
 
     def _limit_end(self, role: str, since: int, now: int, limit_ns: int) -> int:
         if role == "plant":  # its silence is the one the others' may share
@@ -230,9 +202,9 @@ class SilenceWatch:
         limit's end, when the caller has it)."""
         if end is None:
             end = self._limit_end(role, since, now, limit_ns)
-        return now > self._excused_end(role, end) and not (self.realtime and self.excuse.ask(
+        return now > self._excused_end(role, end) and not self.limits.excused(
             role, since, now, limit_ns, answered=self._answered(role),
-            limit_end=lambda: self._limit_end(role, since, now, limit_ns)))
+            limit_end=lambda: self._limit_end(role, since, now, limit_ns))
 
     # -- the faults' messages -----------------------------------------------------------
 
@@ -281,14 +253,15 @@ class SilenceWatch:
                 until[k] = 0 if excused is None else excused.until
             return max(end, until[k])
 
+        live = self.limits.watched(self.last_reply_ns)
         for f in intervals:
             if f.waiting:
                 end = end_of(f.deadline_ns - limit_ns)  # the same for each peripheral
                 for k in f.waiting:
                     wake = min(wake, excused_end(k, end))
-                    if self.realtime and self.last_reply_ns[k]:  # liveness: when it would fail
+                    if k in live:  # between its rounds too: when it would fail
                         wake = min(wake, excused_end(k, end_of(self.silent_since(k))))
-        if self.realtime and self.last_sample_ns:
+        if self.limits.watched([self.last_sample_ns]):  # the plant, between its samples
             wake = min(wake, self.silence_ends("plant", self.last_sample_ns, now, limit_ns))
         exit_check = self.exits.wake_at(now)  # an exit is seen within the check's time
         return wake if exit_check is None else min(wake, exit_check)
@@ -302,11 +275,11 @@ class SilenceWatch:
         the round's limit; the plant silent past its limit while interval
         ``plant_awaited`` waits for its sample and no round waits for a reply (silent
         since its last sample, or since ``started_ns``)."""
-        if self.realtime and done:
-            for k, last in enumerate(self.last_reply_ns):  # alive, even when its data is held
-                t = self.silent_since(k) if last and k not in self.gone else 0
+        for k in self.limits.watched(self.last_reply_ns) if done else ():  # held data too
+            if k not in self.gone:
+                t = self.silent_since(k)
                 role = role_of(k)
-                if t and any(k in f.dropped or k in f.waiting for f in intervals) \
+                if any(k in f.dropped or k in f.waiting for f in intervals) \
                         and self._silent(role, t, now, limit_ns):
                     raise Fault(f"peripheral {k + 1} has not answered for "
                                 f"{(now - t) / 1e6:.1f} ms (limit {limit_ns / 1e6:.1f} ms"

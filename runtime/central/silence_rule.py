@@ -10,7 +10,7 @@ period after it meant to), or the plant's samples did not come (``plant_gaps``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 
 def overlap(gaps: Iterable[tuple[int, int]], since: int, now: int) -> int:
@@ -33,16 +33,14 @@ def plant_shared(plant_gaps: Iterable[tuple[int, int]], last_sample_ns: int, sin
     return min(max(0, shared - own_ns), limit_ns)
 
 
-def fault_at(since: int, now: int, limit_ns: int, *, own_ns: int, realtime: bool,
-             shared: int | None = None) -> int:
-    """When a process silent since ``since`` becomes a fault: ``since + limit_ns``, later
-    by the central's own stalls in the silence (``own_ns``); in realtime, once that has
-    passed, later again by what the plant shared (``shared``, :func:`plant_shared`,
-    looked at only then; None: nothing)."""
+def fault_at(since: int, now: int, limit_ns: int, *, own_ns: int,
+             shared: Callable[[], int]) -> int:
+    """When a process silent since ``since`` becomes a fault (realtime): ``since +
+    limit_ns``, later by the central's own stalls in the silence (``own_ns``); once that
+    has passed, later again by what the plant shared (``shared()``, :func:`plant_shared`,
+    looked at only then)."""
     end = since + limit_ns + own_ns
-    if end >= now or not realtime:
-        return end
-    return end + (shared or 0)
+    return end if end >= now else end + shared()
 
 
 def renewal_holds(window_ns: int, denied_ns: int, ours_ns: int, waited_ns: int,

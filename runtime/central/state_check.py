@@ -53,18 +53,4 @@ def hold_torques(params: DeltaParams, p: Sequence[float]) -> list[float]:
     return [0.0, 0.0, 0.0]
 
 
-def overload_hint(*, realtime: bool, misses: int, skipped: int, periods: int,
-                  period_s: float, peripherals: int) -> str:
-    """In realtime, when most deadlines were missed (more than 5 and a tenth of
-    ``periods``): say that the machine, not a process, is the likely cause."""
-    periods = max(1, periods)
-    late = misses + skipped
-    if not realtime or late <= max(5, periods // 10):
-        return ""
-    return (f"; {misses} commands missed their deadline and {skipped} "
-            f"samples were skipped in {periods} periods: this machine does not sustain "
-            f"a {period_s * 1e3:g} ms period with {peripherals} peripheral(s) (try a "
-            "longer --period or --fault-periods, or --clock lockstep)")
-
-
-__all__ = ["WORKSPACE_EVERY", "check_state", "hold_torques", "overload_hint"]
+__all__ = ["WORKSPACE_EVERY", "check_state", "hold_torques"]
