@@ -164,8 +164,8 @@ def clock_branches(root: Path = ROOT) -> list[str]:
     found = []
     for path in sorted((root / "runtime" / "central").glob("*.py")):
         for n in ast.walk(ast.parse(path.read_text())):
-            if isinstance(n, ast.Compare) and any(map(_is_clock, [n.left, *n.comparators])) \
-                    or isinstance(n, ast.Match) and _is_clock(n.subject):
+            if (isinstance(n, ast.Compare) and any(map(_is_clock, [n.left, *n.comparators]))) \
+                    or (isinstance(n, ast.Match) and _is_clock(n.subject)):
                 found.append(f"{path.name}:{n.lineno}")
     return found
 
