@@ -21,11 +21,14 @@ from ctrlunit.runtime.host import sched
 from ctrlunit.runtime.launch import admission
 from ctrlunit.runtime.launch.admission import (
     LADDER_S,
+    ShorterHeld,
     Unsustainable,
     admit,
     fifo_busy_limit,
     ladder_from,
+    may_hold_at,
     rung_verdict,
+    shorter_rungs,
     trial_intervals,
 )
 
@@ -43,10 +46,13 @@ def test_a_trial_lasts_0_3_s_within_50_and_300_intervals():
 
 
 def test_the_ladder_and_where_a_period_asked_joins_it():
-    assert LADDER_S == (1.0e-3, 1.25e-3, 1.6e-3, 2.0e-3, 2.5e-3, 3.2e-3, 4.0e-3, 5.0e-3,
-                        6.4e-3, 8.0e-3, 10.0e-3)
-    assert ladder_from(1e-3) == list(LADDER_S)
-    assert ladder_from(1.2e-3) == [1.2e-3, *LADDER_S[1:]]
+    assert LADDER_S == (0.25e-3, 0.32e-3, 0.4e-3, 0.5e-3, 0.64e-3, 0.8e-3, 1.0e-3, 1.25e-3,
+                        1.6e-3, 2.0e-3, 2.5e-3, 3.2e-3, 4.0e-3, 5.0e-3, 6.4e-3, 8.0e-3,
+                        10.0e-3)
+    assert ladder_from(1e-3) == list(LADDER_S[6:])
+    assert ladder_from(0.25e-3) == list(LADDER_S)
+    assert ladder_from(0.45e-3)[:2] == [0.45e-3, 0.5e-3]
+    assert ladder_from(1.2e-3) == [1.2e-3, *LADDER_S[7:]]
     assert ladder_from(1.2498e-3)[:2] == [1.2498e-3, 1.25e-3]
     assert ladder_from(1.24995e-3)[:2] == [1.24995e-3, 1.6e-3]  # within 1e-4: the same
     assert ladder_from(20e-3) == [20e-3]
@@ -247,7 +253,7 @@ def test_a_refusal_suggests_a_rung_higher_than_one_that_held_near_a_limit(monkey
 
 def test_a_busy_cpu_is_named_in_the_refusal(monkeypatch):
     central, _ = scripted(monkeypatch, [rung(1e-3, held=False, busy=0.9, limit=0.7125)]
-                          + [rung(p, held=False) for p in LADDER_S[1:]])
+                          + [rung(p, held=False) for p in LADDER_S[7:]])
     with pytest.raises(Unsustainable) as e:
         admit(central)
     msg = str(e.value)
@@ -295,6 +301,52 @@ def test_the_tracking_a_period_predicts_is_the_one_process_loops_at_it():
     assert f"{admission.predicted_tracking(central, 8e-3) * 1e3:.1f}" == "5.8"
     kin = SimpleNamespace(rc=rc.replace(law="kinematics"), params=engine.cfg.params)
     assert math.isnan(admission.predicted_tracking(kin, 1e-3))
+
+
+def test_auto_goes_down_the_ladder_while_the_shorter_periods_hold(monkeypatch):
+    """``--period auto``'s first start, 1 ms held: a trial at each shorter rung, longest
+    first, until one does not hold; the shortest that held is where the unit starts
+    again (:class:`ShorterHeld`, a refusal of the period asked)."""
+    central, calls = scripted(monkeypatch, [rung(1e-3, held=True), rung(0.8e-3, held=True),
+                                            rung(0.64e-3, held=False)], period_auto=True)
+    with pytest.raises(ShorterHeld) as e:
+        admit(central, descend=True)
+    base = 1 << 41
+    assert calls == [(1e-3, base), (0.8e-3, base + (1 << 20)), (0.64e-3, base + (2 << 20))]
+    info = e.value.info
+    assert info["period_s"] == info["sustainable_period_s"] == 0.8e-3
+    assert [r.get("descent", False) for r in info["rungs"]] == [False, True, True]
+    assert str(e.value) == "1 ms held, and so did 0.8 ms" and e.value.code == 7
+    central, calls = scripted(monkeypatch, [rung(1e-3, held=True)], period_auto=True)
+    assert admit(central)["period_s"] == 1e-3 and len(calls) == 1  # not asked to descend
+
+
+def test_the_descent_tries_no_period_the_last_one_held_says_will_not_hold(monkeypatch):
+    """The busy share grows as the period shrinks: 60 % of a 71.25 % limit at 1 ms is 75 %
+    at 0.8 ms, so no trial there. A traversal p99 of 0.9 ms fits 95 % of a 2-period budget
+    down to 0.5 ms (0.95 ms), not at 0.4 ms (0.76 ms)."""
+    central, calls = scripted(monkeypatch, [rung(1e-3, held=True, busy=0.6, limit=0.7125)],
+                              period_auto=True)
+    info = admit(central, descend=True)
+    assert calls == [(1e-3, 1 << 41)] and info["period_s"] == 1e-3
+    slow = {"traversal_p99_s": 0.9e-3}
+    central, calls = scripted(monkeypatch, [rung(p, held=True) | slow
+                                            for p in (1e-3, 0.8e-3, 0.64e-3, 0.5e-3)],
+                              period_auto=True)
+    with pytest.raises(ShorterHeld) as e:
+        admit(central, descend=True)
+    assert [p for p, _ in calls] == [1e-3, 0.8e-3, 0.64e-3, 0.5e-3]
+    assert e.value.info["sustainable_period_s"] == 0.5e-3
+
+
+def test_may_hold_at_scales_the_last_figures_to_the_shorter_period():
+    held = rung(1e-3, held=True, busy=0.5, limit=0.625) | {"traversal_p99_s": 0.95e-3}
+    assert may_hold_at(held, 0.8e-3)  # busy 0.625 of 0.625; p99 0.95 of 0.95 * 1.6 ms
+    assert not may_hold_at(held, 0.79e-3)
+    assert may_hold_at(held | {"busy_share": None}, 0.5e-3)  # p99 0.95 of 0.95 ms
+    assert not may_hold_at(held | {"busy_share": None}, 0.49e-3)
+    assert shorter_rungs(1e-3) == [0.8e-3, 0.64e-3, 0.5e-3, 0.4e-3, 0.32e-3, 0.25e-3]
+    assert shorter_rungs(0.25e-3) == []
 
 
 # -- edges of the verdict and the refusal's wording ------------------------------------
@@ -590,7 +642,7 @@ def test_a_trial_judges_the_units_own_cpu_time_where_it_is_read(monkeypatch):
 
 def test_a_refusal_for_the_units_own_load_says_whose_time_it_was(monkeypatch):
     busy = rung(1e-3, held=False, busy=0.9, limit=0.7125) | {"busy_of": "unit"}
-    central, _ = scripted(monkeypatch, [busy] + [rung(p, held=False) for p in LADDER_S[1:]])
+    central, _ = scripted(monkeypatch, [busy] + [rung(p, held=False) for p in LADDER_S[7:]])
     with pytest.raises(Unsustainable) as e:
         admit(central)
     assert "; the unit kept a CPU 90% busy under SCHED_FIFO, over the limit of 71% of the CPU" \
@@ -615,3 +667,35 @@ def test_a_trials_findings_say_which_rule_it_broke():
         "; the hypervisor took up to 40 ms from one of this machine's CPUs meanwhile (steal: "
         "what ran there stood still)")
     assert trial_findings(rung | {"stolen_s": 0.0}, 1) == trial_findings(rung, 1)
+
+
+def test_auto_starts_again_at_the_shorter_period_once_and_never_descends_again(monkeypatch):
+    """The launcher (runtime/launch/launcher.py): a first start whose admission found a
+    shorter period held (:class:`ShorterHeld`: exit 7 with that period) starts again at it,
+    saying so; that start, and any after it, climb but do not go down again."""
+    from ctrlunit.runtime.launch import launcher
+
+    starts: list[tuple[float, bool]] = []
+    outcomes = [(7, 0.64e-3), (7, 0.8e-3), (0, 0.8e-3)]  # held shorter; refused; ran
+
+    class Start:
+        def __init__(self, rc: RunConfig, **_: Any) -> None:
+            self.period = rc.schedule.period
+
+        def __call__(self, *, descend: bool) -> tuple[int, dict]:
+            starts.append((self.period, descend))
+            code, held = outcomes[len(starts) - 1]
+            rung = {"period_s": held, "held": True}
+            return code, {"admission": {"sustainable_period_s": held, "rungs": [rung]}}
+
+    monkeypatch.setattr(launcher, "UnitStart", Start)
+    said: list[str] = []
+    code, report = launcher.start(RunConfig.of(clock="realtime", period_auto=True),
+                                  echo=said.append)
+    assert code == 0 and starts == [(1e-3, True), (0.64e-3, False), (0.8e-3, False)]
+    assert said == [
+        "ctrlunit: --period auto: 1 ms was held in this start's trial, and so was 0.64 ms; "
+        "starting again at 0.64 ms",
+        "ctrlunit: --period auto: 0.64 ms, held in the last start's trial, was not held in "
+        "this start's trial, 0.8 ms was; starting again at 0.8 ms"]
+    assert [r["start"] for r in report["admission"]["rungs"]] == [0, 1, 2]

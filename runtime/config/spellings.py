@@ -41,8 +41,9 @@ STATE_FROM = {"period_auto": "period", "placement_auto": "placement",
 """The setting from which a field of the run's state follows, for an error that names it."""
 
 PERIOD_AUTO_START_S: float = ScheduleConfig.period
-"""``period = "auto"``: the period the admission ladder starts from (the field's default;
-runtime/launch/admission.py, ``LADDER_S[0]``, is the same)."""
+"""``period = "auto"``: the period the admission starts from (the field's default), which
+it then leaves for a longer or a shorter period of its ladder (runtime/launch/admission.py,
+``LADDER_S``)."""
 
 PLACEMENT_WORDS = ("auto", "axes")
 """The placements named by a word; any other text is a placement file."""

@@ -28,10 +28,12 @@ periods at every period, so a longer period would not avoid it (docs/measurement
 
 When it is not held the trial goes on up :data:`LADDER_S` and stops at the first period
 that holds: the refusal names the period asked, what the trial measured, and the shortest
-period measured to hold. ``--period auto`` starts at the bottom of the ladder and runs at
-the first period that holds (the launcher starts the unit again at it: every role derives
-its setup from the period). The decision and its figures go in the report
-(``admission``); docs/faults-and-errors.md has the exit code.
+period measured to hold. ``--period auto`` starts at 1 ms and runs at the first period that
+holds; where 1 ms holds, it goes down the ladder (to 0.25 ms) while each shorter period
+may hold by the figures of the last one that held (:func:`may_hold_at`) and its trial
+holds, and runs at the shortest that held (in both cases the launcher starts the unit
+again at it: every role derives its setup from the period). The decision and its figures
+go in the report (``admission``); docs/faults-and-errors.md has the exit code.
 """
 
 from __future__ import annotations
@@ -52,9 +54,10 @@ from .refusal import HEADROOM, LATE_SHARE, advice, trial_findings
 if TYPE_CHECKING:
     from ..central import Central
 
-LADDER_S = (1.0e-3, 1.25e-3, 1.6e-3, 2.0e-3, 2.5e-3, 3.2e-3, 4.0e-3, 5.0e-3, 6.4e-3,
-            8.0e-3, 10.0e-3)
-"""The periods ``--period auto`` chooses from, and the trial climbs after a refusal."""
+LADDER_S = (0.25e-3, 0.32e-3, 0.4e-3, 0.5e-3, 0.64e-3, 0.8e-3, 1.0e-3, 1.25e-3, 1.6e-3,
+            2.0e-3, 2.5e-3, 3.2e-3, 4.0e-3, 5.0e-3, 6.4e-3, 8.0e-3, 10.0e-3)
+"""The periods ``--period auto`` chooses from, and the trial climbs after a refusal
+(issue 59: down to 0.25 ms, the thesis's 0.5 ms among them)."""
 
 TRIAL_BASE = 1 << 41
 """Trial cycles are numbered from here (one block of 2**20 per rung), far from the run's
@@ -150,6 +153,31 @@ def ladder_from(period_s: float) -> list[float]:
     return [period_s] + [p for p in LADDER_S if p > period_s * 1.0001]
 
 
+def shorter_rungs(period_s: float) -> list[float]:
+    """The periods of :data:`LADDER_S` shorter than ``period_s``, longest first: where
+    ``--period auto`` goes down once its start held."""
+    return [p for p in reversed(LADDER_S) if p < period_s * 0.9999]
+
+
+def may_hold_at(verdict: dict[str, Any], shorter_s: float) -> bool:
+    """Whether a rung that held (``verdict``, at ``verdict["period_s"]``) may hold at
+    ``shorter_s`` by its own figures, the unit's CPU time and its traversal per interval
+    taken as they were: its busy share grows as the period shrinks and stays within its
+    limit (under SCHED_FIFO), and its traversal p99 stays within the headroom of a budget
+    that shrinks with the period (:func:`rung_verdict`'s rules). A trial is not run where
+    the figures already say no."""
+    scale = verdict["period_s"] / shorter_s
+    busy, limit = verdict.get("busy_share"), verdict.get("busy_limit")
+    if busy is not None and limit is not None and busy * scale > limit:
+        return False
+    return verdict["traversal_p99_s"] <= HEADROOM * verdict["budget_s"] / scale
+
+
+class ShorterHeld(Unsustainable):
+    """``--period auto``: the period it starts at held, and so did a shorter one of the
+    ladder (``info["sustainable_period_s"]``): the unit starts again at that one."""
+
+
 CpuTimes = Callable[[], list[tuple[float, float]]]
 """A reading of CPU time per CPU, as :func:`..host.sched.cpu_times` gives the machine's."""
 
@@ -171,7 +199,7 @@ Rehearse = Callable[[], Rehearsal]
 
 
 def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
-          rehearse: Rehearse | None = None) -> dict[str, Any]:
+          rehearse: Rehearse | None = None, descend: bool = False) -> dict[str, Any]:
     """Run the trial from the configured period up :data:`LADDER_S` until a period holds.
     Returns the admission's report when the configured period holds; raises
     :class:`Unsustainable` otherwise (with ``--period auto`` the caller starts again at
@@ -180,7 +208,10 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
     run's messaging load without motion). ``unit_cpu`` reads the unit's own CPU time per
     CPU (runtime/host/unit_load.py), which the busy limit under FIFO judges; without it,
     the machine's. ``rehearse`` makes, for each trial, what the run does after each
-    interval besides the control (its recorder, writing nowhere: :data:`Rehearse`)."""
+    interval besides the control (its recorder, writing nowhere: :data:`Rehearse`).
+    ``descend`` (``--period auto``'s first start): where the period asked holds, go down
+    the ladder (:func:`descend_from`); a shorter period that held raises
+    :class:`ShorterHeld`."""
     rc = central.rc
     rtt = central.snapshot().times.warm_rtt_s
     transit = statistics.median(rtt) / 2 if rtt else 0.0
@@ -221,7 +252,12 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
                 f"half of --max-error {rc.control.max_error * 1e3:g} mm; refused before any "
                 "motion (try a shorter --period or a slower task)", info)
     if held_at is not None and math.isclose(held_at, asked):
-        info["period_s"] = held_at
+        shortest = descend_from(central, rungs, transit_s=transit, unit_cpu=unit_cpu,
+                                rehearse=rehearse) if descend else asked
+        info["period_s"] = info["sustainable_period_s"] = shortest
+        if shortest < asked:
+            raise ShorterHeld(f"{asked * 1e3:g} ms held, and so did {shortest * 1e3:g} ms",
+                              info)
         return info
     first = rungs[0]
     if held_at is None and untrackable is not None:
@@ -240,6 +276,25 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
         f"{headline}: in a trial of {first['intervals']} intervals before any motion, "
         f"{trial_findings(first, rc.schedule.pipeline)}; {found}." + tips, info,
         headline=headline, advice=tips.strip())
+
+
+def descend_from(central: Central, rungs: list[dict[str, Any]], *, transit_s: float,
+                 unit_cpu: CpuTimes | None, rehearse: Rehearse | None) -> float:
+    """Below the period of the last of ``rungs``, which held: a trial at each shorter
+    period of the ladder, longest first, while the last that held says it may hold
+    (:func:`may_hold_at`) and its trial holds (no trial is repeated here: a stall ends the
+    descent). Each trial joins ``rungs``; returns the shortest period that held."""
+    held = rungs[-1]
+    for shorter in shorter_rungs(held["period_s"]):
+        if not may_hold_at(held, shorter):
+            break
+        verdict = trial(central, shorter, base=TRIAL_BASE + (len(rungs) << 20),
+                        transit_s=transit_s, unit_cpu=unit_cpu, rehearse=rehearse)
+        rungs.append(verdict | {"descent": True})
+        if not verdict["held"]:
+            break
+        held = verdict
+    return float(held["period_s"])
 
 
 def predicted_tracking(central: Central, period: float) -> float:

@@ -12,6 +12,7 @@ the robot stopped safely, the report written, the recording closed.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 from typing import Any
 
@@ -55,20 +56,25 @@ def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         except (ValueError, IdlePermissionError) as exc:
             return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
                                            "code": EXIT_CONFIG}}
-        # --period auto: each start climbs the ladder
+        # --period auto: the first start may go down the ladder, each start climbs it
         for attempt in range(len(LADDER_S)):
             os.sched_setaffinity(0, affinity)  # each start chooses the roles' CPUs afresh
             code, report = UnitStart(rc, echo=echo, progress=progress, spawn=spawn,
-                                     inspect=inspect, view=view, idle=idle_choice)()
+                                     inspect=inspect, view=view,
+                                     idle=idle_choice)(descend=attempt == 0)
             adm = report.get("admission") or {}
             tried += [r | {"start": attempt} for r in adm.get("rungs") or []]
             held = adm.get("sustainable_period_s")
             if not (code == EXIT_UNSUSTAINABLE and rc.schedule.period_auto and held
-                    and held > rc.schedule.period and not rc.schedule.trial_only):
+                    and not math.isclose(held, rc.schedule.period)
+                    and not rc.schedule.trial_only):
                 break
             asked = f"{rc.schedule.period * 1e3:g} ms" + (
                 ", held in the last start's trial," if attempt else "")
-            echo(f"ctrlunit: --period auto: {asked} was not held in this start's trial, "
+            echo(f"ctrlunit: --period auto: {asked} was held in this start's trial, and so "
+                 f"was {held * 1e3:g} ms; starting again at {held * 1e3:g} ms"
+                 if held < rc.schedule.period else
+                 f"ctrlunit: --period auto: {asked} was not held in this start's trial, "
                  f"{held * 1e3:g} ms was; starting again at {held * 1e3:g} ms")
             rc = rc.replace(period=held)
         if adm:

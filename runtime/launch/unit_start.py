@@ -82,7 +82,9 @@ class UnitStart:
         self.ros2: Any = None  # --ros2's topics, once the node is open
         """What the start decided on the way: admission, placement choice, Zenoh ids."""
 
-    def __call__(self) -> tuple[int, dict]:
+    def __call__(self, *, descend: bool = False) -> tuple[int, dict]:
+        """Start the unit and run it; ``descend``: ``--period auto``'s first start, whose
+        admission may go down the ladder (runtime/launch/admission.py)."""
         refused = self.configure()
         if refused is not None:
             return refused
@@ -91,7 +93,7 @@ class UnitStart:
         handlers = {s: signal.getsignal(s) for s in not_ignored((signal.SIGINT, *STOP_SIGNALS))}
         try:
             with held_stops(self.node.events):  # a stop signal: raised between two turns
-                self.activate()
+                self.activate(descend=descend)
                 self.run()
         except Fault as exc:
             self.code = exc.code
@@ -213,7 +215,7 @@ class UnitStart:
         return BusyGuard(pids, choice["budget"], priority=choice["priority"], say=self.echo,
                          load=UnitLoad(pids).__enter__())
 
-    def activate(self) -> None:
+    def activate(self, *, descend: bool = False) -> None:
         """Start the roles' processes, then the handshake, the warm-up, the reply mode,
         the placement (``auto``) and the admission (realtime)."""
         self._spawn()
@@ -227,7 +229,8 @@ class UnitStart:
         if rc.schedule.clock == "realtime" and (rc.schedule.admission or rc.schedule.trial_only):
             self.decided["admission"] = admit(
                 central, unit_cpu=self.guard.load.sample if self.guard and self.guard.load
-                else None, rehearse=self._rehearsal if self.recorder else None)
+                else None, rehearse=self._rehearsal if self.recorder else None,
+                descend=descend and rc.schedule.period_auto and not rc.schedule.trial_only)
 
     def _rehearsal(self) -> Any:
         """The recorder of one admission trial: the run's work after each interval, kept
