@@ -699,3 +699,18 @@ def test_auto_starts_again_at_the_shorter_period_once_and_never_descends_again(m
         "ctrlunit: --period auto: 0.64 ms, held in the last start's trial, was not held in "
         "this start's trial, 0.8 ms was; starting again at 0.8 ms"]
     assert [r["start"] for r in report["admission"]["rungs"]] == [0, 1, 2]
+
+
+def test_the_summary_says_where_the_descent_went():
+    from ctrlunit.runtime.observe import summary
+
+    rungs = [{"period_s": 1e-3, "held": True, "intervals": 300},
+             {"period_s": 0.8e-3, "held": True, "descent": True, "intervals": 300},
+             {"period_s": 0.64e-3, "held": False, "descent": True, "intervals": 300},
+             {"period_s": 0.8e-3, "held": True, "intervals": 300, "start": 1}]
+    adm = {"period_s": 0.8e-3, "asked": "auto", "rungs": rungs}
+    assert summary._admission_lines({"admission": adm}) == [
+        "  admission   0.8 ms held in a trial of 300 intervals before motion (asked: auto); "
+        "below 1 ms the first start's trials held 0.8 ms, not 0.64 ms"]
+    adm = {"period_s": 1e-3, "asked": "auto", "rungs": rungs[:1]}  # no descent tried
+    assert summary._admission_lines({"admission": adm})[0].endswith("(asked: auto)")

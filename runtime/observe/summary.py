@@ -314,7 +314,18 @@ def _admission_lines(r: dict[str, Any]) -> list[str]:
             + ("auto" if adm["asked"] == "auto" else f"{adm['asked'] * 1e3:g} ms")
             + ")" + (f"; the first trial at it had one stall ({adm['rungs'][-2]['late']}"
                      " intervals late), so it ran again"
-                     if adm["rungs"][-1].get("retry") else "")]
+                     if adm["rungs"][-1].get("retry") else "") + _descent(adm["rungs"])]
+
+
+def _descent(rungs: list[dict[str, Any]]) -> str:
+    """``--period auto``'s way down the ladder in its first start, where it went."""
+    held = [f"{x['period_s'] * 1e3:g} ms" for x in rungs if x.get("descent") and x["held"]]
+    not_held = [f"{x['period_s'] * 1e3:g} ms" for x in rungs
+                if x.get("descent") and not x["held"]]
+    if not held and not not_held:
+        return ""
+    return (f"; below 1 ms the first start's trials held {', '.join(held) or 'none'}"
+            + (f", not {not_held[0]}" if not_held else ""))
 
 
 def summary(r: dict[str, Any]) -> str:
