@@ -5,6 +5,8 @@ whose accounting the test sets to the nanosecond."""
 
 from __future__ import annotations
 
+import os
+
 import pytest
 from ctrlunit.runtime.central.excuse import EXCUSED_LIMITS, Excuses, Supervision
 from ctrlunit.runtime.roles.supervise import MachineLoad
@@ -26,6 +28,7 @@ class Machine:
         self.pressure_step = 0
         self.waiting: int | None = 0
         self.stolen: list[float] | None = [0.0, 0.0]
+        self.cpus: dict[str, set[int]] = {"plant": {1}}
         self.load_reads = 0
         self.stalls: list[tuple[int, int]] = []
         self.own = 0
@@ -38,7 +41,8 @@ class Machine:
         return MachineLoad(self.pressure, self.waiting, stolen)
 
     def excuses(self, *, times: bool = True) -> Excuses:
-        sup = Supervision(role_state=lambda r: self.state[r],
+        sup = Supervision(last_cpus=lambda r: self.cpus.get(r, set()),
+                          role_state=lambda r: self.state[r],
                           role_times=(lambda r: dict(self.times[r])) if times else None,
                           machine_load=self.load)
         return Excuses(sup, own_stall=self.own_stall)
@@ -244,12 +248,15 @@ def test_no_note_before_the_silence_or_no_pressure_is_no_evidence():
     assert not unsupervised.marks  # roles not started here: nothing read
 
 
-def test_a_cpu_the_hypervisor_took_renews_the_excuse_of_a_plant_that_neither_ran_nor_waited():
+def test_a_tick_of_steal_on_the_silent_process_s_cpu_renews_its_excuse():
     """The plant asleep at its excuse, runnable at its end, had run nothing and waited
-    0.7 ms in it (CI, 2026-11-28: a fault): a tick of steal on one CPU in the window is
-    the machine's doing; steal the kernel does not count, or on no CPU, is no evidence."""
-    for stolen_then, stolen_now, renewed in (([0.0, 0.5], [0.0, 0.51], True),
-                                             ([0.0, 0.5], [0.0, 0.5], False),
+    0.7 ms in it (CI, 2026-11-28: a fault): a tick of steal counted on the CPU it last ran
+    on is the machine's doing. A tick on another CPU, steal the kernel does not count, or
+    readings that do not match are no evidence."""
+    tick = 1 / os.sysconf("SC_CLK_TCK")
+    for stolen_then, stolen_now, renewed in (([0.5, 0.5], [0.5, 0.5 + tick], True),
+                                             ([0.5, 0.5], [0.5 + 3 * tick, 0.5], False),
+                                             ([0.5, 0.5], [0.5, 0.5], False),
                                              (None, [0.0, 0.51], False),
                                              ([0.5], [0.0, 0.51], False)):
         m = Machine()
@@ -262,6 +269,7 @@ def test_a_cpu_the_hypervisor_took_renews_the_excuse_of_a_plant_that_neither_ran
         assert ex.ask("plant", 0, 7 * MS, LIMIT, answered=-1,
                       limit_end=lambda: LIMIT) is renewed
         seen = ex.granted["plant"].seen
-        assert seen is not None and seen[4] == (10 * MS if renewed else 0)
+        assert seen is not None and seen[4] == (1 if renewed else 0)
         note = ex.note("plant", -1)
-        assert ("the hypervisor took 10 ms of a CPU" in note) is renewed, note
+        assert ("the hypervisor's steal counter moved 1 tick(s) of 10 ms on the CPU it "
+                "last ran on" in note) is renewed, note

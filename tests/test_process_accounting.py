@@ -166,3 +166,22 @@ def test_the_kept_pressure_file_reads_what_the_kernel_counts_now(child):
         fresh = int(fh.readline().rsplit("total=", 1)[1]) * 1000
     assert kept is not None and kept - before > 50 * MS
     assert 0 <= fresh - kept < 50 * MS  # read just after: the same count, give or take
+
+
+def test_the_cpus_a_process_last_ran_on_are_its_threads_and_none_once_gone():
+    """Pinned to one CPU, every thread of a process last ran there; a process gone has
+    none (the steal on such a CPU renews a silence's excuse: runtime/central/excuse.py)."""
+    from ctrlunit.runtime.roles.supervise import process_cpus
+
+    cpu = min(os.sched_getaffinity(0))
+    p = subprocess.Popen(["taskset", "-c", str(cpu), sys.executable, "-c",
+                          "import time; time.sleep(30)"])
+    try:
+        deadline = time.monotonic() + 10
+        while process_state(p.pid) != "sleeping" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert process_cpus(p.pid) == {cpu}
+    finally:
+        p.kill()
+        p.wait(timeout=5)
+    assert process_cpus(p.pid) == set()

@@ -8,11 +8,11 @@ process, is slow (docs/faults-and-errors.md, the silence rule's third step).
 
 from __future__ import annotations
 
+import os
 from collections import deque
 from collections.abc import Callable
 from typing import NamedTuple
 
-from ..host.sched import most_stolen
 from ..roles.supervise import MachineLoad, ThreadTimes, cpu_denied, cpu_pressure_ns
 from . import silence_rule
 
@@ -40,6 +40,9 @@ class Supervision(NamedTuple):
     promote: Callable[[str], None] | None = None
     """``promote(role)``: give a role started again, once it is set up, the scheduling
     policy the calling thread has (the unit's)."""
+    last_cpus: Callable[[str], set[int]] | None = None
+    """The CPUs a role's threads last ran on
+    (:func:`~ctrlunit.runtime.roles.supervise.process_cpus`)."""
 
 
 UNSUPERVISED = Supervision()
@@ -51,6 +54,12 @@ threads) from a CPU, its silence is a fault once it lasts this many limits (24 m
 and ``--fault-periods 3``; the reference machine's stalls ran 6-26 ms). The robot's
 tracking is watched all along (``--max-error``)."""
 
+
+TICKS_PER_S = os.sysconf("SC_CLK_TCK")
+TICK_NS = 1_000_000_000 // TICKS_PER_S
+"""The kernel counts the hypervisor's steal in these ticks (10 ms at the usual 100 a
+second, ``/proc/stat``): a renewal counts a tick moved on the silent process's CPU as
+the window's length at most."""
 
 MARK_EVERY_NS = 2_000_000
 """How often, at most, the central notes the machine's CPU pressure as it sends a request
@@ -83,8 +92,8 @@ class Excuse(NamedTuple):
     seen: tuple[int, int, int, int, int] | None = None
     """Of the last window looked at: its length, how long the machine kept the process
     (or the central's Zenoh threads) from a CPU, how much CPU it got, how long tasks
-    waited for a CPU in it, the most the hypervisor took from one CPU in it (ns); for
-    the fault's message."""
+    waited for a CPU in it (ns), and the ticks of steal counted on a CPU the process last
+    ran on (:meth:`Excuses._stolen_ticks`); for the fault's message."""
 
 
 class Excuses:
@@ -157,11 +166,12 @@ class Excuses:
         so a plant asleep past its tick is a timer the machine has not served yet. Then, a
         limit at a time, while the kernel's accounting shows that the machine kept the
         silent process or the central's Zenoh threads from a CPU, or kept its own tasks
-        waiting for one, for
-        at least half of the last limit (:meth:`_renew`), up to :data:`EXCUSED_LIMITS` in
-        all. A stopped or exited process is never excused, a sleeping peripheral with
-        nothing in transit neither, and one that ran but did not answer while the machine
-        let everything run (e.g. a deadlock) is not excused again."""
+        waiting for one, for at least half of the last limit, or the hypervisor's steal
+        counter moved on a CPU the silent process last ran on (:meth:`_renew`), up to
+        :data:`EXCUSED_LIMITS` in all. A stopped or exited process is never excused, a
+        sleeping peripheral with nothing in transit neither, and one that ran but did not
+        answer while the machine let everything run and the hypervisor took none of its
+        CPUs (e.g. a deadlock) is not excused again."""
         role_state = self.supervision.role_state
         if role_state is None:
             return False
@@ -200,10 +210,11 @@ class Excuses:
         granted or last renewed, the machine kept the silent process or the central's
         Zenoh threads from a CPU (:func:`~ctrlunit.runtime.roles.supervise.cpu_denied`),
         or kept some task waiting for one (the CPU pressure, which counts a wait still
-        going on: a thread's own wait is added up only when it runs again), or the
-        hypervisor took a CPU (its steal, in whole ticks of 10 ms), for at least half the
-        window, and the silence is shorter than :data:`EXCUSED_LIMITS` limits (plus the
-        central's own stalls). A process that was not denied its CPU and did not answer
+        going on: a thread's own wait is added up only when it runs again), for at least
+        half the window, or the hypervisor's steal counter moved a tick on a CPU the
+        silent process last ran on (:meth:`_stolen_ticks`: a tick is 10 ms, counted as the
+        window at most), and the silence is shorter than :data:`EXCUSED_LIMITS` limits
+        (plus the central's own stalls). A process that was not denied its CPU and did not answer
         is not excused again, nor one stopped or exited meanwhile."""
         times = self._times(role)
         last = silence_rule.renewal_cap(prev.since, limit_ns, EXCUSED_LIMITS,
@@ -220,15 +231,28 @@ class Excuses:
         ours, _ = cpu_denied(prev.times[1], times[1], window_ns=window, runnable=False)
         waited = 0 if prev.times[2] is None or times[2] is None \
             else min(window, max(0, times[2] - prev.times[2]))
-        stolen = round((most_stolen(prev.times[3], times[3]) or 0.0) * 1e9)
+        stolen = self._stolen_ticks(role, prev.times[3], times[3])
         seen = (window, max(denied, ours), ran, waited, stolen)
-        if not silence_rule.renewal_holds(window, denied, ours, waited, stolen):
+        if not silence_rule.renewal_holds(
+                window, denied, ours, waited, min(window, stolen * TICK_NS)):
             self.granted[role] = prev._replace(seen=seen)
             return False
         self.granted[role] = Excuse(prev.since, min(now + limit_ns, last), now, times,
                                     state == "runnable", prev.renewals + 1, seen)
         self.count += 1
         return True
+
+    def _stolen_ticks(self, role: str, before: list[float] | None,
+                      after: list[float] | None) -> int:
+        """The most ticks of steal the hypervisor counted, between two readings, on a CPU
+        a thread of ``role`` last ran on: it counts whole ticks (``SC_CLK_TCK``), so one
+        tick moved in a window says that the CPU stood still at least a moment of it, on
+        a CPU where the silent process waits; 0 where any of it is unknown."""
+        last_cpus = self.supervision.last_cpus
+        if last_cpus is None or before is None or after is None or len(before) != len(after):
+            return 0
+        return max((round((after[c] - before[c]) * TICKS_PER_S) for c in last_cpus(role)
+                    if 0 <= c < len(after)), default=0)
 
     def note(self, role: str, answered: int) -> str:
         """For a silence fault's message: what the silent process was doing, where known,
@@ -250,8 +274,8 @@ class Excuses:
                          f"{denied / 1e6:.1f} ms and ran {ran / 1e6:.1f} ms, and tasks "
                          f"waited for a CPU {waited / 1e6:.1f} ms")
                 if stolen:
-                    note += (f", and the hypervisor took {stolen / 1e6:.0f} ms of a CPU "
-                             "(counted in ticks of 10 ms)")
+                    note += (f", and the hypervisor's steal counter moved {stolen} tick(s) "
+                             f"of {TICK_NS / 1e6:g} ms on the CPU it last ran on")
             note += ")"
         return f"; its process was {role_state(role)}{note}"
 

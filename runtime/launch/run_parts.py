@@ -17,7 +17,14 @@ from ..compute.setup import Setup
 from ..config import RunConfig, parse_host_port
 from ..host import sched
 from ..observe.report import cpu_budget, text_or_none
-from ..roles.supervise import ZENOH_THREADS, ThreadTimes, machine_load, process_state, thread_times
+from ..roles.supervise import (
+    ZENOH_THREADS,
+    ThreadTimes,
+    machine_load,
+    process_cpus,
+    process_state,
+    thread_times,
+)
 from ..transport.endpoints import is_socket
 from ..transport.node import rss_kb
 
@@ -51,6 +58,9 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
             return process_state(os.getpid(), threads=ZENOH_THREADS)
         return process_state(pids[role]) if role in pids else "unknown"
 
+    def last_cpus(role: str) -> set[int]:
+        return process_cpus(pids[role]) if role in pids else set()
+
     def role_times(role: str) -> ThreadTimes:
         if role == "central":
             return thread_times(os.getpid(), threads=ZENOH_THREADS)
@@ -78,7 +88,7 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
                      if policy == os.SCHED_FIFO else 0)
 
     return Supervision(check, role_state, role_times, machine_load,
-                       None if respawn is None else restart, promote)
+                       None if respawn is None else restart, promote, last_cpus)
 
 
 def live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
