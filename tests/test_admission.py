@@ -157,7 +157,7 @@ def test_the_ladder_climbs_from_the_period_asked_and_the_trial_is_bounded():
     assert ladder_from(1e-3) == list(LADDER_S[6:])
     assert ladder_from(3e-3)[:2] == [3e-3, 3.2e-3]
     assert ladder_from(0.2)[1:] == []
-    assert all(50 <= trial_intervals(p) <= 300 for p in (20e-6, 1e-3, 20e-3, 1.0))
+    assert all(50 <= trial_intervals(p) <= 1200 for p in (20e-6, 1e-3, 20e-3, 1.0))
 
 
 def test_an_unsustainable_period_is_refused_before_the_plant_gets_a_command(tmp_path):

@@ -35,9 +35,13 @@ from ctrlunit.runtime.launch.admission import (
 MS = 1e-3
 
 
-def test_a_trial_lasts_0_3_s_within_50_and_300_intervals():
+def test_a_trial_lasts_0_3_s_within_50_and_1200_intervals():
+    """0.3 s at every rung of the ladder, 0.25 ms (1200 intervals) included: a shorter
+    trial would see fewer of the host's stalls at the shortest periods."""
     assert trial_intervals(1e-3) == 300
-    assert trial_intervals(0.5e-3) == 300
+    assert trial_intervals(0.5e-3) == 600
+    assert trial_intervals(0.25e-3) == 1200
+    assert trial_intervals(0.2e-3) == 1200
     assert trial_intervals(2e-3) == 150
     assert trial_intervals(1.6e-3) == 187  # 0.3 / 0.0016 is 187.4999...: rounded down
     assert trial_intervals(10e-3) == 50
@@ -714,3 +718,9 @@ def test_the_summary_says_where_the_descent_went():
         "below 1 ms the first start's trials held 0.8 ms, not 0.64 ms"]
     adm = {"period_s": 1e-3, "asked": "auto", "rungs": rungs[:1]}  # no descent tried
     assert summary._admission_lines({"admission": adm})[0].endswith("(asked: auto)")
+    refused = [*rungs[:3], {"period_s": 0.8e-3, "held": False, "intervals": 300, "start": 1},
+               {"period_s": 1e-3, "held": True, "intervals": 300, "start": 1}]
+    adm = {"period_s": 1e-3, "asked": "auto", "rungs": refused}  # the start again refused
+    assert summary._admission_lines({"admission": adm})[0].endswith(
+        "below 1 ms the first start's trials held 0.8 ms, not 0.64 ms; started again at "
+        "0.8 ms, its trial did not hold")

@@ -99,7 +99,8 @@ def _check(rc: RunConfig, as_json: bool) -> None:
             "settings": user_view(rc.to_dict())}
     period = f"{rc.schedule.period * 1e3:g} ms"
     if rc.schedule.period_auto:  # what will run: the admission chooses only in realtime
-        period = (f"auto (the shortest from {period} up that the admission's trial holds)"
+        period = (f"auto (the shortest that the admission's trials hold, from {period} up, "
+                  "or down where it holds)"
                   if rc.schedule.clock == "realtime" and rc.schedule.admission
                   else f"{period} (auto)")
     intervals = f"{setup.cycles} intervals"

@@ -108,7 +108,7 @@ class ScheduleConfig:
     period_auto: bool = setting(
         False, internal=True, help="`--period auto`: realtime runs at the shortest period of the "
         "admission ladder that holds (runtime/launch/admission.py); `period` is where the "
-        "ladder starts.")
+        "admission starts, to climb or, where it holds, to go down.")
     command_delay: str = setting(
         "full", flag=Flag(), choices=COMMAND_DELAYS,
         help="When the plant applies the command of sample k: full (causal) in the period "

@@ -318,14 +318,18 @@ def _admission_lines(r: dict[str, Any]) -> list[str]:
 
 
 def _descent(rungs: list[dict[str, Any]]) -> str:
-    """``--period auto``'s way down the ladder in its first start, where it went."""
-    held = [f"{x['period_s'] * 1e3:g} ms" for x in rungs if x.get("descent") and x["held"]]
-    not_held = [f"{x['period_s'] * 1e3:g} ms" for x in rungs
-                if x.get("descent") and not x["held"]]
-    if not held and not not_held:
+    """``--period auto``'s way down the ladder in its first start: which shorter periods
+    held, the first that did not, and whether the start again at the shortest held."""
+    down = [x for x in rungs if x.get("descent")]
+    if not down:
         return ""
-    return (f"; below 1 ms the first start's trials held {', '.join(held) or 'none'}"
-            + (f", not {not_held[0]}" if not_held else ""))
+    held = [f"{x['period_s'] * 1e3:g} ms" for x in down if x["held"]]
+    not_held = [f"{x['period_s'] * 1e3:g} ms" for x in down if not x["held"]]
+    again = next((x for x in rungs if x.get("start") == 1), None)
+    return (f"; below {rungs[0]['period_s'] * 1e3:g} ms the first start's trials held "
+            f"{', '.join(held) or 'none'}" + (f", not {not_held[0]}" if not_held else "")
+            + (f"; started again at {again['period_s'] * 1e3:g} ms, its trial did not hold"
+               if again is not None and not again["held"] else ""))
 
 
 def summary(r: dict[str, Any]) -> str:
