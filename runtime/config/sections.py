@@ -103,8 +103,8 @@ class ScheduleConfig:
         1e-3, flag=Flag(kind="period", default="auto", everyday=True), bounds=(20e-6, 1.0),
         allowed="20us to 1s",
         help="Sampling period: 500us, 1ms, or seconds; auto: in realtime the shortest period "
-        "of the admission ladder (0.25 ms to 10 ms) that its trials show this machine holds, "
-        "from 1 ms up, or down where 1 ms holds (1 ms in the other clocks).")
+        "of the admission ladder (0.25 to 10 ms) that its trials hold here (1 ms in the other "
+        "clocks).")
     period_auto: bool = setting(
         False, internal=True, help="`--period auto`: realtime runs at the shortest period of the "
         "admission ladder that holds (runtime/launch/admission.py); `period` is where the "
