@@ -294,10 +294,10 @@ def turn(u: LoopbackUnit) -> None:
     start, send, run the next interval ahead, send; then the peripherals that are not
     muted answer and the central takes their replies."""
     c = u.central
-    c.intervals.start_ready()
-    c.intervals.flush(0)
-    c.intervals.prime()
-    c.intervals.flush(0)
+    c.start_ready()
+    c.send_ready(0)
+    c.prime()
+    c.send_ready(0)
     u.pump()
     while u.node.events.pending():
         c.handle(u.node.events.get_nowait())

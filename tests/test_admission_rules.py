@@ -442,11 +442,26 @@ def test_each_law_is_simulated_as_it_runs():
 class Publisher:
     """Stands for a Zenoh publisher the trial central declares."""
 
-    def __init__(self) -> None:
+    def __init__(self, key: str) -> None:
+        self.key = key
         self.undeclared = 0
 
     def undeclare(self) -> None:
         self.undeclared += 1
+
+
+class TrialNode:
+    """Stands for the run's node, which the trial central shares: what it rejected, and
+    every publisher declared on it."""
+
+    def __init__(self) -> None:
+        self.rejected: Counter[str] = Counter()
+        self.declared: list[Publisher] = []
+
+    def publisher(self, key: str) -> Publisher:
+        pub = Publisher(key)
+        self.declared.append(pub)
+        return pub
 
 
 class Probe:
@@ -456,19 +471,20 @@ class Probe:
     script: ClassVar[dict[str, Any]] = {}
     made: ClassVar[list[Probe]] = []
 
-    def __init__(self, node: Any, rc: Any, engine: Any, ctl: Any, n: int, *,
+    def __init__(self, node: Any, rc: Any, engine: Any, controller: Any, n: int, *,
                  trial: bool, supervision: Any, reply_each: bool, on_cycle: Any = None,
                  on_message: Any = None) -> None:
         assert trial is True
         self.on_cycle, self.on_message = on_cycle, on_message
-        self.node, self.rc, self.engine, self.ctl, self.n = node, rc, engine, ctl, n
+        self.node, self.rc, self.engine, self.controller, self.n = node, rc, engine, \
+            controller, n
         self.supervision, self.reply_each = supervision, reply_each
-        self.outgoing = SimpleNamespace(publishers=[Publisher(), Publisher()])
-        self.orders = SimpleNamespace(pubs=[Publisher(), Publisher()])
+        # declared on the run's node, as the real one's outgoing and orders do
+        self.outgoing = SimpleNamespace(publishers=[node.publisher("request"),
+                                                    node.publisher("command")])
+        self.orders = SimpleNamespace(pubs=[node.publisher("control"),
+                                            node.publisher("plant")])
         Probe.made.append(self)
-
-    def publishers(self) -> list[Publisher]:
-        return [*self.outgoing.publishers, *self.orders.pubs]
 
     def snapshot(self) -> Any:
         s = self.script
@@ -497,7 +513,11 @@ class Outside:
         return SimpleNamespace(rejected=dict(self.node.rejected))
 
 
-def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
+def trial_central(monkeypatch, script: dict[str, Any], *, controller: Any = None,
+                  supervision: Supervision | None = None, **rc: Any) -> Any:
+    """The run's central as the admission sees it (:class:`Outside`), on a
+    :class:`TrialNode`, with the run's ``controller`` and ``supervision`` where given;
+    its trial centrals are :class:`Probe` running ``script``."""
     from ctrlunit.runtime.central import trial
 
     Probe.script, Probe.made = script, []
@@ -509,10 +529,12 @@ def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
     monkeypatch.setattr(admission, "fifo_busy_limit", lambda: None)
     said, drained = [], []
     cfg = RunConfig.of(clock="realtime", pipeline=2, **rc)
-    ctl = SimpleNamespace(first_cycle=0, q_prev=[1, 2, 3], k_prev=0)
+    ctl = SimpleNamespace(first_cycle=0, q_prev=[1, 2, 3], k_prev=0) if controller is None \
+        else controller
     return Outside(
-        rc=cfg, node=SimpleNamespace(rejected=Counter()), engine="engine", ctl=ctl,
-        silence=SimpleNamespace(supervision=Supervision()),
+        rc=cfg, node=TrialNode(), engine="engine", ctl=ctl,
+        silence=SimpleNamespace(supervision=Supervision() if supervision is None
+                                 else supervision),
         outgoing=SimpleNamespace(reply_each=True),
         orders=SimpleNamespace(say=lambda stage, **kw: said.append((stage, kw)),
                                drain=lambda *, seconds: drained.append(seconds)),
@@ -521,14 +543,17 @@ def trial_central(monkeypatch, script: dict[str, Any], **rc: Any) -> Any:
 
 def test_a_trial_runs_its_intervals_on_a_copy_of_the_controller_and_judges_them(monkeypatch):
     t = [0.4 * MS] * 299 + [3 * MS]
-    c = trial_central(monkeypatch, {"traversal_s": t, "skipped": 1, "marks": [(10, 1)]})
+    run_ctl = SimpleNamespace(first_cycle=0, q_prev=[1, 2, 3], k_prev=0)
+    c = trial_central(monkeypatch, {"traversal_s": t, "skipped": 1, "marks": [(10, 1)]},
+                      controller=run_ctl)
     out = admission.trial(c, 1e-3, base=1 << 41, transit_s=0.1 * MS)
     probe = Probe.made[0]
     assert probe.n == 300 and probe.rc.schedule.period == 1e-3
     assert probe.rc.run.t1_cycles == 0 and probe.rc.run.record is None
     assert probe.node is c.node and probe.engine == "engine" and probe.reply_each is True
-    assert probe.ctl is not c.ctl and c.ctl.first_cycle == 0  # a copy, the run's untouched
-    assert (probe.ctl.first_cycle, probe.ctl.q_prev, probe.ctl.k_prev) == (1 << 41, None,
+    trial_ctl = probe.controller
+    assert trial_ctl is not run_ctl and run_ctl.first_cycle == 0  # a copy, the run's untouched
+    assert (trial_ctl.first_cycle, trial_ctl.q_prev, trial_ctl.k_prev) == (1 << 41, None,
                                                                            1 << 41)
     assert c.said == [("probe", {"period": 1e-3, "ticks": 300, "base": 1 << 41})]
     assert out["period_s"] == 1e-3 and out["budget_s"] == 2e-3  # depth 2: two periods
@@ -536,7 +561,7 @@ def test_a_trial_runs_its_intervals_on_a_copy_of_the_controller_and_judges_them(
     assert out["traversal_max_s"] == pytest.approx(3.1 * MS)
     assert "fault" not in out and out["wall_s"] >= 0 and c.drained == [0.0]
     # what the trial central declared on the run's node is undeclared, once
-    assert [p.undeclared for p in probe.publishers()] == [1, 1, 1, 1]
+    assert [p.undeclared for p in c.node.declared] == [1, 1, 1, 1]
 
 
 def test_the_late_replies_of_a_trials_rounds_are_the_trials_not_the_runs(monkeypatch):
@@ -560,7 +585,7 @@ def test_a_trial_that_faults_does_not_hold_and_drains_its_stragglers(monkeypatch
     assert out["fault"] == "peripheral 1 has not answered"
     assert out["intervals"] == 300 and out["late"] == 200  # the 200 that never ran
     assert c.drained == [pytest.approx(0.05)]  # 50 periods, at most 0.2 s
-    assert all(p.undeclared == 1 for p in Probe.made[0].publishers())  # a fault's trial too
+    assert [p.undeclared for p in c.node.declared] == [1, 1, 1, 1]  # a fault's trial too
     c = trial_central(monkeypatch, {"fault": "x"})
     admission.trial(c, 10e-3, base=5, transit_s=0.0)
     assert c.drained == [0.2]
@@ -620,11 +645,14 @@ def test_a_recorders_rehearsal_writes_nowhere_and_ends(tmp_path):
 def test_a_trial_whose_child_died_is_the_runs_fault(monkeypatch):
     from ctrlunit.runtime.central import Fault
 
-    c = trial_central(monkeypatch, {"fault": "peripheral 1 exited"})
-    c.silence.supervision = Supervision(child_check=lambda **_: ("peripheral-1", 1))
+    def child_check(**_: Any) -> tuple[str, int]:
+        return ("peripheral-1", 1)
+
+    c = trial_central(monkeypatch, {"fault": "peripheral 1 exited"},
+                      supervision=Supervision(child_check=child_check))
     with pytest.raises(Fault, match="peripheral 1 exited"):
         admission.trial(c, 1e-3, base=5, transit_s=0.0)
-    assert Probe.made[0].supervision.child_check is c.silence.supervision.child_check
+    assert Probe.made[0].supervision.child_check is child_check
 
 
 def test_a_trial_judges_the_units_own_cpu_time_where_it_is_read(monkeypatch):

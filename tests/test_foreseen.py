@@ -165,7 +165,7 @@ def test_in_freerun_an_interval_starts_before_its_model_round_leaves():
                                      pipeline=2, cycles=40, model_state="foreseen",
                                      central_blocks=sorted(ON_THE_PATH)), on_message=note)
     u.run()
-    assert u.central.done == 40 and u.central.meters.exchanges == 40
+    assert u.central.done == 40 and u.central.snapshot().exchanges == 40
     for k in range(40):
         assert seen.index(("sample", k)) < seen.index(("request", k)), seen[:12]
 
@@ -205,7 +205,7 @@ def test_the_model_round_leaves_before_the_sample_and_the_command_follows_it_alo
         # next interval's round leaves, ahead of its sample
         assert messages(u, mark) == [("command", k), ("request", k + 1)]
         assert c.done == k + 1 and list(c.inflight) == [k + 1]
-    assert len(c.log.traversal_ns) == 3
+    assert len(c.snapshot().times.traversal_ns) == 3
     assert not u.node.rejected
 
 
@@ -241,7 +241,7 @@ def test_a_skipped_sample_drops_the_interval_run_ahead_and_counts_its_late_reply
     sample(u, 1)
     sample(u, 2)  # both before the central looked: 1 is skipped
     turn(u)
-    assert c.meters.skipped == 1 and 1 not in c.inflight
+    assert c.snapshot().skipped == 1 and 1 not in c.inflight
     u.muted = set()
     for k, reply in u.withheld:
         u.bus.put(u.node.keys.reply(k + 1), reply)

@@ -4,12 +4,16 @@ sample-free rounds travel in one exchange (docs/architecture.md, running ahead).
 
 from __future__ import annotations
 
+import hashlib
 import math
+import time
 
 import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
+from ctrlunit.runtime.central.excuse import UNSUPERVISED
+from ctrlunit.runtime.central.silence import SilenceWatch
 from ctrlunit.runtime.compute.blocks import BlockConfig, k_predict, k_predict_span, names_for
 from ctrlunit.runtime.compute.controller import Estimate, simulate
 from ctrlunit.runtime.transport.codec import decode
@@ -163,7 +167,7 @@ def test_two_intervals_model_rounds_leave_in_one_request():
         # after an even interval nothing is sent; after an odd one the next pair leaves
         assert requests(u, mark) == ([] if k % 2 == 0 else [[k + 1, k + 2]])
         assert c.done == k + 1
-    assert c.meters.exchanges == 4 and not u.node.rejected
+    assert c.snapshot().exchanges == 4 and not u.node.rejected
 
 
 def test_a_skipped_sample_drops_its_interval_and_keeps_the_next_of_the_pair():
@@ -175,60 +179,103 @@ def test_a_skipped_sample_drops_its_interval_and_keeps_the_next_of_the_pair():
     sample(u, 0)
     sample(u, 1)  # both before the central looked: 0 is skipped
     turn(u)
-    assert c.meters.skipped == 1 and 0 not in c.inflight
+    snap = c.snapshot()
+    assert snap.skipped == 1 and 0 not in c.inflight
     assert c.done == 1 and requests(u)[0] == [0, 1]
-    assert c.log.digest is not None and not u.node.rejected
+    # interval 1's command went into the digest (not the digest of no command at all)
+    assert snap.digest != hashlib.sha256().hexdigest() and not u.node.rejected
+
+
+def turn_at(u: LoopbackUnit, now: int) -> None:
+    """:func:`loopback.turn`, its requests sent at ``now`` (ns)."""
+    c = u.central
+    c.start_ready()
+    c.send_ready(now)
+    c.prime()
+    c.send_ready(now)
+    u.pump()
+    while u.node.events.pending():
+        c.handle(u.node.events.get_nowait())
 
 
 def test_silence_counts_from_the_first_request_after_the_last_reply():
     """A peripheral asked every second period is not silent while nothing is asked of it:
     its silence runs from its last reply or, once a request went out after that reply,
-    from that request (a later request does not move it)."""
-    import time
-
+    from that request (a later request does not move it). The central's loop shows it by
+    when it will look again (``next_check``): a limit after the first request the silent
+    peripheral did not answer, not after its last reply (a period before, in which nothing
+    was asked of it), nor after the later request."""
     u = foreseen2_unit("f2quiet")
     c = u.central
+    period_ns = int(u.rc.schedule.period * 1e9)
     turn(u)  # the pair's rounds out and back
-    last = list(c.silence.last_reply_ns)
-    assert all(last) and c.silence.silent_since(0) == last[0]
     sample(u, 0)
+    mark = len(u.bus.log)
     turn(u)  # nothing sent: interval 1 ran ahead with 0
-    assert c.silence.silent_since(0) == last[0]
+    assert requests(u, mark) == [] and c.done == 1
     u.muted = {0}
     sample(u, 1)
-    c.intervals.start_ready()
-    assert c.intervals.prime() and [f.cycle for f in c.intervals.outbox] == [2, 3]
+    c.start_ready()
+    assert c.prime()
     asked = time.monotonic_ns()
-    c.intervals.flush(asked)
-    assert c.silence.silent_since(0) == asked
+    c.send_ready(asked)
+    assert requests(u, mark) == [[2, 3]]
     u.pump()
-    while u.node.events.pending():
+    while u.node.events.pending():  # peripherals 2 and 3 answer; 1 does not
         c.handle(u.node.events.get_nowait())
-    # answered: from its reply
-    assert c.silence.silent_since(1) == c.silence.last_reply_ns[1] >= asked
+    later = asked + 2 * period_ns  # the next pair's request, two periods on
     for k in (2, 3):  # the central computes peripheral 1's late rounds (compute)
         sample(u, k)
-        c.intervals.start_ready()
+        c.start_ready()
         f = c.inflight[k]
         c.check_late(f.late_ns)
         assert not f.waiting and f.dropped == {0}
-        turn(u)
+        turn_at(u, later)
     assert c.done == 4 and requests(u)[-1] == [4, 5]  # sent after the first
-    assert c.silence.silent_since(0) == asked  # it still owes the first request
-    assert c.silence.silent_since(1) == c.silence.last_reply_ns[1] > asked
+    assert [f.waiting for f in c.inflight.values()] == [{0}, {0}]  # it owes 4 and 5 too
+    limit = c.limit_ns()
+    # it still owes the first request: its silence ends a limit after that one (the
+    # later request's rounds, and the plant's newest sample, end theirs after it)
+    assert c.next_check(later, limit, 0) == asked + limit
 
 
 def test_the_central_notes_its_own_stalls_for_the_silence_rule():
     """Woken more than a period after it meant to, the central notes the gap; the silence
-    of a peripheral over that gap is judged as if the gap had not been."""
+    of a peripheral over that gap is judged as if the gap had not been (the silence watch
+    of a foreseen2 unit's run, on its own)."""
     ms = 1_000_000
-    c = foreseen2_unit("f2own").central
-    c.silence.woke(10 * ms, 10 * ms + c.settings.period_ns)  # a period late: ordinary
-    assert not c.silence.own_gaps
-    c.silence.woke(10 * ms, 35 * ms)
-    assert list(c.silence.own_gaps) == [(10 * ms, 35 * ms)]
-    limit = 3 * c.settings.period_ns
-    assert c.silence.fault_at(9 * ms, 36 * ms, limit) == 9 * ms + limit + 25 * ms
+    rc = foreseen2_unit("f2own").rc
+    period_ns = int(rc.schedule.period * 1e9)
+    w = SilenceWatch.of(rc, peripherals=3, stride=lambda: 1, supervision=UNSUPERVISED,
+                        hint=str)
+    w.woke(10 * ms, 10 * ms + period_ns)  # a period late: ordinary
+    assert not w.own_gaps
+    w.woke(10 * ms, 35 * ms)
+    assert list(w.own_gaps) == [(10 * ms, 35 * ms)]
+    limit = 3 * period_ns
+    assert w.fault_at(9 * ms, 36 * ms, limit) == 9 * ms + limit + 25 * ms
+
+
+def test_a_peripheral_asked_every_second_period_is_silent_from_the_first_request_it_owes():
+    """The silence watch on its own, told what a foreseen2 central tells it: a request
+    every second period (the pair's rounds), the replies in between."""
+    ms = 1_000_000
+    w = SilenceWatch.of(foreseen2_unit("f2watch").rc, peripherals=3, stride=lambda: 1,
+                        supervision=UNSUPERVISED, hint=str)
+    w.asked(1 * ms)  # the pair's rounds out
+    for k in range(3):
+        w.heard_reply(k, 2 * ms)  # and back
+    assert w.silent_since(0) == w.last_reply_ns[0] == 2 * ms
+    w.heard_sample(2 * ms + ms // 2)  # interval 0's; interval 1 ran ahead with it
+    assert w.silent_since(0) == 2 * ms  # nothing asked: nothing moves
+    w.asked(3 * ms)  # the next pair's rounds; peripheral 1 will not answer
+    assert w.silent_since(0) == 3 * ms
+    w.heard_reply(1, 4 * ms)
+    w.heard_reply(2, 4 * ms)
+    assert w.silent_since(1) == w.last_reply_ns[1] == 4 * ms  # answered: from its reply
+    w.asked(5 * ms)  # the pair after: the late rounds computed meanwhile asked nothing
+    assert w.silent_since(0) == 3 * ms  # it still owes the first request
+    assert w.silent_since(1) == 5 * ms  # asked anew after its reply
 
 
 # -- the star over Zenoh -------------------------------------------------------------------

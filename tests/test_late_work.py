@@ -3,8 +3,7 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
+import msgpack
 import pytest
 from ctrlunit.runtime.config import RunConfig
 from ctrlunit.runtime.observe.report import STRETCH_SAME, STRETCH_SLOWER, late_work_figures
@@ -49,22 +48,28 @@ def test_the_central_records_each_intervals_work_and_the_late_ones() -> None:
     u = LoopbackUnit(RunConfig.of(unit=unit_id("latework"), clock="realtime", peripherals=3,
                                   pipeline=1))
     c = u.central
-    assert c.settings.deadline_ns == c.settings.period_ns  # depth 1
+    figures = c.snapshot().late
+    assert figures.deadline_ns == int(u.rc.schedule.period * 1e9)  # depth 1
     assert u.server is not None
-    for k, deadline in ((0, 10**15), (1, 1)):  # on time, then late whatever the machine
-        c.intervals.settings = replace(c.intervals.settings, deadline_ns=deadline)
+    # on time, then late whatever the machine: the plant's samples stamped a second ahead
+    # of the central's clock, then a second behind it (the deadline: a period)
+    for k, skew in ((0, 10**9), (1, -(10**9))):
         u.server.sample_no = k
         u.server.publish_sample((0, 0))
-        c.handle(u.node.events.get_nowait())
+        ev = u.node.events.get_nowait()
+        msg = msgpack.unpackb(ev.data)
+        msg["t_ns"] += skew
+        c.handle(ev._replace(data=msgpack.packb(msg, use_single_float=False)))
         for _ in range(50):
-            c.intervals.start_ready()
-            c.intervals.flush(0)
+            c.start_ready()
+            c.send_ready(0)
             u.pump()
             if not u.node.events.pending():
                 break
             while u.node.events.pending():
                 c.handle(u.node.events.get_nowait())
-    assert c.done == 2 and len(c.log.work_ns) == 2
-    work = list(c.log.work_ns.recent)
+    late = c.snapshot().late
+    assert c.done == 2 and len(late.work_ns) == 2
+    work = list(late.work_ns)
     assert all(w > 0 for w in work)
-    assert c.log.late == 1 and c.log.late_work_ns == work[1:]
+    assert late.late == 1 and list(late.late_work_ns) == work[1:]

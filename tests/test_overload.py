@@ -25,6 +25,7 @@ import pytest
 from ctrlunit.kernels.laws import Gains
 from ctrlunit.kernels.params import DELTA_IA as P
 from ctrlunit.kernels.trajectory import pick_place_task
+from ctrlunit.runtime.central.overload import Overload
 from ctrlunit.runtime.compute import controller as ctl_mod
 from ctrlunit.runtime.config import ConfigError, RunConfig
 from runner import kill_unit, pids_of, slow_task, unit_id, wait_status
@@ -203,16 +204,14 @@ def test_a_run_whose_commands_keep_coming_late_halves_its_rate_then_goes_back(tm
     assert again["overload"] == o and again["periods"] == r["periods"]
 
 
-class OverloadRule:
-    """The central's overload rule (runtime/central/overload.py) alone, after ``done``
-    intervals at divisor ``stride``: a change of rate takes effect at once."""
+class OverloadRule(Overload):
+    """The central's overload rule (runtime/central/overload.py) alone, with what drives
+    it: after ``done`` intervals at divisor ``stride``; a change of rate takes effect at
+    once."""
 
     def __init__(self, period: float) -> None:
-        from ctrlunit.runtime.central.overload import Overload
-
         self.done, self.stride = 0, 1
-        self.overload = Overload(enabled=True, period_s=period, change_rate=self.change)
-        self.rate_changes = self.overload.rate_changes
+        super().__init__(enabled=True, period_s=period, change_rate=self.change)
 
     def change(self, stride: int, why: dict) -> dict:
         self.stride = stride
@@ -222,8 +221,8 @@ class OverloadRule:
         for _ in range(n):
             self.done += 1
             if late:
-                self.overload.mark_late(self.done, self.stride)
-            self.overload.after_interval(self.done, self.stride)
+                self.mark_late(self.done, self.stride)
+            self.after_interval(self.done, self.stride)
 
 
 def test_a_return_on_trial_halves_again_after_three_late_intervals_not_ten():
@@ -392,7 +391,7 @@ def test_the_window_and_the_settling_intervals_at_their_edges():
         c.intervals(last - 1 - c.done, late=False)
         c.intervals(1, late=True)  # the tenth, at `last`: is 101 still in the window?
         assert (c.stride == 2) is halves, last
-    assert c.rate_changes == [] and list(c.overload.late_marks) == [*range(102, 110), 201]
+    assert c.rate_changes == [] and list(c.late_marks) == [*range(102, 110), 201]
     c = OverloadRule(1e-3)
     c.intervals(18, late=False)
     c.intervals(10, late=True)  # 19..28: the one at 19 does not count
@@ -411,7 +410,7 @@ def test_a_return_is_on_trial_to_the_interval_its_lead_and_half_a_second_end():
         c.intervals(10, late=True)
         c.intervals(1000, late=False)
         back = c.done
-        assert c.stride == 1 and c.overload.trial_until == back + 3 + 500
+        assert c.stride == 1 and c.trial_until == back + 3 + 500
         c.intervals(back + end - 3 - c.done, late=False)
         c.intervals(3, late=True)
         assert (c.stride == 2) is halves, end
@@ -424,8 +423,6 @@ def test_a_return_is_on_trial_to_the_interval_its_lead_and_half_a_second_end():
 
 
 def test_a_disabled_rule_marks_nothing_and_a_halved_start_stays_until_a_halving():
-    from ctrlunit.runtime.central.overload import Overload
-
     changes: list = []
     off = Overload(enabled=False, period_s=1e-3, change_rate=lambda s, w: changes.append(s))
     for done in range(1, 300):

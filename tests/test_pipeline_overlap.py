@@ -25,11 +25,11 @@ class TickClock:
 
     def __init__(self, log: list[tuple[str, int]]) -> None:
         self.now = 0
-        self.log = log
+        self.reads = log
 
     def __call__(self) -> int:
         self.now += 1
-        self.log.append(("clock", self.now))
+        self.reads.append(("clock", self.now))
         return self.now
 
 

@@ -300,7 +300,7 @@ def test_the_recorded_inputs_are_those_the_central_measured(rec, made):
     central = made[1].central
     got = replay.recorded_inputs(rec, replay._setup(rec))
     assert len(got) == CYCLES
-    want = central.meters.t1_inputs
+    want = central.snapshot().t1_inputs
     assert len(want) > 10
     for g, w in zip(got, want, strict=False):
         assert g[0] == w[0] and list(g[2]) == list(w[2]) and list(g[3]) == list(w[3])

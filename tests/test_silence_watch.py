@@ -76,12 +76,12 @@ def _interval(cycle: int, waiting: set[int], deadline_ns: int):
                     deadline_ns=deadline_ns)
 
 
-def _fault(w: SilenceWatch, now: int, intervals, **kw):
+def _fault(w: SilenceWatch, now: int, intervals, *, limit: int = 3 * MS, **kw):
     from ctrlunit.runtime.central.fault import Fault
 
     args = dict(done=100, plant_awaited=None, newest_sample=0, started_ns=0) | kw
     try:
-        w.check(now, 3 * MS, intervals, **args)
+        w.check(now, limit, intervals, **args)
     except Fault as exc:
         return str(exc)
     return None
@@ -218,4 +218,85 @@ def test_the_same_stall_is_never_counted_twice():
     w.woke(10 * MS, 14 * MS)  # the same moment meant: 1 ms past the last, not a stall
     w.woke(10 * MS, 16 * MS + 1)  # counted from where the last one ended
     assert list(w.own_gaps) == [(10 * MS, 13 * MS), (13 * MS, 16 * MS + 1)]
-    assert w._own_stall(0, 20 * MS) == 6 * MS + 1  # from 10 ms to 16 ms, not 3 + 6 ms
+    # the plant's silence since 0 ends later by them: from 10 ms to 16 ms, not 3 + 6 ms
+    assert w.silence_ends("plant", 0, 20 * MS, 3 * MS) == 3 * MS + 6 * MS + 1
+
+
+def plant_samples_on(w: SilenceWatch, until: int) -> None:
+    """The plant samples every period after its last sample, the newest at ``until``."""
+    t = w.last_sample_ns + MS
+    while t < until:
+        w.heard_sample(t)
+        t += MS
+    w.heard_sample(until)
+
+
+def test_an_answer_ends_the_excuse_and_the_next_silence_starts_afresh():
+    """The peripheral answers during its extension: its excuse is gone (and dropped, so
+    that the loop's next looks do not weigh it), and a later silence is judged from its
+    own limit, with a first extension of its own."""
+    w = watch()
+    w.supervise(_Roles({"peripheral-2": "runnable"}).supervision())  # no renewal's evidence
+    w.heard_sample(9 * MS)
+    w.heard_reply(1, 10 * MS)  # peripheral 2, waited for since
+    waiting = [_interval(1, {1}, deadline_ns=10**18)]
+    now = 10 * MS + 3 * MS + 1
+    plant_samples_on(w, now)
+    assert _fault(w, now, waiting) is None  # past its limit, runnable: excused
+    assert w.excuses == 1 and "peripheral-2" in w.excuse.granted
+    w.heard_reply(1, now + 1)  # it answers
+    assert w.excuse_of("peripheral-2") is None
+    assert "peripheral-2" not in w.excuse.granted
+    now += 1 + 3 * MS + 1
+    plant_samples_on(w, now)
+    assert _fault(w, now, waiting) is None  # silent again past its limit: excused anew
+    assert w.excuses == 2
+
+
+def test_the_messages_keep_their_units_at_large_values():
+    """A period of a second, 1000 of them the limit: the figures stay in milliseconds,
+    to a tenth (the limits themselves: tests/test_guard.py)."""
+    limit = 123_456_789_000  # 123456.789 ms
+
+    def long_watch() -> SilenceWatch:
+        return SilenceWatch(peripherals=3, realtime=True, period_s=1.0, fault_periods=1000,
+                            timeout_s=600.0, stride=lambda: 1)
+
+    w = long_watch()
+    w.heard_reply(1, 5 * 10**9)
+    now = 5 * 10**9 + limit + 1
+    w.heard_sample(now)  # the plant goes on sampling: the peripheral alone is silent
+    f = _interval(1, {1}, deadline_ns=now + 1)
+    assert "for 123456.8 ms (limit 123456.8 ms)" in _fault(w, now, [f], limit=limit)
+    never = long_watch()  # peripheral 2 never answered: judged by its round alone
+    now = f.deadline_ns + 1
+    never.heard_sample(now)
+    assert "silent for 123456.8 ms (limit 123456.8 ms)" in _fault(never, now, [f], limit=limit)
+    plant = long_watch()
+    plant.heard_sample(1)
+    assert "no sample from the plant for 123456.8 ms" in _fault(
+        plant, 1 + limit + 1, [], limit=limit, plant_awaited=1)
+
+
+def test_the_wake_up_is_the_end_of_a_silence_waited_for_the_plant_s_or_the_rounds():
+    """Of the peripherals, those waited for count (not the others, whose silences end
+    sooner), and among them only those that have spoken; then the plant's silence, the
+    round's deadline, or a limit from now (the central's other reasons to wake:
+    tests/test_guard.py)."""
+    w = watch()
+    now = 10**12
+    for k, at in enumerate((now - 500, now - 300, now - 400)):
+        w.heard_reply(k, at)
+    w.heard_sample(now - 100)
+    f = _interval(1, {1}, deadline_ns=now + 990)  # peripheral 2 is the one waited for
+    timeout = 1000
+    assert w.wake_at(now, timeout, [f]) == now - 300 + timeout
+    w.heard_reply(1, now)
+    assert w.wake_at(now, timeout, [f]) == now - 100 + timeout  # the plant
+    w.heard_sample(now)
+    assert w.wake_at(now, timeout, [f]) == now + 990  # the round's deadline
+    f.waiting.clear()
+    assert w.wake_at(now, timeout, [f]) == now + timeout
+    quiet = watch()  # no process has spoken: none watched between its rounds
+    f = _interval(1, {1}, deadline_ns=now + 5000)
+    assert quiet.wake_at(now, timeout, [f]) == now + timeout

@@ -130,9 +130,74 @@ def private_method_calls() -> list[str]:
     return found
 
 
-def test_tests_seldom_call_private_methods():
-    calls = private_method_calls()
-    assert len(calls) <= PRIVATE_CALLS, "\n".join(calls)
+def central_parts(root: Path = ROOT) -> set[str]:
+    """The names by which the central holds its parts: each ``self.<name> = Part(...)`` (or
+    ``Part.of(...)``) in ``Central.__init__``, and each property of ``Central`` that hands
+    out a part's collaborator (``return self.<part>.<attr>``, annotated with a class:
+    ``engine``, ``ctl``); not the values it hands out (``done``, ``inflight``)."""
+    tree = ast.parse((root / "runtime" / "central" / "scheduler.py").read_text())
+    central = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Central")
+    names = set()
+    for fn in central.body:
+        if not isinstance(fn, ast.FunctionDef):
+            continue
+        for n in ast.walk(fn):
+            if fn.name == "__init__" and isinstance(n, ast.Assign) \
+                    and isinstance(n.value, ast.Call):
+                f = n.value.func
+                cls = f.value if isinstance(f, ast.Attribute) else f
+                if isinstance(cls, ast.Name) and cls.id[:1].isupper():
+                    names |= {t.attr for t in n.targets if isinstance(t, ast.Attribute)}
+            if isinstance(n, ast.Return) and isinstance(n.value, ast.Attribute) \
+                    and isinstance(n.value.value, ast.Attribute) and fn.decorator_list \
+                    and isinstance(fn.returns, ast.Name) and fn.returns.id[:1].isupper() \
+                    and fn.returns.id != "Any":
+                names.add(fn.name)
+    return names
+
+
+def part_pokes(root: Path = ROOT) -> list[str]:
+    """Where tests reach into one of the central's parts: every ``<obj>.<part>.<attr>``,
+    read or written, ``<part>`` a name of :func:`central_parts` (``self.log.append`` in a
+    test's own class is that class's; ``c.snapshot().late.computed`` is the snapshot's)."""
+    parts, found = central_parts(root), []
+    for path in sorted((root / "tests").glob("*.py")):
+        for n in ast.walk(ast.parse(path.read_text())):
+            if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Attribute) \
+                    and n.value.attr in parts and not isinstance(n.value.value, ast.Call) \
+                    and not (isinstance(n.value.value, ast.Name) and n.value.value.id == "self"):
+                found.append(f"{path.name}:{n.lineno} .{n.value.attr}.{n.attr}")
+    return found
+
+
+def test_tests_seldom_call_private_methods_or_reach_into_the_centrals_parts():
+    """Issue 58: tests drive the central through what it exposes (its snapshot, its events)
+    and its parts on their own; at most :data:`PRIVATE_CALLS` places in all do otherwise."""
+    found = private_method_calls() + part_pokes()
+    assert len(found) <= PRIVATE_CALLS, "\n".join(found)
+
+
+def test_the_central_s_parts_are_named_as_the_central_names_them():
+    parts = central_parts()
+    assert {"silence", "late", "intervals", "meters", "takeover", "ctl", "engine"} <= parts
+    assert not parts & {"node", "rc", "on_cycle", "on_message",  # given, not its parts
+                        "done", "inflight", "params"}  # values it hands out
+
+
+@pytest.mark.parametrize("text, pokes", [
+    ("c.silence.last_sample_ns = 3\n", 1),
+    ("assert u.central.late.held == {1}\n", 1),
+    ("x = c.ctl.stride + c.intervals.done\n", 2),
+    ("c.silence\nw.last_sample_ns\nc.check_silence(3)\nrc.schedule.late\n", 0),
+    ("self.log.append(1)\nc.inflight.get(1)\nsetup.params.m\nc.snapshot().late.late\n", 0),
+])
+def test_the_part_counter_counts_what_it_should(tmp_path, text, pokes):
+    for d in ("tests", "runtime/central"):
+        (tmp_path / d).mkdir(parents=True)
+    (tmp_path / "runtime" / "central" / "scheduler.py").write_text(
+        (ROOT / "runtime" / "central" / "scheduler.py").read_text())
+    (tmp_path / "tests" / "test_x.py").write_text(text)
+    assert len(part_pokes(tmp_path)) == pokes
 
 
 @pytest.mark.parametrize("text, calls", [

@@ -16,9 +16,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import msgpack
 import pytest
 from ctrlunit.runtime.central import Fault
-from ctrlunit.runtime.central.takeover import REJOIN_PARTS, RESUMES
+from ctrlunit.runtime.central.snapshot import Progress
+from ctrlunit.runtime.central.takeover import REJOIN_PARTS
 from ctrlunit.runtime.observe.summary import _degraded_lines
 from ctrlunit.runtime.recording.reader import read
 from ctrlunit.runtime.recording.recorder import Recorder
@@ -57,6 +59,45 @@ def silenced(tag: str, mutes: dict[int, int], *, on_cycle: Any = None,
     return u
 
 
+class Seen:
+    """A run seen from outside: the peripherals taken over after its latest interval (its
+    :class:`Progress`), and the take-over's records and the rounds the central computed
+    for a lost peripheral as the recording's hook gets them (``/faults/degraded``,
+    ``/faults/computed``), each record with how many messages the bus had carried then.
+    Pass its ``on_cycle`` and ``on_message`` to the unit, then :meth:`watch` it."""
+
+    def __init__(self) -> None:
+        self.unit: LoopbackUnit | None = None
+        self.lost: tuple[int, ...] = ()
+        self.degraded: list[tuple[int, dict[str, Any]]] = []
+        self.computed: list[dict[str, Any]] = []
+
+    def watch(self, u: LoopbackUnit) -> LoopbackUnit:
+        self.unit = u
+        return u
+
+    def on_cycle(self, progress: Progress, ctx: dict) -> None:
+        self.lost = progress.lost
+
+    def on_message(self, direction: str, key: str, cycle: int, stage: Any, payload: bytes,
+                   t_ns: int) -> None:
+        assert self.unit is not None
+        if direction == "degraded":
+            self.degraded.append((len(self.unit.bus.log), msgpack.unpackb(payload)))
+        elif direction == "computed":
+            self.computed.append(msgpack.unpackb(payload))
+
+    def requests_after(self, mark: int) -> int:
+        """Requests put on the bus after its first ``mark`` messages."""
+        assert self.unit is not None
+        key = self.unit.node.keys.request
+        return sum(1 for k, _ in self.unit.bus.log[mark:] if k == key)
+
+    def first_with(self, field: str) -> int:
+        """Where the bus stood at the first record with ``field``."""
+        return next(mark for mark, record in self.degraded if field in record)
+
+
 @pytest.fixture(scope="module")
 def undisturbed() -> list[list[float]]:
     u = silenced("toref", {})
@@ -72,28 +113,29 @@ def test_a_silenced_peripheral_is_taken_over_with_the_same_commands(undisturbed,
     peripheral may have stopped reading the request key all peripherals share, so the
     others stand by: no request is sent any more, and the central computes every round."""
     u = silenced("to", {k: at})
-    c = u.run()
-    lost = c.takeover.report()
+    run = u.run().snapshot()
+    lost, late = run.degraded, run.late  # the report's take-over and late figures
     print(f"peripheral {k + 1} silent from interval {at}: {lost[0]}, "
-          f"{c.late.taken_over} rounds taken over")
+          f"{late.taken_over} rounds taken over")
     assert u.commands() == undisturbed
     assert lost[0]["peripheral"] == k + 1 and lost[0]["from_cycle"] >= max(at, 0)
     assert "has not answered" in lost[0]["why"] or "did not answer" in lost[0]["why"]
     assert sorted(d["peripheral"] for d in lost[1:]) == [j + 1 for j in range(3) if j != k]
     assert all(d["why"].startswith("stands by") for d in lost[1:])
-    assert c.late.taken_over > 0 and c.late.computed == 0
-    assert not c.silence.excuses  # lockstep: nothing excused, the loss is the decision
+    assert late.taken_over > 0 and late.computed == 0
+    assert not run.silences_excused  # lockstep: nothing excused, the loss is the decision
 
 
 def test_after_a_silent_loss_no_request_is_sent():
     """From the loss on the request key carries nothing (a peripheral that stopped reading
     would fill its socket until the central's put waited for it); the intervals before
     it sent theirs."""
-    u = silenced("tooff", {1: 40})
+    seen = Seen()
+    u = seen.watch(silenced("tooff", {1: 40}, on_message=seen.on_message))
     c = u.run()
     requests = [k for k, _ in u.bus.log if k == u.node.keys.request]
-    assert not c.outgoing.requests_on
-    first_lost = c.takeover.report()[0]["from_cycle"]
+    assert seen.requests_after(seen.degraded[0][0]) == 0  # none from the loss on
+    first_lost = c.snapshot().degraded[0]["from_cycle"]
     assert 40 <= first_lost < c.done
     # depth 2: at most two requests (fused rounds) an interval up to the loss, none after
     assert 40 <= len(requests) <= 2 * (first_lost + 2), (len(requests), first_lost)
@@ -138,16 +180,21 @@ def test_a_peripheral_lost_to_silence_that_answers_after_all_brings_the_requests
     so it is alive and reading. The requests go out again, and every peripheral taken
     over (the slow one and the two that stood by) serves its rounds again after
     :data:`REJOIN_PARTS` current replies, the commands those of the undisturbed run."""
-    u = slow_then_back("toslow", 1, at=40)
-    c = u.run()
-    taken = c.takeover.report()
-    print(taken, c.takeover.resumes, c.late.taken_over)
+    seen = Seen()
+    u = seen.watch(slow_then_back("toslow", 1, at=40, on_cycle=seen.on_cycle,
+                                  on_message=seen.on_message))
+    run = u.run().snapshot()
+    taken, late = run.degraded, run.late
+    print(taken, late.taken_over)
     assert u.commands() == undisturbed
-    assert c.takeover.resumes >= 1 and c.outgoing.requests_on
+    # the requests went out again, and still go out after the last change of the take-over
     assert taken[0]["peripheral"] == 2 and "requests_again_at_interval" in taken[0]
+    assert seen.requests_after(seen.degraded[-1][0]) > 0
     assert {d["peripheral"] for d in taken} == {1, 2, 3}
     assert all(d["back_from_cycle"] > d["from_cycle"] for d in taken)
-    assert not c.takeover.lost and not c.takeover.on_probation
+    # none taken over at the end, and the probation ended without stopping the requests
+    # (its bookkeeping: tests/test_takeover_part.py)
+    assert seen.lost == () and not any("requests_stopped_again" in d for d in taken)
     assert all(periph.served > 0 for _, periph in u.peripherals)
     lines = "\n".join(_degraded_lines({"degraded": taken}))
     assert "peripheral 2 answered after all: requests out again at interval" in lines
@@ -159,18 +206,21 @@ def test_requests_that_went_out_again_stop_for_good_when_one_stays_silent(undist
     reading them: they stop again for the rest of the run, those back since stand by
     again, and the central computes every round; the commands are those of the
     undisturbed run."""
-    def mute_third(u: LoopbackUnit, central: Any) -> None:
-        if central.takeover.resumes:
-            u.muted.add(2)
+    seen = Seen()
 
-    u = slow_then_back("toslow2", 1, at=40, then=mute_third, timeout=SILENCE_S)
-    c = u.run()
-    taken = c.takeover.report()
-    print(taken, c.takeover.resumes)
+    def mute_third(u: LoopbackUnit, central: Any) -> None:
+        if any("requests_again_at_interval" in record for _, record in seen.degraded):
+            u.muted.add(2)  # once the requests went out again
+
+    u = seen.watch(slow_then_back("toslow2", 1, at=40, then=mute_third, timeout=SILENCE_S,
+                                  on_cycle=seen.on_cycle, on_message=seen.on_message))
+    taken = u.run().snapshot().degraded
+    print(taken)
     assert u.commands() == undisturbed
-    assert not c.outgoing.requests_on and c.takeover.resumes == RESUMES  # none after it
+    # stopped for good: no request from then on (none went out again after it)
+    assert seen.requests_after(seen.first_with("requests_stopped_again")) == 0
     assert any("requests_stopped_again" in d for d in taken)
-    assert set(c.takeover.lost) == {0, 1, 2}
+    assert seen.lost == (0, 1, 2)
     lines = "\n".join(_degraded_lines({"degraded": taken}))
     assert "peripheral 3: requests stopped for good (no answer for" in lines
 
@@ -181,14 +231,21 @@ def test_the_fault_policy_stops_the_run_naming_the_peripheral():
     with pytest.raises(Fault) as info:
         u.run()
     assert info.value.process == "peripheral-2" and info.value.lost
-    assert not u.central.takeover.lost
+    assert not u.central.snapshot().degraded  # nothing taken over
 
 
-def recorded(path: Path, make: Any) -> tuple[Any, Any]:
+def recorded(path: Path, make: Any, seen: Seen | None = None) -> tuple[Any, Any]:
     """Run the unit ``make(**recording options)`` builds with the recorder of ``ctrlunit
-    start --record`` writing ``path``; returns its central and the recording read back."""
+    start --record`` writing ``path`` (and ``seen`` watching it, where given); returns its
+    central and the recording read back."""
     hooks: list[Recorder] = []
-    u = make(record=str(path), trace=True, on_cycle=lambda *a: hooks[0].on_cycle(*a),
+
+    def on_cycle(progress: Progress, ctx: dict) -> None:
+        hooks[0].on_cycle(progress, ctx)
+        if seen is not None:
+            seen.on_cycle(progress, ctx)
+
+    u = make(record=str(path), trace=True, on_cycle=on_cycle,
              on_message=lambda *a: hooks[0].on_message(*a))
     recorder = Recorder(str(path), u.setup)
     hooks.append(recorder)
@@ -210,7 +267,8 @@ def test_a_recorded_take_over_replays_bit_for_bit(tmp_path):
     computed = [m for _, m in rec.decoded("/faults/computed")]
     assert [d["peripheral"] for d in degraded] == [3, 1, 2]  # the others stand by
     assert computed and {m["peripheral"] for m in computed} == {0, 1, 2}
-    assert len(computed) == c.late.taken_over
+    late = c.snapshot().late  # the report's late figures
+    assert len(computed) == late.taken_over
     n, div = verify(rec)
     assert div is None, div
     assert n == c.done
@@ -228,17 +286,21 @@ def test_a_peripheral_whose_process_exited_is_not_on_probation(undisturbed):
             state["dead"] = True
             u.muted.add(2)
 
-    u = slow_then_back("toslowexit", 1, at=80, then=exit_third)
+    seen = Seen()
+    u = seen.watch(slow_then_back("toslowexit", 1, at=80, then=exit_third,
+                                  on_cycle=seen.on_cycle, on_message=seen.on_message))
     supervise(u.central, child_check=lambda skip=(): (
         ("peripheral-3", -9) if state["dead"] and "peripheral-3" not in skip else None),
         role_state=lambda role: "exited" if state["dead"] and role == "peripheral-3"
         else "running")
-    c = u.run()
-    taken = c.takeover.report()
-    print(taken, c.takeover.resumes)
+    taken = u.run().snapshot().degraded
+    print(taken)
     assert u.commands() == undisturbed
-    assert c.takeover.resumes >= 1 and c.outgoing.requests_on
-    assert set(c.takeover.lost) == {2} and "exited" in c.takeover.lost[2]["why"]
+    # the requests went out again, and still go out after the last change of the take-over
+    assert any("requests_again_at_interval" in d for d in taken)
+    assert seen.requests_after(seen.degraded[-1][0]) > 0
+    now = {d["peripheral"]: d for d in taken}  # each one's latest record
+    assert seen.lost == (2,) and "exited" in now[3]["why"]
     assert not any("requests_stopped_again" in d for d in taken)
     assert {d["peripheral"] for d in taken if "back_from_cycle" in d} == {1, 2}
 
@@ -246,10 +308,11 @@ def test_a_peripheral_whose_process_exited_is_not_on_probation(undisturbed):
 def test_requests_going_out_again_replay_bit_for_bit(tmp_path):
     """A silence that was slowness, recorded: the loss, the rounds the central computed,
     then every peripheral's replies again; ``replay --verify`` finds every command."""
+    seen = Seen()
     c, rec = recorded(tmp_path / "slow.mcap",
-                      lambda **kw: slow_then_back("toslowrec", 0, at=30, **kw))
+                      lambda **kw: slow_then_back("toslowrec", 0, at=30, **kw), seen)
     degraded = [m for _, m in rec.decoded("/faults/degraded")]
-    assert c.takeover.resumes >= 1 and not c.takeover.lost
+    assert any("requests_again_at_interval" in d for d in degraded) and seen.lost == ()
     assert sorted(d["peripheral"] for d in degraded if "back_from_cycle" in d) == [1, 2, 3]
     n, div = verify(rec)
     assert div is None, div
@@ -293,19 +356,23 @@ def test_a_peripheral_started_again_serves_its_rounds_again(undisturbed, k, dies
     its rounds again from the next interval to begin: every command that of the
     undisturbed run, its replies taken again, the rounds the central computed for it
     only those of the intervals begun before it came back."""
-    u = restarted("torejoin", k, dies=dies, back=back)
+    seen = Seen()
+    u = seen.watch(restarted("torejoin", k, dies=dies, back=back, on_cycle=seen.on_cycle,
+                             on_message=seen.on_message))
     c = u.run()
-    taken = c.takeover.report()
-    print(taken, c.late.taken_over, c.takeover.dropped_replies)
+    run = c.snapshot()
+    taken, late = run.degraded, run.late
+    print(taken, late.taken_over)
     (d,) = taken  # one take-over (CI's suite once saw two: the print says which)
     assert u.commands() == undisturbed
     assert d["peripheral"] == k + 1 and "exited" in d["why"]
     assert dies <= d["from_cycle"] < d["back_from_cycle"] < c.done
     assert back < d["back_from_cycle"]
-    assert not c.takeover.lost and not c.takeover.covering
-    assert c.takeover.dropped_replies >= REJOIN_PARTS
-    rounds = len(c.engine.plan.rounds)
-    assert c.late.taken_over <= rounds * (d["back_from_cycle"] - d["from_cycle"])
+    # none taken over at the end, and no round computed here from its return on
+    assert seen.lost == () and all(m["cycle"] < d["back_from_cycle"] for m in seen.computed)
+    assert d["replies_while_lost"] >= REJOIN_PARTS  # dropped, not counted against it
+    rounds = len(u.setup.plan.rounds)  # the plan the central runs
+    assert late.taken_over <= rounds * (d["back_from_cycle"] - d["from_cycle"])
     assert u.peripherals[k][1].served > 0 and not sum(c.node.rejected.values())
 
 
@@ -319,9 +386,11 @@ def test_a_peripheral_lost_during_the_warm_up_is_taken_over_and_comes_back(undis
     u.plant_muted = True  # the plant's samples begin with the run
     u.central.warm_up()
     u.plant_muted = False
-    assert set(u.central.takeover.lost) == {1}
+    # peripheral 2 taken over, not back
+    assert [(d["peripheral"], "back_from_cycle" in d)
+            for d in u.central.snapshot().degraded] == [(2, False)]
     c = u.run()
-    (d,) = c.takeover.report()
+    (d,) = c.snapshot().degraded
     assert u.commands() == undisturbed
     assert d["from_cycle"] == 0 and 40 < d["back_from_cycle"] < c.done
 
@@ -333,7 +402,8 @@ def test_a_recorded_return_replays_bit_for_bit(tmp_path):
     c, rec = recorded(tmp_path / "rejoin.mcap",
                       lambda **kw: restarted("torejrec", 1, dies=40, back=90, **kw))
     degraded = [m for _, m in rec.decoded("/faults/degraded")]
-    assert [d.get("back_from_cycle") for d in degraded] == [None, c.takeover.back[1]]
+    now = {d["peripheral"]: d for d in c.snapshot().degraded}  # each one's latest record
+    assert [d.get("back_from_cycle") for d in degraded] == [None, now[2]["back_from_cycle"]]
     n, div = verify(rec)
     assert div is None, div
     assert n == c.done

@@ -189,8 +189,14 @@ def test_a_place_order_switches_the_plan_before_the_run_and_nothing_else_does():
     assert placed.plan.round_trips == setup.plan.round_trips - 1
     assert placed.rc.schedule.central_blocks == moved
     parts = first_interval(placed.engine(), placed.task)
-    per = Peripheral(setup.engine(), 1, UNIT,
-                     place=lambda blocks: setup.with_central_blocks(blocks).engine())
+    engine = setup.engine()
+    built: list[Engine] = []  # the engines of the placements it was ordered to take
+
+    def place(blocks: Any) -> Engine:
+        built.append(setup.with_central_blocks(blocks).engine())
+        return built[-1]
+
+    per = Peripheral(engine, 1, UNIT, place=place)
     for order, started, reason in (({"central_blocks": ["nope"]}, False, "bad_value"),
                                    ({"central_blocks": "ik_obs0"}, False, "bad_value"),
                                    ({}, False, "bad_value"),
@@ -198,10 +204,10 @@ def test_a_place_order_switches_the_plan_before_the_run_and_nothing_else_does():
         before = sum(per.rejected.values())
         assert per.on_place(order, "peripheral-2", started=started) is None
         assert per.rejected[reason] >= 1 and sum(per.rejected.values()) == before + 1
-        assert per.engine.plan.round_trips == setup.plan.round_trips
+        assert per.engine is engine  # its plan as it was
     ack = decode(per.on_place({"central_blocks": moved}, "peripheral-2", started=False), UNIT)
     assert (ack["stage"], ack["role"], ack["central_blocks"]) == ("placed", "peripheral-2", moved)
-    assert per.engine.plan.round_trips == placed.plan.round_trips
+    assert per.engine is built[-1] and built[-1].plan.round_trips == placed.plan.round_trips
     fresh = Peripheral(placed.engine(), 1, UNIT)
     assert answers_of_a_good_interval(per, parts) == answers_of_a_good_interval(fresh, parts)
     assert Peripheral(setup.engine(), 1, UNIT).on_place(

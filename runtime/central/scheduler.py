@@ -252,12 +252,12 @@ class Central:
         iv = self.intervals
         while iv.done < end and not (iv.next_cycle >= end and not iv.inflight):
             limit_ns = self.limit_ns()
-            iv.start_ready()
+            self.start_ready()
             now = time.monotonic_ns()
-            hold_until = iv.flush(now)
+            hold_until = self.send_ready(now)
             if self.takeover.covering and self.takeover.cover(self.inflight.values()):
                 continue  # an interval went on: send what it made ready
-            if iv.prime():
+            if self.prime():
                 continue  # the primed interval may have its slot and sample already
             wait_until = self.next_check(now, limit_ns, hold_until)
             t0 = time.monotonic_ns()
@@ -272,6 +272,20 @@ class Central:
                 self.handle(ev)
             self.check_late(time.monotonic_ns())
             self.check_silence(limit_ns)
+
+    def start_ready(self) -> None:
+        """Start every interval whose slot and sample have come (:meth:`Intervals.start_ready`)."""
+        self.intervals.start_ready()
+
+    def send_ready(self, now: int) -> int:
+        """Send the rounds ready at ``now`` as one request; when a lone round is held for
+        the next interval's first, until when (ns), else 0 (:meth:`Intervals.flush`)."""
+        return self.intervals.flush(now)
+
+    def prime(self) -> bool:
+        """Depth 2: run the next interval's sample-free steps early; whether it did
+        (:meth:`Intervals.prime`)."""
+        return self.intervals.prime()
 
     def limit_ns(self) -> int:
         """How long a reply or a sample may be missing now before it is a fault
