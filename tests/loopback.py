@@ -147,6 +147,7 @@ class LoopbackUnit:
         engine = setup.engine()
         ctl = Controller(engine, rc.schedule.period, setup.params.increment,
                          tuple(setup.task.start()))
+        self.controller = ctl  # the sources and observer the central was given
         self.central = Central(self.node, rc, engine, ctl, setup.cycles, on_cycle=on_cycle,
                                on_message=on_message)
         self.peripherals: list[tuple[LoopbackNode, Peripheral]] = []

@@ -413,6 +413,17 @@ def test_hold_torques_hold_the_last_estimate_against_gravity_or_are_zero():
     got = u.central.hold_torques()  # the estimate before any interval: the task's start
     assert got == want and all(type(x) is float for x in got)
     assert max(abs(x) for x in got) > 0.1
+    # after 1.5 s of pick-place the platform has moved (the start's torques are 0.016 N m
+    # off): the torques hold the observer's latest estimate, within 1e-4 N m of the
+    # plant's true last position (6e-6 on 2026-11-28), not the start's
+    true_p: list[Any] = []
+    u = LoopbackUnit(RunConfig.of(unit=unit_id("holdtau2"), clock="lockstep", cycles=1500),
+                     on_cycle=lambda progress, ctx: true_p.append(progress.true_p))
+    u.run()
+    got = u.central.hold_torques()
+    at_last = [float(x) for x in gravity_torques(u.setup.params, true_p[-1])]
+    assert max(abs(a - b) for a, b in zip(got, at_last, strict=True)) < 1e-4
+    assert max(abs(a - b) for a, b in zip(got, want, strict=True)) > 1e-2
     assert hold_torques(u.setup.params, (0.0, 0.0, -2.0)) == [0.0, 0.0, 0.0]
     assert hold_torques(u.setup.params, (math.nan, 0.0, 0.0)) == [0.0, 0.0, 0.0]
 

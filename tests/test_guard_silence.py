@@ -256,7 +256,7 @@ def test_at_the_halved_rate_the_silence_limit_is_three_halved_periods(monkeypatc
     u = realtime_unit("halved-limit")
     c = u.central
     assert c.limit_ns() == 3 * MS
-    c.rate(2, {"late": 0})  # what the overload rule orders
+    u.controller.halve(c.next_cycle)  # the halving the overload rule orders, from now on
     assert c.snapshot().late.grid.stride == 2 and c.limit_ns() == 6 * MS
 
 

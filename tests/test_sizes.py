@@ -130,11 +130,19 @@ def private_method_calls() -> list[str]:
     return found
 
 
-def central_parts(root: Path = ROOT) -> set[str]:
+def _callable_classes(root: Path) -> set[str]:
+    """Classes of runtime/central/ that define ``__call__``."""
+    return {c.name for p in (root / "runtime" / "central").glob("*.py")
+            for c in ast.walk(ast.parse(p.read_text())) if isinstance(c, ast.ClassDef)
+            and any(isinstance(f, ast.FunctionDef) and f.name == "__call__" for f in c.body)}
+
+
+def central_parts(root: Path = ROOT, *, callable_only: bool = False) -> set[str]:
     """The names by which the central holds its parts: each ``self.<name> = Part(...)`` (or
     ``Part.of(...)``) in ``Central.__init__``, and each property of ``Central`` that hands
     out a part's collaborator (``return self.<part>.<attr>``, annotated with a class:
-    ``engine``, ``ctl``); not the values it hands out (``done``, ``inflight``)."""
+    ``engine``, ``ctl``); not the values it hands out (``done``, ``inflight``). With
+    ``callable_only``, the parts that are called (their class defines ``__call__``)."""
     tree = ast.parse((root / "runtime" / "central" / "scheduler.py").read_text())
     central = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Central")
     names = set()
@@ -146,9 +154,11 @@ def central_parts(root: Path = ROOT) -> set[str]:
                     and isinstance(n.value, ast.Call):
                 f = n.value.func
                 cls = f.value if isinstance(f, ast.Attribute) else f
-                if isinstance(cls, ast.Name) and cls.id[:1].isupper():
+                if isinstance(cls, ast.Name) and cls.id[:1].isupper() and (
+                        not callable_only or cls.id in _callable_classes(root)):
                     names |= {t.attr for t in n.targets if isinstance(t, ast.Attribute)}
-            if isinstance(n, ast.Return) and isinstance(n.value, ast.Attribute) \
+            if not callable_only and isinstance(n, ast.Return) \
+                    and isinstance(n.value, ast.Attribute) \
                     and isinstance(n.value.value, ast.Attribute) and fn.decorator_list \
                     and isinstance(fn.returns, ast.Name) and fn.returns.id[:1].isupper() \
                     and fn.returns.id != "Any":
@@ -156,17 +166,28 @@ def central_parts(root: Path = ROOT) -> set[str]:
     return names
 
 
+def _of_central(part: ast.Attribute) -> bool:
+    """Whether ``<obj>.<part>`` may be a central's part: not a value handed out
+    (``c.snapshot().late``), not a test class's own (``self.log``)."""
+    obj = part.value
+    return not isinstance(obj, ast.Call) and not (isinstance(obj, ast.Name) and obj.id == "self")
+
+
 def part_pokes(root: Path = ROOT) -> list[str]:
     """Where tests reach into one of the central's parts: every ``<obj>.<part>.<attr>``,
-    read or written, ``<part>`` a name of :func:`central_parts` (``self.log.append`` in a
-    test's own class is that class's; ``c.snapshot().late.computed`` is the snapshot's)."""
+    read or written, and every call of a part (``c.rate(2, ...)``), ``<part>`` a name of
+    :func:`central_parts` (``self.log.append`` in a test's own class is that class's;
+    ``c.snapshot().late.computed`` is the snapshot's)."""
     parts, found = central_parts(root), []
+    callable_parts = central_parts(root, callable_only=True)
     for path in sorted((root / "tests").glob("*.py")):
         for n in ast.walk(ast.parse(path.read_text())):
             if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Attribute) \
-                    and n.value.attr in parts and not isinstance(n.value.value, ast.Call) \
-                    and not (isinstance(n.value.value, ast.Name) and n.value.value.id == "self"):
+                    and n.value.attr in parts and _of_central(n.value):
                 found.append(f"{path.name}:{n.lineno} .{n.value.attr}.{n.attr}")
+            if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) \
+                    and n.func.attr in callable_parts and _of_central(n.func):
+                found.append(f"{path.name}:{n.lineno} .{n.func.attr}(")
     return found
 
 
@@ -188,14 +209,15 @@ def test_the_central_s_parts_are_named_as_the_central_names_them():
     ("c.silence.last_sample_ns = 3\n", 1),
     ("assert u.central.late.held == {1}\n", 1),
     ("x = c.ctl.stride + c.intervals.done\n", 2),
+    ("c.rate(2, {})\nsetup.engine()\nnp.log(2)\n", 1),
     ("c.silence\nw.last_sample_ns\nc.check_silence(3)\nrc.schedule.late\n", 0),
     ("self.log.append(1)\nc.inflight.get(1)\nsetup.params.m\nc.snapshot().late.late\n", 0),
 ])
 def test_the_part_counter_counts_what_it_should(tmp_path, text, pokes):
     for d in ("tests", "runtime/central"):
         (tmp_path / d).mkdir(parents=True)
-    (tmp_path / "runtime" / "central" / "scheduler.py").write_text(
-        (ROOT / "runtime" / "central" / "scheduler.py").read_text())
+    for p in (ROOT / "runtime" / "central").glob("*.py"):
+        (tmp_path / "runtime" / "central" / p.name).write_text(p.read_text())
     (tmp_path / "tests" / "test_x.py").write_text(text)
     assert len(part_pokes(tmp_path)) == pokes
 
