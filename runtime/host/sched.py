@@ -191,8 +191,8 @@ def leave_rt() -> None:
     runs until it blocks, so a chunk's compression (1-2 ms every 100 ms) held a CPU against
     the roles and made a burst of deadline misses at 1 ms at every chunk
     (docs/measurements/2026-11-24-realtime.md). Cheap when there is nothing to do (one
-    system call), so it can run before each job: :func:`_set_all` puts every thread of the
-    process back under FIFO when the throttling guard restores it."""
+    system call), so it can run before each job: a thread starts under its creator's
+    policy."""
     if fifo_in_force():
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 

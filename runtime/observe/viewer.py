@@ -239,8 +239,8 @@ class LiveView:
         next_running = time.monotonic() + RUNNING_EVERY_S
         while not self._stop.wait(SEND_EVERY_S):
             # its work can wait: never at the roles' real-time priority, where a thread
-            # runs until it blocks (the observers' view is made after the policy is set,
-            # and the throttling guard's return to it puts every thread back under FIFO)
+            # runs until it blocks (the observers' view is made after the policy is set:
+            # its thread starts under its creator's)
             leave_rt()
             with self._lock:
                 self._send_pending()
