@@ -21,7 +21,8 @@ from collections.abc import Callable
 from typing import Any
 
 from ctrlunit.plant.simulator import Plant, PlantConfig
-from ctrlunit.runtime.central import Central
+from ctrlunit.runtime.central import Central, Supervision
+from ctrlunit.runtime.central.excuse import UNSUPERVISED
 from ctrlunit.runtime.central.snapshot import Progress
 from ctrlunit.runtime.compute.controller import Controller, initial_angles, initial_command
 from ctrlunit.runtime.compute.setup import make_setup
@@ -135,11 +136,15 @@ class LoopbackUnit:
     rc : run configuration (lockstep or freerun for :meth:`run`; any clock when a test
         drives the central by hand).
     on_cycle, on_message : the central's callbacks (a recorder's).
+    supervision : what a launcher would let the central know of the roles' processes
+        (:class:`~ctrlunit.runtime.central.Supervision`), given at construction as the
+        launcher gives it; none by default (roles started by hand).
     """
 
     def __init__(self, rc: RunConfig, *,
                  on_cycle: Callable[[Progress, dict], None] | None = None,
-                 on_message: Callable[..., None] | None = None) -> None:
+                 on_message: Callable[..., None] | None = None,
+                 supervision: Supervision = UNSUPERVISED) -> None:
         self.rc = rc
         self.setup = setup = make_setup(rc)
         self.bus = Bus()
@@ -149,7 +154,7 @@ class LoopbackUnit:
                          tuple(setup.task.start()))
         self.controller = ctl  # the sources and observer the central was given
         self.central = Central(self.node, rc, engine, ctl, setup.cycles, on_cycle=on_cycle,
-                               on_message=on_message)
+                               on_message=on_message, supervision=supervision)
         self.peripherals: list[tuple[LoopbackNode, Peripheral]] = []
         for k in range(setup.placement.peripherals):
             pnode = LoopbackNode(self.bus, rc.transport.unit, f"peripheral-{k + 1}")
@@ -262,15 +267,11 @@ def record_lockstep(path: str, unit: str, **kw: Any) -> LoopbackUnit:
     return unit_
 
 
-def supervise(c: Central, **parts: Any) -> None:
-    """Give the central's silence watch what a launcher would know of the roles'
-    processes (:class:`~ctrlunit.runtime.central.Supervision`'s fields)."""
-    c.silence.supervise(c.silence.supervision._replace(**parts))
-
-
-def realtime_unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUnit:
+def realtime_unit(tag: str, *, on_message: Any = None,
+                  supervision: Supervision = UNSUPERVISED, **kw: Any) -> LoopbackUnit:
     """A realtime loopback unit (3 peripherals, depth 1 unless ``kw`` says otherwise)
-    with a unit id of its own, for a test that drives its central by hand. A peripheral's
+    with a unit id of its own, for a test that drives its central by hand, its
+    ``supervision`` given at construction (:class:`LoopbackUnit`). A peripheral's
     silence past the rule is a fault here (``peripheral_loss="fault"``) unless ``kw``
     says otherwise: the silence rule's tests see when it fires, the take-over's pass
     ``peripheral_loss="takeover"``."""
@@ -278,7 +279,7 @@ def realtime_unit(tag: str, *, on_message: Any = None, **kw: Any) -> LoopbackUni
     kw.setdefault("pipeline", 1)
     kw.setdefault("peripheral_loss", "fault")
     return LoopbackUnit(RunConfig.of(unit=unit_id(tag), clock="realtime", **kw),
-                        on_message=on_message)
+                        on_message=on_message, supervision=supervision)
 
 
 def take_sample(u: LoopbackUnit, k: int) -> None:

@@ -9,15 +9,17 @@ own: tests/test_silence_watch.py)."""
 from __future__ import annotations
 
 import queue
+from collections.abc import Callable
 from typing import Any
 
 import pytest
-from ctrlunit.runtime.central import Central, Fault, silence_limits
+from ctrlunit.runtime.central import Central, Fault, Supervision, silence_limits
+from ctrlunit.runtime.central.excuse import UNSUPERVISED
 from ctrlunit.runtime.central.silence_limits import STARTUP_INTERVALS
 from ctrlunit.runtime.config import EXIT_PERIPHERAL, EXIT_PLANT, RunConfig
 from ctrlunit.runtime.roles.supervise import MachineLoad
 from ctrlunit.runtime.transport.node import Event
-from loopback import LoopbackUnit, realtime_unit, supervise
+from loopback import LoopbackUnit, realtime_unit
 from runner import unit_id
 from test_guard import (
     MS,
@@ -34,7 +36,8 @@ from test_guard import (
 
 
 def silent_at_t0(tag: str, monkeypatch: Any, *, muted: frozenset[int] = frozenset({1}),
-                 plant_silent_since: int | None = None
+                 plant_silent_since: int | None = None,
+                 supervision: Supervision = UNSUPERVISED, clock: Clock | None = None
                  ) -> tuple[Central, Clock, int, PlantSamples]:
     """A realtime unit (``late_policy="hold"``) past start-up whose ``muted``
     peripherals went silent: every peripheral last answered at :data:`T0` (the first
@@ -42,10 +45,12 @@ def silent_at_t0(tag: str, monkeypatch: Any, *, muted: frozenset[int] = frozense
     waits for the ``muted`` ones (its round's own deadline out of the way); the guard's
     clock at their limit. The plant samples every period up to the clock, or, given
     ``plant_silent_since``, has been silent since then: ``(central, clock, limit,
-    plant)``."""
+    plant)``. ``supervision``: what the launcher lets the central see of the roles'
+    processes, given at construction; ``clock``: the guard's clock where the test made
+    it first (its scripted accounting reads it), set here and installed."""
     # past start-up once the first interval is done: the run's own limit, three periods
     monkeypatch.setattr(silence_limits, "STARTUP_INTERVALS", 1)
-    u = realtime_unit(tag, late_policy="hold")
+    u = realtime_unit(tag, late_policy="hold", supervision=supervision)
     c = u.central
     plant = PlantSamples(u)
     last = T0 if plant_silent_since is None else plant_silent_since
@@ -55,7 +60,9 @@ def silent_at_t0(tag: str, monkeypatch: Any, *, muted: frozenset[int] = frozense
     settle(u, muted=muted, at=T0)
     c.inflight[1].deadline_ns = 10**18
     limit = c.limit_ns()
-    clock = Clock(T0 + limit).install(monkeypatch)
+    clock = clock or Clock(0)
+    clock.now = T0 + limit
+    clock.install(monkeypatch)
     if plant_silent_since is None:
         plant.until(clock.now)
     return c, clock, limit, plant
@@ -208,14 +215,19 @@ def test_next_check_outside_realtime_ignores_silence():
 
 
 def test_a_dead_child_is_a_fault_of_its_kind_looked_at_every_50_ms(monkeypatch):
-    u = realtime_unit("child")
-    c = u.central
-    sample(u, 0)  # a sample waits: the plant is not silent, only the children are judged
-    limit = c.limit_ns()
-    c.check_silence(limit)  # none started: nothing to look at
+    # a sample waits: the plant is not silent, only the children are judged. Two units:
+    # a central has its supervision from construction, and a child_check of None (no
+    # role started) is not one that finds no exit, so none can be given one later
+    none = realtime_unit("child0")  # a central that started no role
+    sample(none, 0)
+    none.central.check_silence(none.central.limit_ns())  # none started: nothing to look at
     calls = []
     dead: list[tuple[str, int] | None] = [None]
-    supervise(c, child_check=lambda **_: calls.append(1) or dead[0])
+    u = realtime_unit("child", supervision=Supervision(
+        child_check=lambda **_: calls.append(1) or dead[0]))  # the launcher's, from the start
+    c = u.central
+    sample(u, 0)
+    limit = c.limit_ns()
     clock = Clock(10**12)
     clock.install(monkeypatch)
     c.check_silence(limit)
@@ -268,13 +280,15 @@ def excused(c: Central) -> int:
     return c.snapshot().silences_excused
 
 
-def silent_peripheral_2(tag: str, monkeypatch: Any, *, plant_silent_since: int | None = None
+def silent_peripheral_2(tag: str, monkeypatch: Any, *, plant_silent_since: int | None = None,
+                        supervision: Supervision = UNSUPERVISED, clock: Clock | None = None
                         ) -> tuple[Central, Clock, int, PlantSamples]:
     """A unit past start-up whose peripheral 2 alone went silent, at :data:`T0`
-    (:func:`silent_at_t0`); its round's late time out of the way too: its
-    silence alone is judged."""
+    (:func:`silent_at_t0`, its ``supervision`` and ``clock``); its round's late time out
+    of the way too: its silence alone is judged."""
     c, clock, limit, plant = silent_at_t0(tag, monkeypatch,
-                                          plant_silent_since=plant_silent_since)
+                                          plant_silent_since=plant_silent_since,
+                                          supervision=supervision, clock=clock)
     c.inflight[1].late_at(0)
     return c, clock, limit, plant
 
@@ -296,9 +310,9 @@ def test_a_silence_the_plant_shared_is_not_counted_up_to_one_more_limit(monkeypa
 def test_a_runnable_silent_process_has_one_more_limit_and_is_then_a_fault(monkeypatch):
     """The silent peripheral's process is runnable (waiting for a CPU): the machine is
     slow, not the process; its silence counts only past twice the limit, once."""
-    c, clock, limit, plant = silent_peripheral_2("runnable", monkeypatch)
     asked: list[str] = []
-    supervise(c, role_state=lambda role: asked.append(role) or "runnable")
+    c, clock, limit, plant = silent_peripheral_2("runnable", monkeypatch, supervision=Supervision(
+        role_state=lambda role: asked.append(role) or "runnable"))
     since = T0
     clock.now += 1
     c.check_silence(limit)  # past the limit, but runnable: excused
@@ -320,8 +334,9 @@ def test_a_silence_is_excused_once_while_the_centrals_own_zenoh_thread_is_runnab
         monkeypatch):
     """The peripheral sleeps (it waits for the request, or has answered) while the
     central's own Zenoh thread has yet to send or read: the central was the slow one."""
-    c, clock, limit, plant = silent_peripheral_2("central-busy", monkeypatch)
-    supervise(c, role_state=lambda role: "runnable" if role == "central" else "sleeping")
+    c, clock, limit, plant = silent_peripheral_2(
+        "central-busy", monkeypatch, supervision=Supervision(
+            role_state=lambda role: "runnable" if role == "central" else "sleeping"))
     clock.now += 1
     c.check_silence(limit)
     assert excused(c) == 1
@@ -334,7 +349,9 @@ def test_a_silence_is_excused_once_while_the_centrals_own_zenoh_thread_is_runnab
 class Accounting:
     """Fake scheduler accounting: each role's one thread gains ``run`` and ``wait`` ns
     per ns of the guard's clock from ``gains[role]`` (default nothing); the machine's CPU
-    pressure gains ``pressure`` ns per ns."""
+    pressure gains ``pressure`` ns per ns. Made before the unit, with the guard's clock
+    that the unit's helper (:func:`silent_at_t0`, :func:`silent_plant`) then sets and
+    installs."""
 
     def __init__(self, clock: Clock, gains: dict[str, tuple[float, float]], *,
                  pressure: float = 0.0, waiting: int = 0) -> None:
@@ -344,10 +361,14 @@ class Accounting:
         run, wait = self.gains.get(role, (0.0, 0.0))
         return {7: (int(run * self.clock.now), int(wait * self.clock.now))}
 
-    def install(self, c: Any) -> None:
-        supervise(c, role_times=self)
-        supervise(c, machine_load=lambda: MachineLoad(int(self.pressure * self.clock.now),
-                                                      self.waiting))
+    def load(self) -> MachineLoad:
+        """How short of CPUs the machine is, by the guard's clock."""
+        return MachineLoad(int(self.pressure * self.clock.now), self.waiting)
+
+    def supervision(self, role_state: Callable[[str], str]) -> Supervision:
+        """What the launcher lets the central see: ``role_state`` and this accounting (the
+        roles' threads, the machine's load); nothing else."""
+        return Supervision(role_state=role_state, role_times=self, machine_load=self.load)
 
 
 def renewals_until_fault(c: Any, clock: Clock, limit: int, plant: PlantSamples | None
@@ -373,9 +394,11 @@ def test_a_process_the_machine_keeps_from_a_cpu_is_excused_a_limit_at_a_time_up_
     """Runnable, waiting on a runqueue all along: each limit is renewed while the kernel's
     accounting shows the process denied a CPU for half of it or more, until the silence
     has lasted 8 limits (README: "up to 8 limits (24 ms at 1 ms)")."""
-    c, clock, limit, plant = silent_peripheral_2("starved", monkeypatch)
-    supervise(c, role_state=lambda role: "runnable")
-    Accounting(clock, {"peripheral-2": (0.0, 1.0)}).install(c)
+    clock = Clock(0)
+    accounting = Accounting(clock, {"peripheral-2": (0.0, 1.0)})
+    c, clock, limit, plant = silent_peripheral_2(
+        "starved", monkeypatch, clock=clock,
+        supervision=accounting.supervision(lambda role: "runnable"))
     since = T0
     exc, looks = renewals_until_fault(c, clock, limit, plant)
     cap = 8
@@ -409,9 +432,11 @@ def test_a_process_that_had_its_cpu_and_stayed_silent_is_a_fault_after_one_exten
         monkeypatch, gains, then):
     """Runnable at its limit, but over its extension the machine let it run, or kept it
     waiting for less than half of it: the process, not the machine, is at fault."""
-    c, clock, limit, plant = silent_peripheral_2(f"served-{then}", monkeypatch)
-    supervise(c, role_state=first_then("runnable", then))
-    Accounting(clock, {"peripheral-2": gains}, pressure=0.4).install(c)
+    clock = Clock(0)
+    accounting = Accounting(clock, {"peripheral-2": gains}, pressure=0.4)
+    c, clock, limit, plant = silent_peripheral_2(
+        f"served-{then}", monkeypatch, clock=clock,
+        supervision=accounting.supervision(first_then("runnable", then)))
     since = T0
     exc, looks = renewals_until_fault(c, clock, limit, plant)
     assert looks[-1] == since + 2 * limit + 1 and excused(c) == 1
@@ -428,34 +453,43 @@ def test_a_sleeping_peripheral_is_excused_while_the_centrals_zenoh_threads_wait_
     """The request or the reply is in transit at the central, whose Zenoh threads the
     machine does not run: renewed as long as they wait (up to the cap), whatever the
     peripheral itself does meanwhile (asleep: nothing to do)."""
-    c, clock, limit, plant = silent_peripheral_2("central-starved", monkeypatch)
-    supervise(c, role_state=lambda role: "runnable" if role == "central" else "sleeping")
-    Accounting(clock, {"central": (0.0, 0.9)}).install(c)
+    clock = Clock(0)
+    accounting = Accounting(clock, {"central": (0.0, 0.9)})
+    c, clock, limit, plant = silent_peripheral_2(
+        "central-starved", monkeypatch, clock=clock, supervision=accounting.supervision(
+            lambda role: "runnable" if role == "central" else "sleeping"))
     exc, looks = renewals_until_fault(c, clock, limit, plant)
     assert looks[-1] == T0 + 8 * limit + 1
     assert excused(c) == 8 - 1
     assert "its process was sleeping" in str(exc)
 
 
-def silent_plant(tag: str, monkeypatch: Any, state: Any) -> tuple[Central, Clock]:
+def silent_plant(tag: str, monkeypatch: Any, supervision: Supervision, *,
+                 clock: Clock | None = None) -> tuple[Central, Clock]:
     """A central whose first interval is done and whose plant's last sample came at
     5 ms (every reply then too), the clock at its 3 ms limit plus one nanosecond,
-    ``state(role)`` what the processes are doing."""
-    u = realtime_unit(tag)
+    ``supervision`` (given at construction) what the launcher lets it see of the
+    processes; ``clock``: the guard's clock where the test made it first, set here and
+    installed."""
+    u = realtime_unit(tag, supervision=supervision)
     c = u.central
     sample(u, 0, at=5 * MS)
     settle(u, at=5 * MS)
     assert c.done == 1 and not c.inflight
-    clock = Clock(5 * MS + 3 * MS + 1).install(monkeypatch)
-    supervise(c, role_state=state)
+    if clock is None:
+        clock = Clock(0)
+    clock.now = 5 * MS + 3 * MS + 1
+    clock.install(monkeypatch)
     return c, clock
 
 
 def test_a_sleeping_plant_is_excused_while_the_machines_tasks_wait_for_a_cpu(monkeypatch):
     """The plant's timer fired and its thread waits on a CPU another task holds: the
     thread's own wait is added up only once it runs, the CPU pressure counts it now."""
-    c, clock = silent_plant("plant-pressure", monkeypatch, lambda role: "sleeping")
-    Accounting(clock, {"plant": (0.05, 0.0)}, pressure=0.6).install(c)
+    clock = Clock(0)
+    accounting = Accounting(clock, {"plant": (0.05, 0.0)}, pressure=0.6)
+    c, clock = silent_plant("plant-pressure", monkeypatch,
+                            accounting.supervision(lambda role: "sleeping"), clock=clock)
     exc, looks = renewals_until_fault(c, clock, 3 * MS, None)
     assert excused(c) == 8 - 1
     assert looks[-1] == 5 * MS + 8 * 3 * MS + 1
@@ -467,16 +501,18 @@ def test_a_sleeping_peripheral_is_excused_once_while_more_tasks_are_runnable_tha
     """What is in transit may wait for a CPU in a thread the central does not look at
     (the peripheral's, the plant's): the machine short of CPUs excuses the first limit;
     the accounting decides the next."""
-    c, clock, limit, plant = silent_peripheral_2("machine-short", monkeypatch)
-    supervise(c, role_state=lambda role: "sleeping")
-    Accounting(clock, {}, waiting=2).install(c)
+    clock = Clock(0)
+    c, clock, limit, plant = silent_peripheral_2(
+        "machine-short", monkeypatch, clock=clock,
+        supervision=Accounting(clock, {}, waiting=2).supervision(lambda role: "sleeping"))
     since = T0
     exc, looks = renewals_until_fault(c, clock, limit, plant)
     assert looks[-1] == since + 2 * limit + 1 and excused(c) == 1
     assert exc.process == "peripheral-2"
-    c, clock, limit, plant = silent_peripheral_2("machine-idle", monkeypatch)
-    supervise(c, role_state=lambda role: "sleeping")
-    Accounting(clock, {}, waiting=0).install(c)
+    clock = Clock(0)
+    c, clock, limit, plant = silent_peripheral_2(
+        "machine-idle", monkeypatch, clock=clock,
+        supervision=Accounting(clock, {}, waiting=0).supervision(lambda role: "sleeping"))
     assert fault_just_past(c, clock, limit).process == "peripheral-2"
     assert excused(c) == 0
 
@@ -484,10 +520,10 @@ def test_a_sleeping_peripheral_is_excused_once_while_more_tasks_are_runnable_tha
 def test_without_the_accounting_a_silence_is_excused_once(monkeypatch):
     """A kernel or a process whose accounting cannot be read gives no evidence: one
     extension, as for any runnable silent process."""
-    c, clock, limit, plant = silent_peripheral_2("no-accounting", monkeypatch)
-    supervise(c, role_state=lambda role: "runnable")
-    supervise(c, role_times=lambda role: {})
-    supervise(c, machine_load=lambda: MachineLoad(None, None))
+    c, clock, limit, plant = silent_peripheral_2(
+        "no-accounting", monkeypatch, supervision=Supervision(
+            role_state=lambda role: "runnable", role_times=lambda role: {},
+            machine_load=lambda: MachineLoad(None, None)))
     since = T0
     exc, looks = renewals_until_fault(c, clock, limit, plant)
     assert looks[-1] == since + 2 * limit + 1 and excused(c) == 1
@@ -500,19 +536,21 @@ def test_the_rounds_check_does_not_excuse_again_what_the_peripherals_check_excus
     two starts of one silence: an excuse holds for that silence until it answers, so the
     two checks cannot grant each other's extensions in turn (each keyed by its own start,
     they did, for as long as the process stayed runnable)."""
-    c, clock, limit, plant = silent_peripheral_2("two-starts", monkeypatch)
+    c, clock, limit, plant = silent_peripheral_2(  # no accounting: one extension
+        "two-starts", monkeypatch, supervision=Supervision(role_state=lambda role: "runnable"))
     since = T0
     c.inflight[1].deadline_ns = since + MS + limit  # its round went out 1 ms later
-    supervise(c, role_state=lambda role: "runnable")  # no accounting: one extension
     exc, looks = renewals_until_fault(c, clock, limit, plant)
     assert excused(c) == 1 and looks[-1] <= since + MS + 2 * limit + 1
     assert "after one extension" in str(exc)
 
 
 def test_a_process_stopped_during_its_extension_is_a_fault_at_its_end(monkeypatch):
-    c, clock, limit, plant = silent_peripheral_2("stopped-later", monkeypatch)
-    supervise(c, role_state=first_then("runnable", "stopped"))
-    Accounting(clock, {"peripheral-2": (0.0, 1.0)}).install(c)  # starved, yet stopped
+    clock = Clock(0)
+    accounting = Accounting(clock, {"peripheral-2": (0.0, 1.0)})  # starved, yet stopped
+    c, clock, limit, plant = silent_peripheral_2(
+        "stopped-later", monkeypatch, clock=clock,
+        supervision=accounting.supervision(first_then("runnable", "stopped")))
     since = T0
     exc, looks = renewals_until_fault(c, clock, limit, plant)
     assert looks[-1] == since + 2 * limit + 1 and excused(c) == 1
@@ -520,8 +558,10 @@ def test_a_process_stopped_during_its_extension_is_a_fault_at_its_end(monkeypatc
 
 
 def test_a_starved_plant_is_excused_a_limit_at_a_time_too(monkeypatch):
-    c, clock = silent_plant("plant-starved", monkeypatch, lambda role: "runnable")
-    Accounting(clock, {"plant": (0.0, 1.0)}).install(c)
+    clock = Clock(0)
+    accounting = Accounting(clock, {"plant": (0.0, 1.0)})
+    c, clock = silent_plant("plant-starved", monkeypatch,
+                            accounting.supervision(lambda role: "runnable"), clock=clock)
     exc, looks = renewals_until_fault(c, clock, 3 * MS, None)
     assert exc.process == "plant" and excused(c) == 8 - 1
     assert looks[-1] == 5 * MS + 8 * 3 * MS + 1
@@ -532,8 +572,9 @@ def test_a_frozen_or_exited_process_is_a_fault_whatever_the_central_is_doing(mon
                                                                               state):
     """A process stopped by a signal cannot answer, whatever is in transit: the frozen-role
     tests' case (tests/test_faults.py)."""
-    c, clock, limit, _ = silent_peripheral_2(f"frozen-{state}", monkeypatch)
-    supervise(c, role_state=lambda role: "runnable" if role == "central" else state)
+    c, clock, limit, _ = silent_peripheral_2(
+        f"frozen-{state}", monkeypatch, supervision=Supervision(
+            role_state=lambda role: "runnable" if role == "central" else state))
     exc = fault_just_past(c, clock, limit)
     assert exc.process == "peripheral-2" and excused(c) == 0
 
@@ -542,8 +583,8 @@ def test_a_frozen_or_exited_process_is_a_fault_whatever_the_central_is_doing(mon
 def test_a_silent_process_that_is_not_runnable_is_a_fault_at_its_limit(monkeypatch, state):
     """Nothing in transit at the central either (a sleeping process is excused while the
     central's own Zenoh thread is runnable: the next test)."""
-    c, clock, limit, _ = silent_peripheral_2(f"not-{state}", monkeypatch)
-    supervise(c, role_state=lambda role: "sleeping" if role == "central" else state)
+    c, clock, limit, _ = silent_peripheral_2(f"not-{state}", monkeypatch, supervision=Supervision(
+        role_state=lambda role: "sleeping" if role == "central" else state))
     exc = fault_just_past(c, clock, limit)
     assert exc.process == "peripheral-2" and excused(c) == 0
     assert str(exc) == (f"peripheral 2 has not answered for 3.0 ms (limit 3.0 ms); "
@@ -551,8 +592,8 @@ def test_a_silent_process_that_is_not_runnable_is_a_fault_at_its_limit(monkeypat
 
 
 def test_a_silent_plant_that_is_runnable_is_excused_once(monkeypatch):
-    c, clock = silent_plant("plant-runnable", monkeypatch,
-                            lambda role: "runnable" if role == "plant" else "sleeping")
+    c, clock = silent_plant("plant-runnable", monkeypatch, Supervision(
+        role_state=lambda role: "runnable" if role == "plant" else "sleeping"))
     c.check_silence(3 * MS)
     assert excused(c) == 1
     clock.now = 5 * MS + 6 * MS
@@ -567,23 +608,24 @@ def test_a_silent_plant_asleep_past_its_tick_is_excused_once(monkeypatch):
     timer the machine has not served, not for a message; a stopped plant is a fault at
     its limit."""
     # asleep, and the central's Zenoh threads too: nothing in transit
-    c, clock = silent_plant("plant-asleep", monkeypatch, lambda role: "sleeping")
+    c, clock = silent_plant("plant-asleep", monkeypatch,
+                            Supervision(role_state=lambda role: "sleeping"))
     c.check_silence(3 * MS)
     assert excused(c) == 1
     clock.now = 5 * MS + 6 * MS
     exc = fault_just_past(c, clock, 3 * MS)
     assert exc.process == "plant" and str(exc).endswith(
         "its process was sleeping (after one extension of its limit)"), str(exc)
-    c, clock = silent_plant("plant-stopped", monkeypatch,
-                            lambda role: "stopped" if role == "plant" else "runnable")
+    c, clock = silent_plant("plant-stopped", monkeypatch, Supervision(
+        role_state=lambda role: "stopped" if role == "plant" else "runnable"))
     clock.now -= 1
     exc = fault_just_past(c, clock, 3 * MS)
     assert exc.process == "plant" and excused(c) == 0
 
 
 def test_no_silence_is_excused_outside_realtime_or_where_the_process_is_unknown(monkeypatch):
-    c, clock, limit, _ = silent_peripheral_2("unknown", monkeypatch)
-    supervise(c, role_state=None)  # a role started by hand, maybe on another host
+    # a role started by hand, maybe on another host: no role_state, nothing known
+    c, clock, limit, _ = silent_peripheral_2("unknown", monkeypatch, supervision=UNSUPERVISED)
     exc = fault_just_past(c, clock, limit)
     assert exc.process == "peripheral-2" and "its process" not in str(exc)
     assert excused(c) == 0
@@ -592,9 +634,9 @@ def test_no_silence_is_excused_outside_realtime_or_where_the_process_is_unknown(
 def test_a_silence_is_not_even_looked_at_while_a_message_waits(monkeypatch):
     """Past the limit with a reply unread: no process state read (0.25-0.3 ms each from
     /proc), no excuse spent; once the inbox is empty the silence is judged as before."""
-    c, clock, limit, _ = silent_peripheral_2("unread", monkeypatch)
     asked: list[str] = []
-    supervise(c, role_state=lambda role: asked.append(role) or "sleeping")
+    c, clock, limit, _ = silent_peripheral_2("unread", monkeypatch, supervision=Supervision(
+        role_state=lambda role: asked.append(role) or "sleeping"))
     clock.now += 1
     c.node.events.deliver(c.node.keys.sample, b"unread")
     for _ in range(3):  # every turn of the central's loop while it waits
@@ -609,12 +651,12 @@ def test_a_silence_is_not_even_looked_at_while_a_message_waits(monkeypatch):
 def test_an_excused_peripheral_does_not_hide_another_ones_fault(monkeypatch):
     """Peripherals 1 and 3 silent past their limit: peripheral 1 is runnable (excused),
     peripheral 3 asleep with nothing in transit: the fault names peripheral 3."""
-    c, clock, limit, plant = silent_at_t0("two-silent", monkeypatch,
-                                          muted=frozenset({0, 2}))
+    c, clock, limit, plant = silent_at_t0(
+        "two-silent", monkeypatch, muted=frozenset({0, 2}), supervision=Supervision(
+            role_state=lambda role: "runnable" if role == "peripheral-1" else "sleeping"))
     c.inflight[1].late_at(0)
     clock.now += 1
     plant.until(clock.now)
-    supervise(c, role_state=lambda role: "runnable" if role == "peripheral-1" else "sleeping")
     with pytest.raises(Fault) as info:
         c.check_silence(limit)
     assert info.value.process == "peripheral-3", str(info.value)

@@ -16,7 +16,7 @@ from ctrlunit.runtime.compute.engine import Engine
 from ctrlunit.runtime.compute.setup import make_setup
 from ctrlunit.runtime.config import EXIT_OBSERVER, EXIT_PERIPHERAL, RunConfig
 from ctrlunit.runtime.transport.codec import decode
-from loopback import LoopbackUnit, supervise, turn
+from loopback import LoopbackUnit, turn
 from loopback import take_sample as sample
 from runner import unit_id
 
@@ -204,8 +204,7 @@ def test_a_peripheral_that_stays_silent_is_still_a_fault(monkeypatch):
         if f is not None and f.waiting:
             c.check_late(f.late_ns)
             turn(u)
-    limit = c.limit_ns()
-    supervise(c, role_state=None)
+    limit = c.limit_ns()  # the unit is unsupervised (unit()): no process state excuses it
     with pytest.raises(Fault) as info:
         c.check_silence(limit)  # peripheral 3 last answered at t = 1 ns
     assert info.value.process == "peripheral-3" and info.value.code == EXIT_PERIPHERAL

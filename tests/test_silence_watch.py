@@ -4,14 +4,18 @@ edge of a limit, each at its exact figure."""
 
 from __future__ import annotations
 
+from ctrlunit.runtime.central.excuse import UNSUPERVISED, Supervision
 from ctrlunit.runtime.central.silence import SilenceWatch
 
 MS = 1_000_000
 
 
-def watch(*, stride: int = 1, realtime: bool = True) -> SilenceWatch:
+def watch(*, stride: int = 1, realtime: bool = True,
+          supervision: Supervision = UNSUPERVISED) -> SilenceWatch:
+    """A watch of 3 peripherals at 1 ms, its ``supervision`` given at construction as the
+    launcher gives the central's."""
     return SilenceWatch(peripherals=3, realtime=realtime, period_s=1e-3, fault_periods=3,
-                        timeout_s=2.0, stride=lambda: stride)
+                        timeout_s=2.0, stride=lambda: stride, supervision=supervision)
 
 
 def test_a_gap_in_the_samples_counts_past_two_sample_intervals_and_not_at_them():
@@ -115,8 +119,7 @@ class _Roles:
     def __init__(self, states: dict[str, str]) -> None:
         self.states = states | {"central": "sleeping"}
 
-    def supervision(self):
-        from ctrlunit.runtime.central.excuse import Supervision
+    def supervision(self) -> Supervision:
         from ctrlunit.runtime.roles.supervise import MachineLoad
 
         return Supervision(role_state=self.states.__getitem__,
@@ -125,10 +128,9 @@ class _Roles:
 
 
 def test_an_excused_peripheral_does_not_hide_the_next_one_and_keeps_its_silence_s_start():
-    w = watch()
+    w = watch(supervision=_Roles({"peripheral-1": "runnable", "peripheral-2": "stopped",
+                                  "peripheral-3": "runnable"}).supervision())
     w.heard_sample(7 * MS)
-    w.supervise(_Roles({"peripheral-1": "runnable", "peripheral-2": "stopped",
-                        "peripheral-3": "runnable"}).supervision())
     message = _fault(w, 8 * MS, [_interval(7, {0, 1}, deadline_ns=3 * MS)])
     assert message.startswith("peripheral 2 did not answer round 1 of cycle 7")
     assert "its process was stopped" in message
@@ -170,8 +172,7 @@ def test_a_one_second_period_is_a_billion_nanoseconds():
 
 
 def test_a_plant_silent_from_the_start_can_be_excused_and_judged_again():
-    w = watch()
-    w.supervise(_Roles({"plant": "runnable"}).supervision())  # and denied its CPU
+    w = watch(supervision=_Roles({"plant": "runnable"}).supervision())  # and denied its CPU
     assert _fault(w, 8 * MS, [], plant_awaited=0, started_ns=1 * MS) is None  # excused
     assert w.excuse_of("plant") is not None
     assert _fault(w, 9 * MS, [], plant_awaited=0, started_ns=1 * MS) is None  # renewed
@@ -235,8 +236,8 @@ def test_an_answer_ends_the_excuse_and_the_next_silence_starts_afresh():
     """The peripheral answers during its extension: its excuse is gone (and dropped, so
     that the loop's next looks do not weigh it), and a later silence is judged from its
     own limit, with a first extension of its own."""
-    w = watch()
-    w.supervise(_Roles({"peripheral-2": "runnable"}).supervision())  # no renewal's evidence
+    # runnable, and no renewal's evidence
+    w = watch(supervision=_Roles({"peripheral-2": "runnable"}).supervision())
     w.heard_sample(9 * MS)
     w.heard_reply(1, 10 * MS)  # peripheral 2, waited for since
     waiting = [_interval(1, {1}, deadline_ns=10**18)]

@@ -18,7 +18,8 @@ from typing import Any
 
 import msgpack
 import pytest
-from ctrlunit.runtime.central import Fault
+from ctrlunit.runtime.central import Fault, Supervision
+from ctrlunit.runtime.central.excuse import UNSUPERVISED
 from ctrlunit.runtime.central.snapshot import Progress
 from ctrlunit.runtime.central.takeover import REJOIN_PARTS
 from ctrlunit.runtime.observe.summary import _degraded_lines
@@ -26,7 +27,7 @@ from ctrlunit.runtime.recording.reader import read
 from ctrlunit.runtime.recording.recorder import Recorder
 from ctrlunit.runtime.recording.replay import verify
 from ctrlunit.runtime.roles.peripheral import Peripheral
-from loopback import LoopbackUnit, lockstep_config, supervise
+from loopback import LoopbackUnit, lockstep_config
 from runner import kill_unit, pids_of, start_json, unit_id, wait_status
 
 SILENCE_S = 0.3
@@ -38,9 +39,11 @@ process past 0.3 s (CI's suite saw one) would be one more silence, and they coun
 
 
 def silenced(tag: str, mutes: dict[int, int], *, on_cycle: Any = None,
-             on_message: Any = None, **kw: Any) -> LoopbackUnit:
+             on_message: Any = None, supervision: Supervision = UNSUPERVISED,
+             **kw: Any) -> LoopbackUnit:
     """A lockstep unit (3 peripherals, depth 2) where each peripheral ``k`` (0-based) of
-    ``mutes`` answers nothing once interval ``mutes[k]`` is done (< 0: from the start)."""
+    ``mutes`` answers nothing once interval ``mutes[k]`` is done (< 0: from the start);
+    what the launcher lets its central know of the roles' processes, ``supervision``."""
     kw.setdefault("peripherals", 3)
     kw.setdefault("pipeline", 2)
     holder: list[LoopbackUnit] = []
@@ -53,7 +56,7 @@ def silenced(tag: str, mutes: dict[int, int], *, on_cycle: Any = None,
 
     kw.setdefault("timeout", SILENCE_S)
     u = LoopbackUnit(lockstep_config(unit_id(tag), **kw), on_cycle=mute,
-                     on_message=on_message)
+                     on_message=on_message, supervision=supervision)
     holder.append(u)
     u.muted.update(k for k, at in mutes.items() if at < 0)
     return u
@@ -287,12 +290,13 @@ def test_a_peripheral_whose_process_exited_is_not_on_probation(undisturbed):
             u.muted.add(2)
 
     seen = Seen()
-    u = seen.watch(slow_then_back("toslowexit", 1, at=80, then=exit_third,
-                                  on_cycle=seen.on_cycle, on_message=seen.on_message))
-    supervise(u.central, child_check=lambda skip=(): (
+    supervision = Supervision(child_check=lambda skip=(): (
         ("peripheral-3", -9) if state["dead"] and "peripheral-3" not in skip else None),
         role_state=lambda role: "exited" if state["dead"] and role == "peripheral-3"
         else "running")
+    u = seen.watch(slow_then_back("toslowexit", 1, at=80, then=exit_third,
+                                  on_cycle=seen.on_cycle, on_message=seen.on_message,
+                                  supervision=supervision))
     taken = u.run().snapshot().degraded
     print(taken)
     assert u.commands() == undisturbed
@@ -341,11 +345,11 @@ def restarted(tag: str, k: int, *, dies: int, back: int, on_cycle: Any = None,
             u.muted.discard(k)
             state["dead"] = False
 
-    u = silenced(tag, {}, on_cycle=restart, **kw)
-    u.dead = state  # type: ignore[attr-defined]
-    supervise(u.central, child_check=lambda skip=(): (
+    supervision = Supervision(child_check=lambda skip=(): (
         (f"peripheral-{k + 1}", -9) if state["dead"] and f"peripheral-{k + 1}" not in skip
         else None), role_state=lambda role: "exited" if state["dead"] else "running")
+    u = silenced(tag, {}, on_cycle=restart, supervision=supervision, **kw)
+    u.dead = state  # type: ignore[attr-defined]
     return u
 
 

@@ -178,10 +178,6 @@ class SilenceWatch:
         excused = self.excuse_of(role)
         return max(end, excused.until) if excused is not None else end
 
-    def supervise(self, supervision: Supervision) -> None:
-        """Learn the roles' processes from ``supervision`` from now on."""
-        self.supervision = self.excuse.supervision = self.exits.supervision = supervision
-
     @property
     def excuses(self) -> int:
         """Silences past their limit excused (:meth:`Excuses.ask`)."""
