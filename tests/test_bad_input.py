@@ -25,7 +25,8 @@ def test_out_of_range_options_name_the_field_and_range():
     for args, said in ((("--period", "fast"), "--period = 'fast': allowed auto, or 20us to 1s"),
                        (("--period", "-1ms"), "--period = '-1ms': allowed auto, or 20us"),
                        (("--peripherals", "4"), "--peripherals = 4: allowed 0, 1, 2 or 3"),
-                       (("--max-error", "0"), "--max-error = 0: allowed 10 um to 1 m")):
+                       (("--max-error", "0"),
+                        "--max-error = 0: allowed 1e-05 to 1, in metres (10 um to 1 m)")):
         res = ctrlunit("start", "--check", *args)
         err = res.stderr.strip().splitlines()
         assert res.returncode == 1 and len(err) == 1, (args, res.stderr)

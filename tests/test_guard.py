@@ -19,7 +19,7 @@ from ctrlunit.runtime.central.late import LateData
 from ctrlunit.runtime.central.pace import pace_of
 from ctrlunit.runtime.central.records import InFlight
 from ctrlunit.runtime.central.settings import LoopSettings
-from ctrlunit.runtime.central.state_check import check_state, hold_torques
+from ctrlunit.runtime.central.state_check import check_state, hold_torques, lengths
 from ctrlunit.runtime.config import (
     EXIT_OBSERVER,
     EXIT_PERIPHERAL,
@@ -553,3 +553,15 @@ def test_tracking_error_at_exactly_max_error_is_allowed_and_reported_in_mm():
         check(u, 3, (0.75, 0.0, -0.35), pc)
 
 
+
+
+@pytest.mark.parametrize("err, limit, said", [
+    (0.0051, 0.005, ("5.1 mm", "5.0 mm")),
+    (0.005004, 0.005, ("5.004 mm", "5.000 mm")),  # the decimals that tell them apart
+    (14.2e-6, 1e-5, ("14.2 um", "10.0 um")),  # under a millimetre: um, not "0.0 mm"
+    (0.75, 0.5, ("750.0 mm", "500.0 mm")),
+])
+def test_a_tracking_fault_gives_figures_a_reader_can_tell_apart(err, limit, said):
+    """``--max-error 0.00001`` faulted with "tracking error 0.0 mm exceeds --max-error
+    0.0 mm" (a new user's try, 2026-11-28)."""
+    assert lengths(err, limit) == said

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ctrlunit.runtime.recording.plots import FIGURES, plot_recording
+from ctrlunit.runtime.recording.plots import FIGURES, how_it_ended, plot_recording
 from ctrlunit.runtime.recording.reader import read
 from matplotlib.image import imread
 from mcap.reader import make_reader
@@ -161,3 +161,15 @@ def test_the_spans_at_the_halved_rate_come_from_the_recorded_orders():
     spans = halved_spans(rec, 1e-3, 600)
     assert np.allclose(spans, [[0.1, 0.3], [0.501, 0.6]])
     assert halved_spans(Recording("y.mcap"), 1e-3, 600).shape == (0, 2)
+
+
+@pytest.mark.parametrize("process, marked, title", [
+    ("user", "stopped on request", "was stopped on request"),  # Ctrl-C, SIGTERM
+    ("admission", "refused", "was refused before any motion"),
+    ("central", "fault", "ended in a fault"),
+    ("peripheral-2", "fault", "ended in a fault"),
+])
+def test_the_events_figure_says_how_the_run_ended_as_the_summary_does(process, marked, title):
+    """A new user's Ctrl-C was drawn as "fault: interrupted" under a title saying the run
+    ended in a fault, where the summary said "a stop asked for, not a fault"."""
+    assert how_it_ended({"process": process, "message": "interrupted"}) == (marked, title)

@@ -222,9 +222,15 @@ def test_the_period_set_is_the_period_that_runs():
 @pytest.mark.parametrize("args, message", [
     (["--set", "schedule.late_policy=waitt"],
      "--set schedule.late_policy = 'waitt': allowed wait, compute, hold, fault"),
-    (["--set", "schedule.period=5"], "--set schedule.period = 5.0: allowed auto, or 20us to 1s"),
+    (["--set", "schedule.period=5"], "--set schedule.period = 5: allowed auto, or 20us to 1s"),
     (["--set", "transport.timeout=2 hours"], "--set transport.timeout = '2 hours': allowed "
-     "0.01 to 600 s (500us, 2ms, 30s or seconds)"),
+     "0.01 to 600 s (30s or seconds)"),  # the spellings' examples within its range
+    (["--set", "plant.lag=\"30s\""], "--set plant.lag = '30s': allowed 0 to 1 s (500us, 2ms "
+     "or seconds)"),  # as typed, not 30: a new user read "30: allowed 0 to 1 s"
+    (["--set", "run.cycles=1e3"], "--set run.cycles = 1000.0: allowed an integer from 1 to "
+     "1e9"),  # in the range, and no integer
+    (["--cycles", "1e3"], "--cycles = 1e3: allowed an integer from 1 to 1e9"),
+    (["--plant-lag", "30s"], "--plant-lag = 30 s: allowed 0 to 1 s (500us, 2ms or seconds)"),
 ])
 def test_a_refused_value_names_the_key_as_typed_and_what_is_allowed(args, message):
     res = CliRunner().invoke(cli, ["start", "--check", *args])

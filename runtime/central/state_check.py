@@ -17,6 +17,17 @@ WORKSPACE_EVERY = 10
 """The workspace (Eq. V.33) is checked at every this many cycles."""
 
 
+def lengths(err: float, limit: float) -> tuple[str, str]:
+    """``err`` and ``limit`` (m, ``err > limit``) as a fault's message gives them: in mm,
+    or um under a millimetre, with the decimals that tell them apart (at most 3)."""
+    scale, unit = (1e3, "mm") if limit >= 1e-3 else (1e6, "um")
+    for decimals in range(1, 4):
+        a, b = f"{err * scale:.{decimals}f}", f"{limit * scale:.{decimals}f}"
+        if a != b:
+            break
+    return f"{a} {unit}", f"{b} {unit}"
+
+
 def check_state(cycle: int, p: Sequence[float] | None, pc: Sequence[float] | None, *,
                 params: DeltaParams, max_error: float, hint: Callable[[], str] = str
                 ) -> None:
@@ -29,8 +40,7 @@ def check_state(cycle: int, p: Sequence[float] | None, pc: Sequence[float] | Non
     err = math.dist(p, pc)
     why = None
     if err > max_error:
-        why = (f"tracking error {err * 1e3:.1f} mm exceeds --max-error "
-               f"{max_error * 1e3:.1f} mm")
+        why = "tracking error {} exceeds --max-error {}".format(*lengths(err, max_error))
     elif cycle % WORKSPACE_EVERY == 0:
         chk = check_point(params, p)
         if not chk.ok:

@@ -14,7 +14,7 @@ from ..config import FLAT, ConfigError, RunConfig
 from ..config.handed import FILE_SETTINGS, ROLE_OWN
 from ..config.run_file import PROFILES
 from ..config.sections import SECTIONS
-from ..config.setting import About, user_allowed
+from ..config.setting import About, integers, user_allowed
 from ..config.settings_doc import settings_of
 from ..config.spellings import DERIVED, read_setting, to_fields
 from .base import FilePath
@@ -41,7 +41,10 @@ def _ranged(base: type[click.IntRange] | type[click.FloatRange], a: About) -> cl
                 return super().convert(value, param, ctx)
             except click.BadParameter:
                 opt = param.opts[0] if isinstance(param, click.Option) else "value"
-                raise ConfigError(f"{opt} = {value}: allowed {user_allowed(a)}") from None
+                allowed = user_allowed(a)
+                if issubclass(base, click.IntRange):  # 1e3: in the range, and no integer
+                    allowed = integers(allowed)
+                raise ConfigError(f"{opt} = {value}: allowed {allowed}") from None
 
     return Ranged(a.bounds[0], a.bounds[1])
 

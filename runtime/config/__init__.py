@@ -30,7 +30,7 @@ from .sections import (
     ScheduleConfig,
     TransportConfig,
 )
-from .setting import about, allowed_text, out_of_range
+from .setting import about, allowed_text, integers, out_of_range, user_allowed
 from .value_types import has_type, type_name
 
 # exit codes, one per fault class
@@ -172,8 +172,8 @@ class RunConfig:
     def _bad(self, name: str, allowed: str) -> ConfigError:
         """Names the option (``--max-error``) and the value as the user would write it."""
         value = self.option(name)
-        unit = {"period": " s", "timeout": " s", "max_error": " m", "bandwidth_hz": " Hz",
-                "foxglove_rate": " Hz"}.get(name, "")
+        unit = " s" if _ABOUT[name].kind in ("duration", "period") else {
+            "max_error": " m", "bandwidth_hz": " Hz", "foxglove_rate": " Hz"}.get(name, "")
         shown = f"{value:g}{unit}" if isinstance(value, float) else repr(value)
         option = "--" + name.removesuffix("_hz").replace("_", "-")
         return ConfigError(f"{option} = {shown}: allowed {allowed}")
@@ -185,10 +185,13 @@ class RunConfig:
             a = _ABOUT[flat]
             value = getattr(getattr(self, section), name)
             if not has_type(value, _FLAT_TYPES[flat]):  # as the range says, where one does
-                raise self._bad(flat, allowed_text(a) if a.choices or a.bounds or a.allowed
-                                else type_name(_FLAT_TYPES[flat]))
+                allowed = allowed_text(a) if a.choices or a.bounds or a.allowed \
+                    else type_name(_FLAT_TYPES[flat])
+                raise self._bad(flat, integers(allowed) if not has_type(0.5, _FLAT_TYPES[flat])
+                                and has_type(1, _FLAT_TYPES[flat]) else allowed)
             if out_of_range(a, value):
-                raise self._bad(flat, allowed_text(a))
+                raise self._bad(flat, user_allowed(a) if a.kind == "duration"
+                                else allowed_text(a))
 
     def _check_outputs(self) -> None:
         """What the declared choices and bounds do not say: the late data's blocks, the

@@ -67,7 +67,7 @@ class ControlConfig:
         "qdot as the thesis (sample); auto: foreseen2 in realtime at depth 2, acting "
         "otherwise.")
     bandwidth_hz: float | None = setting(
-        None, flag=Flag(name="bandwidth"), bounds=(0.1, 200.0), allowed="0.1 to 200 Hz",
+        None, flag=Flag(name="bandwidth"), bounds=(0.1, 200.0), allowed="0.1 to 200, in Hz",
         help="Closed-loop bandwidth of the gains in Hz (default: 20, at most 1/(25 "
         "period) with resolved acceleration at the acting state, so that the margin holds "
         "a period more than designed, 1/(50 period) otherwise).")
@@ -75,7 +75,7 @@ class ControlConfig:
                                  help="TOML file of Delta parameters (a role started by "
                                  "hand: this host's copy of the central's).")
     max_error: float = setting(
-        0.02, flag=Flag(), bounds=(1e-5, 1.0), allowed="10 um to 1 m",
+        0.02, flag=Flag(), bounds=(1e-5, 1.0), allowed="1e-05 to 1, in metres (10 um to 1 m)",
         help="Tracking error (m) beyond which the unit stops the robot (a fault).")
     cost_model: str = setting(
         "native", flag=Flag(), choices=("native", "t800"), allowed="native or t800",

@@ -133,10 +133,23 @@ def user_allowed(a: About) -> str:
     ``auto`` for a period and the units of a duration."""
     text = allowed_text(a)
     if a.kind == "period":
-        return f"auto, or {text} (500us, 2ms or seconds)"
+        return f"auto, or {text} ({_spellings(a)})"
     if a.kind == "duration":
-        return f"{text} (500us, 2ms, 30s or seconds)"
+        return f"{text} ({_spellings(a)})"
     return text
+
+
+def integers(allowed: str) -> str:
+    """What an integer setting allows, said as integers where it is a range (1e3 lies
+    between 1 and 1e9, and is refused as no integer)."""
+    return f"an integer from {allowed}" if " to " in allowed else allowed
+
+
+def _spellings(a: About) -> str:
+    """A duration's spellings, each example within the setting's bounds."""
+    examples = [t for t, s in (("500us", 5e-4), ("2ms", 2e-3), ("30s", 30.0))
+                if a.bounds is None or a.bounds[0] <= s <= a.bounds[1]]
+    return ", ".join(examples) + (" or seconds" if examples else "seconds")
 
 
 def out_of_range(a: About, value: Any) -> bool:
@@ -149,5 +162,5 @@ def out_of_range(a: About, value: Any) -> bool:
     return a.bounds is not None and not a.bounds[0] <= value <= a.bounds[1]
 
 
-__all__ = ["KINDS", "About", "Flag", "about", "abouts", "allowed_text", "out_of_range",
-           "setting", "user_allowed"]
+__all__ = ["KINDS", "About", "Flag", "about", "abouts", "allowed_text", "integers",
+           "out_of_range", "setting", "user_allowed"]

@@ -24,7 +24,7 @@ from ..host.sched import MAX_PRIORITY
 from . import _ABOUT, _FLAT_TYPES, FLAT, ConfigError, parse_duration
 from .choices import LATE_POLICIES
 from .sections import ScheduleConfig
-from .setting import About, allowed_text, out_of_range, user_allowed
+from .setting import About, allowed_text, integers, out_of_range, user_allowed
 from .value_types import has_type, type_name
 
 USER = tuple(flat for flat in FLAT if not _ABOUT[flat].internal)
@@ -162,8 +162,12 @@ def read_setting(flat: str, value: Any, where: str, *, ranged: bool = True) -> A
         return value  # auto, or what validate checks (a priority, a file)
     tp = _FLAT_TYPES[flat]
     if not has_type(value, tp) or (ranged and out_of_range(a, value)):
-        raise _bad(where, value if isinstance(value, int | float) else given,
-                   user_allowed(a) if a.choices or a.bounds or a.allowed else type_name(tp))
+        allowed = user_allowed(a) if a.choices or a.bounds or a.allowed else type_name(tp)
+        if base is int:
+            allowed = integers(allowed)
+        shown = given if a.kind in ("duration", "period") or not isinstance(
+            value, int | float) else value  # a duration as typed: '30s', not 30
+        raise _bad(where, shown, allowed)
     return float(value) if base is float and value is not None else value
 
 

@@ -275,6 +275,15 @@ def _save(fig: Any, path: Path, plots: Plots) -> None:
     plt.close(fig)
 
 
+def how_it_ended(fault: dict[str, Any]) -> tuple[str, str]:
+    """A run's end as the events figure marks it and says it in its title, as the summary
+    does (runtime/observe/summary_end.py): a stop the user asked for and the admission's
+    refusal are no fault."""
+    return {"user": ("stopped on request", "was stopped on request"),
+            "admission": ("refused", "was refused before any motion")}.get(
+        str(fault.get("process")), ("fault", "ended in a fault"))
+
+
 def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int, int]],
                    fault: dict[str, Any] | None, rc: RunConfig, plots: Plots) -> None:
     fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
@@ -303,10 +312,11 @@ def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int
              f"{rc.schedule.clock}: wall time per interval (no deadline)")
     if fault:
         x = t[-1] if t.size else 0.0
+        kind, ended = how_it_ended(fault)
         ax.axvline(x, color="black", lw=2.0)
-        ax.annotate(f"fault: {str(fault.get('message', ''))[:70]}", (x, 0.95),
+        ax.annotate(f"{kind}: {str(fault.get('message', ''))[:70]}", (x, 0.95),
                     xycoords=("data", "axes fraction"), ha="right", fontsize=8)
-        title += " - the run ended in a fault"
+        title += f" - the run {ended}"
     if miss_t:
         ax.plot([], [], color="#d62728", label="deadline miss")
     if skip_t:
