@@ -132,7 +132,7 @@ def test_validation_names_the_flat_option() -> None:
 def test_eq_iv23_takes_the_traversal_where_the_clock_imposes_the_period():
     """Realtime at either depth: the traversal (the period is the clock's); freerun and
     lockstep: the traversal at depth 1, the mean period at depth 2."""
-    from ctrlunit.runtime.observe.report import parallel_time
+    from ctrlunit.runtime.observe.efficiency import parallel_time
 
     for clock, depth, want in (("realtime", 1, 2e-4), ("realtime", 2, 2e-4),
                                ("freerun", 1, 2e-4), ("freerun", 2, 9e-4),

@@ -72,6 +72,9 @@ def test_no_efficiency_figure_where_the_run_does_not_measure_it(runs, name):
     assert len(lines) == 1 and "not measured here" in lines[0], text
     assert not re.search(FIGURE, lines[0]), lines[0]
     assert rep["efficiency"] is not None  # the report keeps Eq. IV.23's terms (bench)
+    # and says, as the summary does, that they are no efficiency here (a new user read
+    # the report's 0.018 as one)
+    assert rep["efficiency_unmeasured"] and rep["efficiency_unmeasured"] in lines[0]
 
 
 def test_freerun_states_eq_iv23_on_its_basis(runs):
@@ -80,6 +83,7 @@ def test_freerun_states_eq_iv23_on_its_basis(runs):
     assert f"{rep['efficiency'] * 100:.1f} %" in lines[0], text
     assert f"({rep['t_parallel_s'] * 1e6:.1f} us x {rep['efficiency_n']})" in lines[0]
     assert rep["t_parallel_s"] == rep["period_mean_s"]  # depth 2 in freerun
+    assert rep["efficiency_unmeasured"] is None
     assert EFFICIENCY_BASIS in text
     if rep["speedup"] < 1:
         assert "a speedup below 1: the exchanges cost more" in text

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from .efficiency import EFFICIENCY_BASIS, efficiency_unmeasured
 from .report import quoted
 from .summary_end import end_lines
 
@@ -207,35 +208,6 @@ def _deadline_lines(r: dict[str, Any]) -> list[str]:
             else f"passes it by {-margin * 1e6:.1f} us")
     return [f"  deadline    {budget * 1e6:.1f} us from a sample to its command (due at tick "
             f"k + {due}): the traversal p99 {left}"]
-
-
-EFFICIENCY_BASIS = ("t_parallel is one interval's time on the N processors: the traversal "
-                    "p50, or the mean period in freerun at depth 2 (two intervals overlap)")
-"""How the summary's efficiency takes t_parallel (runtime/observe/report.py,
-``parallel_time``), the same words in every run that shows it."""
-
-
-def efficiency_unmeasured(r: dict[str, Any]) -> str | None:
-    """Why this run does not measure Eq. IV.23's efficiency, or None when it does.
-
-    Eq. IV.23, ``t_1 / (t_parallel x N)``, compares N processors with one on the same
-    work. It needs N >= 2, and a ``t_parallel`` that is the unit's own time for an
-    interval: in freerun (no plant paces the intervals), or under the T-800 cost model
-    where t_parallel is the traversal (realtime, or depth 1), whose block times the
-    exchanges do not swamp. In lockstep the plant's simulation paces every interval, and
-    in realtime on native costs the clock sets the pace and the traversal is mostly the
-    exchange: there the figure would read as a failure of a run that went well."""
-    if not math.isfinite(r.get("efficiency", math.nan)):
-        return "t_1 was not measured"
-    if r.get("efficiency_n", 1) < 2:
-        return "one processor (--peripherals 0): Eq. IV.23 compares N processors with one"
-    t800 = r.get("cost_model") == "t800"
-    if r["clock"] == "lockstep" and not (t800 and r["pipeline"] == 1):
-        return "lockstep paces every interval by the plant's simulation step"
-    if r["clock"] == "realtime" and not t800:
-        return ("the realtime clock sets the pace, and on native costs the traversal is "
-                "mostly the exchange")
-    return None
 
 
 def _efficiency_lines(r: dict[str, Any]) -> list[str]:
