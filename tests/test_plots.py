@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ctrlunit.runtime.recording.plots import FIGURES, how_it_ended, plot_recording
+from ctrlunit.runtime.observe.summary_end import how_it_ended
+from ctrlunit.runtime.recording.plots import FIGURES, plot_recording
 from ctrlunit.runtime.recording.reader import read
 from matplotlib.image import imread
 from mcap.reader import make_reader

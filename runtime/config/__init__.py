@@ -184,11 +184,10 @@ class RunConfig:
         for flat, (section, name) in FLAT.items():
             a = _ABOUT[flat]
             value = getattr(getattr(self, section), name)
-            if not has_type(value, _FLAT_TYPES[flat]):  # as the range says, where one does
-                allowed = allowed_text(a) if a.choices or a.bounds or a.allowed \
-                    else type_name(_FLAT_TYPES[flat])
-                raise self._bad(flat, integers(allowed) if not has_type(0.5, _FLAT_TYPES[flat])
-                                and has_type(1, _FLAT_TYPES[flat]) else allowed)
+            if not has_type(value, tp := _FLAT_TYPES[flat]):  # as the range says, if one does
+                allowed = allowed_text(a) if a.choices or a.bounds or a.allowed else type_name(tp)
+                raise self._bad(flat, integers(allowed) if has_type(1, tp)
+                                and not has_type(0.5, tp) else allowed)
             if out_of_range(a, value):
                 raise self._bad(flat, user_allowed(a) if a.kind == "duration"
                                 else allowed_text(a))

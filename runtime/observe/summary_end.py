@@ -80,4 +80,12 @@ def end_lines(r: dict[str, Any]) -> list[str]:
     return lines
 
 
-__all__ = ["end_lines", "safe_stop_line"]
+def how_it_ended(fault: dict[str, Any]) -> tuple[str, str]:
+    """A run's end as a figure marks it and says it in its title, as :func:`end_lines` does:
+    a stop the user asked for and the admission's refusal are no fault."""
+    return {"user": ("stopped on request", "was stopped on request"),
+            "admission": ("refused", "was refused before any motion")}.get(
+        str(fault.get("process")), ("fault", "ended in a fault"))
+
+
+__all__ = ["end_lines", "how_it_ended", "safe_stop_line"]

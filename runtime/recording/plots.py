@@ -42,6 +42,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from ..config import RunConfig
+from ..observe.summary_end import how_it_ended
 from .plot_data import events, gantt_spans, halved_spans, sample_tracking, signals, timing
 from .plot_index import write_index
 from .reader import Recording
@@ -273,15 +274,6 @@ def _save(fig: Any, path: Path, plots: Plots) -> None:
     fig.savefig(path, dpi=_DPI)
     plots.clashes += [f"{path.name}: {c}" for c in title_clashes(fig)]
     plt.close(fig)
-
-
-def how_it_ended(fault: dict[str, Any]) -> tuple[str, str]:
-    """A run's end as the events figure marks it and says it in its title, as the summary
-    does (runtime/observe/summary_end.py): a stop the user asked for and the admission's
-    refusal are no fault."""
-    return {"user": ("stopped on request", "was stopped on request"),
-            "admission": ("refused", "was refused before any motion")}.get(
-        str(fault.get("process")), ("fault", "ended in a fault"))
 
 
 def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int, int]],
