@@ -752,3 +752,16 @@ def test_the_summary_says_where_the_descent_went():
     assert summary._admission_lines({"admission": adm})[0].endswith(
         "below 1 ms the first start's trials held 0.8 ms, not 0.64 ms; started again at "
         "0.8 ms, its trial did not hold")
+
+
+def test_a_start_again_does_not_say_the_placement_choice_again():
+    """A new user saw the placement note once per admission start (three or four times);
+    the first start says it, the summary gives the last one."""
+    from ctrlunit.runtime.launch import launcher
+
+    said: list[str] = []
+    again = launcher._quieter(said.append)
+    again("ctrlunit: --placement auto: round 0 (ik_obs0) costs the central 12 us ...")
+    again("ctrlunit: --period auto: 1 ms was not held in this start's trial, 1.6 ms was")
+    assert said == ["ctrlunit: --period auto: 1 ms was not held in this start's trial, "
+                    "1.6 ms was"]

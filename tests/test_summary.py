@@ -202,6 +202,9 @@ def test_the_last_line_says_how_a_run_ended_and_what_it_gave_up(runs):
                          "commands late (1.5%)"), lines[-1]
     late = [x for x in lines if x.startswith("  late data")]
     assert late and late[0].endswith("; the 7 late replies were dropped"), late
+    one = [x for x in summary(dict(r, rejected_messages={"late_reply": 1})).splitlines()
+           if x.startswith("  late data")]
+    assert one[0].endswith("; the 1 late reply was dropped"), one  # not "the 1 ... were"
     assert not any(x.startswith("  late replies") for x in lines)
     r["fault"] = {"process": "central", "message": "cycle 9: tracking", "code": 5}
     assert not any(x.startswith("  result") for x in summary(r).splitlines())

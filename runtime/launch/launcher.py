@@ -39,6 +39,13 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         return _starts(rc, echo=echo, progress=progress, spawn=spawn, inspect=inspect)
 
 
+def _quieter(echo: Any) -> Any:
+    """``echo`` for a start again: the placement's choice was said at the first start (the
+    summary gives the last one), so it is not said at every rung again."""
+    return lambda line, *a, **k: None if str(line).startswith(
+        "ctrlunit: --placement auto:") else echo(line, *a, **k)
+
+
 def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
             inspect: dict | None) -> tuple[int, dict]:
     """:func:`start`'s starts (:class:`~.unit_start.UnitStart`): under ``--period auto``
@@ -59,9 +66,9 @@ def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         # --period auto: the first start may go down the ladder, each start climbs it
         for attempt in range(len(LADDER_S)):
             os.sched_setaffinity(0, affinity)  # each start chooses the roles' CPUs afresh
-            code, report = UnitStart(rc, echo=echo, progress=progress, spawn=spawn,
-                                     inspect=inspect, view=view,
-                                     idle=idle_choice)(descend=attempt == 0)
+            code, report = UnitStart(rc, echo=echo if attempt == 0 else _quieter(echo),
+                                     progress=progress, spawn=spawn, inspect=inspect,
+                                     view=view, idle=idle_choice)(descend=attempt == 0)
             adm = report.get("admission") or {}
             tried += [r | {"start": attempt} for r in adm.get("rungs") or []]
             held = adm.get("sustainable_period_s")

@@ -44,8 +44,9 @@ def _late_lines(r: dict[str, Any]) -> list[str]:
         replies = dict(r.get("rejected_messages") or {}).get("late_reply", 0)
         out.append(f"  late data   {computed} peripheral round(s) late for their deadline, "
                    "computed by the central (the same arithmetic: the commands are "
-                   "unchanged)" + (f"; the {replies} late replies were dropped" if replies
-                                   else ""))
+                   "unchanged)" + (f"; the {replies} late repl"
+                                   f"{'y was' if replies == 1 else 'ies were'} dropped"
+                                   if replies else ""))
     out += _degraded_lines(r)
     late = r.get("late_intervals")
     if not late or not late["intervals"] or not late["work_stretch"]:
