@@ -253,8 +253,10 @@ def test_balance_prints_the_command_its_prediction_assumes(made, tmp_path, chang
     toml.write_text(resolved.stdout)
     rc = RunConfig.of(**read_run_file(str(toml)))
     s, c = rc.schedule, rc.control
+    # the model plays free-running intervals: a realtime run's prediction is freerun's
+    clock = "freerun" if src["clock"] == "realtime" else src["clock"]
     assert (s.clock, s.pipeline, s.placement, s.placement_auto) == (
-        src["clock"], src["pipeline"], str(placement), False)
+        clock, src["pipeline"], str(placement), False)
     if s.clock != "freerun":
         assert s.period == src["nominal_period_s"] and not s.period_auto
     assert (c.law, c.model, c.observer, rc.resolved_model_state) == (
@@ -265,6 +267,33 @@ def test_balance_prints_the_command_its_prediction_assumes(made, tmp_path, chang
     assert rc.run.cycles == src["cycles"]
     assert c.task == src["task"]
     assert json.loads(placement.read_text())["peripherals"] == a["placement"]["peripherals"]
+
+
+def test_balance_of_a_realtime_run_calibrates_on_its_traversal_and_predicts_freerun(
+        made, tmp_path):
+    """A new user's: balance of a realtime run at 2.5 ms predicted 712 us, and its command
+    re-ran at the clock's 2.5 ms (measured 2519 us, '+253.6 %'). The clock pads a realtime
+    period, so the model is fitted to the traversal (one interval alone), and the period
+    it predicts is measured free-running; a realtime re-run is refused by name."""
+    src = json.loads(made["report"].read_text()) | {"clock": "realtime",
+                                                    "nominal_period_s": 0.0025}
+    f = tmp_path / "run.json"
+    f.write_text(json.dumps(src))
+    res = invoke("balance", str(f), "--json")
+    assert res.exit_code == 0, res.output
+    a = json.loads(res.stdout)
+    assert "is a realtime run" in res.stderr and "--clock freerun" in res.stderr
+    assert "traversal" in a["model_costs_s"]["latency_is"]
+    assert "--clock freerun" in a["command"] and "--period" not in a["command"]
+    lock = invoke("balance", str(made["report"]), "--json")  # the same costs, not paced
+    assert json.loads(lock.stdout)["model_costs_s"]["latency_is"] == \
+        "fitted to the run's mean period"
+    placement = tmp_path / "p.json"
+    invoke("balance", str(f), "--write", str(placement))
+    rerun = tmp_path / "rerun.json"
+    rerun.write_text(json.dumps(src | {"placement": a["placement"]}))
+    res = invoke("balance", str(f), "--compare", str(rerun))
+    assert res.exit_code == 1 and "whose period is its clock's" in res.stderr, res.output
 
 
 def test_balance_without_write_says_it_wrote_nothing(made, tmp_path, monkeypatch):

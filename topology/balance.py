@@ -86,11 +86,13 @@ def model_costs(report: dict[str, Any], plan: ExchangePlan) -> Costs:
     return Costs(block, send, reply, step, 0.0, start, finish)
 
 
-def calibrate(report: dict[str, Any]) -> tuple[StageGraph, Costs, dict[str, Any]]:
-    """The model calibrated on a run: costs, and the latency that gives its mean period.
+def calibrate(report: dict[str, Any], *, source: str = "report"
+              ) -> tuple[StageGraph, Costs, dict[str, Any]]:
+    """The model calibrated on a run: costs, and the latency that gives its mean period
+    (in realtime, its median traversal: the clock pads the period).
 
-    The report is read by :func:`read_report` (idempotent on its own output)."""
-    report = read_report(report)
+    The run's report as written, read here by :func:`read_report`."""
+    report = read_report(report, source=source)
     graph = stage_graph(report["law"], report["model"], observer=report["observer"],
                         model_state=report["model_state"])
     plan = exchange_plan(graph, placement_of(report))
@@ -100,11 +102,17 @@ def calibrate(report: dict[str, Any]) -> tuple[StageGraph, Costs, dict[str, Any]
     if not measured or not math.isfinite(measured):
         measured = (report.get("period_s") or {}).get("p50") or math.nan
     latency = 0.0
-    if plan.round_trips and math.isfinite(measured):
-        mode = (report.get("replies") or {}).get("mode") or "fused"
-        latency = fit_latency(plan, costs, measured, depth=depth, replies=mode)
+    mode = (report.get("replies") or {}).get("mode") or "fused"
+    paced = report["run"]["clock"] == "realtime"
+    # the realtime clock pads each period: an interval's own time is its traversal, which
+    # the model gives alone at depth 1
+    own = ((report.get("traversal_s") or {}).get("p50") or math.nan) if paced else measured
+    if plan.round_trips and math.isfinite(own):
+        latency = fit_latency(plan, costs, own, depth=1 if paced else depth, replies=mode,
+                              figure="traversal_s" if paced else "period_mean_s")
     costs = costs.with_latency(latency)
-    return graph, costs, {"measured_period_s": measured, "depth": depth}
+    return graph, costs, {"measured_period_s": measured, "interval_s": own, "depth": depth,
+                          "paced": paced}
 
 
 def predict(graph: StageGraph, placement: Placement, costs: Costs, *, depth: int,
@@ -165,8 +173,8 @@ def analyse(report: Any, *, source: str = "report") -> dict[str, Any]:
 
     The report is read by :func:`read_report` first (a :class:`ReportError` names what is
     wrong with it)."""
+    graph, costs, cal = calibrate(report, source=source)
     report = read_report(report, source=source)
-    graph, costs, cal = calibrate(report)
     placement = placement_of(report)
     depth = cal["depth"]
     asked = asked_replies(report)
@@ -181,8 +189,8 @@ def analyse(report: Any, *, source: str = "report") -> dict[str, Any]:
     ranked: list[dict[str, Any]] = []
     central_blocks = sum(v for k, v in block.items() if n == 0 or not graph.block(k).per_axis
                          or k in placement.central_blocks)
-    measured = cal["measured_period_s"]
-    arithmetic = central_blocks / measured if measured and math.isfinite(measured) else math.nan
+    own = cal["interval_s"]  # the period, or in realtime the traversal (the work's own)
+    arithmetic = central_blocks / own if own and math.isfinite(own) else math.nan
     for why, cand in candidates(graph, placement, business, arithmetic):
         sched, mode = predict(graph, cand, costs, depth=depth, replies=asked)
         ranked.append({"why": why, "placement": cand.to_dict(), "replies": mode,
@@ -221,7 +229,9 @@ def analyse(report: Any, *, source: str = "report") -> dict[str, Any]:
         "model_costs_s": {"send": costs.send_s, "reply": costs.reply_s,
                           "step": costs.step_s, "start": costs.start_s,
                           "finish": costs.finish_s, "latency": costs.latency_s,
-                          "latency_is": "fitted to the run's mean period"},
+                          "latency_is": "fitted to the run's median traversal, one "
+                          "interval alone (the realtime clock pads the period)" if cal["paced"]
+                          else "fitted to the run's mean period"},
         "cpu": {"per_interval_s": report.get("cpu_per_interval_s") or {},
                 "cores": report.get("cpu_cores"),
                 "bound_period_s": report.get("cpu_bound_period_s")},
@@ -251,7 +261,13 @@ def compare(analysis: dict[str, Any], rerun: Any, *, source: str = "re-run") \
     depth = int(rerun.get("pipeline") or 1)
     predicted = analysis["predicted"][f"depth{depth}"]["period_s"]
     measured = rerun.get("period_mean_s") or math.nan
-    before = analysis["measured"]["period_s"]
+    # the model plays free-running intervals; a realtime run's period is its clock's
+    before = analysis["current"][f"depth{depth}"]["period_s"] \
+        if analysis["run"]["clock"] == "realtime" else analysis["measured"]["period_s"]
+    if rerun["run"]["clock"] == "realtime":
+        raise ValueError("the re-run is a realtime run, whose period is its clock's: re-run "
+                         "with --clock freerun, as the command balance prints, to measure "
+                         "the period it predicts")
     return {"depth": depth, "predicted_period_s": predicted, "measured_period_s": measured,
             "error": measured / predicted - 1.0 if predicted else math.nan,
             "before_period_s": before, "gain": 1.0 - measured / before if before else math.nan,

@@ -324,13 +324,15 @@ def simulate(plan: ExchangePlan, costs: Costs, *, depth: int = 1, replies: str =
 
 
 def fit_latency(plan: ExchangePlan, costs: Costs, period_s: float, *, depth: int,
-                replies: str = "fused", intervals: int = 120) -> float:
+                replies: str = "fused", intervals: int = 120,
+                figure: str = "period_mean_s") -> float:
     """The one-way latency with which the model's period equals a measured one (bisection;
     the period does not decrease as the latency grows). 0 when the model is already
-    slower at no latency."""
+    slower at no latency. ``figure`` ``"traversal_s"``: its traversal instead (one
+    interval's own time, where a realtime clock pads the period)."""
     def period(lat: float) -> float:
-        return simulate(plan, costs.with_latency(lat), depth=depth, replies=replies,
-                        intervals=intervals).period_mean_s
+        return getattr(simulate(plan, costs.with_latency(lat), depth=depth, replies=replies,
+                                intervals=intervals), figure)
 
     lo, hi = 0.0, max(1e-3, period_s)
     if period(lo) >= period_s:
