@@ -760,8 +760,12 @@ def test_a_start_again_does_not_say_the_placement_choice_again():
     from ctrlunit.runtime.launch import launcher
 
     said: list[str] = []
-    again = launcher._quieter(said.append)
-    again("ctrlunit: --placement auto: round 0 (ik_obs0) costs the central 12 us ...")
-    again("ctrlunit: --period auto: 1 ms was not held in this start's trial, 1.6 ms was")
-    assert said == ["ctrlunit: --period auto: 1 ms was not held in this start's trial, "
-                    "1.6 ms was"]
+    say = launcher._quieter(said.append, set())
+    first = "ctrlunit: --placement auto: round 0 (ik_obs0) costs the central 12 us against 818 us"
+    say(first)
+    say("ctrlunit: --period auto: 1 ms was not held in this start's trial, 1.6 ms was")
+    say("ctrlunit: --placement auto: round 0 (ik_obs0) costs the central 14 us against 790 us")
+    other = "ctrlunit: --placement auto: round 0 (ik_obs0) costs the central 14 us: stays"
+    say(other)  # another decision: said
+    assert said == [first, "ctrlunit: --period auto: 1 ms was not held in this start's "
+                    "trial, 1.6 ms was", other]

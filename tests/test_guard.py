@@ -560,6 +560,8 @@ def test_tracking_error_at_exactly_max_error_is_allowed_and_reported_in_mm():
     (0.005004, 0.005, ("5.004 mm", "5.000 mm")),  # the decimals that tell them apart
     (14.2e-6, 1e-5, ("14.2 um", "10.0 um")),  # under a millimetre: um, not "0.0 mm"
     (0.75, 0.5, ("750.0 mm", "500.0 mm")),
+    (0.5, 1e-5, ("500000.0 um", "10.0 um")),  # the limit's unit, as the user gave it
+    (0.0200000001, 0.02, ("20.000000099999998 mm", "20.0 mm")),  # every digit past three
 ])
 def test_a_tracking_fault_gives_figures_a_reader_can_tell_apart(err, limit, said):
     """``--max-error 0.00001`` faulted with "tracking error 0.0 mm exceeds --max-error

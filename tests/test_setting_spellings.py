@@ -235,3 +235,18 @@ def test_the_period_set_is_the_period_that_runs():
 def test_a_refused_value_names_the_key_as_typed_and_what_is_allowed(args, message):
     res = CliRunner().invoke(cli, ["start", "--check", *args])
     assert res.exit_code == 1 and message in res.output, res.output
+
+
+def test_an_unset_line_of_the_run_file_filled_in_is_a_setting(tmp_path):
+    """``ctrlunit config`` wrote ``# substeps =  (unset)``, which a new user uncommented and
+    filled in only to be told "Invalid value (at line 115, column 13)"."""
+    import tomllib
+
+    text = CliRunner().invoke(cli, ["config"]).output
+    line = next(ln for ln in text.splitlines() if ln.startswith("# substeps = "))
+    filled = text.replace(line, line.removeprefix("# ").replace("VALUE", "4", 1))
+    assert tomllib.loads(filled)["plant"]["substeps"] == 4
+    f = tmp_path / "run.toml"
+    f.write_text(filled)
+    res = CliRunner().invoke(cli, ["start", "--config", str(f), "--check", "--json"])
+    assert res.exit_code == 0, res.output

@@ -106,7 +106,7 @@ def calibrate(report: dict[str, Any], *, source: str = "report"
     paced = report["run"]["clock"] == "realtime"
     # the realtime clock pads each period: an interval's own time is its traversal, which
     # the model gives alone at depth 1
-    own = ((report.get("traversal_s") or {}).get("p50") or math.nan) if paced else measured
+    own = ((report.get("traversal_s") or {}).get("p50") or measured) if paced else measured
     if plan.round_trips and math.isfinite(own):
         latency = fit_latency(plan, costs, own, depth=1 if paced else depth, replies=mode,
                               figure="traversal_s" if paced else "period_mean_s")
@@ -166,6 +166,16 @@ def candidates(graph: StageGraph, placement: Placement, business: dict[str, floa
             out.append((why + f"give the block '{b}' back to the peripherals",
                         Placement(placement.axes, placement.central_blocks - {b})))
     return out
+
+
+def _latency_is(cal: dict[str, Any], *, plan_ahead: bool) -> str:
+    """What the fitted latency was fitted to (:func:`calibrate`)."""
+    if not cal["paced"]:
+        return "fitted to the run's mean period"
+    return ("fitted to the run's median traversal, one interval alone (the realtime clock "
+            "pads the period)" + ("; the rounds run ahead of the sample are not in it, so "
+                                  "the latency is at most the true one" if plan_ahead and
+                                  cal["depth"] == 2 else ""))
 
 
 def analyse(report: Any, *, source: str = "report") -> dict[str, Any]:
@@ -229,9 +239,8 @@ def analyse(report: Any, *, source: str = "report") -> dict[str, Any]:
         "model_costs_s": {"send": costs.send_s, "reply": costs.reply_s,
                           "step": costs.step_s, "start": costs.start_s,
                           "finish": costs.finish_s, "latency": costs.latency_s,
-                          "latency_is": "fitted to the run's median traversal, one "
-                          "interval alone (the realtime clock pads the period)" if cal["paced"]
-                          else "fitted to the run's mean period"},
+                          "latency_is": _latency_is(cal, plan_ahead=bool(
+                              exchange_plan(graph, placement).ahead_rounds))},
         "cpu": {"per_interval_s": report.get("cpu_per_interval_s") or {},
                 "cores": report.get("cpu_cores"),
                 "bound_period_s": report.get("cpu_bound_period_s")},
@@ -269,6 +278,8 @@ def compare(analysis: dict[str, Any], rerun: Any, *, source: str = "re-run") \
                          "with --clock freerun, as the command balance prints, to measure "
                          "the period it predicts")
     return {"depth": depth, "predicted_period_s": predicted, "measured_period_s": measured,
+            "before_is": "the model's, free-running" if analysis["run"]["clock"] == "realtime"
+            else "measured",
             "error": measured / predicted - 1.0 if predicted else math.nan,
             "before_period_s": before, "gain": 1.0 - measured / before if before else math.nan,
             "gantt_ms": rerun.get("gantt_ms") or []}

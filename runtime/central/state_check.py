@@ -18,14 +18,15 @@ WORKSPACE_EVERY = 10
 
 
 def lengths(err: float, limit: float) -> tuple[str, str]:
-    """``err`` and ``limit`` (m, ``err > limit``) as a fault's message gives them: in mm,
-    or um under a millimetre, with the decimals that tell them apart (at most 3)."""
+    """``err`` and ``limit`` (m, ``err > limit``) as a fault's message gives them: in the
+    limit's unit (mm, or um under a millimetre), with the decimals that tell them apart
+    (at most 3, else every digit)."""
     scale, unit = (1e3, "mm") if limit >= 1e-3 else (1e6, "um")
     for decimals in range(1, 4):
         a, b = f"{err * scale:.{decimals}f}", f"{limit * scale:.{decimals}f}"
         if a != b:
-            break
-    return f"{a} {unit}", f"{b} {unit}"
+            return f"{a} {unit}", f"{b} {unit}"
+    return f"{err * scale!r} {unit}", f"{limit * scale!r} {unit}"
 
 
 def check_state(cycle: int, p: Sequence[float] | None, pc: Sequence[float] | None, *,

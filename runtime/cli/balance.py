@@ -142,7 +142,9 @@ def _balance_text(a: dict[str, Any], cmp: dict[str, Any] | None, *, source: str,
         f"  model: central {us(mc['send'])} per request, {us(mc['reply'])} per reply, "
         f"{us(mc['step'])} per run of steps, {us(mc['start'])} + {us(mc['finish'])} to start "
         f"and finish an interval; latency {us(mc['latency'])} one way (fitted)",
-        f"  now: measured period {us(a['measured']['period_s'])} (mean); model depth 1 "
+        f"  now: measured period {us(a['measured']['period_s'])} (mean"
+        f"{'; the realtime clock sets it' if a['run']['clock'] == 'realtime' else ''}); "
+        "model depth 1 "
         f"{us(a['current']['depth1']['period_s'])}, depth 2 "
         f"{us(a['current']['depth2']['period_s'])}",
     ]
@@ -167,6 +169,7 @@ def _balance_text(a: dict[str, Any], cmp: dict[str, Any] | None, *, source: str,
         lines.append(f"  re-run (depth {cmp['depth']}): measured {us(cmp['measured_period_s'])} "
                      f"against {us(cmp['predicted_period_s'])} predicted "
                      f"({cmp['error'] * 100:+.1f} %); before {us(cmp['before_period_s'])} "
+                     f"({cmp['before_is']}) "
                      f"(gain {cmp['gain'] * 100:+.1f} %)")
     if figure:
         lines.append(f"  Gantt charts: {figure}")

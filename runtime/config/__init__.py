@@ -186,8 +186,8 @@ class RunConfig:
             value = getattr(getattr(self, section), name)
             if not has_type(value, tp := _FLAT_TYPES[flat]):  # as the range says, if one does
                 allowed = allowed_text(a) if a.choices or a.bounds or a.allowed else type_name(tp)
-                raise self._bad(flat, integers(allowed) if has_type(1, tp)
-                                and not has_type(0.5, tp) else allowed)
+                raise self._bad(flat, integers(allowed) if tp in (int, int | None)
+                                else allowed)
             if out_of_range(a, value):
                 raise self._bad(flat, user_allowed(a) if a.kind == "duration"
                                 else allowed_text(a))

@@ -115,7 +115,7 @@ def to_toml(settings: dict[str, Any]) -> str:
             lines += help_lines(about)
             value = settings[flat]
             if value is None:
-                lines.append(f"# {name} = VALUE  (unset: put a value in place of VALUE)")
+                lines.append(f"# {name} = VALUE  # unset: put a value in place of VALUE")
             elif isinstance(value, bool):
                 lines.append(f"{name} = {'true' if value else 'false'}")
             elif isinstance(value, dict):

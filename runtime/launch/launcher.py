@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
 from typing import Any
 
 from ..config import EXIT_CONFIG, EXIT_UNSUSTAINABLE, RunConfig
@@ -39,11 +40,18 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
         return _starts(rc, echo=echo, progress=progress, spawn=spawn, inspect=inspect)
 
 
-def _quieter(echo: Any) -> Any:
-    """``echo`` for a start again: the placement's choice was said at the first start (the
-    summary gives the last one), so it is not said at every rung again."""
-    return lambda line, *a, **k: None if str(line).startswith(
-        "ctrlunit: --placement auto:") else echo(line, *a, **k)
+def _quieter(echo: Any, said: set[str]) -> Any:
+    """``echo`` for the starts: the placement's choice is said once while it stays the
+    same decision (its figures aside), again where a later start decides otherwise."""
+    def say(line: Any, *a: Any, **k: Any) -> None:
+        text = str(line)
+        if text.startswith("ctrlunit: --placement auto:"):
+            decision = re.sub(r"[\d.]+ us", "N us", text)
+            if decision in said:
+                return
+            said.add(decision)
+        echo(line, *a, **k)
+    return say
 
 
 def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
@@ -63,10 +71,11 @@ def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         except (ValueError, IdlePermissionError) as exc:
             return EXIT_CONFIG, {"fault": {"process": "configuration", "message": str(exc),
                                            "code": EXIT_CONFIG}}
+        quiet = _quieter(echo, set())
         # --period auto: the first start may go down the ladder, each start climbs it
         for attempt in range(len(LADDER_S)):
             os.sched_setaffinity(0, affinity)  # each start chooses the roles' CPUs afresh
-            code, report = UnitStart(rc, echo=echo if attempt == 0 else _quieter(echo),
+            code, report = UnitStart(rc, echo=quiet,
                                      progress=progress, spawn=spawn, inspect=inspect,
                                      view=view, idle=idle_choice)(descend=attempt == 0)
             adm = report.get("admission") or {}
