@@ -121,3 +121,47 @@ def test_report_of_a_recording_cut_before_its_first_interval_is_an_error(tmp_pat
     res = ctrlunit("report", str(path))
     assert res.returncode == 1 and "salvaged 0" not in res.stdout + res.stderr
     assert "cut off before its first interval" in one_line_error(res)
+
+
+# -- an attacker's inputs (2026-11-28): each was a traceback, a hang, a memory blow-up or a
+# -- segfault; each is now one line on stderr and exit 1
+
+def _one_error(res, *words: str) -> None:
+    err = res.stderr.strip().splitlines()
+    assert res.returncode == 1 and len(err) == 1, (res.returncode, res.stderr[-2000:])
+    assert err[0].startswith("ctrlunit: error: ") and all(w in err[0] for w in words), err
+
+
+def test_a_fifo_or_a_device_given_as_a_file_is_refused_not_read(tmp_path):
+    """A FIFO hung report, plot, replay, export and balance; /dev/zero filled balance's
+    memory (12 GB in 10 s)."""
+    import os
+
+    fifo = tmp_path / "r.mcap"
+    os.mkfifo(fifo)
+    for args in (["report", str(fifo)], ["replay", str(fifo), "--verify"],
+                 ["balance", str(fifo)], ["balance", "/dev/zero"]):
+        _one_error(ctrlunit(*args, timeout=60), "is not a regular file")
+
+
+def test_input_nested_too_deeply_or_not_utf8_is_refused(tmp_path):
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    _one_error(ctrlunit("balance", str(deep), timeout=60), "nested too deeply")
+    # Zenoh's own parser died of SIGSEGV on it (exit 139)
+    _one_error(ctrlunit("start", "--check", "--clock", "lockstep", "--zenoh-config",
+                        str(deep), timeout=60), "--zenoh-config", "nested 100000 levels")
+    garbage = tmp_path / "run.toml"
+    garbage.write_bytes(b"\xff\xfe[a]\n")
+    _one_error(ctrlunit("start", "--check", "--config", str(garbage), timeout=60),
+               "not UTF-8")
+
+
+def test_a_pin_that_names_no_cpu_of_this_machine_is_refused_at_the_check():
+    """--check let ``--pin a,b`` (and 99999, -1) pass; the run then raised from
+    sched_setaffinity and left its run directory behind."""
+    for pin in ("a,b", "99999", "-1", "0,"):
+        _one_error(ctrlunit("start", "--check", "--clock", "lockstep", f"--pin={pin}",
+                            timeout=60), f"--pin '{pin}'", "allowed CPUs of this machine")
+    assert ctrlunit("start", "--check", "--clock", "lockstep", "--pin=0",
+                    timeout=60).returncode == 0

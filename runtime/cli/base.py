@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 import sys
 from typing import Any
 
@@ -61,6 +63,15 @@ class FilePath(click.Path):
     """:class:`click.Path` whose refusal (a file that does not exist, a directory given
     for a file or the reverse, no permission) is an input error, exit 1 like any other
     file the commands cannot read, rather than click's usage error (exit 2)."""
+
+    def convert(self, value: Any, param: click.Parameter | None,
+                ctx: click.Context | None) -> Any:
+        """As click's, and a file to read must be a regular one: a FIFO would hang the
+        command and a device (/dev/zero) fill its memory."""
+        path = super().convert(value, param, ctx)
+        if self.exists and not self.dir_okay and not stat.S_ISREG(os.stat(path).st_mode):
+            self.fail(f"{path!r} is not a regular file (a FIFO, a device, ...)", param, ctx)
+        return path
 
     def fail(self, message: str, param: click.Parameter | None = None,
              ctx: click.Context | None = None) -> Any:
@@ -122,6 +133,7 @@ class _Group(click.Group):
     them) one line and exit 130 (143, 129)."""
 
     def invoke(self, ctx: click.Context) -> Any:
+        from ..compute.blocks import ObserverDiverged
         from ..config import EXIT_CONFIG, ConfigError
         from ..roles.stopping import stop_of
 
@@ -133,6 +145,14 @@ class _Group(click.Group):
             _fail(exc.format_message(), EXIT_CONFIG)
         except ConfigError as exc:
             _fail(str(exc), EXIT_CONFIG)
+        except ObserverDiverged as exc:  # a recording whose samples were damaged
+            _fail(f"the input's samples lead the observer nowhere ({exc}): a damaged "
+                  "recording?", EXIT_CONFIG)
+        except RecursionError:  # a file of a thousand nested lists, tables or objects
+            _fail("an input file is nested too deeply to be read", EXIT_CONFIG)
+        except UnicodeDecodeError as exc:
+            _fail(f"an input file is not UTF-8 text ({exc.reason} at byte {exc.start})",
+                  EXIT_CONFIG)
         except KeyboardInterrupt as exc:
             code, fault = stop_of(exc)
             click.echo(f"ctrlunit: {fault['message']}", err=True)

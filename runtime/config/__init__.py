@@ -211,12 +211,12 @@ class RunConfig:
                 f"allowed with --bandwidth at most {limit:.3g} Hz, or --overload continue")
 
     def _check_host(self, roles: tuple[str, ...] | list[str]) -> None:
-        """The host's scheduling, the unit id, the endpoints and the links' keys (those of
-        ``roles``)."""
+        """The host's scheduling and CPUs, the unit id, the endpoints, the keys of ``roles``."""
         from ..host.idle import check_idle
-        from ..host.sched import check_priority
+        from ..host.sched import check_pin, check_priority
 
         try:
+            check_pin(self.schedule.pin)
             check_priority(self.schedule.rt_priority)
             check_idle(self.schedule.idle)
         except ValueError as exc:

@@ -86,6 +86,15 @@ def policy_name(tid: int = 0) -> str:
     return name
 
 
+def check_pin(pin: str | None) -> None:
+    """``--pin``: CPUs of this machine, ``0`` or ``0,1``, else a ``ValueError`` naming them
+    (the run would fail at ``sched_setaffinity`` after the check let it pass)."""
+    n = os.cpu_count() or 1
+    if pin is not None and not all(c.strip().isdigit() and int(c) < n for c in pin.split(",")):
+        raise ValueError(f"--pin {pin!r}: allowed CPUs of this machine, 0 to {n - 1}, "
+                         "separated by commas (e.g. 0 or 0,1)")
+
+
 def check_priority(priority: int | str) -> None:
     """``auto`` or 0 to 99, else a ``ValueError`` naming the option and the range."""
     if priority == AUTO:

@@ -65,6 +65,30 @@ class FileLinks:
     namespace: str | None = None
 
 
+MAX_NESTING = 64
+"""How deep a Zenoh configuration file may nest its lists and objects: Zenoh's parser
+recurses, and 100 000 nested lists overflowed its stack (the process died of SIGSEGV)."""
+
+
+def _check_nesting(path: str) -> None:
+    """Refuse a file whose brackets nest deeper than :data:`MAX_NESTING` (counted on the
+    text, strings included: a bracket in a string only makes the count stricter)."""
+    try:
+        text = open(path, "rb").read(1 << 24)
+    except OSError:
+        return  # Zenoh names it
+    depth = deepest = 0
+    for b in text:
+        if b in b"[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif b in b"]}":
+            depth -= 1
+    if deepest > MAX_NESTING:
+        raise ValueError(f"--zenoh-config {path}: nested {deepest} levels deep: allowed "
+                         f"at most {MAX_NESTING}")
+
+
 def file_links(path: str) -> FileLinks:
     """Read :class:`FileLinks` from a Zenoh configuration file with Zenoh's parser.
 
@@ -73,6 +97,7 @@ def file_links(path: str) -> FileLinks:
     ValueError
         ``--zenoh-config FILE: ...``: the file does not parse (Zenoh's message in a line)
         or its endpoints are not lists of strings."""
+    _check_nesting(path)
     try:
         conf = zenoh.Config.from_file(path)
     except Exception as exc:  # ZError: syntax, unknown field, unreadable file
