@@ -25,6 +25,7 @@ central's message costs):
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +40,7 @@ MARGIN = 0.05
 shorter than the current one (the model's error on this machine is a few per cent)."""
 
 INTERVALS = 160
+"""Intervals the model plays for each placement :func:`analyse` judges."""
 
 def _percent(x: float) -> str:
     """A business as text; a report may not hold one."""
@@ -51,9 +53,9 @@ def placement_of(report: dict[str, Any]) -> Placement:
                      frozenset(pl.get("central_blocks", [])))
 
 
-def _replies_mode(plan: ExchangePlan, costs: Costs, depth: int, asked: str) -> str:
-    """What ``--replies auto`` would pick (central.py): ``each`` when the central's work
-    between two rounds exceeds a round trip."""
+def replies_mode(plan: ExchangePlan, costs: Costs, depth: int, asked: str) -> str:
+    """What ``--replies auto`` would pick (runtime/central/warmup.py): ``each`` when the
+    central's work between two rounds exceeds a round trip."""
     if depth < 2 or plan.placement.peripherals == 0:
         return "fused"
     if asked in ("fused", "each"):
@@ -86,10 +88,11 @@ def model_costs(report: dict[str, Any], plan: ExchangePlan) -> Costs:
     return Costs(block, send, reply, step, 0.0, start, finish)
 
 
-def calibrate(report: dict[str, Any], *, source: str = "report"
+def calibrate(report: dict[str, Any], *, source: str = "report", steps: int = 40
               ) -> tuple[StageGraph, Costs, dict[str, Any]]:
     """The model calibrated on a run: costs, and the latency that gives its mean period
-    (in realtime, its median traversal: the clock pads the period).
+    (in realtime, its median traversal: the clock pads the period), fitted in ``steps``
+    halvings.
 
     The run's report as written, read here by :func:`read_report`."""
     report = read_report(report, source=source)
@@ -109,7 +112,7 @@ def calibrate(report: dict[str, Any], *, source: str = "report"
     own = ((report.get("traversal_s") or {}).get("p50") or measured) if paced else measured
     if plan.round_trips and math.isfinite(own):
         latency = fit_latency(plan, costs, own, depth=1 if paced else depth, replies=mode,
-                              figure="traversal_s" if paced else "period_mean_s")
+                              figure="traversal_s" if paced else "period_mean_s", steps=steps)
     costs = costs.with_latency(latency)
     return graph, costs, {"measured_period_s": measured, "interval_s": own, "depth": depth,
                           "paced": paced}
@@ -119,7 +122,7 @@ def predict(graph: StageGraph, placement: Placement, costs: Costs, *, depth: int
             replies: str = "auto") -> tuple[Schedule, str]:
     """The model's schedule for ``placement`` at ``depth``; returns it and the replies mode."""
     plan = exchange_plan(graph, placement)
-    mode = _replies_mode(plan, costs, depth, replies)
+    mode = replies_mode(plan, costs, depth, replies)
     return simulate(plan, costs, depth=depth, replies=mode, intervals=INTERVALS), mode
 
 
@@ -165,7 +168,24 @@ def candidates(graph: StageGraph, placement: Placement, business: dict[str, floa
         for b in sorted(placement.central_blocks):
             out.append((why + f"give the block '{b}' back to the peripherals",
                         Placement(placement.axes, placement.central_blocks - {b})))
+        # a whole round's blocks at once: the round's exchange comes back with its first
+        for r in exchange_plan(graph, Placement(placement.axes)).rounds:
+            back = {b.name for b in r.blocks} & placement.central_blocks
+            if len(back) > 1:
+                out.append((why + f"give round {r.index}'s blocks ({', '.join(sorted(back))}) "
+                            "back to the peripherals",
+                            Placement(placement.axes, placement.central_blocks - back)))
     return out
+
+
+def central_arithmetic(graph: StageGraph, placement: Placement,
+                       block_s: Mapping[str, float], own_s: float) -> float:
+    """The central's share of ``own_s`` (a period, or in realtime a traversal) spent in
+    its blocks: the thesis's "busy" that :func:`candidates` reads."""
+    n = placement.peripherals
+    spent = sum(v for k, v in block_s.items() if n == 0 or not graph.block(k).per_axis
+                or k in placement.central_blocks)
+    return spent / own_s if own_s and math.isfinite(own_s) else math.nan
 
 
 def _latency_is(cal: dict[str, Any], *, plan_ahead: bool) -> str:
@@ -197,10 +217,8 @@ def analyse(report: Any, *, source: str = "report") -> dict[str, Any]:
     current = {d: predict(graph, placement, costs, depth=d, replies=asked)[0] for d in (1, 2)}
     now = current[depth]
     ranked: list[dict[str, Any]] = []
-    central_blocks = sum(v for k, v in block.items() if n == 0 or not graph.block(k).per_axis
-                         or k in placement.central_blocks)
-    own = cal["interval_s"]  # the period, or in realtime the traversal (the work's own)
-    arithmetic = central_blocks / own if own and math.isfinite(own) else math.nan
+    # the period, or in realtime the traversal (the work's own)
+    arithmetic = central_arithmetic(graph, placement, block, cal["interval_s"])
     for why, cand in candidates(graph, placement, business, arithmetic):
         sched, mode = predict(graph, cand, costs, depth=depth, replies=asked)
         ranked.append({"why": why, "placement": cand.to_dict(), "replies": mode,

@@ -325,11 +325,11 @@ def simulate(plan: ExchangePlan, costs: Costs, *, depth: int = 1, replies: str =
 
 def fit_latency(plan: ExchangePlan, costs: Costs, period_s: float, *, depth: int,
                 replies: str = "fused", intervals: int = 120,
-                figure: str = "period_mean_s") -> float:
-    """The one-way latency with which the model's period equals a measured one (bisection;
-    the period does not decrease as the latency grows). 0 when the model is already
-    slower at no latency. ``figure`` ``"traversal_s"``: its traversal instead (one
-    interval's own time, where a realtime clock pads the period)."""
+                figure: str = "period_mean_s", steps: int = 40) -> float:
+    """The one-way latency with which the model's period equals a measured one (bisection
+    in ``steps`` halvings; the period does not decrease as the latency grows). 0 when the
+    model is already slower at no latency. ``figure`` ``"traversal_s"``: its traversal
+    instead (one interval's own time, where a realtime clock pads the period)."""
     def period(lat: float) -> float:
         return getattr(simulate(plan, costs.with_latency(lat), depth=depth, replies=replies,
                                 intervals=intervals), figure)
@@ -341,7 +341,7 @@ def fit_latency(plan: ExchangePlan, costs: Costs, period_s: float, *, depth: int
         if period(hi) >= period_s:
             break
         hi *= 2.0
-    for _ in range(40):
+    for _ in range(steps):
         mid = 0.5 * (lo + hi)
         if period(mid) < period_s:
             lo = mid
