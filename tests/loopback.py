@@ -159,9 +159,11 @@ class LoopbackUnit:
         for k in range(setup.placement.peripherals):
             pnode = LoopbackNode(self.bus, rc.transport.unit, f"peripheral-{k + 1}")
             pnode.route(pnode.keys.request, "request")
-            self.peripherals.append((pnode, Peripheral(setup.engine(), k, rc.transport.unit,
-                                                       trace=rc.run.trace,
-                                                       rejected=pnode.rejected)))
+            pnode.route(pnode.keys.control("peripheral"), "control")
+            self.peripherals.append((pnode, Peripheral(
+                setup.engine(), k, rc.transport.unit, trace=rc.run.trace,
+                rejected=pnode.rejected,
+                place=lambda blocks: setup.with_central_blocks(blocks).engine())))
         self.server: PlantServer | None = None
         if rc.schedule.clock != "freerun":
             pnode = LoopbackNode(self.bus, rc.transport.unit, "plant")
@@ -186,6 +188,9 @@ class LoopbackUnit:
                 while pnode.events.pending():
                     ev = pnode.events.get_nowait()
                     moved = True
+                    if ev.kind == "control":  # a place order (live balance), as serve()
+                        self._order(pnode, periph, ev.data)
+                        continue
                     for reply in periph.on_request(ev.data):
                         if k in self.muted:  # computed, but not (yet) delivered
                             self.withheld.append((k, reply))
@@ -195,6 +200,18 @@ class LoopbackUnit:
                 moved |= self._plant_lockstep()
             if not moved:
                 return
+
+    def _order(self, pnode: LoopbackNode, periph: Peripheral, data: bytes) -> None:
+        """A control order to a peripheral: a ``place`` is taken (the run has begun) and
+        acknowledged on its hello key, as the role's loop does; the others change nothing
+        here."""
+        from ctrlunit.runtime.transport.codec import decode
+
+        order = decode(data, self.rc.transport.unit)
+        if order.get("stage") == "place":
+            ack = periph.on_place(order, pnode.role, started=True)
+            if ack is not None:
+                self.bus.put(pnode.keys.hello(pnode.role), ack)
 
     def start_plant(self) -> None:
         """The plant's first sample (its state at rest), as its role sends at start."""

@@ -83,6 +83,8 @@ def same(default: object, cell: str) -> bool:
             return float(default) == want  # type: ignore[arg-type]
         except (TypeError, ValueError):
             return False
+    if default == cell:  # "off" is also a choice's name (--balance)
+        return True
     if want is None:
         return default in (None, False, (), "")
     return default == want

@@ -147,9 +147,14 @@ def _samples(tmp_path_factory: pytest.TempPathFactory) -> None:
     SAMPLES.update(_files(tmp_path_factory.mktemp("spellings")))
 
 
+CONTEXT: dict[str, list[str]] = {"balance": ["--clock", "freerun"]}
+"""Options a setting's every value needs (``--balance live`` is refused in realtime)."""
+
+
 def _check(args: list[str], flat: str) -> tuple[int, str]:
     unit = [] if flat == "unit" else ["--unit", UNIT]
-    res = CliRunner().invoke(cli, ["start", "--check", "--json", *unit, *args])
+    res = CliRunner().invoke(cli, ["start", "--check", "--json", *unit,
+                                   *CONTEXT.get(flat, []), *args])
     return res.exit_code, res.output
 
 

@@ -94,6 +94,10 @@ def read_report(doc: Any, *, source: str = "report") -> dict[str, Any]:
         got = _JSON_TYPES.get(type(doc), type(doc).__name__)
         raise ReportError(f"{source}: a run's report must be a JSON object, got {got} (write "
                           "one with ctrlunit start --report)")
+    if doc.get("rebalanced"):
+        raise ReportError(f"{source}: the run moved its blocks while it ran (rebalanced: "
+                          "--balance live), so its figures mix placements; analyse a run "
+                          "made with --balance off")
     law, model, observer, model_state, graph, block = _graph_fields(doc, source)
     depth, placement = _placement_fields(doc, source, graph)
     return {

@@ -27,7 +27,7 @@ from .overload import Overload
 from .pace import pace_of
 from .records import CycleLog, InFlight
 from .samples import sample_source
-from .settings import LoopSettings, PlanShape, t1_input
+from .settings import NO_HOLD, LoopSettings, PlanShape, t1_input
 from .silence import SilenceWatch
 from .state_check import check_state
 
@@ -75,6 +75,7 @@ class Intervals:
         """Next intervals whose sample-free steps ran."""
         self.next_cycle = controller.first_cycle
         self.done = 0
+        self.hold_from = NO_HOLD  # none from this cycle on starts or is primed (re-placing)
         self.pace = pace_of(settings)
         self.samples = sample_source(
             settings.clock, intake, synthetic=self._synthetic_sample, trial=settings.trial,
@@ -96,6 +97,8 @@ class Intervals:
         return None
 
     def _may_start(self) -> bool:
+        if self.next_cycle >= self.hold_from:
+            return False
         live = sum(1 for f in self.inflight.values()
                    if not f.finishing and not f.awaiting_sample)
         return may_start(depth=self.settings.depth, live=live, next_cycle=self.next_cycle,
@@ -186,8 +189,7 @@ class Intervals:
         return ctx
 
     def _drop_ahead(self, cycle: int) -> None:
-        """Forget an interval started ahead of a sample that was skipped: its replies, if
-        any come, are late ones (counted, never merged)."""
+        """Forget an interval started ahead of a skipped sample: its replies are late ones."""
         f = self.inflight.get(cycle)
         if f is None or not f.awaiting_sample:
             return
@@ -206,9 +208,9 @@ class Intervals:
         interval's last reply and the next request, with the peripherals idle. Same
         arithmetic: the estimate they use is final at the hand-off. Returns whether it
         ran them."""
-        if not may_prime(depth=self.settings.depth, primed=bool(self.primed),
-                         next_cycle=self.next_cycle, cycles=self.settings.end,
-                         newest_handed_off=self._newest_handed_off()):
+        if not may_prime(primed=bool(self.primed) or self.hold_from != NO_HOLD,
+                         depth=self.settings.depth, next_cycle=self.next_cycle,
+                         cycles=self.settings.end, newest_handed_off=self._newest_handed_off()):
             return False
         k0 = self.next_cycle
         for k in prime_cycles(next_cycle=k0, cycles=self.settings.end,
@@ -309,9 +311,9 @@ class Intervals:
         ``--timeout``."""
         f = self.outbox[0]
         sch = self.settings
-        if not holds_lone_round(depth=sch.depth, ready=len(self.outbox),
+        if not holds_lone_round(depth=sch.depth, ready=len(self.outbox), hold=sch.hold,
                                 handed_off=f.handed_off, cycle=f.cycle,
-                                next_cycle=self.next_cycle, cycles=sch.end, hold=sch.hold):
+                                next_cycle=self.next_cycle, cycles=min(sch.end, self.hold_from)):
             return 0
         return self.pace.hold_until(f, self.silence.limit_ns(self.done))
 

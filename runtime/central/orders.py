@@ -183,10 +183,13 @@ class Orders:
             # a sample now is no fault: the plant's first sample may only follow go
         self.say("go")
 
-    def place(self, central_blocks: list[str], *, skip: Collection[str] = ()) -> None:
+    def place(self, central_blocks: list[str], *, skip: Collection[str] = (),
+              from_cycle: int | None = None) -> None:
         """Tell every peripheral the blocks the central now runs (``--placement auto``'s
-        choice at warm-up) until each has rebuilt its plan and said ``placed`` (those in
-        ``skip``, taken over, aside: one started again gets the blocks with ``go``).
+        choice at warm-up, or once the run has begun a live re-placement from interval
+        ``from_cycle`` on, none begun: :mod:`.rebalance`) until each has rebuilt its plan
+        and said ``placed`` (those in ``skip``, taken over, aside: one started again gets
+        the blocks with ``go``).
 
         Raises
         ------
@@ -195,16 +198,19 @@ class Orders:
         """
         waiting = {f"peripheral-{k + 1}" for k in range(self.peripherals)} - set(skip)
         self.central_blocks = central_blocks
+        live: dict[str, Any] = {} if from_cycle is None else {"from_cycle": from_cycle}
+        when = "at warm-up" if from_cycle is None else f"from interval {from_cycle}"
         deadline = time.monotonic() + self.startup_timeout_s
         next_say = 0.0
         while waiting:
             now = time.monotonic()
             if now > deadline:
                 missing = ", ".join(sorted(waiting))
-                raise Fault(f"{missing} did not take the placement chosen at warm-up within "
+                raise Fault(f"{missing} did not take the placement chosen {when} within "
                             f"{self.startup_timeout_s} s", process=missing, code=EXIT_LINK)
             if now >= next_say:  # again until each has it
-                self.say("place", peripherals_only=True, central_blocks=central_blocks)
+                self.say("place", peripherals_only=True, central_blocks=central_blocks,
+                         **live)
                 next_say = now + REPEAT_S
             self.check_children()
             try:

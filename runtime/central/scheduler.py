@@ -41,6 +41,7 @@ from .orders import Orders
 from .outgoing import Outgoing
 from .overload import Overload
 from .rate import RateChange
+from .rebalance import LiveBalance
 from .records import CycleLog, InFlight
 from .replies import Replies
 from .settings import LoopSettings
@@ -92,9 +93,8 @@ class Central:
         self.intake = Intake(node, trial=trial)
         self.silence = SilenceWatch.of(rc, peripherals=n, stride=lambda: self.ctl.stride,
                                        supervision=supervision, hint=self.overload_hint)
-        self.late = LateData(engine, late=sch.late,
-                             late_policy=sch.late_policy, faults_key=f"{keys.root}/faults",
-                             pending=node.events.pending,
+        self.late = LateData(engine, late=sch.late, late_policy=sch.late_policy,
+                             faults_key=f"{keys.root}/faults", pending=node.events.pending,
                              advance=lambda f: self.intervals.advance(f),
                              span=self.meters.span, on_message=on_message)
         self.overload = Overload(enabled=not trial and rc.halves_on_overload, period_s=sch.period,
@@ -121,14 +121,16 @@ class Central:
                            on_hello=lambda ev: self.orders.on_hello(ev), on_message=on_message)
         self.orders = Orders(node, peripherals=n, plant=self.settings.plant,
                              startup_timeout_s=rc.transport.startup_timeout,
-                             check_children=self.takeover.check_children,
-                             take_sample=self.inbox.sample, config=config_message(rc),
-                             may_join=self.takeover.may_rejoin)
+                             check_children=self.takeover.check_children, config=config_message(rc),
+                             take_sample=self.inbox.sample, may_join=self.takeover.may_rejoin)
         self.warmup = WarmUp(node, engine, controller,
                              publish=self.outgoing.publish_request, depth=sch.pipeline,
                              asked=sch.replies, startup_timeout_s=rc.transport.startup_timeout,
                              check_children=self.takeover.check_children, other=self.handle,
                              lost=lambda: self.takeover.lost)
+        self.balance = LiveBalance(rc, intervals=self.intervals, orders=self.orders,
+                                   warmup=self.warmup, outgoing=self.outgoing, use=self.use,
+                                   lost=self.takeover.lost, on_message=on_message)
         self.rate = RateChange(ctl=lambda: self.ctl, where=lambda: (self.next_cycle, self.done),
                                intake=self.intake, orders=self.orders,
                                plant_key=keys.control("plant"), on_message=on_message)
@@ -243,6 +245,7 @@ class Central:
         finally:  # a fault too: where the CPU went, and when, are part of its diagnosis
             m.cpu_s = time.process_time() - cpu0
             m.t_end_ns = time.monotonic_ns()
+            self.balance.close()
         m.rss_end = rss_kb()
 
     def _loop(self) -> None:
@@ -252,6 +255,7 @@ class Central:
         iv = self.intervals
         while iv.done < end and not (iv.next_cycle >= end and not iv.inflight):
             limit_ns = self.limit_ns()
+            self.balance.turn(self.done)  # a live re-placement at a drained boundary
             self.start_ready()
             now = time.monotonic_ns()
             hold_until = self.send_ready(now)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -10,6 +11,10 @@ from ...topology.graph import EST2
 from ...topology.pipeline import handoff_step, hold_rule
 from ...topology.plan import ExchangePlan as Plan
 from ..config import RunConfig
+
+NO_HOLD = sys.maxsize
+"""The intervals' boundary when none is held (runtime/central/rebalance.py sets one: from
+it on no interval starts until the unit is re-placed)."""
 
 
 def t1_input(ctx: dict) -> tuple:
@@ -113,4 +118,5 @@ class PlanShape(NamedTuple):
                    plan.ahead_rounds if peripherals else 0)
 
 
-__all__ = ["CommandAhead", "LoopSettings", "PlanShape", "extrapolated_command", "t1_input"]
+__all__ = ["NO_HOLD", "CommandAhead", "LoopSettings", "PlanShape", "extrapolated_command",
+           "t1_input"]

@@ -159,6 +159,8 @@ class RunSnapshot:
     replies_info: dict[str, Any] | None
     silences_excused: int
     degraded: tuple[dict[str, Any], ...]
+    rebalanced: tuple[dict[str, Any], ...]
+    """Each live re-placement (:mod:`.rebalance`), in order."""
     memory_kb: tuple[int, int, tuple[tuple[int, int], ...]]
     """The central's resident memory: when warm, at the end, and its series."""
 
@@ -206,7 +208,7 @@ def snapshot_of(central: Central) -> RunSnapshot:
         torque_max=log.torque_max, tracking=log.errors.stats(),
         plant_misses=m.plant_misses, skipped=m.skipped, exchanges=m.exchanges,
         replies_info=dict(central.warmup.replies_info), silences_excused=central.silence.excuses,
-        degraded=tuple(central.takeover.report()),
+        degraded=tuple(central.takeover.report()), rebalanced=tuple(central.balance.report()),
         memory_kb=(m.rss_warm, m.rss_end, tuple(m.rss_series)))
 
 

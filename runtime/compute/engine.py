@@ -17,7 +17,8 @@ from collections.abc import Callable, Generator, Iterable
 from typing import Any
 
 from ...topology.graph import EST2
-from ...topology.plan import ExchangePlan, Round
+from ...topology.placement import Placement, PlacementError
+from ...topology.plan import ExchangePlan, Round, exchange_plan
 from .axis_blocks import AXIS_KERNELS
 from .blocks import CENTRAL_KERNELS, BlockConfig, Ctx, ObserverDiverged, names_for
 
@@ -117,6 +118,25 @@ class Engine:
         for b in plan.graph.blocks:
             fn = AXIS_KERNELS[b.kernel] if b.per_axis else CENTRAL_KERNELS[b.kernel]
             self._bound[b.name] = (fn, names_for(b), b.t800_us, b.per_axis)
+
+    def placed(self, central_blocks: Iterable[str]) -> Engine:
+        """This engine with the per-axis blocks ``central_blocks`` run on the central, the
+        peripherals and their axes kept: the same graph, kernel configuration (the task
+        and its cache included) and cost model, so that the values do not change (a live
+        re-placement, runtime/central/rebalance.py).
+
+        Raises
+        ------
+        PlacementError
+            If a name is not one of the graph's per-axis blocks.
+        """
+        wanted = frozenset(central_blocks)
+        bad = sorted(wanted - {b.name for b in self.plan.graph.axis_blocks})
+        if bad:
+            raise PlacementError(f"central_blocks {bad} are not per-axis blocks of this graph")
+        placement = Placement(self.plan.placement.axes, wanted)
+        return Engine(exchange_plan(self.plan.graph, placement), self.cfg, cost=self.cost,
+                      span=self.span)
 
     # -- contexts ---------------------------------------------------------------------
 

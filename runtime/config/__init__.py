@@ -48,8 +48,7 @@ EXIT_INTERRUPTED = 130
 signal's number (143, 129), as a shell reports a process the signal ended."""
 
 _UNITS: dict[str, Decimal] = {"s": Decimal(1), "ms": Decimal("1e-3"), "us": Decimal("1e-6"),
-                               "µs": Decimal("1e-6"), "ns": Decimal("1e-9"),
-                               "min": Decimal(60)}
+                               "µs": Decimal("1e-6"), "ns": Decimal("1e-9"), "min": Decimal(60)}
 """Seconds per unit, exact: ``20us`` is the same float as ``0.00002``."""
 
 
@@ -203,6 +202,9 @@ class RunConfig:
             parse_host_port(self.run.foxglove, field_name="--foxglove")
         if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
             raise self._bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
+        if self.schedule.balance == "live" and self.schedule.clock == "realtime":
+            raise ConfigError("--balance live: not in realtime, where a move costs deadlines; "
+                              "allowed with --clock freerun or lockstep, or --balance off")
         if self.schedule.overload == "halve" and not self.gains_hold_halved:
             limit = self.bandwidth_limit(2.0 * self.schedule.period)
             raise ConfigError(
@@ -332,16 +334,14 @@ class RunConfig:
         """``--overload`` resolved: ``halve`` in realtime; ``auto`` in realtime with the
         admission on (the main job) where :attr:`gains_hold_halved`; never otherwise."""
         s = self.schedule
-        if s.clock != "realtime" or s.overload == "continue":
-            return False
-        return s.overload == "halve" or (s.admission and self.gains_hold_halved)
+        return s.clock == "realtime" and s.overload != "continue" and (
+            s.overload == "halve" or (s.admission and self.gains_hold_halved))
 
     @property
     def delay_periods(self) -> int:
         """Periods from sample k to the start of the period in which the command of
         interval k acts: the depth (``full``) or one less (``short``)."""
-        depth = self.schedule.pipeline
-        return depth if self.schedule.command_delay == "full" else depth - 1
+        return self.schedule.pipeline - (0 if self.schedule.command_delay == "full" else 1)
 
     @property
     def lead_periods(self) -> int:
@@ -349,7 +349,7 @@ class RunConfig:
         :attr:`delay_periods`, except that ``short`` in realtime keeps the earlier code's
         lead of d + 1/2 periods, so that its recordings replay bit for bit."""
         legacy = self.schedule.command_delay == "short" and self.schedule.clock == "realtime"
-        return self.delay_periods + (1 if legacy else 0)
+        return self.delay_periods + legacy
 
     @classmethod
     def from_dict(cls, data: Any, *, source: str = "configuration") -> RunConfig:

@@ -15,6 +15,10 @@ PERIPHERAL_LOSSES = ("takeover", "fault")
 exited, or it stayed silent past the silence rule): ``takeover``, compute its rounds
 itself from then on (the same arithmetic: the commands do not change;
 runtime/central/takeover.py), or ``fault``: stop the robot safely (exit 3)."""
+BALANCES = ("off", "live")
+"""``--balance``: the placement stays as it started (``off``), or the central re-places
+per-axis blocks while it runs where the model of ``ctrlunit balance`` predicts a faster
+period (``live``: runtime/central/rebalance.py; not in realtime)."""
 MISSED_COMMANDS = ("extrapolate", "hold")
 """``--missed-command``: what the plant applies in a period whose command is late: the
 command the central extrapolated for it and sent with the one before (runtime/central/settings.py,

@@ -24,6 +24,7 @@ from ...topology.pipeline import HOLD_RULES
 from ..host.idle import IDLE_CHOICES
 from ..transport import limits as lim
 from .choices import (
+    BALANCES,
     CLOCKS,
     COMMAND_DELAYS,
     COMPRESSIONS,
@@ -167,6 +168,12 @@ class ScheduleConfig:
         "same arithmetic, so the same commands; the report's degraded says which and from "
         "when), until one whose process exited, started again by ctrlunit start, keeps up; "
         "fault: stop the robot safely (exit 3).")
+    balance: str = setting(
+        "off", flag=Flag(), choices=BALANCES,
+        help="live: every 40 intervals the central judges the last ones with the model of "
+        "ctrlunit balance and, where a placement of its blocks is predicted 5 % faster, "
+        "moves them at an interval boundary (the commands do not change; the report's "
+        "rebalanced says when and why); freerun and lockstep only.")
     overload: str = setting(
         "auto", flag=Flag(), choices=OVERLOAD_ACTIONS,
         help="Realtime: when 10 of the last 100 intervals were late (their command left "

@@ -44,6 +44,7 @@ RESULT_KEYS: dict[str, str] = {
     "scheduling_fallback": "scheduling fallback",
     "idle": "idle CPUs",
     "placement_choice": "placement",
+    "rebalanced": "placement",
     "admission": "admission",
     "link_list": "the links' endpoints",
     "links": "the links' endpoints",

@@ -333,6 +333,11 @@ def summary(r: dict[str, Any]) -> str:
     choice = r.get("placement_choice")
     if choice:
         lines.append(f"  placement   auto: {choice['why']}")
+    for i, move in enumerate(r.get("rebalanced") or []):
+        lines.append(("  placement   " if i == 0 and not choice else " " * 14)
+                     + f"live, from interval {move['from_cycle']}: {move['why']}: predicted "
+                     f"{_us(move['predicted_period_s']).strip()} against "
+                     f"{_us(move['measured_period_s']).strip()} measured")
     lines += _link_lines(r)
     lines += _admission_lines(r)
     lines += end_lines(r)

@@ -7,7 +7,9 @@ Channels
   ``/central/sample``, ``/plant/command``, ``/peripheral/request``, ``/central/reply/K``,
   ``/plant/control`` for the orders that change the control rate (``--overload``), and
   ``/central/primed`` for an interval whose sample-free steps ran before its sample was
-  skipped (replay runs them too: they fill the task's cache).
+  skipped (replay runs them too: they fill the task's cache), and ``/central/placement``
+  for each live re-placement (``--balance live``: the interval it starts at, the blocks
+  on the central, why, the figures that justified it; replay changes plans there).
 ``msgpack``: ``/timing/spans`` (per interval: ``[[process, t0, t1], ...]``),
   ``/faults/rejected`` (rejection counters, every 500 intervals and at the end),
   ``/faults/deadline`` (deadline misses and skipped samples as they change),

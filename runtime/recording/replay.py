@@ -99,6 +99,15 @@ def discarded_primes(rec: Recording) -> list[int]:
                   if type(m.get("cycle")) is int)
 
 
+def placements(rec: Recording) -> list[tuple[int, list[str]]]:
+    """``(from_cycle, central_blocks)`` of each live re-placement of the recorded run
+    (``/central/placement``: runtime/central/rebalance.py), in order."""
+    return sorted((m["from_cycle"], list(m["central_blocks"]))
+                  for _, m in rec.decoded("/central/placement")
+                  if type(m.get("from_cycle")) is int and isinstance(m.get("central_blocks"),
+                                                                    list))
+
+
 def stride_grid(rec: Recording) -> StrideSchedule:
     """The recorded run's control rate, cycle by cycle (:func:`stride_changes`)."""
     grid = StrideSchedule()
@@ -156,8 +165,7 @@ def verify(
 
     setup = _setup(rec)
     engine = setup.engine()
-    plan = engine.plan
-    producer = {o: b.name for b in plan.graph.blocks for o in b.outputs}
+    producer = {o: b.name for b in engine.plan.graph.blocks for o in b.outputs}
     ctl = _controller(rec, setup, engine)
     requests, replies = _index(rec, "request"), _index(rec, "reply")
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
@@ -165,12 +173,12 @@ def verify(
     last: dict[str, list[Any]] = {}  # the last accepted values, by name and axis
     central_trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
     current: dict[str, int] = {}  # the interval being re-executed (for ``alter``)
-    if alter is not None:
-        _alter(engine, *alter, current)
     done = 0
     seq = cycles_in_order(rec)
     primes = discarded_primes(rec)
+    moves = [(-1, sorted(engine.plan.placement.central_blocks)), *placements(rec)]
     for idx, (k, counts) in enumerate(seq):
+        engine = _placed(engine, moves, k, alter, current)  # the plan the run had at k
         while primes and primes[0] < k:  # primed, then its sample skipped: as the run did
             engine.prefix(ctl.context(primes.pop(0)))
         current["cycle"] = k
@@ -183,7 +191,7 @@ def verify(
         try:
             rnd = next(gen)
             while True:
-                if compare and plan.placement.peripherals and sent is None:
+                if compare and engine.plan.placement.peripherals and sent is None:
                     m = requests.get((k, rnd.index))
                     if m is None:
                         sent = Divergence(k, "(request)", None, "missing", None, None)
@@ -191,7 +199,8 @@ def verify(
                         sent = _diff(Engine.request_vals(rnd, ctx, (0, 1, 2)), m["vals"],
                                      (0, 1, 2), producer, k)
                 engine.run_round(rnd, ctx, (0, 1, 2))
-                d = _apply_held(plan, rnd.index, ctx, k, held, replies, last, computed)
+                d = _apply_held(engine.plan, rnd.index, ctx, k, held, replies, last,
+                                computed)
                 if d and compare:
                     return done, d
                 rnd = gen.send(None)
@@ -201,7 +210,7 @@ def verify(
         # the end of the interval are those the central handed off at its hand-off point
         ctl.handoff(ctx)
         if compare:
-            d = _compare_blocks(plan, ctx, k, central_trace.get(k), replies,
+            d = _compare_blocks(engine.plan, ctx, k, central_trace.get(k), replies,
                                 held.keys() | computed) or sent
             if d:
                 return done, d
@@ -212,6 +221,19 @@ def verify(
         if progress is not None and idx % 500 == 0:
             progress(idx, len(seq))
     return done, None
+
+
+def _placed(engine: Any, moves: list[tuple[int, list[str]]], k: int,
+            alter: tuple[str, int] | None, current: dict[str, int]) -> Any:
+    """``engine``, or, where a move of ``moves`` applies at interval ``k`` (the moves made
+    are taken off the list), one with its placement, perturbed as ``alter`` says."""
+    if not moves or moves[0][0] > k:
+        return engine
+    while moves and moves[0][0] <= k:
+        engine = engine.placed(moves.pop(0)[1])
+    if alter is not None:
+        _alter(engine, *alter, current)
+    return engine
 
 
 def _late_rounds(rec: Recording) -> tuple[dict[tuple[int, int, int], Vals],
@@ -304,8 +326,10 @@ def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
                 recorded = dict(m.get("trace") or {})
                 recorded.update(m["vals"])
                 for name in b.outputs:
-                    if name not in recorded:
-                        continue
+                    if name not in recorded:  # a traced reply holds every output
+                        if m.get("trace") is None:
+                            continue
+                        return Divergence(k, b.name, None, name, "missing", None)
                     for j, axis in enumerate(axes):
                         got = _plain(ctx[name][axis])
                         if got != recorded[name][j]:

@@ -70,6 +70,8 @@ class Peripheral:
         self.served = 0
         self.busy_ns = 0
         self.rss_warm = -1
+        self.from_cycle = 0
+        """The first interval of the plan in use (a live re-placement's)."""
         self.use(engine)
 
     def use(self, engine: Engine) -> None:
@@ -85,10 +87,15 @@ class Peripheral:
     def on_place(self, order: dict[str, Any], role: str, *, started: bool) -> bytes | None:
         """A central's ``place`` order (``central_blocks``: the blocks it now runs): switch
         to that plan and return the acknowledgement to publish (``placed``, with the
-        blocks); None, the order counted as rejected, when it cannot be taken: once the
-        run has ``started`` its plan stays (``bad_stage``), and names that are not the
-        law's per-axis blocks change nothing (``bad_value``). Never raises."""
-        if self.place is None or started:
+        blocks); None, the order counted as rejected, when it cannot be taken. Once the
+        run has ``started``, only a live re-placement is taken: one that names the first
+        interval of the new plan (``from_cycle``, none begun, the central having drained
+        its pipeline: runtime/central/rebalance.py), after which a request part of an
+        earlier interval is refused (``unknown_cycle``); any other is ``bad_stage``.
+        Names that are not the law's per-axis blocks change nothing (``bad_value``).
+        Never raises."""
+        live = order.get("from_cycle")
+        if self.place is None or (started and (type(live) is not int or live < 0)):
             self.rejected["bad_stage"] += 1
             return None
         try:
@@ -96,7 +103,10 @@ class Peripheral:
         except ConfigError:
             self.rejected["bad_value"] += 1
             return None
-        self.use(engine)
+        since = live if started and type(live) is int else 0
+        if (since, engine.plan.placement) != (self.from_cycle, self.engine.plan.placement):
+            self.use(engine)  # an order given again is acknowledged again, nothing dropped
+            self.from_cycle = since
         return encode(self.unit, 0, "placed", role=role,
                       central_blocks=sorted(engine.plan.placement.central_blocks))
 
@@ -146,7 +156,8 @@ class Peripheral:
             t0 = self.clock()
             ctx = self._ctxs.get(cycle)  # the central's warm-up intervals are kept alike
             if ctx is None:
-                if rnd.index != 0 and engine.plan.round_trips > 1:
+                if cycle < self.from_cycle or (rnd.index != 0
+                                               and engine.plan.round_trips > 1):
                     # a later round of a cycle this peripheral never saw (restart, loss):
                     # the values of earlier rounds are missing
                     self.rejected["unknown_cycle"] += 1
