@@ -103,6 +103,41 @@ def test_metadata_names_configuration_and_host(recorded):
     assert not rec.salvaged
 
 
+def _chunks(data: bytes) -> list[int]:
+    """Where each chunk record of an MCAP file begins (its data section, record by
+    record: opcode, u64 length, body)."""
+    out, pos = [], 8
+    while pos < len(data) - 8 and data[pos] != 0x0F:  # up to DataEnd
+        if data[pos] == 0x06:
+            out.append(pos)
+        pos += 9 + int.from_bytes(data[pos + 1:pos + 9], "little")
+    return out
+
+
+def test_a_damaged_whole_recording_is_not_passed_for_a_cut_off_one(recorded, tmp_path):
+    """Three bytes flipped inside a chunk of a whole file (its footer intact): the reader
+    says it is damaged and salvages only what comes before the damage; ``replay --verify``
+    fails however many intervals before it compare equal. The same file cut off (a crash)
+    is salvaged as before, and verifies."""
+    path, rep = recorded
+    data = bytearray(path.read_bytes())
+    chunk = _chunks(bytes(data))[len(_chunks(bytes(data))) // 2]
+    for d in (200, 207, 219):
+        data[chunk + d] ^= 0xFF
+    damaged, cut = tmp_path / "damaged.mcap", tmp_path / "cut.mcap"
+    damaged.write_bytes(data)
+    cut.write_bytes(path.read_bytes()[: chunk + 100])
+    rec = read(damaged)
+    assert rec.salvaged and rec.damaged and "is damaged" in rec.note
+    assert 0 < len(rec.topics["/plant/command"]) < rep["cycles"]
+    res = ctrlunit("replay", str(damaged), "--verify")
+    assert res.returncode == 1 and "the recording is damaged" in res.stderr, res.stderr
+    rec = read(cut)
+    assert rec.salvaged and not rec.damaged and "cut off" in rec.note
+    res = ctrlunit("replay", str(cut), "--verify")
+    assert res.returncode == 0 and "verified" in res.stdout, res.stderr
+
+
 def test_kill_9_of_the_central_leaves_a_salvageable_recording(tmp_path):
     unit = unit_id("kill")
     path, status = tmp_path / "cut.mcap", tmp_path / "status"

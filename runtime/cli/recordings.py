@@ -25,10 +25,12 @@ def _cycle_range(_ctx: Any, _param: Any, value: str | None) -> tuple[int, int] |
 
 
 def _open_recording(path: str) -> Any:
+    from ..config import RunConfig
     from ..recording.reader import read
 
     try:
         rec = read(path)
+        RunConfig.from_recording(rec.config)  # every use of it reads its configuration
     except (OSError, ValueError) as exc:
         _fail(str(exc))
     if rec.salvaged:
@@ -76,6 +78,9 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
         if div is not None:
             _fail(f"replay --verify: the recording diverges after {n} identical intervals: "
                   f"{div}", EXIT_CONFIG)
+        if rec.damaged:  # what could be read verified, but the file is not what was written
+            _fail(f"replay --verify: the recording is damaged; the {n} intervals before the "
+                  "damage are bit-identical, the rest could not be read", EXIT_CONFIG)
         click.echo(f"verified {n} intervals: every block's outputs are bit-identical to the "
                    "recording")
         return
@@ -145,11 +150,18 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
               help="Write the report as JSON.")
 def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
     """Regenerate the run's report from a recording alone."""
+    from ..config.outputs import output_file_error
     from ..observe.summary import summary
     from ..recording.recorded_report import report_from_recording
 
+    if (why := output_file_error(report_file, "--report")):
+        _fail(why)
     rec = _open_recording(file)
-    rep = report_from_recording(rec)
+    try:
+        rep = report_from_recording(rec)
+    except (KeyError, TypeError, ValueError) as exc:  # an edited or damaged file's record
+        _fail(f"report: {file}: the recording's metadata will not do: "
+              f"{exc if isinstance(exc, ValueError) else f'{type(exc).__name__}: {exc}'}")
     if report_file:
         with open(report_file, "w") as fh:
             json.dump(_json_safe(rep), fh, indent=2)

@@ -25,6 +25,9 @@ class Recording:
     topics: dict[str, list[tuple[int, bytes]]] = field(default_factory=dict)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     salvaged: bool = False
+    damaged: bool = False
+    """The file is whole (it ends with MCAP's magic) yet could not be read whole: its
+    content was changed or corrupted, not cut off by a crash."""
     note: str = ""
 
     def decoded(self, topic: str) -> list[tuple[int, dict]]:
@@ -39,7 +42,24 @@ class Recording:
 
     @property
     def config(self) -> dict[str, Any]:
-        return json.loads(self.metadata.get("ctrlunit", {}).get("config", "{}"))
+        """The run's configuration (the ``ctrlunit`` metadata record's ``config``).
+
+        Raises
+        ------
+        ValueError
+            If the recording holds none, or one that is not a JSON object."""
+        text = self.metadata.get("ctrlunit", {}).get("config")
+        if text is None:
+            raise ValueError(f"{self.path}: no run configuration in it (the metadata record "
+                             "ctrlunit, field config): not a recording of ctrlunit start")
+        try:
+            config = json.loads(text)
+        except ValueError:
+            config = None
+        if not isinstance(config, dict):
+            raise ValueError(f"{self.path}: its run configuration (metadata ctrlunit, field "
+                             f"config) is not a JSON object: {text[:60]!r}")
+        return config
 
 
 def read(path: str | Path) -> Recording:
@@ -54,7 +74,7 @@ def read(path: str | Path) -> Recording:
     rec = Recording(path)
     try:
         with open(path, "rb") as fh:
-            reader = make_reader(fh)
+            reader = make_reader(fh, validate_crcs=True)
             for _schema, channel, msg in reader.iter_messages(log_time_order=False):
                 rec.topics.setdefault(channel.topic, []).append((msg.log_time, msg.data))
             for m in reader.iter_metadata():
@@ -66,7 +86,7 @@ def read(path: str | Path) -> Recording:
     channels: dict[int, str] = {}
     try:
         with open(path, "rb") as fh:
-            for record in StreamReader(fh, skip_magic=False).records:
+            for record in StreamReader(fh, skip_magic=False, validate_crcs=True).records:
                 if isinstance(record, Message):
                     topic = channels.get(record.channel_id)
                     if topic is not None:
@@ -79,10 +99,32 @@ def read(path: str | Path) -> Recording:
         rec.note = f"{type(exc).__name__}"
     if not rec.metadata and not rec.topics:
         raise ValueError(f"{path}: not a readable MCAP recording ({first_error})")
+    rec.damaged = _ends_whole(path)
     n = len(rec.topics.get("/plant/command", []))
     if n == 0:
-        raise ValueError(f"{path}: the recording was cut off before its first interval was "
-                         "written: there is nothing to replay or report")
-    rec.note = (f"{path} has no footer (the recording was cut off); salvaged {n} intervals "
+        raise ValueError(f"{path}: " + (
+            f"the recording is damaged ({first_error}) before its first interval"
+            if rec.damaged else "the recording was cut off before its first interval was "
+            "written") + ": there is nothing to replay or report")
+    rec.note = (f"{path} is damaged: the file is whole, but {first_error}; salvaged {n} "
+                "intervals before the damage with a non-seeking pass" if rec.damaged else
+                f"{path} has no footer (the recording was cut off); salvaged {n} intervals "
                 "with a non-seeking pass")
     return rec
+
+
+MAGIC = b"\x89MCAP0\r\n"
+"""What begins and ends a whole MCAP file."""
+
+
+def _ends_whole(path: str) -> bool:
+    """Whether the file ends with MCAP's magic, as only a file written to its end does."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, 2)
+            if fh.tell() < 2 * len(MAGIC):
+                return False
+            fh.seek(-len(MAGIC), 2)
+            return fh.read() == MAGIC
+    except OSError:
+        return False

@@ -44,7 +44,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
             true_p[k] = (p[0], p[1], p[2])
     result = rec.metadata.get("ctrlunit.result", {})
     busy = json.loads(result.get("busy", "{}") or "{}")
-    t0, t1_ns = int(result.get("t_start_ns", "0") or 0), int(result.get("t_end_ns", "0") or 0)
+    t0, t1_ns = _ns(result, "t_start_ns"), _ns(result, "t_end_ns")
     wall = max(1, t1_ns - t0) if t0 else max(1, (cmd_ns[-1] - cmd_ns[0]) if cmd_ns else 1)
     n = setup.placement.peripherals
     if busy:
@@ -71,7 +71,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     if not math.isfinite(t1):
         t1, per_block = measure_t1(lambda: setup.engine(peripherals_plan=False),
                                    recorded_inputs(rec, setup)[: rc.run.t1_cycles])
-    fault = json.loads(result.get("fault", "null") or "null")
+    fault = recorded_fault(result.get("fault"))
     if rec.salvaged:
         fault = fault or {"process": "recording", "message": rec.note, "code": None}
     task = setup.task
@@ -97,6 +97,44 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     rep["overload"] = overload_figures(changes, rc.halves_on_overload, grid,
                                        end=rep["periods"])
     return rep
+
+
+def _ns(result: dict[str, str], key: str) -> int:
+    """A time (ns) of the result record; 0 where it holds none."""
+    text = result.get(key) or "0"
+    if not text.isdigit():
+        raise ValueError(f"its result record's {key} = {text[:30]!r}: allowed an integer of "
+                         "nanoseconds")
+    return int(text)
+
+
+def recorded_fault(text: Any) -> dict[str, Any] | None:
+    """The run's fault as its result record holds it, checked and made printable: an
+    object whose ``process`` and ``message`` are text (control characters, newlines among
+    them, shown as spaces: a summary line stays one line) and whose ``code`` is an integer
+    or null; None for no fault.
+
+    Raises
+    ------
+    ValueError
+        Naming what the record holds instead (an edited or damaged file)."""
+    if text in (None, "", "null", "None"):
+        return None
+    try:
+        fault = json.loads(text)
+    except (TypeError, ValueError):
+        raise ValueError(f"its result record's fault is not JSON: {str(text)[:60]!r}") from None
+    if fault is None:
+        return None
+    code = fault.get("code") if isinstance(fault, dict) else None
+    if not (isinstance(fault, dict) and isinstance(fault.get("process"), str)
+            and isinstance(fault.get("message"), str)
+            and (code is None or (type(code) is int and 0 <= code <= 255))):
+        raise ValueError(f"its result record's fault {str(fault)[:60]!r}: allowed an object "
+                         "with process and message (text) and code (an exit code 0 to 255, "
+                         "or null)")
+    return fault | {k: "".join(c if c.isprintable() else " " for c in fault[k])
+                    for k in ("process", "message")}
 
 
 def _live_facts(rep: dict[str, Any], rec: Recording, rc: RunConfig, *, cpu_known: bool

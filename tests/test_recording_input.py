@@ -1,0 +1,101 @@
+"""A recording is input too: an edited, forged or damaged file's metadata gives one line
+naming what is wrong, never a traceback, and what a recording holds is printed checked
+(a fault's text stays one summary line). Also ``--late`` names only blocks the law has."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from ctrlunit.runtime.cli import cli
+from loopback import record_lockstep
+from mcap.reader import make_reader
+from mcap.writer import Writer
+from runner import unit_id
+
+Edit = Callable[[str, dict[str, str]], dict[str, str] | None]
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "run.mcap"
+    record_lockstep(str(path), unit_id("recin"), peripherals=1, cycles=30)
+    return path
+
+
+def forged(src: Path, dst: Path, edit: Edit) -> Path:
+    """``src`` written again with each metadata record passed through ``edit`` (None:
+    left out), everything else as it was."""
+    with open(src, "rb") as fh:
+        r = make_reader(fh)
+        summary = r.get_summary()
+        assert summary is not None
+        messages = list(r.iter_messages(log_time_order=False))
+        metadata = list(r.iter_metadata())
+    with open(dst, "wb") as out:
+        w = Writer(out)
+        w.start(profile="", library="test")
+        schemas = {sid: w.register_schema(s.name, s.encoding, s.data)
+                   for sid, s in summary.schemas.items()}
+        channels = {cid: w.register_channel(c.topic, c.message_encoding,
+                                            schemas.get(c.schema_id, 0), c.metadata)
+                    for cid, c in summary.channels.items()}
+        for _schema, channel, m in messages:
+            w.add_message(channels[channel.id], m.log_time, m.data, m.publish_time)
+        for m in metadata:
+            kept = edit(m.name, dict(m.metadata))
+            if kept is not None:
+                w.add_metadata(m.name, kept)
+        w.finish()
+    return dst
+
+
+def result(**fields: str) -> Edit:
+    return lambda name, md: md | fields if name == "ctrlunit.result" else md
+
+
+def run(*args: str) -> tuple[int, str]:
+    res = CliRunner().invoke(cli, list(args))
+    return res.exit_code, res.output
+
+
+@pytest.mark.parametrize(("edit", "said"), [
+    (result(fault="{oops"), "its result record's fault is not JSON: '{oops'"),
+    (result(fault=json.dumps({"process": "plant", "message": "m", "code": "x"})),
+     "allowed an object with process and message (text) and code (an exit code"),
+    (result(t_start_ns="abc"), "t_start_ns = 'abc': allowed an integer of nanoseconds"),
+    (lambda name, md: None, "no run configuration in it"),
+    (lambda name, md: md | {"config": "[1, 2]"} if name == "ctrlunit" else md,
+     "is not a JSON object: '[1, 2]'"),
+])
+def test_edited_metadata_is_one_line_naming_it(recorded, tmp_path, edit, said):
+    path = forged(recorded, tmp_path / "forged.mcap", edit)
+    code, out = run("report", str(path))
+    assert code == 1 and said in out and "Traceback" not in out, out
+
+
+def test_a_fault_s_text_is_printed_on_its_own_line(recorded, tmp_path):
+    """Newlines and escape codes in a recorded fault are shown as spaces: the summary's
+    FAULT line stays one line, and nothing the file holds moves the terminal's cursor."""
+    fault = {"process": "plant\nX", "message": "first\n  FAKE second\x1b[2J", "code": 4}
+    path = forged(recorded, tmp_path / "f.mcap", result(fault=json.dumps(fault)))
+    code, out = run("report", str(path))
+    assert code == 0, out
+    line = next(x for x in out.splitlines() if "FAULT" in x)
+    assert line == "  FAULT in plant X: first   FAKE second [2J (exit 4)"
+    assert "\x1b" not in out and not any(x.startswith("  FAKE") for x in out.splitlines())
+
+
+def test_report_checks_where_it_writes_before_reading(recorded, tmp_path):
+    code, out = run("report", str(recorded), "--report", str(tmp_path / "no" / "r.json"))
+    assert code == 1 and "the directory" in out and "does not exist" in out, out
+
+
+def test_late_names_a_per_axis_block_of_the_law():
+    code, out = run("start", "--check", "--late", "nosuchblock=wait")
+    assert code == 1 and "no per-axis block 'nosuchblock'" in out and "allowed: accel" in out
+    code, out = run("start", "--check", "--late", "jdot=hold")
+    assert code == 0, out
