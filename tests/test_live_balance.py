@@ -205,3 +205,25 @@ def test_balance_refuses_a_report_whose_figures_mix_placements():
     assert analyse(doc)["placement"]["central_blocks"] == []
     with pytest.raises(ReportError, match="rebalanced.*--balance off"):
         analyse(doc | {"rebalanced": [{"from_cycle": 48, "central_blocks": []}]})
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("clock", "lockstep"), ("pipeline", 1), ("cost_model", "native"), ("cost_scale", 60.0),
+    ("task", "circle"), ("law", "computed-torque")])
+def test_compare_refuses_a_rerun_of_another_run(field, value):
+    """``balance --compare``: a re-run made with the written placement but another clock,
+    depth, cost model, scale, task or law measures another thing: refused, naming it.
+    The re-run as balance's command makes it is compared."""
+    from ctrlunit.topology.balance import analyse, compare
+
+    doc = json.loads((FIGURES / "poor.json").read_text())
+    a = analyse(doc)
+    rerun = doc | {"placement": a["placement"]}
+    assert compare(a, rerun)["predicted_period_s"] > 0
+    if field == "law":  # its block costs are another graph's
+        rerun = rerun | {"block_cost_s": {}}
+        with pytest.raises(ValueError, match="block_cost_s"):
+            compare(a, rerun | {field: value})
+        return
+    with pytest.raises(ValueError, match=f"the re-run's {field} is {value!r}"):
+        compare(a, rerun | {field: value})

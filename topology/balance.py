@@ -295,12 +295,30 @@ def compare(analysis: dict[str, Any], rerun: Any, *, source: str = "re-run") \
         raise ValueError("the re-run is a realtime run, whose period is its clock's: re-run "
                          "with --clock freerun, as the command balance prints, to measure "
                          "the period it predicts")
+    _same_run(analysis, rerun)
     return {"depth": depth, "predicted_period_s": predicted, "measured_period_s": measured,
             "before_is": "the model's, free-running" if analysis["run"]["clock"] == "realtime"
             else "measured",
             "error": measured / predicted - 1.0 if predicted else math.nan,
             "before_period_s": before, "gain": 1.0 - measured / before if before else math.nan,
             "gantt_ms": rerun.get("gantt_ms") or []}
+
+
+def _same_run(analysis: dict[str, Any], rerun: dict[str, Any]) -> None:
+    """A re-run is the run analysed with the placement written, as the command balance
+    prints makes it: the same law, graph, depth, cost model and task, and its clock (a
+    realtime run's re-run is free-running). Raises ValueError naming the first field that
+    differs."""
+    want, got = analysis["run"], rerun["run"]
+    clock = "freerun" if want["clock"] == "realtime" else want["clock"]
+    pairs = [(k, analysis[k], rerun[k]) for k in ("law", "model", "observer", "model_state",
+                                                   "pipeline")]
+    pairs += [(k, want[k], got[k]) for k in ("cost_model", "cost_scale", "task")
+              if want[k] is not None and got[k] is not None]
+    for field, a, b in [("clock", clock, got["clock"]), *pairs]:
+        if a != b:
+            raise ValueError(f"the re-run's {field} is {b!r} where the command balance "
+                             f"prints runs {a!r}: re-run with that command")
 
 
 def write_placement(analysis: dict[str, Any], path: str | Path) -> None:

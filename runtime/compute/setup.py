@@ -109,6 +109,11 @@ def make_setup(rc: RunConfig) -> Setup:
         raise ConfigError(str(exc)) from None
     graph = stage_graph(rc.control.law, rc.control.model, observer=rc.control.observer,
                         model_state=rc.resolved_model_state)
+    axis_blocks = sorted(b.name for b in graph.axis_blocks)
+    for block in sorted(set(rc.schedule.late) - set(axis_blocks)):
+        raise ConfigError(f"--late {block}={rc.schedule.late[block]}: {rc.control.law} has no "
+                          f"per-axis block {block!r} (a late policy is a peripheral's round's); "
+                          f"allowed: {', '.join(axis_blocks)}")
     if rc.schedule.placement:
         placement = load_placement(rc.schedule.placement,
                                    block_names={b.name for b in graph.axis_blocks})
