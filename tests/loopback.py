@@ -163,7 +163,8 @@ class LoopbackUnit:
             self.peripherals.append((pnode, Peripheral(
                 setup.engine(), k, rc.transport.unit, trace=rc.run.trace,
                 rejected=pnode.rejected,
-                place=lambda blocks: setup.with_central_blocks(blocks).engine())))
+                place=lambda blocks: setup.with_central_blocks(blocks).engine(),
+                live=rc.schedule.balance == "live")))
         self.server: PlantServer | None = None
         if rc.schedule.clock != "freerun":
             pnode = LoopbackNode(self.bus, rc.transport.unit, "plant")

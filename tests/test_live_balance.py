@@ -130,15 +130,21 @@ def test_a_recorded_move_replays_bit_for_bit_and_only_with_its_plan(monkeypatch,
 
 
 def test_a_peripheral_takes_a_move_only_as_a_live_placement():
-    """Once started, a peripheral takes a ``place`` order only with the interval it
-    starts at; it then refuses request parts of earlier intervals, and an order given
-    again is acknowledged without dropping what it holds."""
-    u = LoopbackUnit(lockstep_config(unit_id("lbperiph"), peripherals=3, cycles=10))
+    """Once started, a peripheral takes a ``place`` order only in a run that balances
+    itself and only with the interval it starts at; it then refuses request parts of
+    earlier intervals, and an order given again is acknowledged without dropping what it
+    holds."""
+    u = LoopbackUnit(lockstep_config(unit_id("lbperiph"), peripherals=3, cycles=10,
+                                     balance="live", clock="freerun"))
     u.run()
     request = next(d for k, d in u.bus.log if k == u.node.keys.request)  # interval 0's
     pnode, periph = u.peripherals[0]
     pnode.rejected.clear()
     model = model_round()
+    off = LoopbackUnit(lockstep_config(unit_id("lboff"), peripherals=3, cycles=10))
+    _, fixed = off.peripherals[0]  # a run that does not balance itself takes no move
+    assert fixed.on_place({"central_blocks": model, "from_cycle": 40}, "peripheral-1",
+                          started=True) is None
     assert periph.on_place({"central_blocks": model}, "peripheral-1", started=True) is None
     assert pnode.rejected["bad_stage"] == 1
     assert periph.on_place({"central_blocks": model, "from_cycle": -1}, "peripheral-1",

@@ -54,16 +54,19 @@ class Peripheral:
     place : ``place(central_blocks) -> Engine``, the engine of the same run with those
         blocks on the central (raises :class:`..config.ConfigError` on anything but a list
         of the law's per-axis block names); None: ``place`` orders are refused.
+    live : the run balances itself (``--balance live``): a ``place`` order is taken once
+        the run has begun too (:meth:`on_place`).
     clock : the monotonic clock (ns) that stamps each part's compute span.
     """
 
     def __init__(self, engine: Engine, index: int, unit: str, *, trace: bool = False,
                  rejected: Counter[str] | None = None,
-                 place: Callable[[Any], Engine] | None = None,
+                 place: Callable[[Any], Engine] | None = None, live: bool = False,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
         self.unit = unit
         self.clock = clock
         self.place = place
+        self.live = live
         self.index = index
         self.trace = trace
         self.rejected: Counter[str] = rejected if rejected is not None else Counter()
@@ -88,14 +91,16 @@ class Peripheral:
         """A central's ``place`` order (``central_blocks``: the blocks it now runs): switch
         to that plan and return the acknowledgement to publish (``placed``, with the
         blocks); None, the order counted as rejected, when it cannot be taken. Once the
-        run has ``started``, only a live re-placement is taken: one that names the first
+        run has ``started``, only a live re-placement is taken, in a run that balances
+        itself (``live``): one that names the first
         interval of the new plan (``from_cycle``, none begun, the central having drained
         its pipeline: runtime/central/rebalance.py), after which a request part of an
         earlier interval is refused (``unknown_cycle``); any other is ``bad_stage``.
         Names that are not the law's per-axis blocks change nothing (``bad_value``).
         Never raises."""
         live = order.get("from_cycle")
-        if self.place is None or (started and (type(live) is not int or live < 0)):
+        if self.place is None or (started and (not self.live or type(live) is not int
+                                               or live < 0)):
             self.rejected["bad_stage"] += 1
             return None
         try:
@@ -201,8 +206,8 @@ def declare(node: Node, index: int) -> Any:
 
 
 def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float,
-          trace: bool = False, place: Callable[[Any], Engine] | None = None
-          ) -> dict[str, Any]:
+          trace: bool = False, place: Callable[[Any], Engine] | None = None,
+          live: bool = False) -> dict[str, Any]:
     """Answer requests until stopped; returns counters.
 
     Parameters
@@ -212,11 +217,11 @@ def serve(node: Node, engine: Engine, index: int, reply: Any, *, watchdog: float
     index : 0-based peripheral index.
     reply : the publisher from :func:`declare`.
     watchdog : seconds of silence from the central after which the role exits.
-    place : as :class:`Peripheral`'s; a ``place`` order it takes is acknowledged on the
-        hello key (:meth:`Peripheral.on_place`).
+    place, live : as :class:`Peripheral`'s; a ``place`` order it takes is acknowledged on
+        the hello key (:meth:`Peripheral.on_place`).
     """
     role = Peripheral(engine, index, node.unit, trace=trace, rejected=node.rejected,
-                      place=place)
+                      place=place, live=live)
     said = node.publisher(node.keys.hello(node.role))
     t_start = time.monotonic_ns()
 
@@ -265,7 +270,8 @@ def run_peripheral(setup: Setup, index: int, conf: Any) -> int:
                       else setup.with_central_blocks(blocks).engine())
             res = serve(node, engine, index - 1, reply,
                         watchdog=max(5.0, 3 * setup.rc.transport.timeout), trace=setup.rc.run.trace,
-                        place=lambda blocks: setup.with_central_blocks(blocks).engine())
+                        place=lambda blocks: setup.with_central_blocks(blocks).engine(),
+                        live=setup.rc.schedule.balance == "live")
         except (TimeoutError, ConfigError) as exc:  # no go, or a go naming no placement
             print(f"ctrlunit peripheral {index}: {exc}", file=sys.stderr)
             return EXIT_LINK
