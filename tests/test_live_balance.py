@@ -240,3 +240,21 @@ def test_compare_refuses_a_rerun_of_another_run(field, value):
         return
     with pytest.raises(ValueError, match=f"the re-run's {field} is {value!r}"):
         compare(a, rerun | {field: value})
+
+
+def test_a_judge_that_dies_leaves_the_run_going(monkeypatch):
+    """The judge's process killed (out of memory, by hand): live balance stops, saying
+    why, and the run goes on to its end with the placement it has."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    class Dead(Inline):
+        def submit(self, fn: Any, *args: Any) -> Future:
+            f: Future = Future()
+            f.set_exception(BrokenProcessPool("killed"))
+            return f
+
+    monkeypatch.setattr(rebalance, "ProcessPoolExecutor", Dead)
+    monkeypatch.setattr(rebalance, "EVERY", 5)
+    u = lockstep("lbdead", pipeline=2, balance="live")
+    assert u.central.done == CYCLES and not u.central.snapshot().rebalanced
+    assert "the judge's process ended (BrokenProcessPool)" in u.central.balance.ended

@@ -132,6 +132,8 @@ class LiveBalance:
         """The mean period of the last window judged that called for no move."""
         self.next_judge_ns = 0
         """No judgement before this time (:data:`COST_SHARE`)."""
+        self.ended = ""
+        """Why live balance stopped during the run, if it did."""
         self.pool: ProcessPoolExecutor | None = None
         self.pending: tuple[Future, dict[str, Any]] | None = None
         """The judgement under way in the judge's process, and the window it judges."""
@@ -147,7 +149,12 @@ class LiveBalance:
             return
         if self.pending is not None:
             if self.pending[0].done():
-                choice, spent = self.pending[0].result()
+                try:
+                    choice, spent = self.pending[0].result()
+                except Exception as exc:  # the judge's process died (killed, out of memory)
+                    self.enabled, self.pending = False, None
+                    self.ended = f"the judge's process ended ({type(exc).__name__})"
+                    return  # the run goes on with the placement it has
                 self._judged(done, choice, self.pending[1], spent)
             return
         if self.window is None:
