@@ -162,8 +162,8 @@ def test_a_peripheral_takes_a_move_only_as_a_live_placement():
 
 
 def test_realtime_is_refused_with_the_fix():
-    with pytest.raises(ConfigError, match="--balance live: not in realtime.*freerun or "
-                                          "lockstep"):
+    with pytest.raises(ConfigError, match="--balance live: not with --clock realtime.*freerun "
+                                          "or lockstep"):
         RunConfig.of(balance="live", clock="realtime").validate()
 
 
@@ -258,3 +258,15 @@ def test_a_judge_that_dies_leaves_the_run_going(monkeypatch):
     u = lockstep("lbdead", pipeline=2, balance="live")
     assert u.central.done == CYCLES and not u.central.snapshot().rebalanced
     assert "the judge's process ended (BrokenProcessPool)" in u.central.balance.ended
+
+
+def test_a_run_that_made_no_move_says_why(tmp_path):
+    """A live run too short for a judgement, and one with no peripheral, each say so in
+    their summary and report, where they said nothing."""
+    for n, said in ((1, "live: no judgement, the run ended before its first (after "
+                        "interval 48)"), (0, "live: no peripheral: nothing to move")):
+        code, rep, out = start_json(tmp_path, "--peripherals", str(n), "--clock", "lockstep",
+                                    "--cycles", "20", "--balance", "live", tag=f"lbnone{n}")
+        assert code == 0, out
+        assert rep["rebalanced"] == [] and rep["live_balance"]["judged"] == 0
+        assert f"placement   {said}" in out or f"              {said}" in out, out

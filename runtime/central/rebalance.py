@@ -105,8 +105,8 @@ class LiveBalance:
                  warmup: WarmUp, outgoing: Outgoing, use: Callable[[Engine, Controller], None],
                  lost: Collection[int], on_message: Callable[..., None] | None = None) -> None:
         sch = rc.schedule
-        self.enabled = (sch.balance == "live" and not intervals.settings.trial
-                        and intervals.engine.plan.placement.peripherals > 0)
+        self.asked = sch.balance == "live" and not intervals.settings.trial
+        self.enabled = self.asked and intervals.engine.plan.placement.peripherals > 0
         self.intervals = intervals
         self.meters = intervals.meters
         self.orders = orders
@@ -266,6 +266,17 @@ class LiveBalance:
         to finish, its verdict unread)."""
         if self.pool is not None:
             self.pool.shutdown(wait=False, cancel_futures=True)
+
+    def summary(self) -> dict[str, Any] | None:
+        """What the report says of live balance where it was asked (``live_balance``):
+        judgements made and the judge's CPU, the interval of the first judgement, the
+        central blocks now, and why it stopped or never ran, if so."""
+        if not self.asked:
+            return None
+        ended = self.ended or ("" if self.enabled else "no peripheral: nothing to move")
+        return {"judged": self.judged, "judge_cpu_s": self.judge_ns / 1e9,
+                "first_judged_after": SETTLE + EVERY, "ended": ended,
+                "central_blocks": sorted(self.intervals.engine.plan.placement.central_blocks)}
 
     def report(self) -> list[dict[str, Any]]:
         """Every move so far, in order (the report's ``rebalanced``)."""

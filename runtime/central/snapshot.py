@@ -161,6 +161,8 @@ class RunSnapshot:
     degraded: tuple[dict[str, Any], ...]
     rebalanced: tuple[dict[str, Any], ...]
     """Each live re-placement (:mod:`.rebalance`), in order."""
+    live_balance: dict[str, Any] | None
+    """What live balance did, where it was asked (:meth:`.rebalance.LiveBalance.summary`)."""
     memory_kb: tuple[int, int, tuple[tuple[int, int], ...]]
     """The central's resident memory: when warm, at the end, and its series."""
 
@@ -209,6 +211,7 @@ def snapshot_of(central: Central) -> RunSnapshot:
         plant_misses=m.plant_misses, skipped=m.skipped, exchanges=m.exchanges,
         replies_info=dict(central.warmup.replies_info), silences_excused=central.silence.excuses,
         degraded=tuple(central.takeover.report()), rebalanced=tuple(central.balance.report()),
+        live_balance=central.balance.summary(),
         memory_kb=(m.rss_warm, m.rss_end, tuple(m.rss_series)))
 
 

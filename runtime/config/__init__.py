@@ -203,8 +203,8 @@ class RunConfig:
         if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
             raise self._bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
         if self.schedule.balance == "live" and self.schedule.clock == "realtime":
-            raise ConfigError("--balance live: not in realtime, where a move costs deadlines; "
-                              "allowed with --clock freerun or lockstep, or --balance off")
+            raise ConfigError("--balance live: not with --clock realtime (the default), where "
+                              "a move costs deadlines; allowed with --clock freerun or lockstep")
         if self.schedule.overload == "halve" and not self.gains_hold_halved:
             limit = self.bandwidth_limit(2.0 * self.schedule.period)
             raise ConfigError(

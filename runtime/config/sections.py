@@ -170,10 +170,12 @@ class ScheduleConfig:
         "fault: stop the robot safely (exit 3).")
     balance: str = setting(
         "off", flag=Flag(), choices=BALANCES,
-        help="live: every 40 intervals the central judges the last ones with the model of "
-        "ctrlunit balance and, where a placement of its blocks is predicted 5 % faster, "
-        "moves them at an interval boundary (the commands do not change; the report's "
-        "rebalanced says when and why); freerun and lockstep only.")
+        help="live: the central judges windows of 40 intervals (the first after interval 48, "
+        "then after each move or when the period moved 5 %) with the model of ctrlunit "
+        "balance and, where a placement of its blocks is predicted 5 % faster, moves them "
+        "at an interval boundary (the commands do not change; the summary's placement "
+        "lines and the report's rebalanced say when and why); freerun and lockstep only; "
+        "off by default: it costs about a tenth of the period where nothing moves.")
     overload: str = setting(
         "auto", flag=Flag(), choices=OVERLOAD_ACTIONS,
         help="Realtime: when 10 of the last 100 intervals were late (their command left "

@@ -205,7 +205,7 @@ def report_extras(rc: RunConfig, setup: Setup, run: RunSnapshot, *, cores: int |
                  "misses_per_axis": list(run.late.per_axis),
                  "computed": run.late.computed, "taken_over": run.late.taken_over},
         "degraded": [dict(d) for d in run.degraded],
-        "rebalanced": [dict(d) for d in run.rebalanced],
+        "rebalanced": [dict(d) for d in run.rebalanced], "live_balance": run.live_balance,
         "memory_kb": {"central": {"warm": run.memory_kb[0],
                                   "end": run.memory_kb[1] if run.memory_kb[1] > 0 else rss_kb(),
                                   "series": list(run.memory_kb[2])}},

@@ -45,6 +45,7 @@ RESULT_KEYS: dict[str, str] = {
     "idle": "idle CPUs",
     "placement_choice": "placement",
     "rebalanced": "placement",
+    "live_balance": "placement",
     "admission": "admission",
     "link_list": "the links' endpoints",
     "links": "the links' endpoints",

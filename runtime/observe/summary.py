@@ -333,15 +333,31 @@ def summary(r: dict[str, Any]) -> str:
     choice = r.get("placement_choice")
     if choice:
         lines.append(f"  placement   auto: {choice['why']}")
-    for i, move in enumerate(r.get("rebalanced") or []):
-        lines.append(("  placement   " if i == 0 and not choice else " " * 14)
-                     + f"live, from interval {move['from_cycle']}: {move['why']}: predicted "
-                     f"{_us(move['predicted_period_s']).strip()} against "
-                     f"{_us(move['measured_period_s']).strip()} measured")
+    lines += _live_balance_lines(r, first=not choice)
     lines += _link_lines(r)
     lines += _admission_lines(r)
     lines += end_lines(r)
     return "\n".join(lines)
+
+
+def _live_balance_lines(r: dict[str, Any], *, first: bool) -> list[str]:
+    """``--balance live``: each move, and what the figures above then cover; or why
+    there was none (runtime/central/rebalance.py)."""
+    moves, live = r.get("rebalanced") or [], r.get("live_balance")
+    out = [f"live, from interval {m['from_cycle']}: {m['why']}: predicted "
+           f"{_us(m['predicted_period_s']).strip()} against "
+           f"{_us(m['measured_period_s']).strip()} measured" for m in moves]
+    if moves and live is not None:
+        now = ", ".join(live["central_blocks"]) or "none"
+        out.append(f"live: central blocks now {now} (a placement file: peripherals and "
+                   "central_blocks); the figures above span the placements before and after")
+    elif live is not None:
+        out.append(f"live: {live['ended']}" if live["ended"] else
+                   f"live: {live['judged']} judgement(s), no move (none predicted 5 % "
+                   "faster)" if live["judged"] else "live: no judgement, the run ended "
+                   f"before its first (after interval {live['first_judged_after']})")
+    return [("  placement   " if i == 0 and first else " " * 14) + x
+            for i, x in enumerate(out)]
 
 
 def _delay_lines(r: dict[str, Any]) -> list[str]:
