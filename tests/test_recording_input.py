@@ -63,7 +63,21 @@ def run(*args: str) -> tuple[int, str]:
 
 
 @pytest.mark.parametrize(("edit", "said"), [
-    (result(fault="{oops"), "its result record's fault is not JSON: '{oops'"),
+    (result(fault="{oops"), "its result record's fault = '{oops': allowed JSON"),
+    (result(busy=json.dumps({"central_wait_ns": 1, "plant_busy_ns": 1,
+                             "periph_busy_ns": []})),
+     "busy.periph_busy_ns = '[]': allowed a list of 1 integers"),
+    (result(busy=json.dumps({"central_wait_ns": -10**12, "plant_busy_ns": 1,
+                             "periph_busy_ns": [1]})), "busy.central_wait_ns"),
+    (result(rejected="[1, 2]"), "rejected = '[1, 2]': allowed an object"),
+    (result(rejected=json.dumps({"\x1b]0;t\x07": 1})), "rejected key"),
+    (result(rejected=json.dumps({"a": -5})), "allowed an integer 0 or more"),
+    (result(cpu=json.dumps({"cpu_per_interval_s": "abc"})), "cpu.cpu_per_interval_s"),
+    (result(t1_s="-1"), "t1_s = '-1': allowed a number of seconds"),
+    (result(block_cost_s=json.dumps({"reference": "7e-6"})), "block_cost_s.reference"),
+    (result(block_cost_s=json.dumps({"zz": 1e-6})), "block_cost_s key = 'zz'"),
+    (result(live=json.dumps({"late": "x"})), "the recording's metadata will not do"),
+    (result(live=json.dumps({"nosuchkey": 1})), "live key = 'nosuchkey'"),
     (result(fault=json.dumps({"process": "plant", "message": "m", "code": "x"})),
      "allowed an object with process and message (text) and code (an exit code"),
     (result(t_start_ns="abc"), "t_start_ns = 'abc': allowed an integer of nanoseconds"),

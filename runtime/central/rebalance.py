@@ -269,12 +269,14 @@ class LiveBalance:
 
     def summary(self) -> dict[str, Any] | None:
         """What the report says of live balance where it was asked (``live_balance``):
-        judgements made and the judge's CPU, the interval of the first judgement, the
-        central blocks now, and why it stopped or never ran, if so."""
+        judgements made and the judge's CPU, whether one was under way at the end, the
+        interval of the first judgement, the central blocks now, and why it stopped or
+        never ran, if so."""
         if not self.asked:
             return None
         ended = self.ended or ("" if self.enabled else "no peripheral: nothing to move")
         return {"judged": self.judged, "judge_cpu_s": self.judge_ns / 1e9,
+                "under_way": self.pending is not None,
                 "first_judged_after": SETTLE + EVERY, "ended": ended,
                 "central_blocks": sorted(self.intervals.engine.plan.placement.central_blocks)}
 

@@ -159,13 +159,15 @@ def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
     rec = _open_recording(file)
     try:
         rep = report_from_recording(rec)
-    except (KeyError, TypeError, ValueError) as exc:  # an edited or damaged file's record
+        text = json.dumps(_json_safe(rep)) if as_json else summary(rep)
+    except (AttributeError, IndexError, KeyError, TypeError, ValueError) as exc:
+        # an edited or damaged file's record: what it holds does not fit where it is read
         _fail(f"report: {file}: the recording's metadata will not do: "
-              f"{exc if isinstance(exc, ValueError) else f'{type(exc).__name__}: {exc}'}")
+              f"{exc if isinstance(exc, ValueError) else f'{type(exc).__name__}'}")
     if report_file:
         with open(report_file, "w") as fh:
             json.dump(_json_safe(rep), fh, indent=2)
-    click.echo(json.dumps(_json_safe(rep)) if as_json else summary(rep))
+    click.echo(text)
 
 
 @cli.command("export")

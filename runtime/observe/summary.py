@@ -354,8 +354,10 @@ def _live_balance_lines(r: dict[str, Any], *, first: bool) -> list[str]:
     elif live is not None:
         out.append(f"live: {live['ended']}" if live["ended"] else
                    f"live: {live['judged']} judgement(s), no move (none predicted 5 % "
-                   "faster)" if live["judged"] else "live: no judgement, the run ended "
-                   f"before its first (after interval {live['first_judged_after']})")
+                   "faster)" if live["judged"] else "live: no verdict, the run ended while "
+                   "the judge (a process at nice 19: it waits for an idle CPU) was at its "
+                   "first" if live.get("under_way") else "live: no judgement, the run "
+                   f"ended before its first (after interval {live['first_judged_after']})")
     return [("  placement   " if i == 0 and first else " " * 14) + x
             for i, x in enumerate(out)]
 

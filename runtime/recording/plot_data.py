@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from .reader import Recording
+from .result_record import fault as record_fault
 
 
 def _num(x: Any) -> float:
@@ -141,10 +142,9 @@ def events(rec: Recording, cycles: tuple[int, int] | None
             continue
     if cycles is not None:
         ev = [e for e in ev if cycles[0] <= e[0] < cycles[1]]
-    result = rec.metadata.get("ctrlunit.result", {})
     try:
-        fault = json.loads(result.get("fault", "null") or "null")
-    except ValueError:
+        fault = record_fault(rec.metadata.get("ctrlunit.result", {}).get("fault"))
+    except ValueError:  # ctrlunit plot checks the record first (runtime/cli/recordings.py)
         fault = None
     if rec.salvaged and not fault:
         fault = {"process": "recording", "message": rec.note}

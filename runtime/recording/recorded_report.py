@@ -3,7 +3,6 @@ the same numbers as the live run's, from the recorded messages, timing and resul
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any
 
@@ -20,6 +19,7 @@ from ..observe.report import (
     overload_figures,
     tracking_errors,
 )
+from . import result_record as record
 from .plot_data import commands
 from .reader import Recording
 from .replay import recorded_inputs, stride_grid
@@ -43,8 +43,8 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
             p = s["p"]
             true_p[k] = (p[0], p[1], p[2])
     result = rec.metadata.get("ctrlunit.result", {})
-    busy = json.loads(result.get("busy", "{}") or "{}")
-    t0, t1_ns = _ns(result, "t_start_ns"), _ns(result, "t_end_ns")
+    busy = record.busy(result, setup.placement.peripherals)
+    t0, t1_ns = record.ns(result, "t_start_ns"), record.ns(result, "t_end_ns")
     wall = max(1, t1_ns - t0) if t0 else max(1, (cmd_ns[-1] - cmd_ns[0]) if cmd_ns else 1)
     n = setup.placement.peripherals
     if busy:
@@ -62,16 +62,16 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     deadline = rec.decoded("/faults/deadline")
     misses = deadline[-1][1]["deadline_misses"] if deadline else 0
     skipped = deadline[-1][1]["skipped_samples"] if deadline else 0
-    rejected = json.loads(result.get("rejected", "{}") or "{}")
+    rejected = record.rejected(result)
     if not rejected:
         rej = rec.decoded("/faults/rejected")
         rejected = rej[-1][1] if rej else {}
-    t1 = float(result["t1_s"]) if result.get("t1_s") not in (None, "None", "") else math.nan
-    per_block = json.loads(result.get("block_cost_s", "{}") or "{}")
+    t1 = record.t1(result)
+    per_block = record.block_costs(result, {b.name for b in setup.plan.graph.blocks})
     if not math.isfinite(t1):
         t1, per_block = measure_t1(lambda: setup.engine(peripherals_plan=False),
                                    recorded_inputs(rec, setup)[: rc.run.t1_cycles])
-    fault = recorded_fault(result.get("fault"))
+    fault = record.fault(result.get("fault"))
     if rec.salvaged:
         fault = fault or {"process": "recording", "message": rec.note, "code": None}
     task = setup.task
@@ -84,7 +84,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
         skipped=skipped, rejected=rejected, t1_s=t1, per_block_s=per_block, fault=fault,
         wall_s=wall / 1e9,
     )
-    cpu = json.loads(result.get("cpu", "{}") or "{}")  # per process: only the run knew
+    cpu = record.cpu(result)  # per process: only the run knew
     rep.update({k: cpu.get(k) for k in CPU_KEYS if k in cpu})
     _live_facts(rep, rec, rc, cpu_known=bool(cpu))
     grid = stride_grid(rec)
@@ -96,45 +96,11 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
         and type(m.get("start")) is int and m.get("stride") in (1, 2)]
     rep["overload"] = overload_figures(changes, rc.halves_on_overload, grid,
                                        end=rep["periods"])
+    if not rep.get("fault") and rep["periods"] < setup.cycles:  # a whole file, cut inside
+        rep["fault"] = {"process": "recording", "code": None, "message": (
+            f"it holds intervals up to period {rep['periods']} of the {setup.cycles} "
+            "planned and no fault: the rest is missing")}
     return rep
-
-
-def _ns(result: dict[str, str], key: str) -> int:
-    """A time (ns) of the result record; 0 where it holds none."""
-    text = result.get(key) or "0"
-    if not text.isdigit():
-        raise ValueError(f"its result record's {key} = {text[:30]!r}: allowed an integer of "
-                         "nanoseconds")
-    return int(text)
-
-
-def recorded_fault(text: Any) -> dict[str, Any] | None:
-    """The run's fault as its result record holds it, checked and made printable: an
-    object whose ``process`` and ``message`` are text (control characters, newlines among
-    them, shown as spaces: a summary line stays one line) and whose ``code`` is an integer
-    or null; None for no fault.
-
-    Raises
-    ------
-    ValueError
-        Naming what the record holds instead (an edited or damaged file)."""
-    if text in (None, "", "null", "None"):
-        return None
-    try:
-        fault = json.loads(text)
-    except (TypeError, ValueError):
-        raise ValueError(f"its result record's fault is not JSON: {str(text)[:60]!r}") from None
-    if fault is None:
-        return None
-    code = fault.get("code") if isinstance(fault, dict) else None
-    if not (isinstance(fault, dict) and isinstance(fault.get("process"), str)
-            and isinstance(fault.get("message"), str)
-            and (code is None or (type(code) is int and 0 <= code <= 255))):
-        raise ValueError(f"its result record's fault {str(fault)[:60]!r}: allowed an object "
-                         "with process and message (text) and code (an exit code 0 to 255, "
-                         "or null)")
-    return fault | {k: "".join(c if c.isprintable() else " " for c in fault[k])
-                    for k in ("process", "message")}
 
 
 def _live_facts(rep: dict[str, Any], rec: Recording, rc: RunConfig, *, cpu_known: bool
@@ -144,9 +110,9 @@ def _live_facts(rep: dict[str, Any], rec: Recording, rc: RunConfig, *, cpu_known
     them), ``not_recorded``: the summary lines this run would have had that the file
     cannot give, and why."""
     result = rec.metadata.get("ctrlunit.result")
-    live = (result or {}).get("live")
+    live = record.live(result or {}, RESULT_KEYS)
     if live is not None:
-        rep.update(json.loads(live))
+        rep.update(live)
         return
     rep.pop("link_list", None)  # the configuration's links, without the central's endpoint
     sch, n = rc.schedule, rep["peripherals"]
@@ -167,6 +133,7 @@ def _live_facts(rep: dict[str, Any], rec: Recording, rc: RunConfig, *, cpu_known
         if relevant.get(key, True) and line not in lines:
             lines.append(line)
     why = ("the recording was cut off before the run's end, where they are written"
-           if rec.salvaged or result is None else
+           if rec.salvaged else "the recording holds no result record, which a run writes "
+           "at its end" if result is None else
            "the recording was made by a ctrlunit that kept them in the live report only")
     rep["not_recorded"] = {"lines": lines, "why": why}

@@ -171,7 +171,7 @@ def verify(
     commands = {m["cycle"]: m["tau"] for _, m in rec.decoded("/plant/command")}
     held, computed = _late_rounds(rec)
     last: dict[str, list[Any]] = {}  # the last accepted values, by name and axis
-    central_trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
+    central_trace = _central_trace(rec)
     current: dict[str, int] = {}  # the interval being re-executed (for ``alter``)
     done = 0
     seq = cycles_in_order(rec)
@@ -210,7 +210,7 @@ def verify(
         # the end of the interval are those the central handed off at its hand-off point
         ctl.handoff(ctx)
         if compare:
-            d = _compare_blocks(engine.plan, ctx, k, central_trace.get(k), replies,
+            d = _compare_blocks(engine.plan, ctx, k, central_trace(k), replies,
                                 held.keys() | computed) or sent
             if d:
                 return done, d
@@ -221,6 +221,16 @@ def verify(
         if progress is not None and idx % 500 == 0:
             progress(idx, len(seq))
     return done, None
+
+
+def _central_trace(rec: Recording) -> Callable[[int], dict | None]:
+    """Interval -> the central's outputs the recording traced: None for an interval a
+    recording that traces the central lacks; {} (nothing to compare) for any of one that
+    does not trace it, and past the last traced one of a salvaged file (its command and
+    its trace may have been written in chunks on either side of the cut)."""
+    trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
+    last = max(trace, default=-1)
+    return lambda k: trace.get(k, {} if not trace or (rec.salvaged and k > last) else None)
 
 
 def _placed(engine: Any, moves: list[tuple[int, list[str]]], k: int,
@@ -308,8 +318,8 @@ def _compare_blocks(plan: Any, ctx: dict, k: int, central: dict | None,
     for step in plan.steps:
         if step.round is None:
             b = step.block
-            if central is None:
-                continue
+            if central is None:  # the recording traces the central, but not this interval
+                return Divergence(k, "(central trace)", None, "missing", None, None)
             for name in b.outputs:
                 if name in central and _plain(ctx[name]) != central[name]:
                     return Divergence(k, b.name, None, name, central[name], _plain(ctx[name]))
