@@ -46,8 +46,8 @@ def _files(tmp: Path) -> dict[str, list[Any]]:
             "pin": ["0", "0,1"], "foxglove": ["8765", "127.0.0.1:8765"],
             "foxglove_rate": [0.0, 1.0, 100000.0], "placement": [str(placement)],
             "listen": [["tcp/127.0.0.1:7447"], ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:7448"]],
-            "connect": [["tcp/127.0.0.1:7449"]], "late": [{"law": "hold"},
-                                                          {"law": "hold", "ik": "wait"}]}
+            "connect": [["tcp/127.0.0.1:7449"]], "late": [{"jdot": "hold"},
+                                                          {"jdot": "hold", "ik": "wait"}]}
 
 
 SAMPLES: dict[str, list[Any]] = {}
