@@ -198,6 +198,7 @@ class Task:
     reference_length_m: float | None = None
     reference_duration_s: float | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
+    _points: dict = field(default_factory=dict, repr=False, compare=False)
     _step: float = field(default=0.0, repr=False, compare=False)
     _grid: int = field(default=0, repr=False, compare=False)
 
@@ -222,6 +223,7 @@ class Task:
         n = math.ceil(self.period / step - 1e-9)
         self.dwell = 0.5 * n * step - self.duration
         self._cache.clear()
+        self._points.clear()
         self._step, self._grid = step, n
         return self
 
@@ -257,21 +259,25 @@ class Task:
         return self._sample(t)
 
     def position(self, t: float) -> Vec3:
-        """Reference position at ``t`` exactly as computed afresh (Eq. II.33): the tracking
-        error's reference. :meth:`sample` caches a grid time's value from whichever nearby
-        ``t`` (a few ulps apart) asked first, so two runs of the same intervals may see it
-        in different last bits; this does not depend on what was asked before. The
-        reference depends on ``t`` only through the time within the loop (``t`` modulo
-        :attr:`period`, :meth:`_sample`'s first step), so a cached value computed at that
-        very time is the same value, and is taken instead of computing it again."""
+        """Reference position at ``t`` (Eq. II.33): the tracking error's reference.
+
+        After :meth:`align`, a time on the aligned grid is taken at its point within the
+        loop, ``(k mod grid) * step`` for grid index ``k``: the same reference (it
+        depends on ``t`` only through the time within the loop), rounded once rather
+        than through ``t``'s own rounding. So the value is a function of the grid index
+        alone, the same in every loop and whatever was asked before; the central, the
+        report and the plot agree on it bit for bit, and it is computed once per grid
+        point. Other times are computed at ``t``."""
         step = self._step
         if step:
             x = t / step
             k = round(x)
             if abs(x - k) < 1e-6:
-                hit = self._cache.get(k % self._grid)
-                if hit is not None and hit[0] == t % self.period:
-                    return hit[1][0]
+                key = k % self._grid
+                p = self._points.get(key)
+                if p is None:
+                    p = self._points[key] = self._sample(key * step)[0]
+                return p
         return self._sample(t)[0]
 
     def _sample(self, t: float) -> tuple[Vec3, Vec3, Vec3]:
