@@ -21,6 +21,7 @@ from ctrlunit.runtime.roles.peripheral import MAX_KEPT_CYCLES, Peripheral, decla
 from ctrlunit.runtime.transport.codec import decode, encode
 from ctrlunit.runtime.transport.node import WARM_RSS_AT
 from loopback import Bus, LoopbackNode
+from runner import unit_id
 from test_validation import ENGINE_BY_LAW, UNIT
 
 ENGINE, PARTS = ENGINE_BY_LAW["resolved-acceleration"]
@@ -355,3 +356,37 @@ def test_run_peripheral_says_hello_serves_after_go_and_says_bye_at_stop(tmp_path
     code = run_peripheral(make_setup(lonely), 1,
                           make_config(connect=[f"unixsock-stream/{tmp_path / 'none.sock'}"]))
     assert code == EXIT_LINK
+
+
+def test_the_centrals_warm_up_occupies_no_modelled_time_and_the_runs_cycles_do():
+    """Under the T-800 cost model a warm-up round (cycles from ``WARMUP_BASE``) is computed
+    without occupying its modelled time; a round of the run is (its settle waits for the
+    debt and keeps its error). At ``--cost-scale 1000`` the warm-up's 30 intervals took so
+    long that the plant, hearing nothing, ended on its watchdog (exit 4)."""
+    from ctrlunit.runtime.compute.engine import CostModel
+    from ctrlunit.runtime.transport.codec import WARMUP_BASE
+
+    cost = CostModel("t800", scale=0.01)
+    per = Peripheral(Engine(ENGINE.plan, ENGINE.cfg, cost=cost), 0, UNIT)
+    assert answered(per.on_request(request(part(R0, WARMUP_BASE)))) == [(WARMUP_BASE, 0)]
+    assert cost.errors_ns == [] and cost.deadline == 0 and not cost.waive
+    assert answered(per.on_request(request(part(R0, 5)))) == [(5, 0)]
+    assert len(cost.errors_ns) == 1  # the run's round settled its modelled time
+
+
+def test_the_whole_warm_up_occupies_no_modelled_time_on_any_process():
+    """The central's warm-up under the T-800 cost model, every role's engine watched: no
+    modelled time is settled during it, on the central nor on a peripheral; the run's
+    first interval then settles on both."""
+    from loopback import LoopbackUnit, lockstep_config
+
+    unit = LoopbackUnit(lockstep_config(unit_id("warm"), peripherals=3, pipeline=2, cycles=2,
+                                        cost_model="t800", cost_scale=0.01))
+    costs = [unit.central.engine.cost] + [p.engine.cost for _, p in unit.peripherals]
+    assert all(c.name == "t800" for c in costs)
+    unit.plant_muted = True  # the plant's samples begin with the run
+    unit.central.warm_up()
+    unit.plant_muted = False
+    assert [len(c.errors_ns) for c in costs] == [0, 0, 0, 0]
+    unit.run()
+    assert all(c.errors_ns for c in costs)

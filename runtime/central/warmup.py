@@ -20,12 +20,9 @@ from ..compute.blocks import ObserverDiverged
 from ..compute.controller import Controller
 from ..compute.engine import Engine
 from ..config import EXIT_PERIPHERAL
-from ..transport.codec import BadMessage, check_span, check_vals, encode, parts_of
+from ..transport.codec import WARMUP_BASE, BadMessage, check_span, check_vals, encode, parts_of
 from ..transport.node import Event, Node
 from .fault import Fault
-
-WARMUP_BASE = 1 << 40
-"""Cycle numbers of the throw-away intervals (far from any run's)."""
 
 RESEND_S = 0.2
 """A warm-up request unanswered this long is sent again (the first may race the routes)."""
@@ -78,21 +75,23 @@ class WarmUp:
         """Exercise the request/reply path before measuring (Zenoh routes, every round's
         code path on every process) with whole throw-away intervals; the replies are
         checked, merged and discarded. Each round trip less the peripherals' compute is
-        kept (:attr:`warm_rtt_s`)."""
+        kept (:attr:`warm_rtt_s`). The intervals occupy no modelled time
+        (:meth:`CostModel.waived`): they are not the run's work."""
         plan = self.engine.plan
         if plan.placement.peripherals == 0 or not plan.rounds:
             return
-        for i in range(intervals):
-            ctx = self.throwaway_ctx()
-            gen = self.engine.cycle(ctx)
-            cycle = WARMUP_BASE + i
-            try:
-                rnd = next(gen)
-                while True:
-                    self._round(cycle, rnd, ctx)
-                    rnd = gen.send(None)
-            except (StopIteration, ObserverDiverged):
-                continue
+        with self.engine.cost.waived():  # the peripherals waive theirs alike
+            for i in range(intervals):
+                ctx = self.throwaway_ctx()
+                gen = self.engine.cycle(ctx)
+                cycle = WARMUP_BASE + i
+                try:
+                    rnd = next(gen)
+                    while True:
+                        self._round(cycle, rnd, ctx)
+                        rnd = gen.send(None)
+                except (StopIteration, ObserverDiverged):
+                    continue
 
     def throwaway_ctx(self) -> dict:
         """A context at the current estimate, measured there exactly (warm-up, timing)."""

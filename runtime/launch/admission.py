@@ -49,6 +49,7 @@ import numpy as np
 from ..config import EXIT_UNSUSTAINABLE
 from ..host import sched
 from ..host.busy_guard import ADMIT_BUSY_SHARE
+from ..transport.codec import WARMUP_BASE
 from .refusal import HEADROOM, LATE_SHARE, advice, trial_findings
 
 if TYPE_CHECKING:
@@ -59,7 +60,7 @@ LADDER_S = (0.25e-3, 0.32e-3, 0.4e-3, 0.5e-3, 0.64e-3, 0.8e-3, 1.0e-3, 1.25e-3, 
 """The periods ``--period auto`` chooses from, and the trial climbs after a refusal
 (issue 59: down to 0.25 ms, the thesis's 0.5 ms among them)."""
 
-TRIAL_BASE = 1 << 41
+TRIAL_BASE = 2 * WARMUP_BASE
 """Trial cycles are numbered from here (one block of 2**20 per rung), far from the run's
 and the warm-up's, so that a straggling trial message is never taken for a real one."""
 

@@ -25,6 +25,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
+from contextlib import nullcontext
 from typing import Any
 
 from ...topology.pipeline import reply_order
@@ -32,7 +33,7 @@ from ..compute.engine import Engine
 from ..compute.setup import Setup
 from ..config import EXIT_LINK, EXIT_OK, ConfigError
 from ..host import sched
-from ..transport.codec import BadMessage, check_vals, decode, encode, parts_of
+from ..transport.codec import BadMessage, check_vals, decode, encode, is_warmup, parts_of
 from ..transport.node import WARM_RSS_AT, Node, control_order, cpu_used, rss_kb, say_bye
 from .rolelog import role_log, role_log_end
 
@@ -173,7 +174,9 @@ class Peripheral:
                     del self._ctxs[min(self._ctxs)]
             Engine.merge(ctx, vals, ALL_AXES)
             try:
-                engine.run_round(rnd, ctx, self.axes)
+                # the central's warm-up occupies no modelled time (CostModel.waived)
+                with engine.cost.waived() if is_warmup(cycle) else nullcontext():
+                    engine.run_round(rnd, ctx, self.axes)
             except Exception as exc:
                 self.rejected[f"kernel_error:{type(exc).__name__}"] += 1
                 continue

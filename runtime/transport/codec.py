@@ -16,6 +16,14 @@ MAX_CYCLE = 2**62
 MAX_PARTS = 4
 MAX_STR_BYTES = 256
 """Longest string (UTF-8 bytes) a message may hold; a longer one makes it undecodable."""
+WARMUP_BASE = 1 << 40
+"""Cycle numbers of the central's warm-up, throw-away intervals (runtime/central/warmup.py),
+from here to twice this; the admission's trials number theirs from twice this up."""
+
+
+def is_warmup(cycle: int) -> bool:
+    """Whether ``cycle`` numbers one of the central's warm-up intervals."""
+    return WARMUP_BASE <= cycle < 2 * WARMUP_BASE
 
 
 class BadMessage(ValueError):
