@@ -309,7 +309,7 @@ class RunOptions:
     """How long the run lasts and what it writes."""
 
     cycles: int | None = setting(None, flag=Flag(everyday=True), bounds=(1, 10**9),
-                                 allowed="1 to 1e9",
+                                 allowed="1 to 1000000000",
                                  help="Intervals to run (default: one loop of the task).")
     duration: float | None = setting(None, flag=Flag(kind="duration", everyday=True),
                                      bounds=(1e-6, 1e7), allowed="1 us to 1e7 s",
