@@ -113,3 +113,17 @@ def test_late_names_a_per_axis_block_of_the_law():
     assert code == 1 and "no per-axis block 'nosuchblock'" in out and "allowed: accel" in out
     code, out = run("start", "--check", "--late", "jdot=hold")
     assert code == 0, out
+
+
+@pytest.mark.parametrize(("cut", "said"), [
+    (8, "cut off before its first interval was written"),
+    (100, "cut off before its first interval was written"),
+    (0, "not a readable MCAP recording"),
+])
+def test_a_file_cut_in_its_first_bytes_says_it_was_cut_off(recorded, tmp_path, cut, said):
+    """A recording cut within its first records (a crash right after the start) says so;
+    a file that is no MCAP at all says that."""
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(recorded.read_bytes()[:cut] if cut else b"not an mcap file at all")
+    code, out = run("report", str(path))
+    assert code == 1 and said in out and "Traceback" not in out, out

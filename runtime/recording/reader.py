@@ -98,6 +98,10 @@ def read(path: str | Path) -> Recording:
     except Exception as exc:
         rec.note = f"{type(exc).__name__}"
     if not rec.metadata and not rec.topics:
+        if _begins_mcap(path):  # a recording's first bytes, then nothing whole
+            raise ValueError(f"{path}: the recording was cut off before its first interval "
+                             "was written (it holds MCAP's header and no record whole): "
+                             "there is nothing to replay or report")
         raise ValueError(f"{path}: not a readable MCAP recording ({first_error})")
     rec.damaged = _ends_whole(path)
     n = len(rec.topics.get("/plant/command", []))
@@ -115,6 +119,15 @@ def read(path: str | Path) -> Recording:
 
 MAGIC = b"\x89MCAP0\r\n"
 """What begins and ends a whole MCAP file."""
+
+
+def _begins_mcap(path: str) -> bool:
+    """Whether the file begins with MCAP's magic."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
 
 
 def _ends_whole(path: str) -> bool:
