@@ -259,14 +259,12 @@ class Task:
         return self._sample(t)
 
     def position(self, t: float) -> Vec3:
-        """Reference position at ``t`` (Eq. II.33): the tracking error's reference.
-
-        After :meth:`align`, a time on the aligned grid is taken at its point within the
-        loop, ``(k mod grid) * step`` for grid index ``k``: the same reference (it
-        depends on ``t`` only through the time within the loop), rounded once rather
-        than through ``t``'s own rounding. So the value is a function of the grid index
-        alone, the same in every loop and whatever was asked before; the central, the
-        report and the plot agree on it bit for bit, and it is computed once per grid
+        """Reference position at ``t`` (Eq. II.33), the tracking error's reference. After
+        :meth:`align`, a time on the grid is taken at its point in the loop, ``(k mod
+        grid) * step`` for grid index ``k``: the same reference (it depends on ``t`` only
+        through the time within the loop), rounded once rather than through ``t``'s own
+        rounding. So it is a function of the grid index alone, whatever was asked before:
+        the central, report and plot agree bit for bit, and it is computed once per grid
         point. Other times are computed at ``t``."""
         step = self._step
         if step:

@@ -17,6 +17,7 @@ from ctrlunit.runtime.central import rebalance
 from ctrlunit.runtime.config import ConfigError, RunConfig
 from ctrlunit.runtime.observe.summary import summary
 from ctrlunit.runtime.recording import replay
+from ctrlunit.runtime.recording.plot_data import changes
 from ctrlunit.runtime.recording.reader import read
 from ctrlunit.topology.graph import stage_graph
 from ctrlunit.topology.live_choice import live_choice
@@ -122,6 +123,7 @@ def test_a_recorded_move_replays_bit_for_bit_and_only_with_its_plan(monkeypatch,
                     balance="live")
     rec = read(str(path))
     assert replay.placements(rec) and replay.placements(rec)[0][1] == model
+    assert [k for k, _ in changes(rec)] == [k for k, _ in replay.placements(rec)]  # plotted
     done, div = replay.verify(rec)
     assert div is None and done == CYCLES
     monkeypatch.setattr(replay, "placements", lambda rec: [])

@@ -174,3 +174,33 @@ def test_the_events_figure_says_how_the_run_ended_as_the_summary_does(process, m
     """A new user's Ctrl-C was drawn as "fault: interrupted" under a title saying the run
     ended in a fault, where the summary said "a stop asked for, not a fault"."""
     assert how_it_ended({"process": process, "message": "interrupted"}) == (marked, title)
+
+
+def test_the_events_figure_marks_each_change_of_placement(tmp_path):
+    """A live move (``/central/placement``), a peripheral taken over and back
+    (``/faults/degraded``) are read in cycle order, a malformed record skipped, and each
+    drawn on the events figure at its interval's time."""
+    import msgpack
+    from ctrlunit.runtime.config import RunConfig
+    from ctrlunit.runtime.recording.plot_data import changes
+    from ctrlunit.runtime.recording.plots import Plots, _events_figure
+    from ctrlunit.runtime.recording.reader import Recording
+
+    pack = msgpack.packb
+    rec = Recording("x.mcap", topics={
+        "/central/placement": [(1, pack({"from_cycle": 60, "central_blocks": ["a", "b"]}))],
+        "/faults/degraded": [(2, pack({"peripheral": 2, "from_cycle": 120})),
+                             (3, pack({"peripheral": 2, "from_cycle": 120,
+                                       "back_from_cycle": 180})),
+                             (4, pack({"peripheral": "2", "from_cycle": 9}))]})
+    moved = changes(rec)
+    assert moved == [(60, "placement: 2 block(s) on the central"),
+                     (120, "peripheral 2 taken over"), (180, "peripheral 2 back")]
+    assert changes(rec, (100, 150)) == moved[1:2] and changes(Recording("y.mcap")) == []
+    rc = RunConfig.of(period=1e-3)
+    n = np.arange(200)
+    plots = Plots()
+    _events_figure(tmp_path / "events.png", {"cycle": n, "period_s": np.full(200, 1e-3)},
+                   [], None, rc, plots, moved)
+    assert plots.marks == [(k * 1e-3, what) for k, what in moved]
+    assert _ink(tmp_path / "events.png")[0] > 0.01 and not plots.clashes

@@ -1,6 +1,7 @@
 """What the plots read of a recording (:mod:`.plots`): the ``/signals/state`` messages
-as arrays, the deadline and fault events, the compute spans and the spans at the halved
-control rate. A malformed message is skipped, never a crash."""
+as arrays, the deadline and fault events, the changes of placement (live moves,
+take-overs), the compute spans and the spans at the halved control rate. A malformed
+message is skipped, never a crash."""
 
 from __future__ import annotations
 
@@ -149,6 +150,28 @@ def events(rec: Recording, cycles: tuple[int, int] | None
     if rec.salvaged and not fault:
         fault = {"process": "recording", "message": rec.note}
     return ev, fault
+
+
+def changes(rec: Recording, cycles: tuple[int, int] | None = None
+            ) -> list[tuple[int, str]]:
+    """``(cycle, what)`` of each change of who computes what, in cycle order: a live
+    re-placement (``/central/placement``: the blocks then on the central), a peripheral
+    lost and taken over, and its coming back (``/faults/degraded``)."""
+    from .replay import placements
+
+    out = [(k, f"placement: {len(blocks)} block(s) on the central")
+           for k, blocks in placements(rec)]
+    for _, m in rec.decoded("/faults/degraded"):
+        k = m.get("peripheral")
+        if type(k) is not int:
+            continue
+        if type(m.get("back_from_cycle")) is int:
+            out.append((m["back_from_cycle"], f"peripheral {k} back"))
+        elif type(m.get("from_cycle")) is int:
+            out.append((m["from_cycle"], f"peripheral {k} taken over"))
+    if cycles is not None:
+        out = [c for c in out if cycles[0] <= c[0] < cycles[1]]
+    return sorted(out)
 
 
 def gantt_spans(rec: Recording, cycles: tuple[int, int] | None = None

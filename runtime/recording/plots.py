@@ -18,7 +18,8 @@ From a recording alone (whole, compressed or salvaged after a crash), six PNGs a
     out, the same quantiles), so the titles say what the summary says.
 ``events.png``
     The period over the run, with each deadline miss, skipped sample and the fault (if
-    any) where it fell, and the spans at the halved control rate (``--overload``).
+    any) where it fell, the spans at the halved control rate (``--overload``), and each
+    change of who computes what (a live re-placement, a peripheral taken over or back).
 ``gantt.png``
     The processes' compute spans over a few intervals of the middle of the run.
 
@@ -43,13 +44,10 @@ import matplotlib.pyplot as plt
 
 from ..config import RunConfig
 from ..observe.summary_end import how_it_ended
-from .plot_data import events, gantt_spans, halved_spans, sample_tracking, signals, timing
+from .gantt import COLORS, gantt_figure
+from .plot_data import changes, events, gantt_spans, halved_spans, sample_tracking, signals, timing
 from .plot_index import write_index
 from .reader import Recording
-
-COLORS = {"central": "#1f77b4", "peripheral_1": "#ff7f0e", "peripheral_2": "#2ca02c",
-          "peripheral_3": "#d62728", "plant": "#7f7f7f"}
-"""One colour per process, in every Gantt chart of ctrlunit."""
 
 FIGURES = ("path", "tracking_error", "torques", "timing", "events", "gantt")
 """The PNGs :func:`plot_recording` writes, in the order index.html shows them."""
@@ -74,6 +72,7 @@ class Plots:
     titles : figure name -> the titles of its panels, as drawn (the timing figure's and
         the events figure's).
     clashes : titles that overlapped another or passed a figure's edge (none expected).
+    marks : the events figure's changes of placement, ``(time s, what)``, as drawn.
     """
 
     images: dict[str, Path] = field(default_factory=dict)
@@ -83,33 +82,7 @@ class Plots:
     timing: dict[str, Any] = field(default_factory=dict)
     titles: dict[str, list[str]] = field(default_factory=dict)
     clashes: list[str] = field(default_factory=list)
-
-
-def gantt_figure(path: Path, panels: dict[str, list]) -> None:
-    """One Gantt chart per panel: spans ``(process, cycle, t0_ms, t1_ms)``, labelled with
-    the cycle mod 100 (the measured or predicted counterparts of the thesis's Fig. 22-24).
-    Panels without spans are left out; nothing is written if none has any."""
-    panels = {k: v for k, v in panels.items() if v}
-    if not panels:
-        return
-    fig, axes = plt.subplots(len(panels), 1, figsize=(12, 2.6 * len(panels)),
-                             constrained_layout=True, squeeze=False)
-    span_ms = max(b for spans in panels.values() for *_, b in spans)
-    for ax, (title, spans) in zip(axes[:, 0], panels.items()):
-        procs = sorted({p for p, *_ in spans}, key=lambda p: (p != "central", p))
-        for y, proc in enumerate(procs):
-            for p, c, a, b in spans:
-                if p == proc:
-                    ax.broken_barh([(a, max(b - a, 0.01))], (y - 0.4, 0.8),
-                                   color=COLORS.get(p, "#999999"))
-                    ax.text(a, y, str(c % 100), fontsize=6, va="center")
-        ax.set_yticks(range(len(procs)), procs)
-        ax.set_xlim(0, span_ms * 1.02)
-        ax.set_xlabel("time (ms)")
-        ax.set_title(f"Gantt chart, {title} - labels: cycle mod 100; cf. thesis Fig. 22-24",
-                     fontsize=9)
-    fig.savefig(path, dpi=_DPI)
-    plt.close(fig)
+    marks: list[tuple[float, str]] = field(default_factory=list)
 
 
 def _empty(ax: Any, text: str) -> None:
@@ -277,7 +250,8 @@ def _save(fig: Any, path: Path, plots: Plots) -> None:
 
 
 def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int, int]],
-                   fault: dict[str, Any] | None, rc: RunConfig, plots: Plots) -> None:
+                   fault: dict[str, Any] | None, rc: RunConfig, plots: Plots,
+                   moved: list[tuple[int, str]]) -> None:
     fig, ax = plt.subplots(figsize=(11, 3.8), constrained_layout=True)
     t = s["cycle"] * rc.schedule.period
     for a, b in s.get("halved_spans_s", np.empty((0, 2))):
@@ -299,6 +273,15 @@ def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int
         ax.axvline(x, color="#d62728", lw=0.8, alpha=0.7)
     for x in skip_t:
         ax.axvline(x, color="#ff7f0e", lw=0.8, alpha=0.7, ls=":")
+    for k, what in moved:
+        x = k * rc.schedule.period
+        ax.axvline(x, color="#9467bd", lw=1.0, ls="--")
+        ax.annotate(what, (x, 0.03), xycoords=("data", "axes fraction"), rotation=90,
+                    ha="right", va="bottom", fontsize=7, color="#9467bd",
+                    bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.7, "pad": 1})
+        plots.marks.append((x, what))
+    if moved:
+        ax.plot([], [], color="#9467bd", ls="--", label="placement changed")
     realtime = rc.schedule.clock == "realtime"
     title = (f"deadline misses {prev_m}, skipped samples {prev_s}" if realtime else
              f"{rc.schedule.clock}: wall time per interval (no deadline)")
@@ -369,7 +352,7 @@ def plot_recording(rec: Recording, out: str | Path, *,
     plots.timing = timing(rec, cycles)
     _timing(images["timing"], plots.timing, rc, plots)
     images["events"] = out / "events.png"
-    _events_figure(images["events"], s, ev, fault, rc, plots)
+    _events_figure(images["events"], s, ev, fault, rc, plots, changes(rec, cycles))
     from ..observe.report import gantt_window
 
     window = gantt_window(gantt_spans(rec, cycles))
@@ -395,3 +378,6 @@ def plot_recording(rec: Recording, out: str | Path, *,
     plots.index = out / "index.html"
     write_index(plots.index, rec, images, summary, plots.notes, FIGURES)
     return plots
+
+
+__all__ = ["COLORS", "FIGURES", "Plots", "gantt_figure", "plot_recording", "title_clashes"]
