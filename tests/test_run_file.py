@@ -120,3 +120,25 @@ def read_back(data: dict) -> dict:
 
     by_field = {v: k for k, v in FLAT.items()}
     return {by_field[(sec, k)]: v for sec, table in data.items() for k, v in table.items()}
+
+
+@pytest.mark.parametrize("command", ["start", "config"])
+def test_a_refusal_of_settings_together_says_where_a_setting_came_from(tmp_path, command):
+    """A check across settings names the flag (``--balance live: not with --clock
+    realtime``); where the run file or ``--set`` gave it, it says so, and the flag given
+    on the command line is named as it is."""
+    run_file = tmp_path / "run.toml"
+    run_file.write_text('[schedule]\nbalance = "live"\n')
+
+    def refused(*args: str) -> str:
+        res = CliRunner().invoke(cli, [command, *args])
+        assert res.exit_code == 1, res.output
+        return res.output.strip().splitlines()[-1]
+
+    said = refused("--config", str(run_file))
+    assert said.startswith("ctrlunit: error: --balance live: not with --clock realtime")
+    assert said.endswith(f"(--balance given as schedule.balance by --config {run_file})")
+    assert refused("--set", "schedule.balance=live").endswith(
+        "(--balance given as schedule.balance by --set)")
+    assert refused("--config", str(run_file), "--balance", "live").endswith(
+        "allowed with --clock freerun or lockstep")

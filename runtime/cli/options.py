@@ -266,5 +266,35 @@ def given_in(kw: dict[str, Any]) -> set[str]:
     return given
 
 
+def where_given(kw: dict[str, Any]) -> dict[str, str]:
+    """Where each setting that no flag gave came from (flat name -> ``--set``, ``--config
+    FILE`` or ``--profile NAME``, the last layer that set it); call before
+    :func:`make_rc`, which takes those options out of ``kw``."""
+    from ..config.run_file import parse_set, profile, read_run_file
+
+    out: dict[str, str] = {}
+    with contextlib.suppress(ConfigError):  # make_rc's error to report
+        if kw.get("profile"):
+            out |= dict.fromkeys(profile(kw["profile"]), f"--profile {kw['profile']}")
+        if kw.get("config_file"):
+            out |= dict.fromkeys(read_run_file(kw["config_file"]),
+                                 f"--config {kw['config_file']}")
+        out |= dict.fromkeys(parse_set(kw.get("set_items") or ()), "--set")
+    return {f: o for f, o in out.items() if f not in _given_flags()}
+
+
+def said_where(exc: ConfigError, where: dict[str, str]) -> ConfigError:
+    """``exc``, told where its setting came from when the message begins with the flag of
+    a setting that a run file, ``--set`` or a profile gave (``--balance live: ...`` for
+    ``schedule.balance`` in a run file: the user wrote no ``--balance``)."""
+    text = str(exc)
+    for flat, origin in where.items():
+        flag = f"--{_FLAG_NAMES.get(flat, flat.replace('_', '-'))}"
+        if text.startswith((f"{flag} ", f"{flag}:")):
+            section, name = FLAT[flat]
+            return ConfigError(f"{text} ({flag} given as {section}.{name} by {origin})")
+    return exc
+
+
 __all__ = ["CLI_SECTIONS", "given_in", "given_settings", "make_rc", "role_options",
-           "run_options"]
+           "run_options", "said_where", "where_given"]
