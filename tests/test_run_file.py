@@ -142,3 +142,18 @@ def test_a_refusal_of_settings_together_says_where_a_setting_came_from(tmp_path,
         "(--balance given as schedule.balance by --set)")
     assert refused("--config", str(run_file), "--balance", "live").endswith(
         "allowed with --clock freerun or lockstep")
+
+
+@pytest.mark.parametrize(("line", "hint"), [
+    ("clock = lockstep", 'text goes in quotes: clock = "lockstep"'),
+    ("period = 2ms", 'text goes in quotes: period = "2ms"'),
+    ("pipeline = [", None),
+])
+def test_a_run_file_that_is_no_toml_names_the_line_and_how_to_quote_text(tmp_path, line, hint):
+    path = tmp_path / "run.toml"
+    path.write_text(f"[schedule]\n{line}\n")
+    with pytest.raises(ConfigError) as err:
+        read_run_file(str(path))
+    said = str(err.value)
+    assert said.startswith(f"--config {path}: ")
+    assert (said.endswith(hint) and "line 2" in said) if hint else "quotes" not in said

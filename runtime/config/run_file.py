@@ -10,6 +10,7 @@ given on the command line. ``ctrlunit config`` prints them (:func:`to_toml`).
 from __future__ import annotations
 
 import json
+import re
 import tomllib
 from typing import Any
 
@@ -57,7 +58,7 @@ def read_run_file(path: str) -> dict[str, Any]:
     except OSError as exc:
         raise ConfigError(f"--config {path}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"--config {path}: {exc}") from None
+        raise ConfigError(f"--config {path}: {exc}{_quote_hint(path, str(exc))}") from None
     out: dict[str, Any] = {}
     for section, table in data.items():
         if not isinstance(table, dict):
@@ -68,6 +69,22 @@ def read_run_file(path: str) -> dict[str, Any]:
             flat = _flat(section, key, where)
             out[flat] = read_setting(flat, value, where)
     return out
+
+
+def _quote_hint(path: str, error: str) -> str:
+    """For a TOML error on a line ``key = word`` whose value is a bare word (``clock =
+    lockstep``, ``period = 2ms``): the line as TOML wants it, the text in quotes."""
+    at = re.search(r"at line (\d+)", error)
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            line = fh.read().splitlines()[int(at.group(1)) - 1] if at else ""
+    except (OSError, IndexError):
+        return ""
+    m = re.fullmatch(r"\s*([A-Za-z0-9_]+)\s*=\s*([A-Za-z0-9_.+-]*[A-Za-z_][A-Za-z0-9_.+-]*)\s*",
+                     line)
+    if m is None or m.group(2) in ("true", "false", "inf", "nan"):
+        return ""
+    return f"; text goes in quotes: {m.group(1)} = \"{m.group(2)}\""
 
 
 def parse_set(items: list[str] | tuple[str, ...]) -> dict[str, Any]:
