@@ -348,6 +348,7 @@ def restarted(tag: str, k: int, *, dies: int, back: int, on_cycle: Any = None,
     supervision = Supervision(child_check=lambda skip=(): (
         (f"peripheral-{k + 1}", -9) if state["dead"] and f"peripheral-{k + 1}" not in skip
         else None), role_state=lambda role: "exited" if state["dead"] else "running")
+    kw.setdefault("timeout", SLOW_SILENCE_S)  # it answers after all (its exit is seen)
     u = silenced(tag, {}, on_cycle=restart, supervision=supervision, **kw)
     u.dead = state  # type: ignore[attr-defined]
     return u
