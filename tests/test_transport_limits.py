@@ -184,12 +184,13 @@ def test_a_connection_flood_does_not_keep_a_viewer_out(tmp_path, unit_keys, clea
             seen["viewer_admitted_s"] = round(time.monotonic() - t0, 2) \
                 if list(viewer.info.peers_zid()) else None
 
-    code, rep, out = keyed_run(tmp_path, "connflood", unit_keys, "20000", attack)
+    # the run outlasts the flood and the viewer (about 6 s) three times on a slow day
+    code, rep, out = keyed_run(tmp_path, "connflood", unit_keys, "12000", attack)
     print(f"connection flood: {seen}")
     assert seen["viewer_admitted_s"] is not None and seen["viewer_admitted_s"] < 5, seen
     assert code == 0, out
     assert not rep.get("degraded"), rep.get("degraded")  # no peripheral was taken over
-    ref = clean("20000")
+    ref = clean("12000")
     assert rep["command_digest"] == ref["command_digest"]
 
 
