@@ -157,3 +157,17 @@ def test_a_run_file_that_is_no_toml_names_the_line_and_how_to_quote_text(tmp_pat
     said = str(err.value)
     assert said.startswith(f"--config {path}: ")
     assert (said.endswith(hint) and "line 2" in said) if hint else "quotes" not in said
+
+
+@pytest.mark.parametrize(("text", "said"), [
+    ('clock = "lockstep"\n', "'clock' must be a section ([clock]) holding keys; clock is a key "
+     "of [schedule]"),
+    ('[control]\nclock = "lockstep"\n', "; clock is a key of [schedule]"),
+    ('[control]\nbalanc = "live"\n', "params, task)"),  # no setting's name: nothing more
+])
+def test_a_key_in_the_wrong_place_names_its_section(tmp_path, text, said):
+    path = tmp_path / "run.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        read_run_file(str(path))
+    assert str(err.value).endswith(said), str(err.value)

@@ -40,8 +40,15 @@ def _flat(section: str, key: str, where: str) -> str:
         if section not in SECTIONS:
             raise ConfigError(f"{where}: no section [{section}] (allowed: "
                               f"{', '.join(SECTIONS)})")
-        raise ConfigError(f"{where}: [{section}] has no {key!r} (allowed: {', '.join(keys)})")
+        raise ConfigError(f"{where}: [{section}] has no {key!r} (allowed: {', '.join(keys)})"
+                          f"{_belongs(key)}")
     return flat
+
+
+def _belongs(key: str) -> str:
+    """For an error on a key in the wrong place: the section it is a setting of."""
+    homes = sorted(sec for sec, name in BY_FIELD if name == key and BY_FIELD[(sec, name)] in USER)
+    return f"; {key} is a key of [{homes[0]}]" if homes else ""
 
 
 def read_run_file(path: str) -> dict[str, Any]:
@@ -63,7 +70,7 @@ def read_run_file(path: str) -> dict[str, Any]:
     for section, table in data.items():
         if not isinstance(table, dict):
             raise ConfigError(f"--config {path}: {section!r} must be a section "
-                              f"([{section}]) holding keys")
+                              f"([{section}]) holding keys{_belongs(section)}")
         for key, value in table.items():
             where = f"--config {path}: [{section}] {key}"
             flat = _flat(section, key, where)
