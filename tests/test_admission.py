@@ -194,13 +194,18 @@ def test_period_auto_runs_at_the_period_the_trial_held_and_says_so(tmp_path):
     assert adm["period_s"] == rep["nominal_period_s"]
     assert adm["period_s"] in LADDER_S
     # the start that ran (earlier starts, which climbed to it, come first): it climbed from
-    # its period to the first that held
+    # its period to the first that held, then went down the ladder while shorter periods
+    # held, and runs at the last that held (a descent ends at the first that did not)
     final = [r for r in adm["rungs"] if r["start"] == adm["rungs"][-1]["start"]]
-    assert final[-1]["held"] and final[-1]["period_s"] == adm["period_s"]
-    assert not any(r["held"] for r in final[:-1])
+    climb = [r for r in final if not r.get("descent")]
+    down = [r for r in final if r.get("descent")]
+    assert climb[-1]["held"] and not any(r["held"] for r in climb[:-1])
+    assert all(r["held"] for r in down[:-1])
+    held = [climb[-1], *(r for r in down if r["held"])]
+    assert held[-1]["period_s"] == adm["period_s"]
     assert rep["cycles"] == 200 and rep["plant_commands"] > 0
     # the held trial's commands went out as the run's do, and the plant dropped them
-    assert rep["plant_trial_commands"] >= final[-1]["intervals"] - 3, rep["admission"]
+    assert rep["plant_trial_commands"] >= held[-1]["intervals"] - 3, rep["admission"]
     # late commands the plant replaced with the one extrapolated the period before
     assert 0 <= rep["plant_spares"] <= rep["deadline_misses"]
     # --rt-priority auto: FIFO where permitted and the kernel throttles, and then the
