@@ -268,8 +268,8 @@ def given_in(kw: dict[str, Any]) -> set[str]:
 
 def where_given(kw: dict[str, Any]) -> dict[str, str]:
     """Where each setting that no flag gave came from (flat name -> ``--set``, ``--config
-    FILE`` or ``--profile NAME``, the last layer that set it); call before
-    :func:`make_rc`, which takes those options out of ``kw``."""
+    FILE`` or ``--profile NAME``, the last layer that set it), from the options as
+    given (:func:`make_rc` takes those out of its ``kw``); read on an error only."""
     from ..config.run_file import parse_set, profile, read_run_file
 
     out: dict[str, str] = {}

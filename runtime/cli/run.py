@@ -30,12 +30,12 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     """Start plant, central and peripherals on this host and run the task."""
     from ..launch.launcher import start as run_start
 
-    where = where_given(kw)
+    asked = dict(kw)  # make_rc takes the run file's and --set's options out of kw
     try:
         rc = make_rc(kw)
         rc.validate(roles=rc.started_roles)  # with --keys, every role's before any starts
     except ConfigError as exc:
-        _fail(str(said_where(exc, where)), EXIT_CONFIG)
+        _fail(str(said_where(exc, where_given(asked))), EXIT_CONFIG)
         return
     if check:
         _check(rc, as_json)
@@ -179,11 +179,11 @@ def config_cmd(check: bool, table: bool, **kw: Any) -> None:
         click.echo(settings_table(defaults), nl=False)
         return
     asked_unit = "unit" in given_in(kw)
-    where = where_given(kw)
+    asked = dict(kw)  # make_rc takes the run file's and --set's options out of kw
     try:
         rc = make_rc(kw).validate()
     except ConfigError as exc:
-        _fail(str(said_where(exc, where)), EXIT_CONFIG)
+        _fail(str(said_where(exc, where_given(asked))), EXIT_CONFIG)
         return
     settings = rc.to_dict()
     if not asked_unit:  # a fresh random id per run: a file that fixed it would share it

@@ -11,7 +11,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-_DPI = 90
+DPI = 90
+"""The resolution of every figure of ctrlunit (dots per inch)."""
 
 COLORS = {"central": "#1f77b4", "peripheral_1": "#ff7f0e", "peripheral_2": "#2ca02c",
           "peripheral_3": "#d62728", "plant": "#7f7f7f"}
@@ -40,8 +41,8 @@ def gantt_figure(path: Path, panels: dict[str, list]) -> None:
         ax.set_xlabel("time (ms)")
         ax.set_title(f"Gantt chart, {title} - labels: cycle mod 100; cf. thesis Fig. 22-24",
                      fontsize=9)
-    fig.savefig(path, dpi=_DPI)
+    fig.savefig(path, dpi=DPI)
     plt.close(fig)
 
 
-__all__ = ["COLORS", "gantt_figure"]
+__all__ = ["COLORS", "DPI", "gantt_figure"]

@@ -44,7 +44,7 @@ import matplotlib.pyplot as plt
 
 from ..config import RunConfig
 from ..observe.summary_end import how_it_ended
-from .gantt import COLORS, gantt_figure
+from .gantt import COLORS, DPI, gantt_figure
 from .plot_data import changes, events, gantt_spans, halved_spans, sample_tracking, signals, timing
 from .plot_index import write_index
 from .reader import Recording
@@ -52,7 +52,6 @@ from .reader import Recording
 FIGURES = ("path", "tracking_error", "torques", "timing", "events", "gantt")
 """The PNGs :func:`plot_recording` writes, in the order index.html shows them."""
 
-_DPI = 90
 
 
 @dataclass
@@ -244,7 +243,7 @@ def title_clashes(fig: Any) -> list[str]:
 
 def _save(fig: Any, path: Path, plots: Plots) -> None:
     """Save ``fig`` to ``path`` and close it; titles that clash go to ``plots.clashes``."""
-    fig.savefig(path, dpi=_DPI)
+    fig.savefig(path, dpi=DPI)
     plots.clashes += [f"{path.name}: {c}" for c in title_clashes(fig)]
     plt.close(fig)
 
@@ -364,7 +363,7 @@ def plot_recording(rec: Recording, out: str | Path, *,
     else:
         fig, ax = plt.subplots(figsize=(11, 2.6), constrained_layout=True)
         _empty(ax, "no compute spans in this recording")
-        fig.savefig(images["gantt"], dpi=_DPI)
+        fig.savefig(images["gantt"], dpi=DPI)
         plt.close(fig)
         plots.notes.append("gantt: no compute spans in the recording")
     if summary is None:
