@@ -171,3 +171,22 @@ def test_a_key_in_the_wrong_place_names_its_section(tmp_path, text, said):
     with pytest.raises(ConfigError) as err:
         read_run_file(str(path))
     assert str(err.value).endswith(said), str(err.value)
+
+
+def test_a_period_without_a_unit_says_it_was_read_as_seconds(tmp_path):
+    """``period = 2`` (meant as 2 ms) is 2 s, out of range: the refusal says so, in the
+    run file, ``--set`` and the flag alike; in range, or with a unit, nothing is added."""
+    path = tmp_path / "run.toml"
+    path.write_text("[schedule]\nperiod = 2\n")
+    with pytest.raises(ConfigError) as err:
+        read_run_file(str(path))
+    assert str(err.value).endswith('2 was read as 2 s (milliseconds: "2ms")'), str(err.value)
+    with pytest.raises(ConfigError, match=r'500 was read as 500 s \(milliseconds: "500ms"\)'):
+        parse_set(["schedule.period=500"])
+    res = CliRunner().invoke(cli, ["start", "--check", "--period", "3"])
+    assert res.exit_code == 1 and 'read as 3 s (milliseconds: "3ms")' in res.output, res.output
+    for item in ("schedule.period=2s", "schedule.period=1e-6"):
+        with pytest.raises(ConfigError) as err:
+            parse_set([item])
+        assert "without a unit" not in str(err.value)
+    assert parse_set(["schedule.period=0.002"]) == {"period": 0.002}

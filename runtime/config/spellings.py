@@ -54,6 +54,22 @@ def _bad(where: str, value: Any, allowed: str) -> ConfigError:
     return ConfigError(f"{where} = {shown}: allowed {allowed}")
 
 
+def _unitless(where: str, a: About, given: Any, seconds: Any) -> ConfigError | None:
+    """A period given as a bare number above its range (``period = 2``, ``--period 2``):
+    the refusal says it was read as seconds and how to write milliseconds."""
+    text = str(given).strip()
+    try:
+        float(text)
+    except ValueError:
+        return None  # it had a unit (or is a word)
+    if isinstance(given, bool) or a.bounds is None or not isinstance(seconds, float) \
+            or seconds <= a.bounds[1]:
+        return None
+    return ConfigError(f"{where} = {text}: allowed {user_allowed(a)}; a number without a "
+                       f"unit is seconds: {text} was read as {seconds:g} s (milliseconds: "
+                       f'"{text}ms")')
+
+
 def _base(flat: str) -> Any:
     """``int`` of ``int | None``, and so on."""
     tp = _FLAT_TYPES[flat]
@@ -148,6 +164,8 @@ def read_setting(flat: str, value: Any, where: str, *, ranged: bool = True) -> A
     given = value
     if a.kind != "value" and a.kind not in ("switch", "flag", "file", "dir"):
         value = _read_kind(flat, a, value, where)
+        if a.kind == "period" and (why := _unitless(where, a, given, value)):
+            raise why
     elif base is str and isinstance(value, int | float) and not isinstance(value, bool):
         value = str(value)  # --set run.foxglove=8765 as --foxglove 8765
     elif base is float and isinstance(value, str):
