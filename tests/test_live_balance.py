@@ -272,3 +272,41 @@ def test_a_run_that_made_no_move_says_why(tmp_path):
         assert code == 0, out
         assert rep["rebalanced"] == [] and rep["live_balance"]["judged"] == 0
         assert f"placement   {said}" in out or f"              {said}" in out, out
+
+
+def test_the_judge_starts_before_the_warm_up_and_once(monkeypatch):
+    """The judge's process (a new interpreter, at the unit's priority until its
+    initializer runs) starts and is ready before the warm-up's first round, so that its
+    start-up takes no CPU from the run's intervals; every judgement then uses it."""
+    from ctrlunit.runtime.central import warmup as warmup_module
+
+    events: list[str] = []
+
+    class Pool(Inline):
+        def __init__(self, *args: Any, **kw: Any) -> None:
+            events.append("pool")
+
+        def submit(self, fn: Any, *args: Any) -> Future:
+            events.append(fn.__name__)
+            return super().submit(fn, *args)
+
+    real_run = warmup_module.WarmUp.run
+
+    def run(self: Any) -> None:
+        events.append("warm-up")
+        real_run(self)
+
+    monkeypatch.setattr(rebalance, "ProcessPoolExecutor", Pool)
+    monkeypatch.setattr(warmup_module.WarmUp, "run", run)
+    monkeypatch.setattr(rebalance, "EVERY", 5)
+    monkeypatch.setattr(rebalance, "COST_SHARE", 1.0)
+    u = LoopbackUnit(lockstep_config(unit_id("lbready"), peripherals=3, cycles=CYCLES,
+                                     max_error=1.0, pipeline=2, balance="live"))
+    u.plant_muted = True  # the plant's samples begin with the run
+    u.central.warm_up()
+    u.plant_muted = False
+    u.run()
+    assert u.central.balance.judged >= 2
+    assert events[:3] == ["pool", "judge_ready", "warm-up"], events
+    assert events.count("pool") == 1 and events.count("judge_ready") == 1
+    assert events.count("live_verdict") == u.central.balance.judged

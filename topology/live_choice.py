@@ -66,6 +66,12 @@ def live_choice(report: dict[str, Any]) -> dict[str, Any] | None:
             "measured_period_s": cal["measured_period_s"]}
 
 
+def judge_ready() -> bool:
+    """Nothing but that the judge's process has started and imported this module (the
+    central waits for it before its warm-up: runtime/central/rebalance.py)."""
+    return True
+
+
 def live_verdict(report: dict[str, Any]) -> tuple[dict[str, Any] | None, int]:
     """:func:`live_choice` as the central's judge runs it (in a process of its own,
     runtime/central/rebalance.py), with the CPU it took (ns). A window the model cannot read
@@ -78,4 +84,4 @@ def live_verdict(report: dict[str, Any]) -> tuple[dict[str, Any] | None, int]:
     return choice, time.process_time_ns() - t0
 
 
-__all__ = ["LIVE_INTERVALS", "LIVE_STEPS", "live_choice", "live_verdict"]
+__all__ = ["LIVE_INTERVALS", "LIVE_STEPS", "judge_ready", "live_choice", "live_verdict"]

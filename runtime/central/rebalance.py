@@ -41,7 +41,7 @@ from typing import Any
 import msgpack
 
 from ...topology.balance import MARGIN
-from ...topology.live_choice import live_verdict
+from ...topology.live_choice import judge_ready, live_verdict
 from ..compute.controller import Controller
 from ..compute.engine import Engine
 from ..config import RunConfig
@@ -56,12 +56,14 @@ from .warmup import WarmUp
 EVERY = 40
 """Intervals in a judged window, and so at most one move per this many intervals."""
 SETTLE = 8
+"""Intervals left out after the start and after each move before a window begins: the
+first rounds of a plan are slower (caches, the drain's empty pipeline)."""
 COST_SHARE = 0.05
 """The largest share of the central's time judgements may take: after one that took t,
 the next waits 19 t. A judgement costs about 0.1 s (the model's plays); at native costs
 and a 1 ms period that is 100 intervals, once per 2 s at most."""
-"""Intervals left out after the start and after each move before a window begins: the
-first rounds of a plan are slower (caches, the drain's empty pipeline)."""
+JUDGE_READY_S = 10.0
+"""How long :meth:`LiveBalance.prepare` waits for the judge's process to start."""
 
 
 @dataclass(frozen=True)
@@ -138,6 +140,20 @@ class LiveBalance:
         self.pending: tuple[Future, dict[str, Any]] | None = None
         """The judgement under way in the judge's process, and the window it judges."""
 
+    def prepare(self) -> None:
+        """Start the judge's process and wait until it has imported the judge (at most
+        :data:`JUDGE_READY_S`), before the warm-up: a new interpreter's start-up runs at
+        the unit's priority (the pool's initializer lowers it only after), so started at
+        the first judgement it took the CPUs from the run's intervals around it."""
+        if not self.enabled or self.pool is not None:
+            return
+        self.pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                        initializer=in_background)
+        try:
+            self.pool.submit(judge_ready).result(timeout=JUDGE_READY_S)
+        except Exception:
+            pass  # at its first judgement, named in the report (:meth:`turn`)
+
     def turn(self, done: int) -> None:
         """Once per turn of the central's loop: begin or judge a window, or, the boundary
         reached, make the move."""
@@ -208,9 +224,8 @@ class LiveBalance:
 
     def _judge(self, done: int) -> None:
         """Hand the window to the judge (:meth:`_judged` takes its verdict)."""
-        if self.pool is None:  # a process: the model's plays take no time from this one
-            self.pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                            initializer=in_background)
+        self.prepare()  # a process: the model's plays take no time from this one
+        assert self.pool is not None
         figures = self.figures(done)
         self.window = None
         self.pending = (self.pool.submit(live_verdict, figures), figures)

@@ -181,7 +181,9 @@ class Central:
         self.orders.handshake()
 
     def warm_up(self) -> None:
-        """Round trips before measuring (:meth:`WarmUp.run`)."""
+        """Round trips before measuring (:meth:`WarmUp.run`), once live balance's judge
+        is ready (:meth:`LiveBalance.prepare`)."""
+        self.balance.prepare()
         self.warmup.run()
 
     def choose_placement(self) -> dict[str, Any]:

@@ -175,7 +175,9 @@ class ScheduleConfig:
         "balance and, where a placement of its blocks is predicted 5 % faster, moves them "
         "at an interval boundary (the commands do not change; the summary's placement "
         "lines and the report's rebalanced say when and why); freerun and lockstep only; "
-        "off by default: it costs about a tenth of the period where nothing moves.")
+        "off by default: the placement chosen at the start is kept (where nothing moves, "
+        "live costs no measurable time: its judge is a process of its own at nice 19, "
+        "started before the warm-up).")
     overload: str = setting(
         "auto", flag=Flag(), choices=OVERLOAD_ACTIONS,
         help="Realtime: when 10 of the last 100 intervals were late (their command left "
