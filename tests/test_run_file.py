@@ -190,3 +190,26 @@ def test_a_period_without_a_unit_says_it_was_read_as_seconds(tmp_path):
             parse_set([item])
         assert "without a unit" not in str(err.value)
     assert parse_set(["schedule.period=0.002"]) == {"period": 0.002}
+
+
+def test_one_run_length_counts_the_one_given_last(tmp_path):
+    """``--cycles`` and ``--duration`` are one setting given two ways: both in one layer
+    are refused, naming them; a flag's replaces a run file's, whichever it is."""
+    run = tmp_path / "run.toml"
+    run.write_text('[run]\nduration = "5s"\n')
+
+    def check(*args: str) -> tuple[int, str]:
+        res = CliRunner().invoke(cli, ["start", "--check", "--json", *args])
+        return res.exit_code, res.output
+
+    code, out = check("--clock", "lockstep", "--cycles", "100", "--duration", "5s")
+    assert code == 1 and "--cycles and --duration: give one" in out, out
+    code, out = check("--config", str(run), "--cycles", "100")
+    assert code == 0 and '"cycles": 100, "duration": null' in out, out
+    code, out = check("--config", str(run), "--set", "run.cycles=7")
+    assert code == 0 and '"cycles": 7, "duration": null' in out, out
+    code, out = check("--config", str(run))
+    assert code == 0 and '"cycles": null, "duration": 5.0' in out, out
+    run.write_text('[run]\nduration = "5s"\ncycles = 7\n')
+    code, out = check("--config", str(run))
+    assert code == 1 and "give one" in out and f"by --config {run}" in out, out

@@ -219,13 +219,26 @@ def make_rc(kw: dict[str, Any]) -> RunConfig:
     layered: dict[str, Any] = profile(name) if name else {}
     config_file = kw.pop("config_file", None)
     if config_file:
-        layered |= read_run_file(config_file)
-    layered |= parse_set(kw.pop("set_items", ()) or ())
+        layered = _over(layered, read_run_file(config_file))
+    layered = _over(layered, parse_set(kw.pop("set_items", ()) or ()))
     options = _flag_options(kw)
     if isinstance(options, RunConfig):  # a role the launcher started: the run's spec
         return options
-    settings = options | layered | {f: options[f] for f in _given_flags() if f in options}
+    settings = _over(options | layered, {f: options[f] for f in _given_flags() if f in options})
     return RunConfig.of(**to_fields(settings))
+
+
+RUN_LENGTH = ("cycles", "duration")
+"""The run's length, given as either setting: one layer's replaces a lower layer's."""
+
+
+def _over(lower: dict[str, Any], upper: dict[str, Any]) -> dict[str, Any]:
+    """``upper``'s settings over ``lower``'s; a run length in ``upper`` (``--cycles`` or
+    ``--duration``) replaces ``lower``'s, whichever it was (both in one layer are
+    refused: ``RunConfig.validate``)."""
+    if any(upper.get(k) is not None for k in RUN_LENGTH):
+        lower = {k: v for k, v in lower.items() if k not in RUN_LENGTH}
+    return lower | upper
 
 
 def _flag_options(kw: dict[str, Any]) -> dict[str, Any] | RunConfig:

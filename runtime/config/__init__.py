@@ -193,7 +193,7 @@ class RunConfig:
 
     def _check_outputs(self) -> None:
         """What the declared choices and bounds do not say: the late data's blocks, the
-        live view's address and rate, and whether the gains hold a halved rate."""
+        live view, one run length, and whether the gains hold a halved rate."""
         for block, pol in self.schedule.late.items():
             if pol not in LATE_POLICIES:
                 raise ConfigError(f"--late {block}={pol}: the policy must be one of "
@@ -202,6 +202,9 @@ class RunConfig:
             parse_host_port(self.run.foxglove, field_name="--foxglove")
         if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
             raise self._bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
+        if None not in (self.run.cycles, self.run.duration):
+            raise ConfigError("--cycles and --duration: give one (the run's length in "
+                              "intervals, or in time)")
         if self.schedule.balance == "live" and self.schedule.clock == "realtime":
             raise ConfigError("--balance live: not with --clock realtime (the default), where "
                               "a move costs deadlines; allowed with --clock freerun or lockstep")
@@ -276,14 +279,11 @@ class RunConfig:
     @property
     def bandwidth(self) -> float:
         """Closed-loop bandwidth of the gains (Hz): ``--bandwidth``, else 20 Hz but at most
-        ``1 / (50 T)`` so that slower periods keep their phase margin against the delay
-        from a sample to its command's action; where the law servoes the state predicted
-        for the period in which its command acts (resolved acceleration at the ``acting``
-        model state), whose loop the delay no longer slows, at most ``1 / (12.5 T')`` at
-        ``T' = 2 T``: its margin then also holds a period more than designed, every
-        command a period late (an overloaded host) or the rate halved (the overload's
-        remedy). 20 Hz up to 2 ms (docs/architecture.md, the commands in flight and
-        overload)."""
+        ``1 / (50 T)`` (the phase margin against the delay from a sample to its command's
+        action), or, where the law servoes the state predicted for the period its command
+        acts in (:attr:`predicts_acting`), ``1 / (12.5 T')`` at ``T' = 2 T``: its margin
+        then holds a period more than designed, every command a period late or the rate
+        halved. 20 Hz up to 2 ms (docs/architecture.md, commands in flight, overload)."""
         if self.control.bandwidth_hz is not None:
             return self.control.bandwidth_hz
         period = self.schedule.period
