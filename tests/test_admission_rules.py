@@ -706,19 +706,21 @@ def test_auto_starts_again_at_the_shorter_period_once_and_never_descends_again(m
     shorter period held (:class:`ShorterHeld`: exit 7 with that period) starts again at it,
     saying so; that start, and any after it, climb but do not go down again."""
     from ctrlunit.runtime.launch import launcher
+    from ctrlunit.runtime.launch.run_parts import every_start
 
     starts: list[tuple[float, bool]] = []
     outcomes = [(7, 0.64e-3), (7, 0.8e-3), (0, 0.8e-3)]  # held shorter; refused; ran
 
     class Start:
-        def __init__(self, rc: RunConfig, **_: Any) -> None:
-            self.period = rc.schedule.period
+        def __init__(self, rc: RunConfig, *, tried: list[dict], **_: Any) -> None:
+            self.period, self.tried = rc.schedule.period, tried
 
         def __call__(self, *, descend: bool) -> tuple[int, dict]:
             starts.append((self.period, descend))
             code, held = outcomes[len(starts) - 1]
             rung = {"period_s": held, "held": True}
-            return code, {"admission": {"sustainable_period_s": held, "rungs": [rung]}}
+            return code, {"admission": every_start(self.tried, {
+                "sustainable_period_s": held, "rungs": [rung]})}
 
     monkeypatch.setattr(launcher, "UnitStart", Start)
     said: list[str] = []
@@ -752,6 +754,13 @@ def test_the_summary_says_where_the_descent_went():
     assert summary._admission_lines({"admission": adm})[0].endswith(
         "below 1 ms the first start's trials held 0.8 ms, not 0.64 ms; started again at "
         "0.8 ms, its trial did not hold")
+    # the run at 1 ms, with a shorter period tried after it and not held: the trial that
+    # held 1 ms gives its size, not the last one tried
+    tried = [{"period_s": 1e-3, "held": True, "intervals": 300},
+             {"period_s": 0.8e-3, "held": False, "descent": True, "intervals": 375}]
+    adm = {"period_s": 1e-3, "asked": "auto", "rungs": tried}
+    assert summary._admission_lines({"admission": adm})[0].startswith(
+        "  admission   1 ms held in a trial of 300 intervals before motion")
 
 
 def test_a_start_again_does_not_say_the_placement_choice_again():
@@ -769,3 +778,19 @@ def test_a_start_again_does_not_say_the_placement_choice_again():
     say(other)  # another decision: said
     assert said == [first, "ctrlunit: --period auto: 1 ms was not held in this start's "
                     "trial, 1.6 ms was", other]
+
+
+def test_every_start_s_trials_follow_the_earlier_starts():
+    """A start again (``--period auto``) reports, and so records, the whole ladder: the
+    earlier starts' trials, then its own marked with the next start's number; so
+    ``ctrlunit report FILE.mcap`` says where the first start's descent went, as the live
+    summary does."""
+    from ctrlunit.runtime.launch.run_parts import every_start
+
+    first = every_start([], {"period_s": 1e-3, "rungs": [{"period_s": 1e-3},
+                                                         {"period_s": 0.8e-3}]})
+    assert [r["start"] for r in first["rungs"]] == [0, 0] and first["period_s"] == 1e-3
+    again = every_start(first["rungs"], {"period_s": 0.8e-3, "rungs": [{"period_s": 0.8e-3}]})
+    assert [(r["period_s"], r["start"]) for r in again["rungs"]] == [
+        (1e-3, 0), (0.8e-3, 0), (0.8e-3, 1)]
+    assert again["period_s"] == 0.8e-3 and first["rungs"][0] == {"period_s": 1e-3, "start": 0}

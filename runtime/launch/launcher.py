@@ -75,11 +75,11 @@ def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         # --period auto: the first start may go down the ladder, each start climbs it
         for attempt in range(len(LADDER_S)):
             os.sched_setaffinity(0, affinity)  # each start chooses the roles' CPUs afresh
-            code, report = UnitStart(rc, echo=quiet,
-                                     progress=progress, spawn=spawn, inspect=inspect,
-                                     view=view, idle=idle_choice)(descend=attempt == 0)
+            code, report = UnitStart(rc, echo=quiet, progress=progress, spawn=spawn,
+                                     inspect=inspect, view=view, idle=idle_choice,
+                                     tried=tried)(descend=attempt == 0)
             adm = report.get("admission") or {}
-            tried += [r | {"start": attempt} for r in adm.get("rungs") or []]
+            tried = list(adm.get("rungs") or tried)  # every start's trials so far
             held = adm.get("sustainable_period_s")
             if not (code == EXIT_UNSUSTAINABLE and rc.schedule.period_auto and held
                     and not math.isclose(held, rc.schedule.period)
@@ -93,8 +93,6 @@ def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
                  f"ctrlunit: --period auto: {asked} was not held in this start's trial, "
                  f"{held * 1e3:g} ms was; starting again at {held * 1e3:g} ms")
             rc = rc.replace(period=held)
-        if adm:
-            report["admission"]["rungs"] = tried
         return code, report
     except KeyboardInterrupt as exc:  # between two starts: no role is running
         code, fault = stop_of(exc)

@@ -229,5 +229,15 @@ def report_extras(rc: RunConfig, setup: Setup, run: RunSnapshot, *, cores: int |
     return out
 
 
-__all__ = ["STOP_REPORTS_WAIT_S", "chain", "child_names", "live_view", "observers_view",
+def every_start(tried: list[dict[str, Any]], admission: dict[str, Any]) -> dict[str, Any]:
+    """A start's ``admission`` (runtime/launch/admission.py) with every start's trials in
+    its ``rungs``: ``tried``, those of the starts before it (``--period auto`` starting
+    again), then its own, each marked with its ``start`` (0 for the first)."""
+    start = 1 + max((r["start"] for r in tried), default=-1)
+    return admission | {"rungs": [*tried, *({**r, "start": start}
+                                            for r in admission.get("rungs") or [])]}
+
+
+__all__ = ["STOP_REPORTS_WAIT_S", "chain", "child_names", "every_start", "live_view",
+           "observers_view",
            "report_extras", "ros2_config", "ros2_live", "status_writer", "supervision", "view_task"]

@@ -40,6 +40,7 @@ from .run_parts import (
     STOP_REPORTS_WAIT_S,
     chain,
     child_names,
+    every_start,
     live_view,
     observers_view,
     report_extras,
@@ -66,11 +67,16 @@ class UnitStart:
     inspect : receives the central and the setup (benchmarks), or None.
     view : the live view across starts (made at the first start, closed by the caller).
     idle : the caller's CPU idle request (runtime/host/idle.py), for the report.
+    tried : the admission trials of the starts before this one (``--period auto``).
     """
 
     def __init__(self, rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
-                 inspect: dict | None, view: list[Any], idle: dict[str, Any]) -> None:
+                 inspect: dict | None, view: list[Any], idle: dict[str, Any],
+                 tried: list[dict[str, Any]] | None = None) -> None:
         self.rc = rc
+        self.tried = list(tried or [])
+        """Each with its ``start``: the report's and the recording's admission give every
+        start's trials."""
         self.echo, self.progress, self.spawn, self.inspect = echo, progress, spawn, inspect
         self.view, self.idle = view, idle
         self.children: list[subprocess.Popen] = []
@@ -359,6 +365,8 @@ class UnitStart:
         for key in ("admission", "placement_choice"):
             if self.decided.get(key) is not None:
                 report[key] = self.decided[key]
+        if report.get("admission"):
+            report["admission"] = every_start(self.tried, report["admission"])
         report["scheduling_choice"] = self.sched_choice
         report["host_stolen_s"] = self.decided.get("host_stolen_s")
         report["idle"] = self.idle

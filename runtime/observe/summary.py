@@ -282,12 +282,16 @@ def _admission_lines(r: dict[str, Any]) -> list[str]:
     adm = r.get("admission")
     if not (adm and adm.get("period_s")):
         return []
+    rungs = adm["rungs"]
+    at = [k for k, x in enumerate(rungs) if x["held"] and x["period_s"] == adm["period_s"]]
+    k = at[-1] if at else len(rungs) - 1  # the trial that held the period run (not a
+    rung = rungs[k]  # shorter one tried after it, on the way down the ladder)
     return [f"  admission   {adm['period_s'] * 1e3:g} ms held in a trial of "
-            f"{adm['rungs'][-1]['intervals']} intervals before motion (asked: "
+            f"{rung['intervals']} intervals before motion (asked: "
             + ("auto" if adm["asked"] == "auto" else f"{adm['asked'] * 1e3:g} ms")
-            + ")" + (f"; the first trial at it had one stall ({adm['rungs'][-2]['late']}"
+            + ")" + (f"; the first trial at it had one stall ({rungs[k - 1]['late']}"
                      " intervals late), so it ran again"
-                     if adm["rungs"][-1].get("retry") else "") + _descent(adm["rungs"])]
+                     if rung.get("retry") and k > 0 else "") + _descent(rungs)]
 
 
 def _descent(rungs: list[dict[str, Any]]) -> str:
