@@ -11,17 +11,16 @@ so that a run of any length has a defined reference.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path as FsPath
-from typing import TypeGuard
 
 import numpy as np
 
 Vec3 = tuple[float, float, float]
 
 _QUAD_NODES = 256  # Gauss-Legendre nodes for arc length
+MIN_OFFSET_M = 1e-6
+"""The least distance that makes a curve (a half ellipse's chord and height)."""
 
 
 @dataclass(frozen=True)
@@ -110,7 +109,12 @@ def half_ellipse(start: Vec3, top: Vec3, end: Vec3) -> Ellipse:
     """Half ellipse from ``start`` through ``top`` to ``end`` (``top`` above the midpoint)."""
     s, t, e = (np.asarray(v, dtype=float) for v in (start, top, end))
     c = 0.5 * (s + e)
-    return Ellipse(_t3(c), _t3(s - c), _t3(t - c), 0.0, math.pi)
+    a = s - c
+    chord = float(np.linalg.norm(a))
+    if chord < MIN_OFFSET_M or np.linalg.norm(np.cross(a, t - c)) / chord < MIN_OFFSET_M:
+        raise ValueError(f"half-ellipse: start and end must differ, and top lie off the line "
+                         f"through them, each by at least {MIN_OFFSET_M * 1e6:g} um")
+    return Ellipse(_t3(c), _t3(a), _t3(t - c), 0.0, math.pi)
 
 
 @dataclass
@@ -309,92 +313,3 @@ def pick_place_task() -> Task:
 
 
 TASKS = {"circle": circle_task, "pick-place": pick_place_task}
-
-
-MAX_COORD_M = 10.0
-"""Largest coordinate a task file may give (m): far beyond any Delta's reach, so that a
-path out of reach is refused by the workspace check with its point and bound, and a
-typing slip (1e308) never reaches the arithmetic."""
-
-
-MAX_NAME_CHARS = 200
-"""Longest task name a task file may give; reports quote it whole."""
-
-
-def _is_number(x: object) -> TypeGuard[float]:
-    """A finite int or float from JSON (``true`` is not a number)."""
-    return (type(x) is int or type(x) is float) and math.isfinite(x)
-
-
-def task_from_json(path: str | FsPath) -> Task:
-    """Load a task from a JSON file.
-
-    Format::
-
-        {"name": "mine", "dwell": 0.05, "segments": [
-            {"type": "line", "start": [x,y,z], "end": [x,y,z], "accel": 50},
-            {"type": "arc", "centre": [...], "start": [...], "end": [...], "accel": 50},
-            {"type": "half-ellipse", "start": [...], "top": [...], "end": [...], "accel": 50}]}
-
-    Raises
-    ------
-    ValueError
-        Naming the segment and field that is wrong.
-    """
-    try:
-        data = json.loads(FsPath(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read task: {exc}") from None
-    if not isinstance(data, dict) or not isinstance(data.get("segments"), list):
-        raise ValueError(f"{path}: a task is an object with a 'segments' list")
-    segs = []
-    for k, s in enumerate(data["segments"]):
-        where = f"{path}: segments[{k}]"
-        if not isinstance(s, dict):
-            raise ValueError(f"{where} must be an object")
-
-        def vec(key: str, s: dict = s, where: str = where) -> Vec3:
-            v = s.get(key)
-            if (
-                not isinstance(v, list)
-                or len(v) != 3
-                or not all(_is_number(x) and abs(x) <= MAX_COORD_M for x in v)
-            ):
-                raise ValueError(f"{where}.{key} must be a list of 3 numbers within "
-                                 f"+-{MAX_COORD_M:g} m, got {v!r}"[:300])
-            return (float(v[0]), float(v[1]), float(v[2]))
-
-        accel = s.get("accel")
-        if not _is_number(accel) or not 0.0 < accel <= 1000.0:
-            raise ValueError(f"{where}.accel must be in (0, 1000] m/s^2, got {accel!r}")
-        kind = s.get("type")
-        if kind == "line":
-            curve: Line | Ellipse = Line(vec("start"), vec("end"))
-        elif kind == "arc":
-            curve = arc(vec("centre"), vec("start"), vec("end"))
-        elif kind == "half-ellipse":
-            curve = half_ellipse(vec("start"), vec("top"), vec("end"))
-        else:
-            raise ValueError(f"{where}.type must be line, arc or half-ellipse, got {kind!r}")
-        segs.append(Segment(curve, float(accel)))
-    if not segs:
-        raise ValueError(f"{path}: a task needs at least one segment")
-    dwell = data.get("dwell", 0.05)
-    if not _is_number(dwell) or not 0.0 <= dwell <= 60.0:
-        raise ValueError(f"{path}: dwell must be in [0, 60] s, got {dwell!r}")
-    name = data.get("name", FsPath(path).stem)
-    if not isinstance(name, str) or not 0 < len(name) <= MAX_NAME_CHARS:
-        raise ValueError(f"{path}: name must be a string of 1 to {MAX_NAME_CHARS} characters, "
-                         f"got {name!r}"[:300])
-    return Task(name, segs, float(dwell))
-
-
-def get_task(name: str) -> Task:
-    """A built-in task by name (``circle``, ``pick-place``) or a JSON task file."""
-    if name in TASKS:
-        return TASKS[name]()
-    if FsPath(name).is_file():
-        return task_from_json(name)
-    if name.endswith(".json") or "/" in name:
-        raise ValueError(f"no such file: {name!r}")
-    raise ValueError(f"task must be one of {', '.join(TASKS)} or a JSON file, got {name!r}")

@@ -272,7 +272,7 @@ def test_the_tracking_prediction_of_a_long_run_simulates_one_loop_of_the_task(mo
 
     import ctrlunit.runtime.compute.controller as controller
     from ctrlunit.kernels.params import DELTA_IA
-    from ctrlunit.kernels.trajectory import get_task
+    from ctrlunit.kernels.task_file import get_task
     from ctrlunit.runtime.config import RunConfig
     from ctrlunit.runtime.launch.admission import predicted_tracking
 

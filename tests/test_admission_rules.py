@@ -712,14 +712,14 @@ def test_auto_starts_again_at_the_shorter_period_once_and_never_descends_again(m
     outcomes = [(7, 0.64e-3), (7, 0.8e-3), (0, 0.8e-3)]  # held shorter; refused; ran
 
     class Start:
-        def __init__(self, rc: RunConfig, *, tried: list[dict], **_: Any) -> None:
-            self.period, self.tried = rc.schedule.period, tried
+        def __init__(self, rc: RunConfig, **_: Any) -> None:
+            self.period = rc.schedule.period
 
-        def __call__(self, *, descend: bool) -> tuple[int, dict]:
+        def __call__(self, *, descend: bool, tried: list[dict]) -> tuple[int, dict]:
             starts.append((self.period, descend))
             code, held = outcomes[len(starts) - 1]
             rung = {"period_s": held, "held": True}
-            return code, {"admission": every_start(self.tried, {
+            return code, {"admission": every_start(tried, {
                 "sustainable_period_s": held, "rungs": [rung]})}
 
     monkeypatch.setattr(launcher, "UnitStart", Start)

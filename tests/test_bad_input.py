@@ -165,3 +165,39 @@ def test_a_pin_that_names_no_cpu_of_this_machine_is_refused_at_the_check():
                             timeout=60), f"--pin '{pin}'", "allowed CPUs of this machine")
     assert ctrlunit("start", "--check", "--clock", "lockstep", "--pin=0",
                     timeout=60).returncode == 0
+
+
+def test_a_task_file_s_path_is_continuous_and_each_segment_a_curve(tmp_path):
+    """A new attacker's review: a gap between two segments passed every check and then
+    faulted the run at 50 mm of tracking error; a half ellipse whose top lies on its chord
+    divided by zero; an unknown field and 20 000 segments went through. Each is refused by
+    the file, the segment and the field, before any motion."""
+    import pytest
+    from ctrlunit.kernels.task_file import MAX_SEGMENTS, task_from_json
+
+    def line(a: list[float], b: list[float], **extra: object) -> dict:
+        return {"type": "line", "start": a, "end": b, "accel": 50, **extra}
+
+    task = tmp_path / "t.json"
+    p0, p1, p2 = [0, 0, -0.35], [0.05, 0, -0.35], [0.1, 0, -0.35]
+    task.write_text(json.dumps({"segments": [line(p0, p1), line(p1, p2)]}))
+    assert len(task_from_json(task).segments) == 2  # joined: accepted
+    for segments, said in (
+            ([line(p0, p1), line(p2, p1)],
+             "segments[1] starts 50 mm from where segments[0] ends (0.05, 0, -0.35)"),
+            ([{"type": "half-ellipse", "start": p0, "top": [0.025, 0, -0.35], "end": p1,
+               "accel": 50}], "segments[0]: half-ellipse: start and end must differ, and top "
+             "lie off the line"),
+            ([line(p0, p1, zz=1)], "segments[0]: unknown field 'zz' (a line has type, start, "
+             "end and accel)"),
+            ([line(p0, p1)] * (MAX_SEGMENTS + 1), f"a task has 1 to {MAX_SEGMENTS} segments")):
+        task.write_text(json.dumps({"segments": segments}))
+        with pytest.raises(ValueError, match=None) as err:
+            task_from_json(task)
+        assert said in str(err.value) and str(task) in str(err.value), str(err.value)
+    with pytest.raises(ValueError, match="not a regular file"):
+        task_from_json(tmp_path)
+    task.write_text(json.dumps({"segments": [line(p0, p1), line(p2, p1)]}))
+    res = ctrlunit("start", "--task", str(task), "--clock", "lockstep", "--peripherals", "0")
+    assert res.returncode == 1 and "the path must be continuous" in one_line_error(res)
+    assert "intervals" not in res.stdout  # nothing ran

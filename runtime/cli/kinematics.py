@@ -85,7 +85,7 @@ def fk(q1: float, q2: float, q3: float, deg: bool, as_json: bool, params_file: s
 def trajectory_summary(params: DeltaParams, name: str, *, samples: int = 2001) -> dict[str, Any]:
     """Figures of a task's path, one way (see ``ctrlunit trajectory``)."""
     from ...kernels.kinematics import inverse_kinematics
-    from ...kernels.trajectory import get_task
+    from ...kernels.task_file import get_task
     from ...kernels.workspace import stiffness_eigenvalues
 
     task = get_task(name)

@@ -15,7 +15,8 @@ import numpy as np
 
 from ...kernels.laws import Gains
 from ...kernels.params import DELTA_IA, DeltaParams, load_params
-from ...kernels.trajectory import Task, get_task
+from ...kernels.task_file import get_task
+from ...kernels.trajectory import Task
 from ...kernels.workspace import require_path
 from ...topology.graph import StageGraph, stage_graph
 from ...topology.placement import (

@@ -312,7 +312,7 @@ def predicted_tracking(central: Central, period: float) -> float:
     60 s run took longer than the roles wait in silence). NaN for the kinematics law (no
     torques)."""
     from ...kernels.laws import Gains
-    from ...kernels.trajectory import get_task
+    from ...kernels.task_file import get_task
     from ..compute.controller import simulate
 
     rc = central.rc.replace(period=period)

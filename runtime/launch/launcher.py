@@ -76,8 +76,8 @@ def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         for attempt in range(len(LADDER_S)):
             os.sched_setaffinity(0, affinity)  # each start chooses the roles' CPUs afresh
             code, report = UnitStart(rc, echo=quiet, progress=progress, spawn=spawn,
-                                     inspect=inspect, view=view, idle=idle_choice,
-                                     tried=tried)(descend=attempt == 0)
+                                     inspect=inspect, view=view, idle=idle_choice)(
+                descend=attempt == 0, tried=tried)
             adm = report.get("admission") or {}
             tried = list(adm.get("rungs") or tried)  # every start's trials so far
             held = adm.get("sustainable_period_s")

@@ -67,16 +67,11 @@ class UnitStart:
     inspect : receives the central and the setup (benchmarks), or None.
     view : the live view across starts (made at the first start, closed by the caller).
     idle : the caller's CPU idle request (runtime/host/idle.py), for the report.
-    tried : the admission trials of the starts before this one (``--period auto``).
     """
 
     def __init__(self, rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
-                 inspect: dict | None, view: list[Any], idle: dict[str, Any],
-                 tried: list[dict[str, Any]] | None = None) -> None:
+                 inspect: dict | None, view: list[Any], idle: dict[str, Any]) -> None:
         self.rc = rc
-        self.tried = list(tried or [])
-        """Each with its ``start``: the report's and the recording's admission give every
-        start's trials."""
         self.echo, self.progress, self.spawn, self.inspect = echo, progress, spawn, inspect
         self.view, self.idle = view, idle
         self.children: list[subprocess.Popen] = []
@@ -88,9 +83,12 @@ class UnitStart:
         self.ros2: Any = None  # --ros2's topics, once the node is open
         """What the start decided on the way: admission, placement choice, Zenoh ids."""
 
-    def __call__(self, *, descend: bool = False) -> tuple[int, dict]:
+    def __call__(self, *, descend: bool = False,
+                 tried: list[dict[str, Any]] | None = None) -> tuple[int, dict]:
         """Start the unit and run it; ``descend``: ``--period auto``'s first start, whose
-        admission may go down the ladder (runtime/launch/admission.py)."""
+        admission may go down the ladder (runtime/launch/admission.py); ``tried``: the
+        admission trials of the starts before this one, which its report (and recording)
+        give before its own."""
         refused = self.configure()
         if refused is not None:
             return refused
@@ -115,7 +113,7 @@ class UnitStart:
         if ctrl_c and not stopped_by_user({"fault": self.fault}):
             self.code, self.fault = stop_of(ctrl_c[0])
         self.leave()
-        report = self.report()
+        report = self.report(tried or [])
         if self.kept is not None:  # after the recording's copy: a path on this host only
             report["logs_kept"] = str(self.kept)
         return self.code, report
@@ -357,7 +355,7 @@ class UnitStart:
 
     # -- report -----------------------------------------------------------------------
 
-    def report(self) -> dict[str, Any]:
+    def report(self, tried: list[dict[str, Any]]) -> dict[str, Any]:
         """The run's report (runtime/observe/report.py) with what this start decided."""
         rc, central = self.rc, self.central
         run = central.snapshot()
@@ -366,7 +364,7 @@ class UnitStart:
             if self.decided.get(key) is not None:
                 report[key] = self.decided[key]
         if report.get("admission"):
-            report["admission"] = every_start(self.tried, report["admission"])
+            report["admission"] = every_start(tried, report["admission"])
         report["scheduling_choice"] = self.sched_choice
         report["host_stolen_s"] = self.decided.get("host_stolen_s")
         report["idle"] = self.idle
