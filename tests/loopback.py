@@ -277,6 +277,7 @@ def record_lockstep(path: str, unit: str, **kw: Any) -> LoopbackUnit:
     recorder = Recorder(str(path), make_setup(rc))
     recorder.begin(recorder.setup)
     unit_ = LoopbackUnit(rc, on_cycle=recorder.on_cycle, on_message=recorder.on_message)
+    unit_.recorder = recorder  # type: ignore[attr-defined]  # what it made of the run
     try:
         unit_.run()
     finally:

@@ -187,7 +187,9 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_run(tmp_pat
     a_file.write_text("")
     for option, path, why in (("--report", tmp_path / "nosuch" / "r.json", "does not exist"),
                               ("--record", a_file / "x.mcap", "is not a directory"),
-                              ("--record", tmp_path / "nosuch" / "x.mcap", "does not exist")):
+                              ("--record", tmp_path / "nosuch" / "x.mcap", "does not exist"),
+                              ("--report", Path(os.devnull), "is not a regular file"),
+                              ("--record", Path("/proc/version"), "is a kernel interface file")):
         for check in (["--check"], ["--clock", "lockstep", "--cycles", "10"]):
             res = invoke("start", *check, option, str(path))
             err = res.stderr.strip().splitlines()
@@ -341,3 +343,21 @@ def test_stderr_names_what_was_refused_and_what_to_try():
     assert "tracking error 21 mm" in _exit_line(fault, 5, as_json=True)
     assert _exit_line({"process": "user", "message": "interrupted (Ctrl-C)"}, 130,
                       as_json=False).startswith("ctrlunit: stopped on request")
+
+
+def test_a_file_the_system_refuses_is_one_line_for_every_command(tmp_path):
+    """An attacker's review: ``plot --out``, ``replay --csv`` and ``export --rosbag2``
+    under a path the system refuses ended in a traceback. Any such refusal is one line
+    naming the path, exit 1."""
+    a_file = tmp_path / "afile"
+    a_file.write_text("")
+    rec = tmp_path / "run.mcap"
+    assert invoke("start", "--clock", "lockstep", "--cycles", "30", "--peripherals", "0",
+                  "--record", str(rec)).exit_code == 0
+    for args in (("plot", str(rec), "--out", str(a_file / "plots")),
+                 ("replay", str(rec), "--csv", str(a_file / "csv")),
+                 ("export", str(rec), "--rosbag2", str(a_file / "bag"))):
+        res = invoke(*args)
+        err = res.stderr.strip().splitlines()
+        assert res.exit_code == 1 and len(err) == 1, (args, res.stderr)
+        assert err[0].startswith("ctrlunit: error: ") and str(a_file) in err[0], err

@@ -127,3 +127,45 @@ def test_a_file_cut_in_its_first_bytes_says_it_was_cut_off(recorded, tmp_path, c
     path.write_bytes(recorded.read_bytes()[:cut] if cut else b"not an mcap file at all")
     code, out = run("report", str(path))
     assert code == 1 and said in out and "Traceback" not in out, out
+
+
+def test_a_disk_that_fills_ends_the_recording_not_the_run(tmp_path, monkeypatch):
+    """An attacker's review: ``--record`` on a file that stops taking writes (a full disk,
+    /dev/full) raised in the central's loop mid-run, then again in its clean-up, past the
+    safe stop. A failed write now ends the recording: the run goes to its end, the
+    recorder says after how many intervals it stopped and why, and the file holds what
+    came before, readable."""
+    import errno
+
+    from ctrlunit.runtime.observe.summary_end import end_lines
+    from ctrlunit.runtime.recording import recorder as recorder_module
+    from ctrlunit.runtime.recording.reader import read
+
+    class Filling:
+        """A file that takes 200 kB, then refuses as a full disk does."""
+
+        def __init__(self, path: str, mode: str) -> None:
+            self.fh, self.taken = open(path, mode), 0
+
+        def write(self, data: bytes) -> int:
+            self.taken += len(data)
+            if self.taken > 200_000:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return self.fh.write(data)
+
+        def __getattr__(self, name: str) -> object:
+            return getattr(self.fh, name)
+
+    monkeypatch.setattr(recorder_module, "open", Filling, raising=False)
+    path = tmp_path / "full.mcap"
+    unit = record_lockstep(str(path), unit_id("recfull"), peripherals=1, cycles=2000)
+    assert unit.central.done == 2000  # every interval ran
+    rec_failed = unit.recorder.failed
+    assert rec_failed and "No space left on device" in rec_failed, rec_failed
+    kept = int(rec_failed.split("after ")[1].split(" ")[0])
+    assert 0 < kept < 2000
+    salvaged = read(path)
+    assert salvaged.salvaged and 0 < len(salvaged.topics["/plant/command"]) <= kept + 2
+    said = end_lines({"recording_failed": rec_failed, "cycles": 2000, "periods": 2000,
+                      "rejected_messages": {}, "fault": None, "clock": "lockstep"})
+    assert any(line.startswith("  recording   stopped after") for line in said), said

@@ -126,11 +126,12 @@ params_option = click.option(
 
 
 class _Group(click.Group):
-    """The group: a configuration error no command caught itself, or a value click refused
-    (its type, choices or range), is one line on stderr and exit 1, never a traceback (a
-    command line that does not parse, an unknown option or a missing argument, stays
-    click's usage error, exit 2); Ctrl-C (or SIGTERM / SIGHUP where the command listens for
-    them) one line and exit 130 (143, 129)."""
+    """The group: a configuration error no command caught itself, a value click refused
+    (its type, choices or range), or a file the system refused to read or write, is one
+    line on stderr and exit 1, never a traceback (a command line that does not parse, an
+    unknown option or a missing argument, stays click's usage error, exit 2); Ctrl-C (or
+    SIGTERM / SIGHUP where the command listens for them) one line and exit 130 (143,
+    129)."""
 
     def invoke(self, ctx: click.Context) -> Any:
         from ..compute.blocks import ObserverDiverged
@@ -153,6 +154,9 @@ class _Group(click.Group):
         except UnicodeDecodeError as exc:
             _fail(f"an input file is not UTF-8 text ({exc.reason} at byte {exc.start})",
                   EXIT_CONFIG)
+        except OSError as exc:  # a file or folder the system refused (not where asked)
+            where = f"{exc.filename}: " if exc.filename is not None else ""
+            _fail(f"{where}{exc.strerror or exc}", EXIT_CONFIG)
         except KeyboardInterrupt as exc:
             code, fault = stop_of(exc)
             click.echo(f"ctrlunit: {fault['message']}", err=True)

@@ -58,9 +58,13 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
     if "cycles" not in report:
         _fail(report["fault"]["message"] + kept_note(report), code)
         return
+    unwritten = None
     if rc.run.report:
-        with open(rc.run.report, "w") as fh:
-            json.dump(_json_safe(report), fh, indent=2)
+        try:
+            with open(rc.run.report, "w") as fh:
+                json.dump(_json_safe(report), fh, indent=2)
+        except OSError as exc:  # the summary below still says what the run measured
+            unwritten = f"--report {rc.run.report}: not written: {exc}"
     from ..observe.summary import summary
 
     click.echo(json.dumps(_json_safe(report)) if as_json else summary(report))
@@ -71,6 +75,12 @@ def start(as_json: bool, progress: bool | None, plot_dir: str | None, check: boo
                   if (report.get("timing") or {}).get("exact", True) else None)
     if code:
         click.echo(exit_line(report.get("fault") or {}, code, as_json=as_json), err=True)
+    elif report.get("recording_failed") or unwritten:  # what the run was to keep is not
+        code = EXIT_CONFIG
+        for said in (f"--record {rc.run.record}: writing {report['recording_failed']}"
+                     if report.get("recording_failed") else None, unwritten):
+            if said:
+                click.echo(f"ctrlunit: error: {said}", err=True)
     if report.get("logs_kept"):
         click.echo(f"ctrlunit: the roles' logs are kept in {report['logs_kept']}", err=True)
     sys.exit(code)

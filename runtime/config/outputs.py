@@ -9,14 +9,19 @@ from pathlib import Path
 
 def output_file_error(path: str | None, option: str) -> str | None:
     """Why no file can be written at ``path``, naming ``option`` (its directory does not
-    exist, is not a directory or is not writable; the path is a directory), or None if
-    one can (or ``path`` is None: nothing to write)."""
+    exist, is not a directory or is not writable; the path is a directory, a device, a
+    pipe, a socket or a file of /proc or /sys), or None if one can (or ``path`` is None:
+    nothing to write)."""
     if path is None:
         return None
     p = Path(path).expanduser()
     parent = p.parent
     if p.is_dir():
         return f"{option}: {path} is a directory: give a file name in it"
+    if p.exists() and not p.is_file():
+        return f"{option}: {path} is not a regular file (a device, a pipe or a socket)"
+    if p.resolve().parts[1:2] in (("proc",), ("sys",)):
+        return f"{option}: {path} is a kernel interface file, not a file to write a run to"
     if not parent.exists():
         return f"{option}: {path}: the directory {parent} does not exist (make it first)"
     if not parent.is_dir():

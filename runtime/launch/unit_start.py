@@ -379,6 +379,8 @@ class UnitStart:
             self.inspect["setup"] = self.setup
         if self.recorder is not None:
             self.recorder.write_report(report)
+            if self.recorder.failed:
+                report["recording_failed"] = self.recorder.failed
         if self.viewer is not None:
             report["live_view"] = {"url": self.viewer.url, "sent": self.viewer.sent,
                                    "dropped": self.viewer.dropped}

@@ -70,6 +70,9 @@ def end_lines(r: dict[str, Any]) -> list[str]:
             lines.append(safe_stop_line(r["safe_stop"]))
     else:
         lines.append(_result_line(r))
+    if r.get("recording_failed"):
+        lines.append(f"  recording   {r['recording_failed']}; the run went on, the file holds "
+                     "what came before (ctrlunit report reads it)")
     if r.get("logs_kept"):
         lines.append(f"  logs        kept in {r['logs_kept']} (the run's spec and each role's "
                      "log, for the diagnosis; delete it when done)")

@@ -44,6 +44,7 @@ recording: 2.92x at 64 KiB, 3.02x at 256 KiB; docs/measurements/2026-11-22-recor
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -91,6 +92,10 @@ class Recorder:
         self.last_cmd_ns: int | None = None
         self.last_misses = -1
         self.closed = False
+        self.failed: str | None = None
+        """Why writing stopped, if it did (a full disk, a file that takes no writes): the
+        run goes on, the file holds what came before (:meth:`_lost`)."""
+        self.done = 0  # intervals recorded
         self.pending: list[tuple[str, int, bytes]] = []
         self.topics: dict[str, str] = {}  # Zenoh key -> topic
         self.began = False
@@ -148,7 +153,10 @@ class Recorder:
             "clock": rc.schedule.clock,
             "time_unit": "ns (host monotonic clock)",
         }
-        self.w.add_metadata("ctrlunit", meta)
+        try:
+            self.w.add_metadata("ctrlunit", meta)
+        except (OSError, RuntimeError) as exc:
+            self._lost(exc)
 
     def channel(self, topic: str, *, json_signals: bool = False) -> int:
         cid = self.channels.get(topic)
@@ -187,9 +195,29 @@ class Recorder:
             self._add(topic, t_ns, data)
         self.pending.clear()
 
+    def _lost(self, exc: BaseException) -> None:
+        """Writing failed (in the writer's thread, or here): stop recording, keep the run
+        going. The file holds the chunks written before; :func:`.reader.read` salvages
+        it."""
+        cause = exc.__cause__ if isinstance(exc.__cause__, OSError) else exc
+        self.failed = f"stopped after {self.done} interval(s): {cause}"
+        self.closed = True
+        with contextlib.suppress(Exception):
+            self.fh.close()
+
     def on_cycle(self, progress: Progress, ctx: dict) -> None:
         """After each interval (at depth 2 once the next request is out): the exchanges
-        noted since the last one, spans, signals, deadline and rejection events."""
+        noted since the last one, spans, signals, deadline and rejection events; a write
+        that fails ends the recording, never the run (:meth:`_lost`)."""
+        if self.closed:
+            return
+        try:
+            self._cycle(progress, ctx)
+            self.done += 1
+        except (OSError, RuntimeError) as exc:
+            self._lost(exc)
+
+    def _cycle(self, progress: Progress, ctx: dict) -> None:
         self._drain()
         p, cycle = progress, progress.cycle
         iv = capture(p, ctx)
@@ -225,6 +253,12 @@ class Recorder:
         follows in :meth:`write_report`)."""
         if self.closed:
             return
+        try:
+            self._close(run)
+        except (OSError, RuntimeError) as exc:
+            self._lost(exc)
+
+    def _close(self, run: RunSnapshot) -> None:
         self.begin(self.setup)  # a run that ended before its first interval: still a header
         self._drain()
         now = time.monotonic_ns()
@@ -244,6 +278,12 @@ class Recorder:
         ``live`` the report's :data:`~..observe.report.RESULT_KEYS`), then finish."""
         if self.closed:
             return
+        try:
+            self._result(report)
+        except (OSError, RuntimeError) as exc:
+            self._lost(exc)
+
+    def _result(self, report: dict[str, Any]) -> None:
         self.w.add_metadata("ctrlunit.result", {
             "t1_s": repr(report.get("t1_s")),
             "block_cost_s": json.dumps(report.get("block_cost_s") or {}),
