@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 from click.testing import CliRunner
@@ -26,9 +27,11 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def forged(src: Path, dst: Path, edit: Edit) -> Path:
+def forged(src: Path, dst: Path, edit: Edit,
+           message: Callable[[str, int, bytes], bytes] | None = None) -> Path:
     """``src`` written again with each metadata record passed through ``edit`` (None:
-    left out), everything else as it was."""
+    left out) and each message's data through ``message(topic, index in its topic,
+    data)``, everything else as it was."""
     with open(src, "rb") as fh:
         r = make_reader(fh)
         summary = r.get_summary()
@@ -43,8 +46,11 @@ def forged(src: Path, dst: Path, edit: Edit) -> Path:
         channels = {cid: w.register_channel(c.topic, c.message_encoding,
                                             schemas.get(c.schema_id, 0), c.metadata)
                     for cid, c in summary.channels.items()}
+        seen: dict[str, int] = {}
         for _schema, channel, m in messages:
-            w.add_message(channels[channel.id], m.log_time, m.data, m.publish_time)
+            k = seen[channel.topic] = seen.get(channel.topic, -1) + 1
+            data = m.data if message is None else message(channel.topic, k, m.data)
+            w.add_message(channels[channel.id], m.log_time, data, m.publish_time)
         for m in metadata:
             kept = edit(m.name, dict(m.metadata))
             if kept is not None:
@@ -169,3 +175,61 @@ def test_a_disk_that_fills_ends_the_recording_not_the_run(tmp_path, monkeypatch)
     said = end_lines({"recording_failed": rec_failed, "cycles": 2000, "periods": 2000,
                       "rejected_messages": {}, "fault": None, "clock": "lockstep"})
     assert any(line.startswith("  recording   stopped after") for line in said), said
+
+
+def _one(topic: str, k: int, change: Callable[[Any], Any], *, as_json: bool = False
+         ) -> Callable[[str, int, bytes], bytes]:
+    """A message edit: the ``k``-th message of ``topic`` decoded, changed, encoded again."""
+    import msgpack
+
+    def edit(t: str, i: int, data: bytes) -> bytes:
+        if t != topic or i != k:
+            return data
+        if as_json:
+            return json.dumps(change(json.loads(data))).encode()
+        return msgpack.packb(change(msgpack.unpackb(data, raw=False)))
+    return edit
+
+
+@pytest.mark.parametrize(("name", "message"), [
+    ("command-int", _one("/plant/command", 10, lambda m: 0)),
+    ("sample-list", _one("/central/sample", 10, lambda m: [1, 2, 3])),
+    ("sample-t-inf", _one("/central/sample", 10, lambda m: m | {"t_ns": float("inf")})),
+    ("sample-p-text", _one("/central/sample", 10, lambda m: m | {"p": "abc"})),
+    ("state-text", _one("/signals/state", 10, lambda m: m | {"period": "x", "q": "x",
+                                                             "torque": [1]}, as_json=True)),
+])
+def test_a_forged_message_is_no_traceback_for_any_command(recorded, tmp_path, name, message):
+    """An attacker's review: one message of a recording replaced (a command by 0, a
+    sample by a list, a time by infinity, a position by text, a signal by text) ended
+    ``report``, ``plot`` and ``replay --verify`` in tracebacks. The readers take a sample
+    or a command only as the live roles would, and a signal that is not a number is a
+    gap: every command ends in its output or one line, and ``replay --verify`` does not
+    verify a forged wire message."""
+    import msgpack
+    from ctrlunit.runtime.recording.reader import read
+
+    path = forged(recorded, tmp_path / f"{name}.mcap", lambda n, md: md, message)
+    for args in (("report", str(path)), ("plot", str(path), "--out", str(tmp_path / "p")),
+                 ("replay", str(path), "--verify")):
+        res = CliRunner().invoke(cli, list(args))
+        assert res.exception is None or isinstance(res.exception, SystemExit), (
+            args, res.exception)
+        assert "Traceback" not in res.output, res.output
+        if args[0] == "replay" and not name.startswith("state"):
+            assert res.exit_code == 1 and "diverges" in res.output, res.output
+    kept = read(path)
+    for topic in ("/plant/command", "/central/sample"):
+        assert all(isinstance(m, dict) for _, m in kept.decoded(topic))
+    raw = read(recorded)
+    assert len(raw.decoded("/central/sample")) == len(raw.topics["/central/sample"])
+    assert msgpack.unpackb(raw.topics["/plant/command"][0][1])["cycle"] == 0
+
+
+def test_a_forged_live_fact_is_named(recorded, tmp_path):
+    """A result record whose ``live`` facts have the report's names and the wrong shapes
+    named no field (``will not do: AttributeError``); the first such fact is named."""
+    path = forged(recorded, tmp_path / "live.mcap",
+                  result(live=json.dumps({"late": {}, "degraded": "x", "scheduling": []})))
+    code, out = run("report", str(path))
+    assert code == 1 and "its result record's live.degraded = 'x'" in out, out

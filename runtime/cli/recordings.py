@@ -24,6 +24,34 @@ def _cycle_range(_ctx: Any, _param: Any, value: str | None) -> tuple[int, int] |
     return lo, hi
 
 
+def _culprit(rec: Any) -> str | None:
+    """Which of the result record's ``live`` facts a report cannot be made with (a forged
+    one of the right name, the wrong shape): the first with which alone the report and
+    its summary cannot be made; None if there is none."""
+    import dataclasses
+
+    from ..observe.summary import summary
+    from ..recording.recorded_report import report_from_recording
+
+    result = rec.metadata.get("ctrlunit.result") or {}
+    try:
+        facts = json.loads(result.get("live") or "null")
+    except ValueError:
+        return None
+    for key in sorted(facts) if isinstance(facts, dict) else ():
+        alone = {**result, "live": json.dumps({key: facts[key]})}
+        trial = dataclasses.replace(rec, metadata={**rec.metadata, "ctrlunit.result": alone})
+        try:
+            summary(report_from_recording(trial))
+            continue
+        except Exception:
+            pass
+        shown = repr(facts[key])
+        return (f"its result record's live.{key} = "
+                f"{shown if len(shown) <= 60 else shown[:57] + '...'}: not what a run writes")
+    return None
+
+
 def _open_recording(path: str) -> Any:
     from ..config import RunConfig
     from ..recording.reader import read
@@ -163,7 +191,7 @@ def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
     except (AttributeError, IndexError, KeyError, TypeError, ValueError) as exc:
         # an edited or damaged file's record: what it holds does not fit where it is read
         _fail(f"report: {file}: the recording's metadata will not do: "
-              f"{exc if isinstance(exc, ValueError) else f'{type(exc).__name__}'}")
+              f"{exc if isinstance(exc, ValueError) else _culprit(rec) or type(exc).__name__}")
     if report_file:
         with open(report_file, "w") as fh:
             json.dump(_json_safe(rep), fh, indent=2)

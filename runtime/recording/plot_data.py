@@ -16,13 +16,19 @@ from .result_record import fault as record_fault
 
 
 def _num(x: Any) -> float:
-    return math.nan if x is None else float(x)
+    """A number of a ``/signals/state`` message; anything else (null, a forged string) is
+    a gap in the plot."""
+    return float(x) if type(x) in (int, float) else math.nan
 
 
 def _vec(v: Any) -> list[float]:
-    if v is None:
+    if not isinstance(v, dict):
         return [math.nan] * 3
     return [_num(v.get("x")), _num(v.get("y")), _num(v.get("z"))]
+
+
+def _three(v: Any) -> list[float]:
+    return [_num(x) for x in v] if isinstance(v, list) and len(v) == 3 else [math.nan] * 3
 
 
 def signals(rec: Recording, *, cycles: tuple[int, int] | None = None
@@ -59,8 +65,7 @@ def signals(rec: Recording, *, cycles: tuple[int, int] | None = None
         "p_m": np.array([_vec(m.get("p")) for m in ms]).reshape(-1, 3),
         "reference_m": np.array([_vec(m.get("reference")) for m in ms]).reshape(-1, 3),
         "tracking_error_m": np.array([_num(m.get("tracking_error")) for m in ms]),
-        "torque_nm": np.array([[_num(x) for x in (m.get("torque") or [None] * 3)]
-                               for m in ms]).reshape(-1, 3),
+        "torque_nm": np.array([_three(m.get("torque")) for m in ms]).reshape(-1, 3),
         "period_s": np.array([_num(m.get("period")) for m in ms]),
         "traversal_s": np.array([_num(m.get("traversal")) for m in ms]),
     }

@@ -7,6 +7,7 @@ non-seeking pass when it was cut off (the seeking reader needs the footer).
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,37 @@ import msgpack
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata
 from mcap.stream_reader import StreamReader
+
+from ...plant.limits import check_command
+from ..central.intake import check_sample
+from ..transport.codec import MAX_CYCLE, BadMessage
+
+
+def _cycle_ok(m: dict[str, Any]) -> bool:
+    k = m.get("cycle")
+    return type(k) is int and 0 <= k < MAX_CYCLE
+
+
+def _sample_ok(m: dict[str, Any]) -> bool:
+    """A sample as the central takes one (runtime/central/intake.py, ``check_sample``), or
+    one it made itself (``synthetic``: freerun's, with counts and a time alone)."""
+    if m.get("synthetic") is True:  # its counts and time, checked as a plant's are
+        m = m | {"p": [0.0, 0.0, 0.0], "span": [0, 0]}
+    try:
+        check_sample(m)
+    except BadMessage:
+        return False
+    return _cycle_ok(m)
+
+
+def _command_ok(m: dict[str, Any]) -> bool:
+    """A command as the plant takes one (plant/limits.py, ``check_command``)."""
+    return _cycle_ok(m) and check_command(m.get("tau")) is None
+
+
+CHECKED: dict[str, Callable[[dict[str, Any]], bool]] = {
+    "/central/sample": _sample_ok, "/plant/command": _command_ok}
+"""The wire's messages that readers take fields from, each with the live check."""
 
 
 @dataclass
@@ -31,13 +63,19 @@ class Recording:
     note: str = ""
 
     def decoded(self, topic: str) -> list[tuple[int, dict]]:
-        """Messages of ``topic`` decoded from msgpack (bad ones skipped)."""
+        """Messages of ``topic`` decoded from msgpack; bad ones skipped: undecodable, not
+        a map, and for a sample or a command what the live roles would refuse
+        (:data:`CHECKED`), so that no reader of a forged file meets a field of the wrong
+        type."""
+        check = CHECKED.get(topic)
         out = []
         for t, data in self.topics.get(topic, []):
             try:
-                out.append((t, msgpack.unpackb(data, raw=False)))
+                m = msgpack.unpackb(data, raw=False)
             except Exception:
                 continue
+            if isinstance(m, dict) and (check is None or check(m)):
+                out.append((t, m))
         return out
 
     @property
