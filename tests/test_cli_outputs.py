@@ -361,3 +361,19 @@ def test_a_file_the_system_refuses_is_one_line_for_every_command(tmp_path):
         err = res.stderr.strip().splitlines()
         assert res.exit_code == 1 and len(err) == 1, (args, res.stderr)
         assert err[0].startswith("ctrlunit: error: ") and str(a_file) in err[0], err
+
+
+def test_nan_and_a_device_are_refused_where_a_range_or_a_file_is_asked(tmp_path):
+    """An attacker's review: ``replay --rate nan`` replayed unpaced and ``--wait-subscribers
+    nan`` was taken (NaN compares with no bound); ``start --check --config /dev/zero``
+    never returned. Each is one line, exit 1."""
+    rec = tmp_path / "run.mcap"
+    assert invoke("start", "--clock", "lockstep", "--cycles", "20", "--peripherals", "0",
+                  "--record", str(rec)).exit_code == 0
+    for args, said in ((("replay", str(rec), "--rate", "nan"), "--rate: 'nan' is not a number"),
+                       (("replay", str(rec), "--wait-subscribers", "nan"),
+                        "--wait-subscribers: 'nan' is not a number"),
+                       (("start", "--check", "--config", "/dev/zero"), "not a regular file")):
+        res = invoke(*args)
+        err = res.stderr.strip().splitlines()
+        assert res.exit_code == 1 and len(err) == 1 and said in err[0], (args, res.stderr)

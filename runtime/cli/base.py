@@ -66,12 +66,26 @@ class FilePath(click.Path):
 
     def convert(self, value: Any, param: click.Parameter | None,
                 ctx: click.Context | None) -> Any:
-        """As click's, and a file to read must be a regular one: a FIFO would hang the
-        command and a device (/dev/zero) fill its memory."""
+        """As click's, and a file that exists must be a regular one: a FIFO would hang the
+        command and a device (/dev/zero) fill its memory (``--config /dev/zero`` did)."""
         path = super().convert(value, param, ctx)
-        if self.exists and not self.dir_okay and not stat.S_ISREG(os.stat(path).st_mode):
+        if not self.dir_okay and os.path.exists(path) and not stat.S_ISREG(
+                os.stat(path).st_mode):
             self.fail(f"{path!r} is not a regular file (a FIFO, a device, ...)", param, ctx)
         return path
+
+
+class FiniteRange(click.FloatRange):
+    """:class:`click.FloatRange` that refuses NaN (which compares with no bound, and so
+    passed every range: ``replay --rate nan`` replayed unpaced)."""
+
+    def convert(self, value: Any, param: click.Parameter | None,
+                ctx: click.Context | None) -> Any:
+        x = super().convert(value, param, ctx)
+        if x != x:
+            self.fail(f"{value!r} is not a number in the range {self._describe_range()}",
+                      param, ctx)
+        return x
 
     def fail(self, message: str, param: click.Parameter | None = None,
              ctx: click.Context | None = None) -> Any:

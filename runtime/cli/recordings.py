@@ -8,7 +8,7 @@ from typing import Any
 import click
 
 from ..config import EXIT_CONFIG
-from .base import FilePath, _fail, _json_safe, cli
+from .base import FilePath, FiniteRange, _fail, _json_safe, cli
 
 
 def _cycle_range(_ctx: Any, _param: Any, value: str | None) -> tuple[int, int] | None:
@@ -73,10 +73,10 @@ def _open_recording(path: str) -> Any:
               help="Intervals A:B only.")
 @click.option("--csv", "csv_dir", type=FilePath(file_okay=False), default=None,
               help="Export the signals as CSV into DIR.")
-@click.option("--rate", type=click.FloatRange(min=1e-3, max=1e3), default=1.0,
+@click.option("--rate", type=FiniteRange(min=1e-3, max=1e3), default=1.0,
               show_default=True, help="Republish speed factor.")
 @click.option("--loop", is_flag=True, help="Republish in a loop.")
-@click.option("--start-offset", type=click.FloatRange(min=0.0), default=0.0,
+@click.option("--start-offset", type=FiniteRange(min=0.0), default=0.0,
               help="Start this many seconds into the recording.")
 @click.option("--topics", multiple=True, help="Only these topics (e.g. /plant/command).")
 @click.option("--unit", default=None, help="Unit id to republish under (default: replay-<id>).")
@@ -85,7 +85,7 @@ def _open_recording(path: str) -> Any:
 @click.option("--insecure", is_flag=True,
               help="Allow endpoints beyond this host (the recording's samples and commands "
               "go to whoever reaches them).")
-@click.option("--wait-subscribers", type=click.FloatRange(min=0.0, max=60.0), default=1.0,
+@click.option("--wait-subscribers", type=FiniteRange(min=0.0, max=60.0), default=1.0,
               show_default=True, metavar="SECONDS",
               help="Wait up to this long for a subscriber to every topic before sending.")
 @click.option("--max-seconds", type=float, default=None, hidden=True)

@@ -13,7 +13,7 @@ import click
 from ..config import EXIT_CONFIG, parse_duration
 from ..host.idle import IDLE_CHOICES
 from ..roles.stopping import raise_if_stopped, stop_signals
-from .base import FilePath, _fail, _json_safe, _rt_priority, cli
+from .base import FilePath, FiniteRange, _fail, _json_safe, _rt_priority, cli
 
 
 def _stages(_ctx: Any, _param: click.Parameter, text: str) -> tuple[str, ...]:
@@ -47,7 +47,7 @@ def _duration(_ctx: Any, param: click.Parameter, text: str) -> float:
 @click.option("--repeats", type=click.IntRange(1, 20), default=None)
 @click.option("--realtime-period", "rt_periods", multiple=True, default=("3ms",),
               show_default=True, help="Realtime periods to include (repeatable).")
-@click.option("--thesis-scale", type=click.FloatRange(1.0, 1000.0), default=60.0,
+@click.option("--thesis-scale", type=FiniteRange(1.0, 1000.0), default=60.0,
               show_default=True, help="T-800 time scale of the runs compared with 1994: "
               "large enough that an exchange weighs on the arithmetic about as a "
               "Transputer link did (README, bench).")
