@@ -194,7 +194,8 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_run(tmp_pat
             res = invoke("start", *check, option, str(path))
             err = res.stderr.strip().splitlines()
             assert res.exit_code == 1 and len(err) == 1, (option, res.stderr)
-            assert err[0].startswith(f"ctrlunit: error: {option}: {path}") and why in err[0]
+            assert err[0].startswith(f"ctrlunit: error: {option}: ") and why in err[0], err
+            assert str(path) in err[0], err
             assert not res.stdout.strip(), res.stdout  # nothing ran
 
 
@@ -370,9 +371,9 @@ def test_nan_and_a_device_are_refused_where_a_range_or_a_file_is_asked(tmp_path)
     rec = tmp_path / "run.mcap"
     assert invoke("start", "--clock", "lockstep", "--cycles", "20", "--peripherals", "0",
                   "--record", str(rec)).exit_code == 0
-    for args, said in ((("replay", str(rec), "--rate", "nan"), "--rate: 'nan' is not a number"),
+    for args, said in ((("replay", str(rec), "--rate", "nan"), "'nan' is not a number"),
                        (("replay", str(rec), "--wait-subscribers", "nan"),
-                        "--wait-subscribers: 'nan' is not a number"),
+                        "'nan' is not a number"),
                        (("start", "--check", "--config", "/dev/zero"), "not a regular file")):
         res = invoke(*args)
         err = res.stderr.strip().splitlines()

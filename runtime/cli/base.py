@@ -74,6 +74,15 @@ class FilePath(click.Path):
             self.fail(f"{path!r} is not a regular file (a FIFO, a device, ...)", param, ctx)
         return path
 
+    def fail(self, message: str, param: click.Parameter | None = None,
+             ctx: click.Context | None = None) -> Any:
+        from ..config import ConfigError
+
+        where = (param.opts[0] if isinstance(param, click.Option) and param.opts
+                 else param.human_readable_name if param is not None else "path")
+        text = message.rstrip(".")
+        raise ConfigError(f"{where}: {text[:1].lower()}{text[1:]}")
+
 
 class FiniteRange(click.FloatRange):
     """:class:`click.FloatRange` that refuses NaN (which compares with no bound, and so
@@ -86,15 +95,6 @@ class FiniteRange(click.FloatRange):
             self.fail(f"{value!r} is not a number in the range {self._describe_range()}",
                       param, ctx)
         return x
-
-    def fail(self, message: str, param: click.Parameter | None = None,
-             ctx: click.Context | None = None) -> Any:
-        from ..config import ConfigError
-
-        where = (param.opts[0] if isinstance(param, click.Option) and param.opts
-                 else param.human_readable_name if param is not None else "path")
-        text = message.rstrip(".")
-        raise ConfigError(f"{where}: {text[:1].lower()}{text[1:]}")
 
 
 def _rt_priority(_ctx: Any, _param: click.Parameter, value: str | int) -> str | int:
