@@ -254,3 +254,37 @@ def test_a_missing_keys_directory_names_ca_pem_as_before(tmp_path):
     line = one_line(ctrlunit(*START, "--keys", str(tmp_path / "none")))
     assert line.endswith(f"--keys {tmp_path / 'none'}: no ca.pem there (make a unit's keys "
                          "with: ctrlunit keys init DIR)")
+
+
+def test_keys_whose_folder_or_link_target_others_may_write_are_refused(keys, tmp_path):
+    """An attacker's review: ``ca.pem`` and ``plant.key`` as symbolic links to files in a
+    folder anyone may write, and a keys folder inside such a folder, passed the checks;
+    whoever may write there can put another authority in place. Every folder above each
+    file (through a link: its target's) must be writable by its owner alone, unless it
+    has the sticky bit (as /tmp); a role's file that is a folder is not "missing"."""
+    from ctrlunit.runtime.transport.keycheck import check_credentials
+
+    check_credentials(keys, ROLES, now=now())  # tmp_path lies under /tmp: sticky, allowed
+    public = tmp_path / "public"
+    public.mkdir()
+    public.chmod(0o777)
+    for name in ("ca.pem", "plant.key"):
+        spoiled = tmp_path / f"spoiled-{name}"
+        shutil.copytree(keys, spoiled)
+        target = public / name
+        shutil.copy2(spoiled / name, target)
+        (spoiled / name).unlink()
+        (spoiled / name).symlink_to(target)
+        with pytest.raises(ValueError, match=rf"{name} lies in {public}, which others can "
+                                             r"write \(mode 0777\).*chmod go-w"):
+            check_credentials(spoiled, ROLES, now=now())
+    inside = public / "keys"
+    shutil.copytree(keys, inside)
+    with pytest.raises(ValueError, match=f"ca.pem lies in {public}, which others can write"):
+        check_credentials(inside, ROLES, now=now())
+    public.chmod(0o1777)  # sticky: no one else may replace what is in it
+    check_credentials(inside, ROLES, now=now())
+    (keys / "plant.key").unlink()
+    (keys / "plant.key").mkdir()
+    with pytest.raises(ValueError, match="plant.key is not a regular file"):
+        check_credentials(keys, ROLES, now=now())

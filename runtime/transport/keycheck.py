@@ -6,6 +6,8 @@ each role's key and certificate. Each failure is one line naming the file and th
 from __future__ import annotations
 
 import datetime
+import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +50,7 @@ def check_credentials(directory: str | Path, roles: list[str] | tuple[str, ...],
     if mode & 0o022:
         raise ValueError(f"{where}: {directory} can be written by others (mode {mode:04o}), "
                          f"who could replace the unit's keys: chmod 700 {directory}")
+    _check_folders(d / CA_CERT, where)
     if (d / CA_KEY).exists():
         from .keygen import authority_of
 
@@ -61,16 +64,39 @@ def check_credentials(directory: str | Path, roles: list[str] | tuple[str, ...],
     for role in roles:
         files = [d / f"{role}.pem", d / f"{role}.key"]
         for f in files:
+            if f.exists() and not f.is_file():
+                raise ValueError(f"{where}: {f.name} is not a regular file (a directory, a "
+                                 "pipe or a device): give the role's file there")
             if not f.is_file():
                 raise ValueError(f"{where}: {f.name} is missing (each host needs {CA_CERT} "
                                  "and its role's .pem and .key; make a unit's keys with: "
                                  "ctrlunit keys init DIR)")
+            _check_folders(f, where)
             _check_mode(f, where, secret=f.suffix == ".key")
         cert = _read_cert(files[0], where)
         _check_issued(cert, ca, files[0].name, where)
         _check_name(cert, role, where)
         _check_time(cert, files[0].name, where, when)
         _check_key(files[1], files[0].name, cert, where)
+
+
+def _check_folders(path: Path, where: str) -> None:
+    """Every folder above the file ``path`` is (through any symbolic link: its target's
+    folders) owned by this user or root and writable by no one else, as ssh checks the
+    folders above its keys: whoever may write one could put another file, or another
+    folder, in its place. A folder with the sticky bit (``/tmp``) is allowed: there no
+    one but an entry's owner may replace it."""
+    real, uid = path.resolve(), os.geteuid()
+    for folder in real.parents:
+        st = folder.stat()
+        if st.st_uid not in (uid, 0):
+            raise ValueError(f"{where}: {path.name} lies in {folder}, which belongs to another "
+                             f"user (uid {st.st_uid}), who could replace it")
+        mode = st.st_mode & 0o7777
+        if mode & 0o022 and not mode & stat.S_ISVTX:
+            raise ValueError(f"{where}: {path.name} lies in {folder}, which others can write "
+                             f"(mode {mode & 0o777:04o}), who could replace it: chmod go-w "
+                             f"{folder}")
 
 
 def _check_mode(path: Path, where: str, *, secret: bool) -> None:
