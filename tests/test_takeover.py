@@ -489,3 +489,18 @@ def test_the_realtime_main_job_rides_out_a_lost_peripheral(tmp_path, how, index)
     # killed: its process seen exited, the others go on serving; frozen: they stand by
     assert len(rep["degraded"]) == (1 if how == "kill" else 3)
     assert 0 <= rep["periods"] - round(10 / rep["nominal_period_s"]) <= 1
+
+
+def test_a_lost_peripheral_s_diagnosis_is_printed_whole():
+    """A new user's review: the summary cut the silence's diagnosis at 160 characters,
+    mid-clause (``its process was sleeping (after one ): the central computes ...``). It
+    is printed whole; only a forged one past 600 characters is cut, with an ellipsis."""
+    why = ("peripheral 1 silent for 33.1 ms (limit 2.4 ms, plus 2.4 ms the plant was silent "
+           "too); its process was sleeping (after one extension of its limit; in the last "
+           "3.0 ms it was kept from a CPU 2.9 ms and ran 0.1 ms, and tasks waited for a CPU "
+           "5.0 ms)")
+    d = {"peripheral": 1, "at_interval": 1214, "from_cycle": 1216, "why": why}
+    lines = _degraded_lines({"degraded": [d]})
+    assert f"({why}): the central computes its rounds from cycle 1216" in lines[0]
+    lines = _degraded_lines({"degraded": [d | {"why": "x" * 5000}]})
+    assert "x" * 597 + "...)" in lines[0] and "x" * 598 not in lines[0]

@@ -66,12 +66,13 @@ def _degraded_lines(r: dict[str, Any]) -> list[str]:
     for i, d in enumerate(r.get("degraded") or []):
         head = "  degraded    " if i == 0 else " " * 14
         why = str(d["why"])
+        why = why if len(why) <= 600 else why[:597] + "..."  # whole: it is the diagnosis
         if why.startswith("stands by"):
             out.append(f"{head}peripheral {d['peripheral']} stands by from cycle "
-                       f"{d['from_cycle']}{why[len('stands by'):][:160]}")
+                       f"{d['from_cycle']}{why[len('stands by'):]}")
         else:
             out.append(f"{head}peripheral {d['peripheral']} lost at interval {d['at_interval']}"
-                       f" ({why[:160]}): the central computes its rounds from cycle "
+                       f" ({why}): the central computes its rounds from cycle "
                        f"{d['from_cycle']}")
         if "requests_again_at_interval" in d:
             out.append(f"{' ' * 14}peripheral {d['peripheral']} answered after all: requests "
