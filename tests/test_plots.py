@@ -204,3 +204,34 @@ def test_the_events_figure_marks_each_change_of_placement(tmp_path):
                    [], None, rc, plots, moved)
     assert plots.marks == [(k * 1e-3, what) for k, what in moved]
     assert _ink(tmp_path / "events.png")[0] > 0.01 and not plots.clashes
+
+
+def test_peripherals_standing_by_are_not_drawn_as_taken_over(tmp_path):
+    """A new user's review: with peripheral 1 lost and 2 and 3 standing by beside it, the
+    events figure drew three labels on one line over each other, the only readable one
+    'peripheral 3 taken over'. A record seen again at each change counts once, one
+    standing by says so, and the changes of one interval share one label."""
+    import msgpack
+    from ctrlunit.runtime.config import RunConfig
+    from ctrlunit.runtime.recording.plot_data import changes
+    from ctrlunit.runtime.recording.plots import Plots, _events_figure
+    from ctrlunit.runtime.recording.reader import Recording
+
+    def lost(k: int, **more: int) -> tuple[int, bytes]:
+        why = "stands by: peripheral 1 fell silent" if k != 1 else "peripheral 1 silent"
+        return 0, msgpack.packb({"peripheral": k, "from_cycle": 120, "why": why, **more})
+
+    rec = Recording("x.mcap", topics={"/faults/degraded": [
+        lost(1), lost(2), lost(3), lost(1), lost(3, back_from_cycle=150),
+        lost(2, back_from_cycle=151)]})
+    moved = changes(rec)
+    assert moved == [(120, "peripheral 1 taken over"), (120, "peripheral 2 stands by"),
+                     (120, "peripheral 3 stands by"), (150, "peripheral 3 back"),
+                     (151, "peripheral 2 back")]
+    plots = Plots()
+    n = np.arange(200)
+    _events_figure(tmp_path / "events.png", {"cycle": n, "period_s": np.full(200, 1e-3)},
+                   [], None, RunConfig.of(period=1e-3), plots, moved)
+    assert plots.marks[0] == (0.12, "peripheral 1 taken over; peripheral 2 stands by; "
+                                    "peripheral 3 stands by")
+    assert len(plots.marks) == 3

@@ -159,23 +159,26 @@ def events(rec: Recording, cycles: tuple[int, int] | None
 
 def changes(rec: Recording, cycles: tuple[int, int] | None = None
             ) -> list[tuple[int, str]]:
-    """``(cycle, what)`` of each change of who computes what, in cycle order: a live
-    re-placement (``/central/placement``: the blocks then on the central), a peripheral
-    lost and taken over, and its coming back (``/faults/degraded``)."""
+    """``(cycle, what)`` of each change of who computes what, once each, in cycle order: a
+    live re-placement (``/central/placement``: the blocks then on the central), a
+    peripheral lost and taken over, one standing by beside it, and each coming back
+    (``/faults/degraded``)."""
     from .replay import placements
 
-    out = [(k, f"placement: {len(blocks)} block(s) on the central")
-           for k, blocks in placements(rec)]
-    for _, m in rec.decoded("/faults/degraded"):
+    out = {(k, f"placement: {len(blocks)} block(s) on the central")
+           for k, blocks in placements(rec)}
+    for _, m in rec.decoded("/faults/degraded"):  # a record again at each of its changes
         k = m.get("peripheral")
         if type(k) is not int:
             continue
+        by = str(m.get("why", "")).startswith("stands by")  # beside a lost one, not lost
+        if type(m.get("from_cycle")) is int:
+            out.add((m["from_cycle"], f"peripheral {k} " + ("stands by" if by
+                                                            else "taken over")))
         if type(m.get("back_from_cycle")) is int:
-            out.append((m["back_from_cycle"], f"peripheral {k} back"))
-        elif type(m.get("from_cycle")) is int:
-            out.append((m["from_cycle"], f"peripheral {k} taken over"))
+            out.add((m["back_from_cycle"], f"peripheral {k} back"))
     if cycles is not None:
-        out = [c for c in out if cycles[0] <= c[0] < cycles[1]]
+        out = {c for c in out if cycles[0] <= c[0] < cycles[1]}
     return sorted(out)
 
 

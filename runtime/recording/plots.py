@@ -272,7 +272,11 @@ def _events_figure(path: Path, s: dict[str, np.ndarray], ev: list[tuple[int, int
         ax.axvline(x, color="#d62728", lw=0.8, alpha=0.7)
     for x in skip_t:
         ax.axvline(x, color="#ff7f0e", lw=0.8, alpha=0.7, ls=":")
+    at: dict[int, list[str]] = {}  # changes at one interval: one line, one label
     for k, what in moved:
+        at.setdefault(k, []).append(what)
+    for k, whats in at.items():
+        what = "; ".join(whats)
         x = k * rc.schedule.period
         ax.axvline(x, color="#9467bd", lw=1.0, ls="--")
         ax.annotate(what, (x, 0.03), xycoords=("data", "axes fraction"), rotation=90,
