@@ -350,3 +350,19 @@ def test_report_of_a_recording_gives_the_live_tracking_figures_to_the_bit(tmp_pa
     again = json.loads(res.stdout)
     assert again["tracking_error_m"] == live["tracking_error_m"]
     assert again["command_digest"] == live["command_digest"]
+
+
+def test_a_cut_off_recording_gives_no_central_business_it_cannot_know(recorded, tmp_path):
+    """A new user's review: a cut-off file's report gave 'business central 20 %' where
+    the run's was 70 %: without the result record the figures come from the spans, and
+    the central's spans are its blocks alone, not its busy time. That one is left out;
+    the peripherals' spans are their busy time, and stay."""
+    from ctrlunit.runtime.recording.recorded_report import report_from_recording
+
+    path, _ = recorded
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    whole, part = report_from_recording(read(path)), report_from_recording(read(cut))
+    assert "central" in whole["business"] and "central" not in part["business"]
+    assert set(part["business"]) == {"peripheral_1", "peripheral_2", "peripheral_3"}

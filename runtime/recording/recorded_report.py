@@ -53,12 +53,12 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
             business[f"peripheral_{k + 1}"] = busy["periph_busy_ns"][k] / wall
         if rc.schedule.clock != "freerun":
             business["plant"] = busy["plant_busy_ns"] / wall
-    else:  # from the spans
-        acc: dict[str, int] = {}
+    else:  # from the spans: a role's busy time; the central's are its blocks alone, not
+        acc: dict[str, int] = {}  # its busy time (messaging, bookkeeping): left out
         for _, m in rec.decoded("/timing/spans"):
             for proc, a, b in m["spans"]:
                 acc[proc] = acc.get(proc, 0) + (b - a)
-        business = {k: v / wall for k, v in sorted(acc.items())}
+        business = {k: v / wall for k, v in sorted(acc.items()) if k != "central"}
     deadline = rec.decoded("/faults/deadline")
     misses = deadline[-1][1]["deadline_misses"] if deadline else 0
     skipped = deadline[-1][1]["skipped_samples"] if deadline else 0
