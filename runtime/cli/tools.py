@@ -137,7 +137,9 @@ def _bench_plan(stages: tuple[str, ...], *, quick: bool, repeats: int | None,
                      "default and balance's placement, each under the default policy and "
                      f"under SCHED_FIFO where permitted (up to {4 * runs} runs)")
     if "realtime" in stages:
-        lines.append(f"  realtime: {runs_rt} main-job runs, each with its baseline"
+        at = 1 if quick else runs_rt  # bench/sweep.py: the thesis's period, once in --quick
+        lines.append(f"  realtime: {runs_rt} main-job runs, each with its baseline, then "
+                     f"{at} at the thesis's 0.5 ms, each with its baseline"
                      + (f", then {long_rt:g} s of the main job" if long_rt else ""))
     lines.append(f"stages {', '.join(stages)}"
                  + (f": {len(configs)} configurations x {runs} repeat(s)" if configs else "")
