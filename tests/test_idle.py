@@ -171,9 +171,11 @@ def test_a_role_started_on_its_own_holds_the_request_for_its_host_while_it_runs(
         unit, endpoint = unit_id(f"idle-{asked}"), f"tcp/127.0.0.1:{free_port()}"
         procs = [subprocess.Popen(
             [*py, "central", "--unit", unit, "--listen", endpoint, "--clock", "realtime",
-             "--peripherals", "0", "--duration", "60s", "--idle", asked],
+             "--peripherals", "0", "--duration", "60s", "--idle", asked,
+             "--insecure"],  # a loopback port: the link rule is not this test's subject
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
-        procs.append(subprocess.Popen([*py, "plant", "--unit", unit, "--connect", endpoint],
+        procs.append(subprocess.Popen([*py, "plant", "--unit", unit, "--connect", endpoint,
+                                       "--insecure"],
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         plant = procs[1]
         try:
