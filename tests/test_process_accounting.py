@@ -185,3 +185,44 @@ def test_the_cpus_a_process_last_ran_on_are_its_threads_and_none_once_gone():
         p.kill()
         p.wait(timeout=5)
     assert process_cpus(p.pid) == set()
+
+
+def test_a_role_takes_its_place_itself_so_that_it_is_started_without_a_fork(tmp_path,
+                                                                            monkeypatch):
+    """A peripheral started again mid-run stalled the unit 4-12 ms while Python forked
+    the launcher to run a ``preexec_fn`` (docs/measurements/2026-11-29-restart-without-
+    fork.md). ``spawn_role`` passes none (so Python uses vfork); the child takes its CPUs,
+    ignores the terminal's Ctrl-C and hang-up and dies with its parent itself
+    (runtime/host/launched.py), and ends at once when its parent is gone already."""
+    from ctrlunit.runtime.host import launched
+    from ctrlunit.runtime.roles import supervise
+
+    seen: dict = {}
+
+    class Popen:
+        def __init__(self, args: list[str], **kw: object) -> None:
+            seen.update(kw, args=args)
+
+    spec = tmp_path / "spec.json"
+    spec.write_text('{"run": {"unit": "u-spawn"}}')
+    monkeypatch.setattr(supervise.subprocess, "Popen", Popen)
+    supervise.spawn_role(spec, "peripheral", 2, "tcp/127.0.0.1:1", tmp_path / "log",
+                         cpus={0})
+    monkeypatch.undo()  # the subprocess module's own Popen again, for the probes below
+    assert seen.get("preexec_fn") is None and seen["args"][2] == "ctrlunit.runtime.host.launched"
+    assert seen["env"][launched.CPUS_ENV] == "0"
+    assert seen["env"][launched.PARENT_ENV] == str(os.getpid())
+    probe = ("import os, signal; from ctrlunit.runtime.host.launched import take_place; "
+             "take_place(); print(sorted(os.sched_getaffinity(0)), "
+             "signal.getsignal(signal.SIGINT) is signal.SIG_IGN, "
+             "signal.getsignal(signal.SIGHUP) is signal.SIG_IGN, "
+             "'CTRLUNIT_CPUS' in os.environ)")
+    env = os.environ | {launched.CPUS_ENV: "0", launched.PARENT_ENV: str(os.getpid())}
+    res = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 0 and res.stdout.split() == ["[0]", "True", "True", "False"], (
+        res.stdout, res.stderr)
+    env[launched.PARENT_ENV] = "1"  # not this child's parent: the launcher is gone
+    res = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 1 and "the launcher ended before this role started" in res.stderr

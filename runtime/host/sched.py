@@ -66,6 +66,16 @@ def _set_all(policy: int, priority: int) -> None:
             os.sched_setscheduler(tid, policy, param)
 
 
+def pin_all(cpus: set[int]) -> None:
+    """Every thread of this process on ``cpus`` (``sched_setaffinity`` acts on one
+    thread): those started later inherit their creator's, but a library's started at
+    import (numpy's BLAS worker) would stay where it was."""
+    os.sched_setaffinity(0, cpus)  # this thread first: it raises if refused
+    for tid in _threads():
+        with contextlib.suppress(ProcessLookupError, PermissionError, OSError):
+            os.sched_setaffinity(tid, cpus)
+
+
 def fifo_permitted() -> bool:
     """Whether a process started like this one may use SCHED_FIFO (tried in a child
     interpreter, so that this process's policy is left alone)."""

@@ -74,7 +74,7 @@ def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         quiet = _quieter(echo, set())
         # --period auto: the first start may go down the ladder, each start climbs it
         for attempt in range(len(LADDER_S)):
-            os.sched_setaffinity(0, affinity)  # each start chooses the roles' CPUs afresh
+            sched.pin_all(affinity)  # each start chooses the roles' CPUs afresh
             code, report = UnitStart(rc, echo=quiet, progress=progress, spawn=spawn,
                                      inspect=inspect, view=view, idle=idle_choice)(
                 descend=attempt == 0, tried=tried)
@@ -101,7 +101,7 @@ def _starts(rc: RunConfig, *, echo: Any, progress: Any, spawn: bool,
         for v in view:
             v.close()
         idle_hold.close()
-        os.sched_setaffinity(0, affinity)
+        sched.pin_all(affinity)
         sched.restore(saved)
 
 

@@ -157,7 +157,7 @@ class UnitStart:
         (self.run_dir / "spec.json").write_text(json.dumps({"run": rc.to_dict()}))
         self.cpus = role_cpus(rc)  # (the central's, the children's): before pinning
         if self.cpus[0]:
-            os.sched_setaffinity(0, self.cpus[0])  # before zenoh.open: its threads inherit it
+            sched.pin_all(self.cpus[0])  # before zenoh.open: its threads inherit it
         self.node = self._central_node()
         self.guard = self._busy_guard()
         self.observers = observers_view(rc, setup, self.node, self.echo)

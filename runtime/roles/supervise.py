@@ -1,66 +1,44 @@
 """Supervision of the roles ``ctrlunit start`` runs as child processes: how they are
-started (their CPUs taken between fork and exec, death with the parent) and ended."""
+started (their CPUs, the signals left to the launcher, death with the parent: taken by
+each child itself, runtime/host/launched.py) and ended."""
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import json
 import os
 import re
-import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
 
 from ..config import RunConfig
-from ..host import sched
+from ..host import launched, sched
 
-_PR_SET_PDEATHSIG = 1
-
-
-def _die_with_parent() -> None:  # runs in the child between fork and exec
-    with contextlib.suppress(Exception):
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-
-
-LEFT_TO_THE_LAUNCHER = (signal.SIGINT, signal.SIGHUP)
-"""Signals a role the launcher started ignores. A terminal's Ctrl-C and hang-up reach
-every process of the foreground group; a role that ended on them at once left the robot
-without its safe stop (the plant gone before the central's stop order came). The launcher
-gets them too and stops every role in order (runtime/roles/stopping.py)."""
-
-
-def _child_setup(cpus: set[int] | None) -> Callable[[], None]:
-    """What a role's process does between fork and exec: die with its parent, leave
-    :data:`LEFT_TO_THE_LAUNCHER` to it, and take its CPUs before its first instruction
-    (threads it starts later, numpy's and Zenoh's, inherit them)."""
-    def setup() -> None:
-        _die_with_parent()
-        for s in LEFT_TO_THE_LAUNCHER:
-            signal.signal(s, signal.SIG_IGN)
-        if cpus:
-            os.sched_setaffinity(0, cpus)
-
-    return setup
+LEFT_TO_THE_LAUNCHER = launched.LEFT_TO_THE_LAUNCHER
 
 
 def spawn_role(spec: Path, role: str, index: int | None, endpoint: str, log: Path, *,
                cpus: set[int] | None = None) -> subprocess.Popen:
     """Start one role as a child process (``ctrlunit plant|peripheral --spec``), on
-    ``cpus`` (see :func:`role_cpus`) if given."""
+    ``cpus`` (see :func:`role_cpus`) if given. The child takes them itself, ignores the
+    terminal's signals and dies with this process (runtime/host/launched.py): no code runs
+    between fork and exec, so Python starts it with ``vfork`` rather than copying this
+    process (a peripheral started again mid-run stalled the unit 4-12 ms that way)."""
     run = json.loads(spec.read_text())["run"]
-    args = [sys.executable, "-m", "ctrlunit.runtime.cli", role, "--spec", str(spec),
+    args = [sys.executable, "-m", "ctrlunit.runtime.host.launched", role, "--spec", str(spec),
             "--connect", endpoint, "--unit", run["unit"]]  # the unit id names it in ps
     if index is not None:
         args += ["--index", str(index)]
-    out = open(log, "ab")
-    return subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                            preexec_fn=_child_setup(cpus))
+    env = os.environ | {launched.PARENT_ENV: str(os.getpid())}
+    if cpus:
+        env[launched.CPUS_ENV] = ",".join(str(c) for c in sorted(cpus))
+    with open(log, "ab") as out:  # the child has its own copy
+        return subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, env=env)
 
 
 def role_cpus(rc: RunConfig) -> tuple[set[int] | None, set[int] | None]:
