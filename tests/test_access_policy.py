@@ -333,10 +333,11 @@ def test_a_role_reads_its_own_inbox_alone(unit_keys, role, widened):
 CYCLES = "3000"
 """Long enough (a second or two in lockstep) for one thief to have its turn."""
 
-ALL_THIEVES_CYCLES = "6000"
+ALL_THIEVES_CYCLES = "20000"
 """Long enough for the three thieves of :data:`THIEVES` to have their turns one after the
-other: at 3000 intervals CI's suite twice saw the run end before the last one connected
-(``Unable to connect``, 2026-11-28)."""
+other (about 2 s of theirs): at 3000 intervals CI's suite twice saw the run end before the
+last one connected (``Unable to connect``, 2026-11-28), and at 6000 a fast host ended it
+during the last one's turn (2026-11-29: lockstep at about 0.3 ms an interval)."""
 
 WIDENED = '''import json, os
 from ctrlunit.runtime.transport import security
