@@ -378,3 +378,15 @@ def test_nan_and_a_device_are_refused_where_a_range_or_a_file_is_asked(tmp_path)
         res = invoke(*args)
         err = res.stderr.strip().splitlines()
         assert res.exit_code == 1 and len(err) == 1 and said in err[0], (args, res.stderr)
+
+
+def test_replay_verify_with_csv_makes_both(tmp_path):
+    """An attacker's review: ``replay --verify --csv DIR`` verified and ignored ``--csv``
+    without a word. Each output asked for is made."""
+    rec = tmp_path / "run.mcap"
+    assert invoke("start", "--clock", "lockstep", "--cycles", "30", "--peripherals", "0",
+                  "--record", str(rec)).exit_code == 0
+    res = invoke("replay", str(rec), "--verify", "--csv", str(tmp_path / "csv"))
+    assert res.exit_code == 0, res.output
+    assert "verified 30 intervals" in res.stdout and "wrote " in res.stdout, res.stdout
+    assert any((tmp_path / "csv").iterdir())

@@ -111,10 +111,10 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
                   "damage are bit-identical, the rest could not be read", EXIT_CONFIG)
         click.echo(f"verified {n} intervals: every block's outputs are bit-identical to the "
                    "recording")
-        return
-    if csv_dir:
+    if csv_dir:  # with --verify too: each output asked for is made
         for p in republish.export_csv(rec, csv_dir, cycles=cycle_range):
             click.echo(f"wrote {p}")
+    if verify or csv_dir:
         return
     from ..transport.zsession import make_config
 
