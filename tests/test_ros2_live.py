@@ -24,7 +24,7 @@ import pytest
 import zenoh
 from ctrlunit.runtime.recording.ros2 import JOINTS
 from ctrlunit.runtime.transport import ros2_zenoh as rz
-from runner import kill_unit, slow_task, unit_id
+from runner import kill_unit, slow_task, taken_over_and_back, unit_id
 from test_fuzz import free_port
 
 pytestmark = pytest.mark.zenoh
@@ -282,7 +282,10 @@ def test_realtime_joint_states_and_a_frozen_subscriber(tmp_path):
     """A 20 s realtime main job (the slow pick & place, default policy, as the frozen
     readers of tests/test_observers.py) with ``--ros2``: zenoh-ros2-sdk receives
     /joint_states, then is stopped (SIGSTOP) for the rest of the run: the run ends
-    normally at its period, no peripheral taken over.
+    normally at its period, and no peripheral is cut off for good (one the host kept
+    from its CPU past the silence rule may stand by and serve again, as in
+    tests/test_observers.py: at 0.5 ms under the default policy a 3 ms stall of the host
+    does that, subscriber or not).
 
     What is judged is what the frozen subscriber costs the unit, on a host as slow as CI's:
     the router and the subscriber run at nice 19, and the run records nothing (the values
@@ -312,7 +315,7 @@ def test_realtime_joint_states_and_a_frozen_subscriber(tmp_path):
     print(f"exit {proc.returncode}, misses {rep.get('deadline_misses')} of "
           f"{rep.get('periods')}, ros2 {rep.get('ros2')}, received {frozen_at}")
     assert proc.returncode == 0, out_text[-2000:]
-    assert not rep.get("degraded"), rep.get("degraded")
+    assert taken_over_and_back(rep), rep.get("degraded")
     assert 0 <= rep["periods"] - round(20 / rep["nominal_period_s"]) <= 1
     assert frozen_at >= 100
     got = _received(out)
