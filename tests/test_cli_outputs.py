@@ -185,11 +185,14 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_run(tmp_pat
     then ended in a traceback and printed no summary)."""
     a_file = tmp_path / "afile"
     a_file.write_text("")
+    dangling = tmp_path / "link.json"  # an attacker's review: the run wrote its target
+    dangling.symlink_to(tmp_path / "elsewhere.json")
     for option, path, why in (("--report", tmp_path / "nosuch" / "r.json", "does not exist"),
                               ("--record", a_file / "x.mcap", "is not a directory"),
                               ("--record", tmp_path / "nosuch" / "x.mcap", "does not exist"),
                               ("--report", Path(os.devnull), "is not a regular file"),
-                              ("--record", Path("/proc/version"), "is a kernel interface file")):
+                              ("--record", Path("/proc/version"), "is a kernel interface file"),
+                              ("--report", dangling, "is a symbolic link to")):
         for check in (["--check"], ["--clock", "lockstep", "--cycles", "10"]):
             res = invoke("start", *check, option, str(path))
             err = res.stderr.strip().splitlines()
@@ -197,6 +200,7 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_run(tmp_pat
             assert err[0].startswith(f"ctrlunit: error: {option}: ") and why in err[0], err
             assert str(path) in err[0], err
             assert not res.stdout.strip(), res.stdout  # nothing ran
+    assert not (tmp_path / "elsewhere.json").exists()
 
 
 @pytest.mark.parametrize("command", sorted(cli.commands))
@@ -299,6 +303,23 @@ def test_balance_of_a_realtime_run_calibrates_on_its_traversal_and_predicts_free
     assert res.exit_code == 1 and "whose period is its clock's" in res.stderr, res.output
 
 
+def test_balance_names_the_cpu_floor_under_a_prediction_below_it(made, tmp_path):
+    """A new user's: balance predicted a period below the CPU floor it printed, and said
+    nothing of it."""
+    src = json.loads(made["report"].read_text())
+    a = json.loads(invoke("balance", str(made["report"]), "--json").stdout)
+    predicted = a["predicted"][f"depth{a['pipeline']}"]["period_s"]
+    for floor, said in ((3 * predicted, True), (predicted / 3, False)):
+        f = tmp_path / "run.json"
+        f.write_text(json.dumps(src | {"cpu_per_interval_s": {"total": 2 * floor,
+                                                              "central": floor},
+                                       "cpu_cores": 2, "cpu_bound_period_s": floor}))
+        res = invoke("balance", str(f))
+        assert res.exit_code == 0, res.output
+        line = f"below the CPU floor: expect at least {floor * 1e6:.0f} us"
+        assert (line in res.stdout) == said, res.stdout
+
+
 def test_balance_without_write_says_it_wrote_nothing(made, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     res = invoke("balance", str(made["report"]))
@@ -390,3 +411,15 @@ def test_replay_verify_with_csv_makes_both(tmp_path):
     assert res.exit_code == 0, res.output
     assert "verified 30 intervals" in res.stdout and "wrote " in res.stdout, res.stdout
     assert any((tmp_path / "csv").iterdir())
+
+
+def test_an_output_through_a_link_to_nothing_is_refused(made, tmp_path):
+    """An attacker's review: ``report --report LINK`` wrote the file LINK pointed to,
+    wherever that was. Any output path that is a link to nothing is refused by name."""
+    link = tmp_path / "out.json"
+    link.symlink_to(tmp_path / "target.json")
+    for args in (("report", str(made["record"]), "--report", str(link)),
+                 ("balance", str(made["report"]), "--write", str(link))):
+        res = invoke(*args)
+        assert res.exit_code == 1 and "is a symbolic link to" in res.stderr, (args, res.output)
+    assert not (tmp_path / "target.json").exists()

@@ -22,6 +22,10 @@ def test_work_stretched_in_the_late_intervals_says_the_machine_ran_slower() -> N
     line = _late_lines({"late_intervals": fig})[0]
     assert "7 command(s)" in line and "3.0x its median of 100 us (max 3.5x)" in line
     assert line.endswith("the machine itself ran slower")
+    # a new user's: "deadline misses 23" beside "late 17", unexplained
+    assert len(_late_lines({"late_intervals": fig, "deadline_misses": 7})) == 1
+    why = _late_lines({"late_intervals": fig, "deadline_misses": 9})[1]
+    assert "the central's count" in why and "the plant's" in why and "transit" in why
 
 
 @pytest.mark.parametrize(("late", "verdict", "ends"), [

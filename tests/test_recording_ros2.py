@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -184,12 +185,18 @@ def test_poses_and_diagnostics_carry_the_recorded_signals(made):
 
 
 def exported(path: Path, out: Path) -> list[tuple[int, Any]]:
+    """The bag's /joint_states, its times back on the recording's clock (the bag's are the
+    wall clock: it starts within a day of now, not near 1970)."""
     res = CliRunner().invoke(cli, ["export", str(path), "--rosbag2", str(out)],
                              prog_name="ctrlunit")
     assert res.exit_code == 0, res.output
+    assert "1970" not in res.stderr
     meta = YAML(typ="safe").load((out / "metadata.yaml").read_text())[
         "rosbag2_bagfile_information"]
     assert meta["version"] == VERSION and meta["storage_identifier"] == "mcap"
+    offset = int(reader.read(path).metadata["ctrlunit"]["epoch_offset_ns"])
+    start = meta["starting_time"]["nanoseconds_since_epoch"]
+    assert abs(start - time.time_ns()) < 86_400e9, start
     (mcap_file,) = out.glob("*.mcap")
     assert meta["relative_file_paths"] == [mcap_file.name]
     ts = ros2.typestore()
@@ -200,7 +207,7 @@ def exported(path: Path, out: Path) -> list[tuple[int, Any]]:
     other = [(m.log_time_ns, m.ros_msg) for m in
              read_ros2_messages(str(mcap_file), topics=["/joint_states"])]
     assert [t for t, _ in other] == [t for t, _ in msgs]
-    return msgs
+    return [(t - offset, m) for t, m in msgs]
 
 
 def test_an_exported_rosbag2_directory_holds_every_joint_state(made, tmp_path):
@@ -221,8 +228,23 @@ def test_an_old_recording_replays_reports_and_exports(old, made, tmp_path):
         got: dict[str, list[tuple[int, bytes]]] = {}
         for c, t, raw in bag.messages():
             got.setdefault(c.topic, []).append((t, bytes(raw)))
+    offset = int(live.metadata["ctrlunit"]["epoch_offset_ns"])
     for topic in ("/joint_states", "/platform/pose", "/platform/reference"):
-        assert got[topic] == live.topics[topic], topic
+        assert [(t - offset, d) for t, d in got[topic]] == live.topics[topic], topic
+
+
+def test_a_recording_without_the_wall_clock_offset_exports_on_its_own_clock(made, tmp_path):
+    """One recorded before the offset was kept: the bag's times are its log times, and
+    the command says that bag tools will date it near 1970."""
+    rec = reader.read(made)
+    del rec.metadata["ctrlunit"]["epoch_offset_ns"]
+    done = export_rosbag2(rec, tmp_path / "bag")
+    assert not done.dated
+    with BagReader(tmp_path / "bag") as bag:
+        times = [t for c, t, _ in bag.messages() if c.topic == "/joint_states"]
+    assert times == [t for t, _ in rec.topics["/joint_states"]]
+    rec.metadata["ctrlunit"]["epoch_offset_ns"] = "soon"  # malformed: the same
+    assert not export_rosbag2(rec, tmp_path / "bag2").dated
 
 
 def test_export_refuses_what_it_cannot_write(made, tmp_path):

@@ -223,3 +223,16 @@ def test_the_hypervisors_stolen_time_is_said_in_realtime_only(runs):
     assert host in summary(dict(rep, clock="realtime", host_stolen_s=0.42))
     assert "  host " not in summary(dict(rep, clock="realtime", host_stolen_s=0.0))
     assert "  host " not in summary(dict(rep, clock="lockstep", host_stolen_s=0.42))
+
+
+@pytest.mark.parametrize(("err", "noted"), [
+    ({"max": float("nan"), "rms": float("nan")}, True),  # a position NaN: n/a, and why
+    ({"max": 2e-4, "rms": 1e-4}, False)])
+def test_a_tracking_error_that_is_not_a_number_says_why(err, noted):
+    """A new user's: one NaN position made the tracking error "n/a" without a word."""
+    from ctrlunit.runtime.observe.summary import _tracking_line
+
+    line = _tracking_line({"clock": "realtime", "cycles": 100, "tracking_error_m": err,
+                           "torque_nm": {"max": 1.0}})
+    assert ("not a number" in line) == noted, line
+    assert ("n/a" in line) == noted

@@ -163,8 +163,13 @@ def _balance_text(a: dict[str, Any], cmp: dict[str, Any] | None, *, source: str,
              "not written (--write FILE writes it)")
     lines += [f"  with the new placement: predicted period depth 1 "
               f"{us(a['predicted']['depth1']['period_s'])}, depth 2 "
-              f"{us(a['predicted']['depth2']['period_s'])}; {where}",
-              f"  the prediction (depth {d}) assumes: {command}"]
+              f"{us(a['predicted']['depth2']['period_s'])}; {where}"]
+    floor = cpu.get("bound_period_s") or 0.0
+    if floor and a["predicted"][f"depth{d}"]["period_s"] < floor:
+        lines.append(f"  the predicted depth {d} period is below the CPU floor: expect at "
+                     f"least {us(floor)}, the CPU these processes took per interval "
+                     f"on {cpu['cores']} core(s)")
+    lines.append(f"  the prediction (depth {d}) assumes: {command}")
     if cmp is not None:
         lines.append(f"  re-run (depth {cmp['depth']}): measured {us(cmp['measured_period_s'])} "
                      f"against {us(cmp['predicted_period_s'])} predicted "

@@ -72,6 +72,9 @@ class FilePath(click.Path):
         if not self.dir_okay and os.path.exists(path) and not stat.S_ISREG(
                 os.stat(path).st_mode):
             self.fail(f"{path!r} is not a regular file (a FIFO, a device, ...)", param, ctx)
+        if os.path.islink(path) and not os.path.exists(path):  # a write would follow it
+            self.fail(f"{path!r} is a symbolic link to {os.readlink(str(path))!r}, which does not "
+                      "exist: give the file itself", param, ctx)
         return path
 
     def fail(self, message: str, param: click.Parameter | None = None,

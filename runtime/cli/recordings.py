@@ -218,11 +218,15 @@ def export_cmd(file: str, rosbag2_dir: str, as_json: bool) -> None:
         return
     if as_json:
         click.echo(json.dumps({"directory": str(done.directory), "counts": done.counts,
-                               "converted": done.converted}))
+                               "converted": done.converted, "dated": done.dated}))
         return
     if done.converted:
         click.echo(f"ctrlunit: note: {file} has no ROS 2 channels (recorded before them): "
                    "built from its own channels", err=True)
+    if not done.dated:
+        click.echo(f"ctrlunit: note: {file} holds no wall-clock offset (recorded before it "
+                   "was kept): the bag's times are the host's monotonic clock, so bag tools "
+                   "date it near 1970", err=True)
     counts = ", ".join(f"{t} {n}" for t, n in done.counts.items())
     click.echo(f"wrote {done.directory}/ (rosbag2, storage mcap): {counts} messages")
 

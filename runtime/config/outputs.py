@@ -10,12 +10,15 @@ from pathlib import Path
 def output_file_error(path: str | None, option: str) -> str | None:
     """Why no file can be written at ``path``, naming ``option`` (its directory does not
     exist, is not a directory or is not writable; the path is a directory, a device, a
-    pipe, a socket or a file of /proc or /sys), or None if one can (or ``path`` is None:
-    nothing to write)."""
+    pipe, a socket, a file of /proc or /sys, or a link to nothing), or None if one can
+    (or ``path`` is None: nothing to write)."""
     if path is None:
         return None
     p = Path(path).expanduser()
     parent = p.parent
+    if p.is_symlink() and not p.exists():  # writing would make its target
+        return (f"{option}: {path} is a symbolic link to {os.readlink(p)}, which does not "
+                "exist: give the file itself")
     if p.is_dir():
         return f"{option}: {path} is a directory: give a file name in it"
     if p.exists() and not p.is_file():

@@ -54,9 +54,14 @@ def _late_lines(r: dict[str, Any]) -> list[str]:
     st = late["work_stretch"]
     why = {True: ": the machine itself ran slower",
            False: ": the time went to waiting, not to the work"}.get(late["machine_slower"], "")
-    return [*out, f"  late        {late['intervals']} command(s) left after their deadline; "
-            f"there the peripherals' work took {st['median']:.1f}x its median of "
-            f"{late['work_median_s'] * 1e6:.0f} us (max {st['max']:.1f}x){why}"]
+    out.append(f"  late        {late['intervals']} command(s) left after their deadline; "
+               f"there the peripherals' work took {st['median']:.1f}x its median of "
+               f"{late['work_median_s'] * 1e6:.0f} us (max {st['max']:.1f}x){why}")
+    if late["intervals"] != r.get("deadline_misses", late["intervals"]):
+        out.append(f"{' ' * 14}(late: the central's count, from each sample's time at the "
+                   "plant to its command's leaving; deadline misses: the plant's, commands "
+                   "not there at their tick, the command's transit included)")
+    return out
 
 
 def _degraded_lines(r: dict[str, Any]) -> list[str]:
@@ -262,8 +267,13 @@ def _tracking_line(r: dict[str, Any]) -> str:
     torque = f"peak torque {r['torque_nm']['max']:.2f} N m"
     if r["clock"] == "freerun":
         return f"  {torque} (no tracking error: freerun has no plant)"
-    return (f"  tracking error max {_mm(r['tracking_error_m']['max'])}   rms "
-            f"{_mm(r['tracking_error_m']['rms'])}   {torque}")
+    err = r["tracking_error_m"]
+    line = f"  tracking error max {_mm(err['max'])}   rms {_mm(err['rms'])}   {torque}"
+    if r.get("cycles") and not all(isinstance(err[k], (int, float)) and math.isfinite(err[k])
+                                   for k in ("max", "rms")):
+        line += ("\n              (n/a: a sample's error is not a number: a position NaN or "
+                 "infinite, or none measured)")
+    return line
 
 
 def _exchange_line(r: dict[str, Any]) -> str:

@@ -26,7 +26,8 @@ Channels
   ``/ctrlunit/diagnostics`` (:mod:`.ros2`).
 
 A metadata record ``ctrlunit`` holds the configuration, placement, package version, host,
-core count and clock; ``ctrlunit.result`` (at the end) holds ``t_1``, the block costs and
+core count and clock, and the wall clock's offset from the log times
+(``epoch_offset_ns``); ``ctrlunit.result`` (at the end) holds ``t_1``, the block costs and
 what else only the live run knew (``live``: scheduling, admission, placement choice, late
 data, excused silences, the safe stop, the links; ``cpu``: the CPU budget), so that
 ``ctrlunit report`` prints every line of the live summary.
@@ -152,6 +153,8 @@ class Recorder:
             "cores": str(os.cpu_count()),
             "clock": rc.schedule.clock,
             "time_unit": "ns (host monotonic clock)",
+            # a log time plus this is ns since the epoch (for tools that want dates)
+            "epoch_offset_ns": str(time.time_ns() - time.monotonic_ns()),
         }
         try:
             self.w.add_metadata("ctrlunit", meta)

@@ -1,6 +1,12 @@
 """``ctrlunit export FILE.mcap --rosbag2 DIR``: a recording's ROS 2 channels as a rosbag2
 directory (``metadata.yaml`` and one MCAP file) that ROS 2's bag tools read as it is.
 
+The bag's times (each message's, hence ``starting_time`` and ``duration``) are the wall
+clock: the recording's log times (the host's monotonic clock) plus the offset the
+recorder noted at the start (``epoch_offset_ns``). A recording made before that offset was
+kept has none: its bag starts at the monotonic clock's zero (1970 in bag tools), and
+:attr:`Exported.dated` says so. The messages' own header stamps stay the run's clock.
+
 The directory is written by rosbags' rosbag2 writer with storage ``mcap``, in rosbag2's
 format version :data:`VERSION`; it holds the four topics of :mod:`.ros2` only (a bag's
 every topic must be a ROS 2 message type), their messages byte for byte as recorded.
@@ -38,6 +44,9 @@ class Exported:
     counts: dict[str, int] = field(default_factory=dict)
     converted: bool = False
     """True when the recording had no ROS 2 channels and they were built from its own."""
+    dated: bool = True
+    """False when the recording holds no wall-clock offset: the bag's times are the
+    host's monotonic clock."""
 
 
 def has_ros2(rec: Recording) -> bool:
@@ -61,6 +70,7 @@ def export_rosbag2(rec: Recording, directory: str | Path) -> Exported:
         raise ValueError(f"--rosbag2 {out}: it exists; give a directory that does not "
                          "exist yet (rosbag2 writes a new one)")
     converted = not has_ros2(rec)
+    offset = epoch_offset_ns(rec)
     messages = _converted(rec) if converted else {t: rec.topics.get(t, []) for t in TOPICS}
     ts = typestore()
     writer = Writer(out, version=VERSION, storage_plugin=StoragePlugin.MCAP)
@@ -71,8 +81,20 @@ def export_rosbag2(rec: Recording, directory: str | Path) -> Exported:
                                 for topic, items in messages.items()),
                               key=lambda m: m[0])
         for t, topic, data in ordered:
-            writer.write(conns[topic], t, data)
-    return Exported(out, {t: len(items) for t, items in messages.items()}, converted)
+            writer.write(conns[topic], t + (offset or 0), data)
+    return Exported(out, {t: len(items) for t, items in messages.items()}, converted,
+                    offset is not None)
+
+
+def epoch_offset_ns(rec: Recording) -> int | None:
+    """What turns the recording's log times into ns since the epoch, or None when it
+    holds none (recorded before the offset was kept, or a malformed value)."""
+    text = rec.metadata.get("ctrlunit", {}).get("epoch_offset_ns")
+    try:
+        offset = int(text) if text is not None else None
+    except ValueError:
+        return None
+    return offset if offset is not None and 0 < offset < 1 << 62 else None
 
 
 def _converted(rec: Recording) -> dict[str, list[tuple[int, bytes]]]:
@@ -134,4 +156,4 @@ def _deadline(rec: Recording) -> list[tuple[int, int, int]]:
     return sorted(out)
 
 
-__all__ = ["VERSION", "Exported", "export_rosbag2", "has_ros2"]
+__all__ = ["VERSION", "Exported", "epoch_offset_ns", "export_rosbag2", "has_ros2"]
