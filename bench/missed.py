@@ -59,7 +59,7 @@ def tracking_with_late(period_s: float, late: dict[int, int], *, missed: str,
     plant = Plant(setup.params, PlantConfig(period=period_s),
                   q0=initial_angles(setup.params, setup.task), p_guess=tuple(setup.task.start()))
     server = PlantServer(_Offline(), plant, depth=2,  # type: ignore[arg-type]
-                         initial=initial_command(setup.params, setup.task))
+                         initial=initial_command(setup.params, setup.task), period_s=period_s)
     arriving: dict[int, list[tuple[int, list[float], list[float] | None]]] = {}
     prev: list[float] | None = None
     worst = 0.0

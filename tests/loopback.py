@@ -175,7 +175,8 @@ class LoopbackUnit:
                           q0=initial_angles(setup.params, setup.task),
                           p_guess=tuple(setup.task.start()))
             self.server = PlantServer(pnode, plant, depth=rc.schedule.pipeline,
-                                      initial=initial_command(setup.params, setup.task))
+                                      initial=initial_command(setup.params, setup.task),
+                                      period_s=rc.schedule.period)
         self.muted: set[int] = set()  # peripherals (0-based) whose replies are withheld
         self.withheld: list[tuple[int, bytes]] = []  # (peripheral, reply) not delivered
         self.plant_muted = False

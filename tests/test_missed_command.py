@@ -50,7 +50,8 @@ class FakeNode:
 
 
 def _server() -> PlantServer:
-    server = PlantServer(FakeNode(), FakePlant(), depth=2, initial=[9.0, 9.0, 9.0])
+    server = PlantServer(FakeNode(), FakePlant(), depth=2, initial=[9.0, 9.0, 9.0],
+                         period_s=1e-3)
     server.sample_no = 100  # every command below is for a sample already published
     return server
 
@@ -189,3 +190,42 @@ def test_every_command_a_period_late_keeps_the_loop_at_the_default_gains():
     default = tracking_with_late(period, late, missed="extrapolate")
     designed_only = tracking_with_late(period, late, missed="extrapolate", bandwidth_hz=20.0)
     assert default < 2e-3 < rc.control.max_error < designed_only, (default, designed_only)
+
+
+def test_past_the_extrapolated_command_the_plant_holds_the_trend_of_the_last_ones():
+    """A central silent for many periods: the plant follows the least-squares line through
+    its last commands for a few periods, then holds it there; not the last command alone,
+    whose interval-to-interval noise, held for tens of milliseconds, drove the slow pick &
+    place 6.5-9.4 mm off (runtime/roles/plant_hold.py)."""
+    from ctrlunit.runtime.roles.plant_hold import CommandHold
+
+    server = _server()
+    noise = [0.3, -0.3, -0.3, 0.3] * 4  # a ramp of slope 0.01 a period, with noise
+    for k in range(16):
+        tau = [1.0 + 0.01 * k + noise[k], 2.0, -1.0 - 0.01 * k]
+        server.take_command(_command(10 + k, tau))
+        assert server.apply(10 + k)
+    assert server.plant.command[0] == pytest.approx(1.15 + 0.3)  # the last one, noisy
+    ahead = CommandHold(1e-3).ahead
+    for k in range(26, 40):  # nothing comes: the trend, followed `ahead` periods, then held
+        assert not server.apply(k)
+        at = min(k, 25 + ahead)
+        got = server.plant.command
+        assert got[0] == pytest.approx(1.0 + 0.01 * (at - 10)), (k, got)
+        assert got[1] == pytest.approx(2.0) and got[2] == pytest.approx(-1.0 - 0.01 * (at - 10))
+    assert server.misses == 0  # counting misses is the tick loop's, not apply's
+
+
+@pytest.mark.parametrize(("period_s", "window", "ahead"), [(1e-3, 16, 4), (5e-4, 32, 8),
+                                                           (2.5e-3, 6, 2), (0.02, 3, 1)])
+def test_the_hold_spans_the_same_time_at_every_period(period_s, window, ahead):
+    from ctrlunit.runtime.roles.plant_hold import CommandHold
+
+    hold = CommandHold(period_s)
+    assert (hold.recent.maxlen, hold.ahead) == (window, ahead)
+    assert hold.held(0) is None
+    hold.note(0, [1.0, 2.0, 3.0])
+    hold.note(1, [3.0, 2.0, 1.0])
+    assert hold.held(5) == [2.0, 2.0, 2.0]  # fewer than three: their mean
+    with pytest.raises(ValueError, match="period_s must be > 0"):
+        CommandHold(0.0)

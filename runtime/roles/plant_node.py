@@ -22,8 +22,9 @@ publishes sample k+1.
 
 ``realtime``: the plant ticks on its own wall clock. ``full``: at tick j it publishes
 sample j (the state at jT, integrated ahead during the previous period), then applies the
-command of cycle ``j - d`` if it has arrived (else a deadline miss is counted and the last
-command stays) and integrates the period [jT, (j+1)T) while the controller works: the
+command of cycle ``j - d`` if it has arrived (else a deadline miss is counted and the
+command extrapolated for it, or the trend of the last ones, acts: runtime/roles/
+plant_hold.py) and integrates the period [jT, (j+1)T) while the controller works: the
 sample leaves at the tick, and a command acts only on physics after it was due.
 ``short``: at tick j it applies the command of cycle ``j - d``, integrates the period that
 ended at the tick, [(j-1)T, jT), and then publishes sample j.
@@ -46,6 +47,7 @@ from ..config import EXIT_LINK, EXIT_OK, EXIT_PLANT
 from ..host import sched
 from ..transport.codec import BadMessage, check_vector, encode
 from ..transport.node import WARM_RSS_AT, Node, cpu_used, is_stop, rss_kb, say_bye
+from .plant_hold import CommandHold
 from .plant_orders import STOP_ORDER_WAIT_S, announce_fault, safe_stop, wait_for_stop
 from .plant_ticks import await_start, sleep_to_tick, tick_after
 from .rolelog import role_log, role_log_end
@@ -57,6 +59,7 @@ class PlantServer:
     throw-away robot of an admission trial at ``period`` (:func:`.plant_ticks.trial_ticks`)."""
 
     def __init__(self, node: Node, plant: Plant, *, depth: int, initial: list[float],
+                 period_s: float,
                  trial_plant: Callable[[float], Plant] | None = None) -> None:
         self.node = node
         self.trial_plant = trial_plant
@@ -72,6 +75,8 @@ class PlantServer:
         """Cycle -> the command the central extrapolated for it, sent with the command of
         the cycle before (``next``): applied if that cycle's own command is late."""
         self.spares_applied = 0
+        self.hold = CommandHold(period_s)
+        """The last commands applied: what a period without one holds."""
         self.applied_cycle = -1
         self.plant.set_command(initial)
         self.misses = 0
@@ -147,7 +152,8 @@ class PlantServer:
         """Apply the command of ``cycle``; if it is not here (a deadline miss), apply the
         command the central extrapolated for it with the command before (``next``, sent
         in realtime at the full rate), else the newest earlier command that arrived late,
-        else keep the last one. Returns whether the due command was here.
+        else the trend of the last commands (:class:`.plant_hold.CommandHold`). Returns
+        whether the due command was here.
 
         A late command left the last one acting a period longer; a burst of them, each
         the next period's, held a command ever older: at 1.6 ms four in a row cost up to
@@ -163,7 +169,10 @@ class PlantServer:
             self.spares_applied += 1
         elif newest is not None:
             self.plant.set_command(self.commands[newest])
+        elif (held := self.hold.held(cycle)) is not None:
+            self.plant.set_command(held)
         if newest is not None:
+            self.hold.note(newest, self.commands[newest])
             self.applied_cycle = newest
             for c in ready:
                 del self.commands[c]
@@ -289,7 +298,7 @@ def run_plant(setup: Setup, conf: Any) -> int:
     plant = make_plant(rc.schedule.period)
     with Node(conf, rc.transport.unit, "plant") as node:
         server = PlantServer(node, plant, depth=rc.schedule.pipeline, initial=initial,
-                             trial_plant=trial_plant)
+                             period_s=rc.schedule.period, trial_plant=trial_plant)
         role_log("plant", f"connected to unit {rc.transport.unit}; waiting for the go")
         try:
             node.wait_for_go(timeout=rc.transport.startup_timeout)
