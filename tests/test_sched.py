@@ -378,6 +378,27 @@ def test_leave_rt_puts_only_the_calling_thread_under_the_default_policy() -> Non
     assert got == {"before": "SCHED_FIFO 7", "after": "SCHED_OTHER", "main": "SCHED_FIFO 7"}
 
 
+def test_a_process_started_in_thread_at_default_begins_under_the_default_policy() -> None:
+    """The roles' start-up (an interpreter and its imports) under FIFO held both CPUs
+    for 0.5 s at every start: the launcher starts them from a thread under the default
+    policy, and raises each once set up; the thread is back under FIFO after."""
+    if not sched.fifo_permitted():
+        pytest.skip("this process may not use SCHED_FIFO")
+    got = _child(
+        "import json, subprocess, sys\n"
+        "from ctrlunit.runtime.host import sched\n"
+        "sched.apply_rt(7)\n"
+        "probe = [sys.executable, '-c', 'from ctrlunit.runtime.host import sched; "
+        "print(sched.policy_name())']\n"
+        "run = lambda: subprocess.run(probe, capture_output=True, text=True).stdout.strip()\n"
+        "seen = {'outside': run()}\n"
+        "with sched.thread_at_default():\n"
+        "    seen['inside'] = run()\n"
+        "seen['after'] = sched.policy_name()\n"
+        "print(json.dumps(seen))\n")
+    assert got == {"outside": "SCHED_FIFO 7", "inside": "SCHED_OTHER", "after": "SCHED_FIFO 7"}
+
+
 def test_the_live_views_thread_leaves_fifo_and_leaves_it_again_after_a_restore() -> None:
     """The observers' view is made after the unit's policy is set, so its thread starts
     under FIFO; it leaves it before it sends anything (a viewer's work can wait, and at

@@ -35,7 +35,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Collection, Iterable
+from collections.abc import Collection, Iterable, Iterator
 from typing import Any
 
 MAX_PRIORITY = 99
@@ -214,6 +214,24 @@ def leave_rt() -> None:
     policy."""
     if fifo_in_force():
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
+@contextlib.contextmanager
+def thread_at_default() -> Iterator[None]:
+    """This thread under the default policy for the block, then back under its own: the
+    processes it starts meanwhile begin under the default policy (a process starts under
+    its creator thread's). The roles' start-up (an interpreter, numpy's and Zenoh's
+    imports: about 0.3 s of CPU each) under SCHED_FIFO held both CPUs of the reference
+    machine for 0.5 s at every start, against every other program
+    (docs/measurements/2026-11-29-command-hold.md)."""
+    saved = current()
+    if saved[0] in (os.SCHED_FIFO, os.SCHED_RR):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    try:
+        yield
+    finally:
+        if saved[0] in (os.SCHED_FIFO, os.SCHED_RR):
+            os.sched_setscheduler(0, saved[0], os.sched_param(saved[1]))
 
 
 def fifo_in_force(tid: int = 0) -> bool:

@@ -224,7 +224,9 @@ class UnitStart:
         the placement (``auto``) and the admission (realtime)."""
         self._spawn()
         central, rc = self.central, self.rc
-        central.handshake()
+        central.handshake()  # each role set up: under the unit's policy, as one started again
+        for name in self.pids if central.silence.supervision.promote else ():
+            central.silence.supervision.promote(name)  # type: ignore[misc]
         central.warm_up()
         central.choose_replies()
         if (rc.schedule.placement_auto and rc.schedule.central_blocks is None
@@ -244,11 +246,13 @@ class UnitStart:
         return Recorder.rehearsal(self.setup)
 
     def _spawn(self) -> None:
+        """The roles' processes, started under the default policy (set up, it is raised)."""
         if not self.spawn:
             return
-        for name in child_names(self.rc, self.setup):
-            self.children.append(self._spawn_one(name))
-            self.pids[name] = self.children[-1].pid
+        with sched.thread_at_default():
+            for name in child_names(self.rc, self.setup):
+                self.children.append(self._spawn_one(name))
+                self.pids[name] = self.children[-1].pid
 
     def _spawn_one(self, name: str) -> subprocess.Popen:
         """Start role ``name`` (``plant``, ``peripheral-K``) from the run's spec file; its
