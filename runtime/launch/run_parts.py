@@ -8,7 +8,7 @@ import os
 import queue
 import subprocess
 import threading
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterable
 from typing import Any
 
 from ..central import Supervision
@@ -37,6 +37,13 @@ def child_names(rc: RunConfig, setup: Setup) -> list[str]:
     """The roles a start runs besides the central, in the order they are started."""
     names = [] if rc.schedule.clock == "freerun" else ["plant"]
     return names + [f"peripheral-{k + 1}" for k in range(setup.placement.peripherals)]
+
+
+def raise_to_mine(pids: Iterable[int]) -> None:
+    """Every thread of each process ``pids`` (roles this one started, set up) under this
+    thread's policy: SCHED_FIFO at its priority, or the default one."""
+    fifo = os.sched_getscheduler(0) == os.SCHED_FIFO
+    sched.demote(pids, priority=os.sched_getparam(0).sched_priority if fifo else 0)
 
 
 def supervision(children: list[subprocess.Popen], pids: dict[str, int],
@@ -83,9 +90,7 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
         asked.put(role)
 
     def promote(role: str) -> None:
-        policy = os.sched_getscheduler(0)
-        sched.demote([pids[role]], priority=os.sched_getparam(0).sched_priority
-                     if policy == os.SCHED_FIFO else 0)
+        raise_to_mine([pids[role]])
 
     return Supervision(check, role_state, role_times, machine_load,
                        None if respawn is None else restart, promote, last_cpus)
@@ -239,5 +244,5 @@ def every_start(tried: list[dict[str, Any]], admission: dict[str, Any]) -> dict[
 
 
 __all__ = ["STOP_REPORTS_WAIT_S", "chain", "child_names", "every_start", "live_view",
-           "observers_view",
-           "report_extras", "ros2_config", "ros2_live", "status_writer", "supervision", "view_task"]
+           "observers_view", "raise_to_mine", "report_extras", "ros2_config", "ros2_live",
+           "status_writer", "supervision", "view_task"]

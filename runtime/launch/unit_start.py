@@ -43,6 +43,7 @@ from .run_parts import (
     every_start,
     live_view,
     observers_view,
+    raise_to_mine,
     report_extras,
     ros2_config,
     ros2_live,
@@ -224,9 +225,8 @@ class UnitStart:
         the placement (``auto``) and the admission (realtime)."""
         self._spawn()
         central, rc = self.central, self.rc
-        central.handshake()  # each role set up: under the unit's policy, as one started again
-        for name in self.pids if central.silence.supervision.promote else ():
-            central.silence.supervision.promote(name)  # type: ignore[misc]
+        central.handshake()
+        raise_to_mine(self.pids.values())  # each set up: as a role started again is raised
         central.warm_up()
         central.choose_replies()
         if (rc.schedule.placement_auto and rc.schedule.central_blocks is None
