@@ -5,7 +5,9 @@ simulated Delta, with the realtime unit's timing at depth 2 (sample k's command 
 start of period k + 2) and the plant's own rule for a command that is not there in time
 (runtime/roles/plant_node.py, ``PlantServer.apply``). A burst of ``length`` consecutive commands,
 each ``late`` periods late, is placed at 16 phases of the task; the worst tracking error
-over the phases is reported for ``--missed-command hold`` and ``extrapolate``. Each
+over the phases is reported for ``--missed-command hold`` (no extrapolated command: the
+plant's own rule from the first missed period, runtime/roles/plant_hold.py) and
+``extrapolate``. Each
 command's extrapolation is
 :func:`~ctrlunit.runtime.central.settings.extrapolated_command`, as the central sends it.
 

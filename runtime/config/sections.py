@@ -153,7 +153,8 @@ class ScheduleConfig:
         "extrapolate", flag=Flag(), choices=MISSED_COMMANDS,
         help="Realtime: in a period whose command is late the plant applies the command the "
         "central extrapolated for it and sent with the one before (at the full control "
-        "rate), or holds the last one that came.")
+        "rate); hold: none is sent. Past it the plant follows the trend of its last "
+        "commands (16 ms), then holds it.")
     late: dict[str, str] = setting(
         flag=Flag(kind="late", metavar="BLOCK=POLICY"), factory=dict,
         help="Late-data policy for one block (overrides --late-policy).")
