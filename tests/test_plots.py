@@ -91,6 +91,18 @@ def test_cycle_range_limits_what_is_drawn_and_an_empty_range_is_named(lockstep, 
     assert "no interval to plot in cycles 900000:900010" in res.stderr
 
 
+def test_the_first_interval_alone_plots_without_a_warning(lockstep, tmp_path):
+    """A new user's ``plot --cycles 0:1`` printed matplotlib's warning of a singular
+    scale: the tracking error there is zero."""
+    import warnings
+
+    _, path, _ = lockstep
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plots = plot_recording(read(path), tmp_path / "one", cycles=(0, 1), summary="")
+    assert plots.series["cycle"].tolist() == [0]
+
+
 def test_plot_of_a_recording_cut_off_mid_run(lockstep, tmp_path):
     """A crash leaves no footer: the salvaged part is drawn, and the page says so."""
     _, path, _ = lockstep

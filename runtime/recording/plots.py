@@ -138,7 +138,7 @@ def _tracking(path: Path, s: dict[str, np.ndarray], max_error: float,
             top = float(e[k])
         ax.set_xlabel("reference time (s)")
         ax.set_ylabel("tracking error (mm)")
-        ax.set_ylim(0, top * 1e3 * 1.12)
+        ax.set_ylim(0, top * 1e3 * 1.12 or 1e-6)  # all zero (the first cycles): a scale
         ax.legend(fontsize=8, loc="upper right")
     ax.set_title("tracking error")
     _save(fig, path, plots)
