@@ -340,7 +340,7 @@ def markdown_lines(st: dict[str, Any]) -> list[str]:
                   if not r["completed"]]
         if faults:
             lines += ["", f"{what} that did not complete: " + "; ".join(
-                f"run {i} exit {c}: {f}" for i, c, f in faults) + "."]
+                f"run {i} exit {c}: {str(f).rstrip('.')}" for i, c, f in faults) + "."]
     return lines + [""]
 
 

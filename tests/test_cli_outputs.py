@@ -305,7 +305,8 @@ def test_balance_of_a_realtime_run_calibrates_on_its_traversal_and_predicts_free
 
 def test_balance_names_the_cpu_floor_under_a_prediction_below_it(made, tmp_path):
     """A new user's: balance predicted a period below the CPU floor it printed, and said
-    nothing of it."""
+    nothing of it. It says so now, without promising the floor: the floor is the source
+    run's CPU, and a re-run with the new placement measured a mean period below it."""
     src = json.loads(made["report"].read_text())
     a = json.loads(invoke("balance", str(made["report"]), "--json").stdout)
     predicted = a["predicted"][f"depth{a['pipeline']}"]["period_s"]
@@ -316,7 +317,7 @@ def test_balance_names_the_cpu_floor_under_a_prediction_below_it(made, tmp_path)
                                        "cpu_cores": 2, "cpu_bound_period_s": floor}))
         res = invoke("balance", str(f))
         assert res.exit_code == 0, res.output
-        line = f"below the CPU floor: expect at least {floor * 1e6:.0f} us"
+        line = f"below this run's CPU floor ({floor * 1e6:.0f} us on 2 core(s))"
         assert (line in res.stdout) == said, res.stdout
 
 
@@ -347,7 +348,8 @@ def test_the_main_job_profile_is_readmes_main_job():
 
 def test_stderr_names_what_was_refused_and_what_to_try():
     """stdout may go to a file: a refusal's stderr line says what was refused and what to
-    try; a fault's names the process (its whole message with ``--json``); a stop the
+    try; a fault's names the process and what happened (its whole message with
+    ``--json``); a stop the
     user asked for is no fault."""
     from ctrlunit.runtime.cli.base import exit_line as _exit_line
 
@@ -360,9 +362,12 @@ def test_stderr_names_what_was_refused_and_what_to_try():
                     "held here (exit 7). Try --period auto; or --period 2.5ms."), line
     assert "in a trial of" not in line  # the figures are the summary's
     assert _exit_line(refusal, 7, as_json=True).endswith("--period 2.5ms. (exit 7)")
-    fault = {"process": "central", "message": "cycle 9: tracking error 21 mm"}
-    assert _exit_line(fault, 5, as_json=False) == "ctrlunit: fault in central (exit 5)"
-    assert "tracking error 21 mm" in _exit_line(fault, 5, as_json=True)
+    fault = {"process": "central", "message": "cycle 9: tracking error 21 mm; 55 commands "
+             "missed their deadline"}
+    assert _exit_line(fault, 5, as_json=False) == \
+        "ctrlunit: fault in central: cycle 9: tracking error 21 mm (exit 5)"  # a new user's
+    assert "55 commands" in _exit_line(fault, 5, as_json=True)
+    assert _exit_line({"process": "plant"}, 4, as_json=False) == "ctrlunit: fault in plant (exit 4)"
     assert _exit_line({"process": "user", "message": "interrupted (Ctrl-C)"}, 130,
                       as_json=False).startswith("ctrlunit: stopped on request")
 
@@ -423,3 +428,29 @@ def test_an_output_through_a_link_to_nothing_is_refused(made, tmp_path):
         res = invoke(*args)
         assert res.exit_code == 1 and "is a symbolic link to" in res.stderr, (args, res.output)
     assert not (tmp_path / "target.json").exists()
+
+
+def test_replay_verify_of_no_interval_fails_and_a_range_past_the_recording_is_said(
+        made, tmp_path):
+    """A new user's: a run stopped during its admission left a recording that ``replay
+    --verify`` passed ("verified 0 intervals"), and ``--cycles 100:500`` over intervals
+    0 to 395 was cut to what the file held without a word."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    empty = tmp_path / "empty.mcap"
+    with open(made["record"], "rb") as src, open(empty, "wb") as dst:
+        r, w = make_reader(src), Writer(dst)
+        w.start(profile="ros2", library="a run stopped before its first interval")
+        for m in r.iter_metadata():
+            w.add_metadata(m.name, dict(m.metadata))
+        w.finish()
+    res = invoke("replay", str(empty), "--verify")
+    assert res.exit_code == 1 and "no interval to verify" in res.stderr, res.output
+    res = invoke("replay", str(made["record"]), "--verify", "--cycles", "5:100000000")
+    assert res.exit_code == 0 and "reaches past the recording" in res.stderr, res.output
+    res = invoke("plot", str(made["record"]), "--out", str(tmp_path / "p"), "--cycles",
+                 "5:100000000")
+    assert res.exit_code == 0 and "reaches past the recording" in res.stderr, res.output
+    res = invoke("replay", str(made["record"]), "--verify", "--cycles", "5:10")
+    assert res.exit_code == 0 and "reaches past" not in res.stderr, res.output

@@ -277,7 +277,8 @@ class Excuses:
                     note += (f", and the hypervisor's steal counter moved {stolen} tick(s) "
                              f"of {TICK_NS / 1e6:g} ms on the CPU it last ran on")
             note += ")"
-        return f"; its process was {role_state(role)}{note}"
+        state = role_state(role)
+        return f"; its process {'had exited' if state == 'exited' else 'was ' + state}{note}"
 
 
 __all__ = ["EXCUSED_LIMITS", "UNSUPERVISED", "Excuse", "Excuses", "Supervision"]

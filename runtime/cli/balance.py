@@ -166,9 +166,10 @@ def _balance_text(a: dict[str, Any], cmp: dict[str, Any] | None, *, source: str,
               f"{us(a['predicted']['depth2']['period_s'])}; {where}"]
     floor = cpu.get("bound_period_s") or 0.0
     if floor and a["predicted"][f"depth{d}"]["period_s"] < floor:
-        lines.append(f"  the predicted depth {d} period is below the CPU floor: expect at "
-                     f"least {us(floor)}, the CPU these processes took per interval "
-                     f"on {cpu['cores']} core(s)")
+        lines.append(f"  the predicted depth {d} period is below this run's CPU floor "
+                     f"({us(floor)} on {cpu['cores']} core(s)): the model does not charge "
+                     "the cores the processes share, and the new placement's CPU is not "
+                     "known before it runs: the printed command measures what holds")
     lines.append(f"  the prediction (depth {d}) assumes: {command}")
     if cmp is not None:
         lines.append(f"  re-run (depth {cmp['depth']}): measured {us(cmp['measured_period_s'])} "

@@ -45,7 +45,8 @@ def warn(msg: str) -> None:
 
 def exit_line(f: dict[str, Any], code: int, *, as_json: bool) -> str:
     """stderr's line for a run that did not end normally. The summary on stdout has the
-    whole message; with ``--json`` stderr gives it. A refusal names what was refused and
+    whole message; stderr gives a fault's first clause (its whole message with
+    ``--json``). A refusal names what was refused and
     what to try either way (stdout may go to a file)."""
     if f.get("process") == "user":
         return f"ctrlunit: stopped on request: {f.get('message')} (exit {code})"
@@ -55,8 +56,12 @@ def exit_line(f: dict[str, Any], code: int, *, as_json: bool) -> str:
         advice = f" {f['advice']}" if f.get("advice") else ""
         return (f"ctrlunit: refused before any motion: {f.get('headline') or f.get('message')}"
                 f" (exit {code}).{advice}")
-    return (f"ctrlunit: fault in {f.get('process')}"
-            + (f": {f.get('message')}" if as_json else "") + f" (exit {code})")
+    message = str(f.get("message") or "")
+    if not as_json:  # its first clause: what happened (the figures are the summary's)
+        message = one_line(message).split(";")[0]
+        message = message if len(message) <= 160 else message[:157] + "..."
+    return (f"ctrlunit: fault in {f.get('process')}" + (f": {message}" if message else "")
+            + f" (exit {code})")
 
 
 class FilePath(click.Path):

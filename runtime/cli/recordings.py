@@ -106,6 +106,9 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
         if div is not None:
             _fail(f"replay --verify: the recording diverges after {n} identical intervals: "
                   f"{div}", EXIT_CONFIG)
+        if n == 0:  # a pass over nothing is no pass
+            _fail("replay --verify: the recording holds no interval to verify (it ended "
+                  "before its first command)", EXIT_CONFIG)
         if rec.damaged:  # what could be read verified, but the file is not what was written
             _fail(f"replay --verify: the recording is damaged; the {n} intervals before the "
                   "damage are bit-identical, the rest could not be read", EXIT_CONFIG)
@@ -148,6 +151,9 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
         held = f"intervals {cycles[0]} to {cycles[-1]}" if cycles else "no interval"
         if not any(cycle_range[0] <= c < cycle_range[1] for c in cycles):
             _fail(f"--cycles {cycle_range[0]}:{cycle_range[1]}: the recording holds {held}")
+        if cycle_range[0] < cycles[0] or cycle_range[1] > cycles[-1] + 1:  # said, not hidden
+            click.echo(f"ctrlunit: note: --cycles {cycle_range[0]}:{cycle_range[1]} reaches "
+                       f"past the recording, which holds {held}: those are taken", err=True)
     times = [t for items in rec.topics.values() for t, _ in items]
     length = (max(times) - min(times)) / 1e9 if times else 0.0
     if not (start_offset == start_offset and start_offset <= length):  # NaN fails too
@@ -256,6 +262,10 @@ def plot_cmd(file: str, out_dir: str | None, cycle_range: tuple[int, int] | None
     except ValueError as exc:
         _fail(f"plot: {exc}")
         return
+    drawn = plots.series["cycle"]
+    if cycle_range and len(drawn) and (cycle_range[0] < drawn[0] or cycle_range[1] > drawn[-1] + 1):
+        plots.notes.append(f"--cycles {cycle_range[0]}:{cycle_range[1]} reaches past the "
+                           f"recording's intervals: drawn {int(drawn[0])} to {int(drawn[-1])}")
     data = {"out": str(out), "index": str(plots.index),
             "images": {k: str(v) for k, v in plots.images.items()}, "notes": plots.notes}
     if as_json:

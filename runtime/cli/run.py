@@ -115,8 +115,9 @@ def _check(rc: RunConfig, as_json: bool) -> None:
                   if rc.schedule.clock == "realtime" and rc.schedule.admission
                   else f"{period} (auto)")
     intervals = f"{setup.cycles} intervals"
-    if period.startswith("auto"):  # a fixed duration: fewer intervals at a longer period
-        intervals += f" at {rc.schedule.period * 1e3:g} ms (fewer at a longer period)"
+    if period.startswith("auto") and rc.run.cycles is None:  # a time: they follow the period
+        intervals += (f" at {rc.schedule.period * 1e3:g} ms (more at a shorter period, "
+                      "fewer at a longer one)")
     overload = (f"  on overload: halve the control rate (--overload {rc.schedule.overload})\n"
                 if rc.halves_on_overload else "")
     _emit(data, as_json,
