@@ -8,6 +8,7 @@ naming the field and the allowed range.
 from __future__ import annotations
 
 import math
+import stat
 import tomllib
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
@@ -151,6 +152,10 @@ def params_from_mapping(data: dict[str, Any], *, source: str = "parameters") -> 
         raise ParameterError(f"{source}: {exc}") from None
 
 
+MAX_FILE_BYTES = 1 << 20
+"""The largest parameters file read."""
+
+
 def load_params(path: str | Path) -> DeltaParams:
     """Load Delta parameters from a TOML file (top level or a ``[delta]`` table).
 
@@ -160,6 +165,13 @@ def load_params(path: str | Path) -> DeltaParams:
         If the file cannot be parsed, or a field is unknown or out of range.
     """
     path = Path(path)
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise ParameterError(f"{path}: cannot read parameters: {exc}") from None
+    if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_FILE_BYTES:  # a FIFO hung the start
+        raise ParameterError(f"{path}: not a regular file of at most {MAX_FILE_BYTES} bytes "
+                    "(a FIFO, a device, ...)")
     try:
         data = tomllib.loads(path.read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:

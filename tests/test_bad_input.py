@@ -142,6 +142,10 @@ def test_a_fifo_or_a_device_given_as_a_file_is_refused_not_read(tmp_path):
     for args in (["report", str(fifo)], ["replay", str(fifo), "--verify"],
                  ["balance", str(fifo)], ["balance", "/dev/zero"]):
         _one_error(ctrlunit(*args, timeout=60), "is not a regular file")
+    # an attacker's review: --placement read a FIFO for ever, /dev/zero until memory ran out
+    for path in (fifo, "/dev/zero"):
+        _one_error(ctrlunit("start", "--check", "--clock", "lockstep", "--placement",
+                            str(path), timeout=60), str(path), "not a regular file")
 
 
 def test_input_nested_too_deeply_or_not_utf8_is_refused(tmp_path):

@@ -5,6 +5,7 @@ naming what is wrong, never a traceback, and what a recording holds is printed c
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -233,3 +234,60 @@ def test_a_forged_live_fact_is_named(recorded, tmp_path):
                   result(live=json.dumps({"late": {}, "degraded": "x", "scheduling": []})))
     code, out = run("report", str(path))
     assert code == 1 and "its result record's live.degraded = 'x'" in out, out
+
+
+def _config(**fields: object) -> Edit:
+    def edit(name: str, md: dict[str, str]) -> dict[str, str]:
+        if name == "ctrlunit":
+            return md | {"config": json.dumps(json.loads(md["config"]) | fields)}
+        return md
+    return edit
+
+
+@pytest.mark.parametrize(("fields", "said"), [
+    ({"params": "/dev/zero"}, "params file /dev/zero is not a regular file"),
+    ({"placement": "FIFO"}, "is not a regular file"),
+    ({"task": "/nonexistent/task.json"}, "task file /nonexistent/task.json: No such file"),
+])
+def test_a_recording_naming_a_hostile_file_is_refused_by_name(recorded, tmp_path, fields,
+                                                              said):
+    """An attacker's review: a recording naming /dev/zero as its parameters exhausted the
+    reader's memory, and a FIFO as its placement hung report, replay and plot."""
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    fields = {k: str(fifo) if v == "FIFO" else v for k, v in fields.items()}
+    path = forged(recorded, tmp_path / "hostile.mcap", _config(**fields))
+    for command in (("report",), ("replay", "--verify"), ("plot", "--out",
+                                                          str(tmp_path / "p"))):
+        code, out = run(command[0], str(path), *command[1:])
+        assert code == 1 and said in out and "Traceback" not in out, (command, out)
+
+
+def test_a_readers_setup_ignores_the_recorded_links(recorded, tmp_path):
+    """A Zenoh file of /dev/zero (read until memory ran out) and keys: the run's links are
+    no reader's business."""
+    path = forged(recorded, tmp_path / "links.mcap",
+                  _config(zenoh_config="/dev/zero", keys=str(tmp_path / "nokeys")))
+    code, out = run("report", str(path))
+    assert code == 0, out
+
+
+def test_report_and_verify_read_the_task_file_the_run_read(tmp_path):
+    """An attacker's review: a task file edited after the run changed the recording's
+    report (51 mm, "completed as planned", against 2.4 mm) and failed replay --verify;
+    deleted, it made the recording unreadable. The recording holds the file."""
+    task = tmp_path / "mine.json"
+    task.write_text(json.dumps({"name": "mine", "dwell": 0.05, "segments": [
+        {"type": "half-ellipse", "start": [0.125, 0.0, -0.35], "top": [0.0, 0.0, -0.31],
+         "end": [-0.125, 0.0, -0.35], "accel": 20.0}]}))
+    rec = tmp_path / "task.mcap"
+    code, out = run("start", "--clock", "lockstep", "--cycles", "200", "--unit",
+                    unit_id("rectask"), "--task", str(task), "--record", str(rec))
+    assert code == 0, out
+    _, before = run("report", str(rec), "--json")
+    task.write_text(task.read_text().replace("-0.31", "-0.2"))
+    _, edited = run("report", str(rec), "--json")
+    assert json.loads(edited)["tracking_error_m"] == json.loads(before)["tracking_error_m"]
+    task.unlink()
+    code, out = run("replay", str(rec), "--verify")
+    assert code == 0 and "verified 200 intervals" in out, out

@@ -53,12 +53,12 @@ def _culprit(rec: Any) -> str | None:
 
 
 def _open_recording(path: str) -> Any:
-    from ..config import RunConfig
     from ..recording.reader import read
+    from ..recording.recorded_config import run_config
 
     try:
         rec = read(path)
-        RunConfig.from_recording(rec.config)  # every use of it reads its configuration
+        run_config(rec)  # every use of it reads its configuration
     except (OSError, ValueError) as exc:
         _fail(str(exc))
     if rec.salvaged:

@@ -328,7 +328,9 @@ def plot_recording(rec: Recording, out: str | Path, *,
     cfg = rec.config
     if not cfg:
         raise ValueError(f"{rec.path}: no ctrlunit configuration in the recording")
-    rc = RunConfig.from_recording(cfg)
+    from .recorded_config import run_config
+
+    rc = run_config(rec)
     from ...kernels.params import DELTA_IA, load_params
     from ..compute.setup import make_setup
 

@@ -22,6 +22,7 @@ from ..observe.report import (
 from . import result_record as record
 from .plot_data import commands
 from .reader import Recording
+from .recorded_config import run_config
 from .replay import recorded_inputs, stride_grid
 
 
@@ -31,8 +32,7 @@ def report_from_recording(rec: Recording) -> dict[str, Any]:
     ``t_1`` comes from the run's result record; if the run died before writing it, it is
     measured again here on the recorded intervals.
     """
-    cfg = rec.config
-    rc = RunConfig.from_recording(cfg).replace(record=None, report=None)
+    rc = run_config(rec)
     setup = make_setup(rc)
     samples = {m["cycle"]: m for _, m in rec.decoded("/central/sample")}
     sent = commands(rec, samples)

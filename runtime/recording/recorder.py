@@ -27,9 +27,11 @@ Channels
 
 A metadata record ``ctrlunit`` holds the configuration, placement, package version, host,
 core count and clock, and the wall clock's offset from the log times
-(``epoch_offset_ns``); ``ctrlunit.result`` (at the end) holds ``t_1``, the block costs and
-what else only the live run knew (``live``: scheduling, admission, placement choice, late
-data, excused silences, the safe stop, the links; ``cpu``: the CPU budget), so that
+(``epoch_offset_ns``); ``ctrlunit.files`` the text of the task, parameters and placement
+files the run read (:mod:`.recorded_config`); ``ctrlunit.result`` (at the end) holds
+``t_1``, the block costs and what else only the live run knew (``live``: scheduling,
+admission, placement choice, late data, excused silences, the safe stop, the links;
+``cpu``: the CPU budget), so that
 ``ctrlunit report`` prints every line of the live summary.
 
 Chunks are compressed (``--record-compression``, zstd by default) and written on the
@@ -62,6 +64,7 @@ from ..host import sched
 from ..observe.report import CPU_KEYS, RESULT_KEYS
 from ..observe.signals import SIGNALS_SCHEMA, capture, state_message
 from .mcap_writer import LeanWriter
+from .recorded_config import FILES_RECORD, files_of
 from .ros2 import PROFILE, Ros2Channels
 
 FLUSH_EVERY_NS = 20_000_000
@@ -158,6 +161,8 @@ class Recorder:
         }
         try:
             self.w.add_metadata("ctrlunit", meta)
+            if (files := files_of(rc)):  # what the setup read: a reader takes it from here
+                self.w.add_metadata(FILES_RECORD, files)
         except (OSError, RuntimeError) as exc:
             self._lost(exc)
 

@@ -44,9 +44,9 @@ class Divergence:
 
 def _setup(rec: Recording) -> Any:
     from ..compute.setup import make_setup
-    from ..config import RunConfig
+    from .recorded_config import run_config
 
-    return make_setup(RunConfig.from_recording(rec.config).replace(record=None, report=None))
+    return make_setup(run_config(rec))
 
 
 def _index(rec: Recording, kind: str) -> dict[tuple[int, ...], dict]:
