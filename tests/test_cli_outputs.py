@@ -454,3 +454,33 @@ def test_replay_verify_of_no_interval_fails_and_a_range_past_the_recording_is_sa
     assert res.exit_code == 0 and "reaches past the recording" in res.stderr, res.output
     res = invoke("replay", str(made["record"]), "--verify", "--cycles", "5:10")
     assert res.exit_code == 0 and "reaches past" not in res.stderr, res.output
+
+
+def test_listen_on_a_path_that_holds_something_is_refused(tmp_path):
+    """An attacker's review: ``--listen unixsock-stream//DIR/notes`` deleted ``notes`` (Zenoh
+    removes what is at the path before it binds), and took another program's live socket
+    away. A socket left behind, which nobody answers on, may go."""
+    import socket
+
+    folder = tmp_path / "own"
+    folder.mkdir(mode=0o700)
+    notes = folder / "notes.txt"
+    notes.write_text("precious")
+    live = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    live.bind(str(folder / "live.sock"))
+    live.listen(1)
+    stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    stale.bind(str(folder / "stale.sock"))
+    stale.close()  # left behind: nobody answers
+    try:
+        for name, why in (("notes.txt", "exists and is not a socket"),
+                          ("live.sock", "another program listens")):
+            res = invoke("start", "--check", "--clock", "lockstep", "--listen",
+                         f"unixsock-stream/{folder / name}")
+            assert res.exit_code == 1 and why in res.stderr, (name, res.output)
+        res = invoke("start", "--check", "--clock", "lockstep", "--listen",
+                     f"unixsock-stream/{folder / 'stale.sock'}")
+        assert res.exit_code == 0, res.output
+    finally:
+        live.close()
+    assert notes.read_text() == "precious"

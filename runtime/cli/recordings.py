@@ -142,7 +142,7 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
     intervals it holds, a start inside it, topics it has, a unit id and endpoints Zenoh
     can use, under the unit's link rule (beyond the host, or a unix socket in a folder
     others may write, only with ``--insecure``: runtime/transport/security.py)."""
-    from ..transport.endpoints import check_endpoint, check_unit_id, is_socket
+    from ..transport.endpoints import check_endpoint, check_unit_id, is_socket, socket_path_taken
     from ..transport.security import reaches_beyond_host, shared_folder
 
     cycles = sorted(m["cycle"] for _, m in rec.decoded("/plant/command")
@@ -171,6 +171,8 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
                 check_endpoint(e, option=option)
                 why = None if insecure else shared_folder(e) if is_socket(e) \
                     else BEYOND if reaches_beyond_host(e) else None
+                if not why and option == "--listen" and is_socket(e):
+                    why = socket_path_taken(e)
                 if why:
                     _fail(f"{option} {e}: {why}")
     except ValueError as exc:

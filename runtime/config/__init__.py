@@ -20,7 +20,7 @@ from .choices import (  # noqa: F401  (re-exported: the sets belong with the con
     PERIPHERAL_LOSSES,
     REPLY_MODES,
 )
-from .outputs import output_file_error
+from .outputs import central_output_error
 from .sections import (
     RENAMED,
     SECTIONS,
@@ -154,10 +154,9 @@ class RunConfig:
         self._check_values()
         self._check_outputs()
         self._check_host(roles)
-        if not roles or "central" in roles:  # the files the central writes at its end
-            for name in ("record", "report"):
-                if (why := output_file_error(getattr(self.run, name), f"--{name}")):
-                    raise ConfigError(why)
+        if not roles or "central" in roles:  # what the central writes and binds
+            if (why := central_output_error(self.run, self.transport.listen if roles else None)):
+                raise ConfigError(why)
         return self
 
     @property

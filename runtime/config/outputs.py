@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 
 def output_file_error(path: str | None, option: str) -> str | None:
@@ -34,4 +35,19 @@ def output_file_error(path: str | None, option: str) -> str | None:
     return None
 
 
-__all__ = ["output_file_error"]
+def central_output_error(run: Any, listen: list[str] | None) -> str | None:
+    """Why the central cannot write its files (``--record``, ``--report``:
+    :func:`output_file_error`) or listen on its unix sockets (something is at the path:
+    runtime/transport/endpoints.py, ``socket_path_taken``), or None."""
+    for name in ("record", "report"):
+        if (why := output_file_error(getattr(run, name), f"--{name}")):
+            return why
+    from ..transport.endpoints import is_socket, socket_path_taken
+
+    for e in listen or []:
+        if is_socket(e) and (why := socket_path_taken(e)):
+            return f"--listen {e}: {why}"
+    return None
+
+
+__all__ = ["central_output_error", "output_file_error"]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import re
 import socket
+import stat
 from pathlib import Path
 
 import zenoh
@@ -89,3 +90,29 @@ def loopback_endpoint(protocol: str = "tls") -> str:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return f"{protocol}/127.0.0.1:{s.getsockname()[1]}"
+
+
+def socket_path_taken(endpoint: str) -> str | None:
+    """Why a unix socket cannot listen at ``endpoint``'s path, or None: Zenoh removes
+    whatever is there before it binds, so a file there was deleted and another program's
+    live socket taken over (an attacker's review: ``--listen unixsock-stream//DIR/notes``
+    deleted ``notes``). A socket nobody answers on (left by a run that was killed) may
+    go."""
+    path = Path(endpoint.partition("/")[2])
+    try:
+        st = path.lstat()
+    except OSError:
+        return None
+    if not stat.S_ISSOCK(st.st_mode):
+        return (f"{path} exists and is not a socket: listening there would delete it; give "
+                "a path where nothing is")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    probe.settimeout(0.5)
+    try:
+        probe.connect(str(path))
+    except OSError:
+        return None  # nobody answers: a socket left behind
+    finally:
+        probe.close()
+    return (f"another program listens on {path}: listening there would take its socket "
+            "away; give another path")
