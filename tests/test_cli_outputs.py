@@ -484,3 +484,18 @@ def test_listen_on_a_path_that_holds_something_is_refused(tmp_path):
     finally:
         live.close()
     assert notes.read_text() == "precious"
+
+
+def test_a_live_view_other_hosts_reach_needs_insecure():
+    """An attacker's review: ``--foxglove 0.0.0.0:PORT`` served the samples, commands and
+    positions on every interface with no key, where the link rule refuses any other
+    endpoint beyond the host."""
+    for host in ("0.0.0.0:0", "[::]:0"):
+        res = invoke("start", "--check", "--clock", "lockstep", "--foxglove", host)
+        assert res.exit_code == 1 and "--insecure" in res.stderr, (host, res.output)
+        res = invoke("start", "--check", "--clock", "lockstep", "--foxglove", host,
+                     "--insecure")
+        assert res.exit_code == 0, (host, res.output)
+    for host in ("127.0.0.1:0", "8765", "[::1]:0"):
+        assert invoke("start", "--check", "--clock", "lockstep", "--foxglove",
+                      host).exit_code == 0, host

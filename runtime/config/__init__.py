@@ -20,7 +20,7 @@ from .choices import (  # noqa: F401  (re-exported: the sets belong with the con
     PERIPHERAL_LOSSES,
     REPLY_MODES,
 )
-from .outputs import central_output_error
+from .outputs import central_output_error, view_error
 from .sections import (
     RENAMED,
     SECTIONS,
@@ -197,8 +197,8 @@ class RunConfig:
             if pol not in LATE_POLICIES:
                 raise ConfigError(f"--late {block}={pol}: the policy must be one of "
                                   f"{', '.join(LATE_POLICIES)}")
-        if self.run.foxglove is not None:
-            parse_host_port(self.run.foxglove, field_name="--foxglove")
+        if (why := view_error(self.run.foxglove, insecure=self.transport.insecure)):
+            raise ConfigError(why)
         if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
             raise self._bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")
         if None not in (self.run.cycles, self.run.duration):

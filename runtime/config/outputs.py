@@ -50,4 +50,23 @@ def central_output_error(run: Any, listen: list[str] | None) -> str | None:
     return None
 
 
-__all__ = ["central_output_error", "output_file_error"]
+def view_error(foxglove: str | None, *, insecure: bool) -> str | None:
+    """Why ``--foxglove [HOST:]PORT`` will not do: a host other programs on other hosts
+    reach, without ``--insecure`` (the view carries the samples, commands and positions,
+    with no key: the link rule of runtime/transport/security.py); None if it will.
+    Raises ConfigError for a value that is no ``[HOST:]PORT``."""
+    if foxglove is None:
+        return None
+    from ..transport.security import reaches_beyond_host
+    from . import parse_host_port
+
+    host, _ = parse_host_port(foxglove, field_name="--foxglove")
+    if insecure or not reaches_beyond_host(f"tcp/{host}:1" if ":" not in host
+                                           else f"tcp/[{host}]:1"):
+        return None
+    return (f"--foxglove {foxglove}: other hosts can reach the live view, which carries the "
+            "samples, commands and positions with no key; serve it on 127.0.0.1 (and "
+            "forward it, e.g. ssh -L), or --insecure for a lab bench")
+
+
+__all__ = ["central_output_error", "output_file_error", "view_error"]
