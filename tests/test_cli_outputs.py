@@ -499,3 +499,30 @@ def test_a_live_view_other_hosts_reach_needs_insecure():
     for host in ("127.0.0.1:0", "8765", "[::1]:0"):
         assert invoke("start", "--check", "--clock", "lockstep", "--foxglove",
                       host).exit_code == 0, host
+
+
+def test_one_path_for_two_outputs_or_for_the_input_is_refused(made, tmp_path):
+    """An attacker's review: ``--record F --report F`` left the report where the recording
+    was, and ``report R --report R`` overwrote the recording it read."""
+    same = tmp_path / "same.out"
+    res = invoke("start", "--check", "--clock", "lockstep", "--record", str(same),
+                 "--report", str(same))
+    assert res.exit_code == 1 and "--record and --report: both are" in res.stderr, res.output
+    copy = tmp_path / "copy.mcap"
+    copy.write_bytes(made["record"].read_bytes())
+    res = invoke("report", str(copy), "--report", str(copy))
+    assert res.exit_code == 1 and "it is the recording read" in res.stderr, res.output
+    assert copy.read_bytes() == made["record"].read_bytes()
+
+
+def test_a_task_whose_loop_never_ends_is_refused(tmp_path):
+    """An attacker's review: an acceleration of 1e-300 (inside its range) planned 1e153
+    intervals, and the run never ended on its own."""
+    task = tmp_path / "tiny.json"
+    task.write_text(json.dumps({"name": "tiny", "dwell": 0.05, "segments": [
+        {"type": "half-ellipse", "start": [0.125, 0.0, -0.35], "top": [0.0, 0.0, -0.31],
+         "end": [-0.125, 0.0, -0.35], "accel": 1e-300}]}))
+    res = invoke("start", "--check", "--clock", "lockstep", "--task", str(task))
+    assert res.exit_code == 1 and "allowed at most 1e9" in res.stderr, res.output
+    assert invoke("start", "--check", "--clock", "lockstep", "--task", str(task),
+                  "--cycles", "100").exit_code == 0

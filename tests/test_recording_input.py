@@ -291,3 +291,15 @@ def test_report_and_verify_read_the_task_file_the_run_read(tmp_path):
     task.unlink()
     code, out = run("replay", str(rec), "--verify")
     assert code == 0 and "verified 200 intervals" in out, out
+
+
+def test_a_forged_cycle_number_in_the_signals_is_no_traceback_for_plot(recorded, tmp_path):
+    """An attacker's review: one /signals/state message with cycle 1e308 ended plot in an
+    OverflowError traceback."""
+    def huge(topic: str, k: int, data: bytes) -> bytes:
+        if topic == "/signals/state" and k == 10:
+            return json.dumps(json.loads(data) | {"cycle": 1e308}).encode()
+        return data
+    path = forged(recorded, tmp_path / "huge.mcap", lambda name, md: md, huge)
+    code, out = run("plot", str(path), "--out", str(tmp_path / "p"))
+    assert code == 0 and "Traceback" not in out, out

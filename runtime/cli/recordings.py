@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import click
@@ -190,6 +191,8 @@ def report_cmd(file: str, as_json: bool, report_file: str | None) -> None:
     from ..observe.summary import summary
     from ..recording.recorded_report import report_from_recording
 
+    if report_file and Path(report_file).resolve() == Path(file).resolve():
+        _fail(f"--report {report_file}: it is the recording read: give another file")
     if (why := output_file_error(report_file, "--report")):
         _fail(why)
     rec = _open_recording(file)

@@ -126,7 +126,12 @@ def make_setup(rc: RunConfig) -> Setup:
         placement = _placement_of(graph, {"peripherals": rc.schedule.peripherals,
                                           "central_blocks": rc.schedule.central_blocks or []})
     plan = exchange_plan(graph, placement)
-    return Setup(rc, params, task, placement, plan, rc.total_cycles(task.period))
+    cycles = rc.total_cycles(task.period)
+    if cycles > 10**9:  # one loop of a task whose accelerations are all but zero never ends
+        raise ConfigError(f"--task {task.name}: one loop lasts {task.period:.3g} s, "
+                          f"{cycles:.3g} intervals: allowed at most 1e9 (give --cycles or "
+                          "--duration, or larger accelerations)")
+    return Setup(rc, params, task, placement, plan, cycles)
 
 
 def load_spec(path: str) -> RunConfig:

@@ -197,7 +197,8 @@ class RunConfig:
             if pol not in LATE_POLICIES:
                 raise ConfigError(f"--late {block}={pol}: the policy must be one of "
                                   f"{', '.join(LATE_POLICIES)}")
-        if (why := view_error(self.run.foxglove, insecure=self.transport.insecure)):
+        if (why := view_error(self.run.foxglove, insecure=self.transport.insecure,
+                              parse=parse_host_port)):
             raise ConfigError(why)
         if not (self.run.foxglove_rate == 0 or 1.0 <= self.run.foxglove_rate <= 100_000.0):
             raise self._bad("foxglove_rate", "0 (every interval) or 1 to 100000 Hz")

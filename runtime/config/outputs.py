@@ -4,6 +4,7 @@ starts, so that a run is not made only to lose what it measured at its end."""
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,9 @@ def central_output_error(run: Any, listen: list[str] | None) -> str | None:
     for name in ("record", "report"):
         if (why := output_file_error(getattr(run, name), f"--{name}")):
             return why
+    if run.record and run.report and Path(run.record).resolve() == Path(run.report).resolve():
+        return (f"--record and --report: both are {run.report}: the report would overwrite "
+                "the recording; give two files")
     from ..transport.endpoints import is_socket, socket_path_taken
 
     for e in listen or []:
@@ -50,17 +54,18 @@ def central_output_error(run: Any, listen: list[str] | None) -> str | None:
     return None
 
 
-def view_error(foxglove: str | None, *, insecure: bool) -> str | None:
+def view_error(foxglove: str | None, *, insecure: bool,
+               parse: Callable[..., tuple[str, int]]) -> str | None:
     """Why ``--foxglove [HOST:]PORT`` will not do: a host other programs on other hosts
     reach, without ``--insecure`` (the view carries the samples, commands and positions,
     with no key: the link rule of runtime/transport/security.py); None if it will.
-    Raises ConfigError for a value that is no ``[HOST:]PORT``."""
+    ``parse``: the package's ``parse_host_port``, which raises ConfigError for a value
+    that is no ``[HOST:]PORT``."""
     if foxglove is None:
         return None
     from ..transport.security import reaches_beyond_host
-    from . import parse_host_port
 
-    host, _ = parse_host_port(foxglove, field_name="--foxglove")
+    host, _ = parse(foxglove, field_name="--foxglove")
     if insecure or not reaches_beyond_host(f"tcp/{host}:1" if ":" not in host
                                            else f"tcp/[{host}]:1"):
         return None
