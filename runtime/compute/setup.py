@@ -127,7 +127,8 @@ def make_setup(rc: RunConfig) -> Setup:
                                           "central_blocks": rc.schedule.central_blocks or []})
     plan = exchange_plan(graph, placement)
     cycles = rc.total_cycles(task.period)
-    if cycles > 10**9:  # one loop of a task whose accelerations are all but zero never ends
+    if cycles > 10**9 and rc.run.cycles is None and rc.run.duration is None:
+        # one loop of a task whose accelerations are all but zero: it never ends
         raise ConfigError(f"--task {task.name}: one loop lasts {task.period:.3g} s, "
                           f"{cycles:.3g} intervals: allowed at most 1e9 (give --cycles or "
                           "--duration, or larger accelerations)")
