@@ -148,13 +148,14 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
 
     cycles = sorted(m["cycle"] for _, m in rec.decoded("/plant/command")
                     if isinstance(m.get("cycle"), int))
+    note = None  # said once every option is checked: an error is one line alone
     if cycle_range is not None:
         held = f"intervals {cycles[0]} to {cycles[-1]}" if cycles else "no interval"
         if not any(cycle_range[0] <= c < cycle_range[1] for c in cycles):
             _fail(f"--cycles {cycle_range[0]}:{cycle_range[1]}: the recording holds {held}")
         if cycle_range[0] < cycles[0] or cycle_range[1] > cycles[-1] + 1:  # said, not hidden
-            click.echo(f"ctrlunit: note: --cycles {cycle_range[0]}:{cycle_range[1]} reaches "
-                       f"past the recording, which holds {held}: those are taken", err=True)
+            note = (f"--cycles {cycle_range[0]}:{cycle_range[1]} reaches past the recording, "
+                    f"which holds {held}: those are taken")
     times = [t for items in rec.topics.values() for t, _ in items]
     length = (max(times) - min(times)) / 1e9 if times else 0.0
     if not (start_offset == start_offset and start_offset <= length):  # NaN fails too
@@ -178,6 +179,8 @@ def _check_replay_options(rec: Any, cycle_range: tuple[int, int] | None, start_o
                     _fail(f"{option} {e}: {why}")
     except ValueError as exc:
         _fail(f"--unit: {exc}" if "unit id" in str(exc) else str(exc))
+    if note:
+        click.echo(f"ctrlunit: note: {note}", err=True)
 
 
 @cli.command("report")
