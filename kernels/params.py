@@ -8,11 +8,12 @@ naming the field and the allowed range.
 from __future__ import annotations
 
 import math
-import stat
 import tomllib
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
+
+from .small_file import read_small_text
 
 GRAVITY = 9.81
 """Gravity acceleration used throughout the thesis (m/s^2), acting along -z."""
@@ -152,28 +153,18 @@ def params_from_mapping(data: dict[str, Any], *, source: str = "parameters") -> 
         raise ParameterError(f"{source}: {exc}") from None
 
 
-MAX_FILE_BYTES = 1 << 20
-"""The largest parameters file read."""
-
-
 def load_params(path: str | Path) -> DeltaParams:
-    """Load Delta parameters from a TOML file (top level or a ``[delta]`` table).
+    """Load Delta parameters from a TOML file (top level or a ``[delta]`` table), read
+    as kernels/small_file.py reads an input file.
 
     Raises
     ------
     ParameterError
-        If the file cannot be parsed, or a field is unknown or out of range.
+        If the file cannot be read or parsed, or a field is unknown or out of range.
     """
-    path = Path(path)
+    text = read_small_text(path, whose=f"parameters file {path}", error=ParameterError)
     try:
-        st = path.stat()
-    except OSError as exc:
-        raise ParameterError(f"{path}: cannot read parameters: {exc}") from None
-    if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_FILE_BYTES:  # a FIFO hung the start
-        raise ParameterError(f"{path}: not a regular file of at most {MAX_FILE_BYTES} bytes "
-                    "(a FIFO, a device, ...)")
-    try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise ParameterError(f"{path}: cannot read parameters: {exc}") from None
     return params_from_mapping(data, source=str(path))

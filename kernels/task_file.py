@@ -20,6 +20,7 @@ import math
 from pathlib import Path as FsPath
 from typing import Any, TypeGuard
 
+from .small_file import read_small_text
 from .trajectory import TASKS, Ellipse, Line, Segment, Task, Vec3, arc, half_ellipse
 
 MAX_COORD_M = 10.0
@@ -32,9 +33,6 @@ MAX_NAME_CHARS = 200
 
 MAX_SEGMENTS = 256
 """Most segments a task file may give (each costs its arc-length table when read)."""
-
-MAX_FILE_BYTES = 1 << 20
-"""Largest task file read (1 MiB: 256 segments take a few kB)."""
 
 JOIN_M = 1e-6
 """How far a segment may start from where the one before it ended (m): 1 um, an eighth
@@ -103,15 +101,10 @@ def task_from_json(path: str | FsPath) -> Task:
         Naming the file, the segment and the field that is wrong.
     """
     p = FsPath(path)
+    text = read_small_text(p, whose=f"task file {path}")
     try:
-        if not p.is_file():
-            raise ValueError(f"{path}: not a regular file" if p.exists() else
-                             f"no such file: {str(path)!r}")
-        if p.stat().st_size > MAX_FILE_BYTES:
-            raise ValueError(f"{path}: a task file is at most {MAX_FILE_BYTES} bytes, this "
-                             f"one has {p.stat().st_size}")
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        data = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
         raise ValueError(f"{path}: cannot read task: {exc}"[:300]) from None
     if not isinstance(data, dict) or not isinstance(data.get("segments"), list):
         raise ValueError(f"{path}: a task is an object with a 'segments' list")

@@ -15,11 +15,12 @@ File format (JSON or TOML)::
 from __future__ import annotations
 
 import json
-import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from ..kernels.small_file import read_small_text
 
 
 class PlacementError(ValueError):
@@ -121,25 +122,14 @@ def placement_from_mapping(
         raise PlacementError(f"{source}: {exc}") from None
 
 
-MAX_FILE_BYTES = 1 << 20
-"""The largest placement file read."""
-
-
 def load_placement(path: str | Path, *, block_names: set[str] | None = None) -> Placement:
-    """Load a placement from a JSON or TOML file."""
-    path = Path(path)
+    """Load a placement from a JSON or TOML file, read as kernels/small_file.py reads an
+    input file."""
+    text = read_small_text(path, whose=f"placement file {path}", error=PlacementError)
     try:
-        st = path.stat()
-    except OSError as exc:
-        raise PlacementError(f"{path}: cannot read placement: {exc}") from None
-    if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_FILE_BYTES:  # a FIFO hung the start
-        raise PlacementError(f"{path}: not a regular file of at most {MAX_FILE_BYTES} bytes "
-                    "(a FIFO, a device, ...)")
-    try:
-        text = path.read_text()
-        data = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
-    except (OSError, json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise PlacementError(f"{path}: cannot read placement: {exc}") from None
+        data = json.loads(text) if Path(path).suffix == ".json" else tomllib.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError, RecursionError) as exc:
+        raise PlacementError(f"{path}: cannot read placement: {exc}"[:300]) from None
     return placement_from_mapping(data, block_names=block_names, source=str(path))
 
 

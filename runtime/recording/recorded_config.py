@@ -17,13 +17,12 @@ regular file of at most :data:`MAX_FILE_BYTES`, else refused by name.
 from __future__ import annotations
 
 import atexit
-import os
 import shutil
-import stat
 import tempfile
 from pathlib import Path
 from typing import Any, Final
 
+from ...kernels.small_file import MAX_FILE_BYTES, read_small_text
 from ...kernels.trajectory import TASKS
 from ..config import RunConfig
 
@@ -32,9 +31,6 @@ FILES_RECORD: Final = "ctrlunit.files"
 
 FILE_FIELDS: Final = ("task", "params", "placement")
 """The settings that name a file the run's setup reads."""
-
-MAX_FILE_BYTES: Final = 1 << 20
-"""The largest file a recording keeps or a reader takes (a task file's own limit)."""
 
 LINKS_AND_OUTPUTS: Final[dict[str, Any]] = {
     "zenoh_config": None, "keys": None, "listen": [], "connect": [], "record": None,
@@ -92,18 +88,7 @@ def run_config(rec: Any) -> RunConfig:
 def _read(path: str, field: str, *, recording: str | None = None) -> str:
     whose = f"{recording}: the recording's {field} file {path}" if recording else \
         f"{field} file {path}"
-    try:
-        st = os.stat(path)
-    except OSError as exc:
-        raise ValueError(f"{whose}: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise ValueError(f"{whose} is not a regular file")
-    if st.st_size > MAX_FILE_BYTES:
-        raise ValueError(f"{whose} is larger than {MAX_FILE_BYTES} bytes")
-    try:
-        return Path(path).read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{whose}: {exc}") from None
+    return read_small_text(path, whose=whose)
 
 
 _SCRATCH: list[Path] = []
