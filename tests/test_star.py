@@ -341,6 +341,44 @@ def test_a_finished_run_leaves_no_run_directory(tmp_path):
     assert len(kept) == 1 and str(kept[0]) in bad.stderr
 
 
+def test_a_launcher_killed_outright_leaves_a_directory_the_next_start_removes(tmp_path):
+    """SIGKILL gives the launcher no chance to remove its run directory; the next start
+    removes it (its launcher is gone) and leaves alone a directory kept for a fault's
+    diagnosis and one of a launcher still running (runtime/launch/run_dir.py)."""
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    cli = [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--peripherals", "1",
+           "--clock", "lockstep"]
+    kept = subprocess.run([*cli, "--unit", unit_id("rkept"), "--cycles", "300",
+                           "--max-error", "1e-5"], env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert kept.returncode == 5, kept.stdout + kept.stderr
+    unit, running = unit_id("rkill"), unit_id("rrun")
+    procs = [subprocess.Popen([*cli, "--unit", u, "--cycles", "1000000", "--status-file",
+                               str(tmp_path / f"{u}.status")], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              start_new_session=True) for u in (unit, running)]
+    try:
+        for u in (unit, running):
+            assert wait_status(tmp_path / f"{u}.status", 20) >= 20
+        os.kill(procs[0].pid, signal.SIGKILL)
+        procs[0].wait(timeout=10)
+        before = set(tmp_path.glob("ctrlunit-*"))
+        assert len(before) == 3, before
+        ok = subprocess.run([*cli, "--unit", unit_id("rnext"), "--cycles", "30"], env=env,
+                            capture_output=True, text=True, timeout=120)
+        assert ok.returncode == 0, ok.stdout + ok.stderr
+        after = set(tmp_path.glob("ctrlunit-*"))
+        assert len(after) == 2 and after < before, (before, after)
+        assert any(str(d) in kept.stderr for d in after)  # the kept one is still there
+    finally:
+        for u in (unit, running):
+            kill_unit(u)
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait(timeout=10)
+
+
 def test_placement_auto_moves_the_observer_round_when_messages_cost_more_same_commands(
         tmp_path):
     """--placement auto (the default): here a round trip costs far more than the observer's

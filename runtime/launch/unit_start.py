@@ -17,7 +17,6 @@ import os
 import shutil
 import signal
 import subprocess
-import tempfile
 import threading
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ from ..transport.limits import Limits
 from ..transport.node import Node, freeze_heap
 from ..transport.zsession import make_config
 from .admission import Unsustainable, admit
+from .run_dir import keep, make_run_dir
 from .run_parts import (
     STOP_REPORTS_WAIT_S,
     chain,
@@ -154,7 +154,7 @@ class UnitStart:
         """The run directory, the CPUs, the central's node, the recorder and the
         central."""
         rc, setup = self.rc, self.setup
-        self.run_dir = Path(tempfile.mkdtemp(prefix="ctrlunit-"))
+        self.run_dir = make_run_dir()
         (self.run_dir / "spec.json").write_text(json.dumps({"run": rc.to_dict()}))
         self.cpus = role_cpus(rc)  # (the central's, the children's): before pinning
         if self.cpus[0]:
@@ -334,11 +334,10 @@ class UnitStart:
                     signal.signal(s, h)
 
     def leave(self) -> None:
-        """Say which role exited with an error, and remove the run directory unless
-        the run failed (its spec, socket and the roles' logs diagnose a fault; a refusal's
-        figures are all in the report's admission, and a stop the user asked for is no
-        fault). A directory kept is the report's ``logs_kept``, which ``ctrlunit start``
-        names after the summary."""
+        """Say which role exited with an error, and remove the run directory unless the
+        run failed (its spec, socket and logs diagnose a fault; a refusal's figures are in
+        the report, and a stop the user asked for is no fault): then it is kept
+        (runtime/launch/run_dir.py), the report's ``logs_kept``, named after the summary."""
         central = getattr(self, "central", None)  # None: the start failed before it
         taken = ({f"peripheral-{d['peripheral']}" for d in central.snapshot().degraded}
                  if central else set())
@@ -355,6 +354,7 @@ class UnitStart:
         if self.code in (EXIT_OK, EXIT_UNSUSTAINABLE) or stopped_by_user({"fault": self.fault}):
             shutil.rmtree(self.run_dir, ignore_errors=True)
         else:
+            keep(self.run_dir)
             self.kept = self.run_dir
 
     # -- report -----------------------------------------------------------------------
