@@ -203,6 +203,25 @@ def test_keys_init_under_umask_000_sets_the_modes_and_keeps_the_authority_apart(
     assert (auth / "ca.pem").read_bytes() == (tmp_path / "k" / "ca.pem").read_bytes()
 
 
+def test_keys_init_keeps_an_existing_folder_s_mode_and_refuses_one_others_may_write(
+        tmp_path):
+    """An existing folder is the user's: ``keys init`` made a 0755 one 0700 (a review);
+    now it keeps its mode, and one others may write is refused before anything is
+    written, naming the fix."""
+    shared, open_ = tmp_path / "shared", tmp_path / "open"
+    shared.mkdir(mode=0o755)
+    open_.mkdir()
+    open_.chmod(0o777)
+    res = ctrlunit("keys", "init", str(shared), "--peripherals", "1")
+    assert res.returncode == 0, res.stderr
+    assert stat.S_IMODE(shared.stat().st_mode) == 0o755
+    assert stat.S_IMODE((shared / "central.key").stat().st_mode) == 0o600
+    res = ctrlunit("keys", "init", str(open_), "--peripherals", "1")
+    assert res.returncode == 1 and f"{open_} can be written by others (mode 0777)" in \
+        res.stderr and f"chmod 700 {open_}" in res.stderr, res.stderr
+    assert not list(open_.iterdir()) and not (tmp_path / "open-authority").exists()
+
+
 def test_keys_init_never_overwrites_the_authority(tmp_path):
     auth = tmp_path / "safe"
     auth.mkdir()

@@ -28,10 +28,24 @@ def authority_of(directory: str | Path) -> Path:
     return d.parent / f"{d.name}-authority"
 
 
+def _refuse_open_dir(path: Path) -> None:
+    """Refuse an existing ``path`` that others may write (they could replace the keys):
+    its mode is the user's to set, not changed here."""
+    if path.exists():
+        mode = path.stat().st_mode & 0o777
+        if not path.is_dir():
+            raise ValueError(f"{path} is not a directory")
+        if mode & 0o022:
+            raise ValueError(f"{path} can be written by others (mode {mode:04o}), who could "
+                             f"replace the keys: chmod 700 {path}, or choose a new directory")
+
+
 def _private_dir(path: Path) -> None:
-    """Make ``path`` (and its parents) and set it to 0700 whatever the umask."""
-    path.mkdir(parents=True, exist_ok=True)
-    os.chmod(path, DIR_MODE)
+    """Make ``path`` (and its parents) at 0700 whatever the umask; an existing one is left
+    as it is (:func:`_refuse_open_dir` checked it)."""
+    if not path.exists():
+        path.mkdir(parents=True)
+        os.chmod(path, DIR_MODE)
 
 
 def _write(path: Path, data: bytes, mode: int) -> None:
@@ -49,7 +63,8 @@ def write_keys(directory: str | Path, names: list[str], *, authority: str | Path
 
     Parameters
     ----------
-    directory : the keys directory (made if missing; set to 0700).
+    directory : the keys directory (made at 0700 if missing; an existing one keeps its
+        mode, and is refused if others may write it).
     names : the roles, each certificate's common name.
     authority : where ``ca_key`` and a copy of ``ca_cert`` go (made if missing; 0700);
         None: :func:`authority_of` ``directory``. It must not be ``directory`` itself.
@@ -63,7 +78,8 @@ def write_keys(directory: str | Path, names: list[str], *, authority: str | Path
     FileExistsError
         Naming the first file that exists, before anything is written.
     ValueError
-        If the authority's directory is the keys directory.
+        If the authority's directory is the keys directory, or either exists and others
+        may write it.
     """
     from cryptography.hazmat.primitives import serialization
     from cryptography.hazmat.primitives.asymmetric import ec
@@ -79,6 +95,8 @@ def write_keys(directory: str | Path, names: list[str], *, authority: str | Path
         if f.exists():
             raise FileExistsError(f"{f} exists: keys are never overwritten (choose another "
                                   "directory)")
+    for d in (out, auth):
+        _refuse_open_dir(d)
     _private_dir(out)
     _private_dir(auth)
     now = datetime.datetime.now(datetime.UTC)
