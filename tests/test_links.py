@@ -197,3 +197,21 @@ def test_keys_with_the_default_link_run_over_tls(tmp_path):
     res = ctrlunit("start", "--listen", f"unixsock-stream/{tmp_path / 'c.sock'}",
                    "--keys", str(keys), *SHORT, "--check", timeout=120)
     assert res.returncode == 1 and "carries none" in res.stderr, res.stderr
+
+
+def test_a_listen_port_0_becomes_a_port_listened_on_and_named(tmp_path):
+    """``--listen PROTO/HOST:0`` asks for any port: the run listens on one the system had
+    free, and the summary and the report name it. With keys that endpoint is the one the
+    roles connect to: before, they were sent to port 0, and the run waited 30 s for their
+    hello and ended with exit 6 (a review found port 0 in the summary)."""
+    keys = tmp_path / "keys"
+    assert ctrlunit("keys", "init", str(keys), "--peripherals", "1",
+                    timeout=120).returncode == 0
+    for proto, extra in (("tcp", ()), ("tls", ("--keys", str(keys)))):
+        code, rep, out = start_json(tmp_path, "--peripherals", "1", *SHORT, "--listen",
+                                    f"{proto}/127.0.0.1:0", *extra, tag=f"port0{proto}",
+                                    timeout=180)
+        assert code == 0, out
+        (link,) = [ln for ln in rep["link_list"] if ln["endpoint"].startswith(proto)]
+        port = int(link["endpoint"].rsplit(":", 1)[1])
+        assert 0 < port <= 65535 and f"{proto}/127.0.0.1:{port} (listen)" in out, out

@@ -9,6 +9,7 @@ import queue
 import subprocess
 import threading
 from collections.abc import Callable, Collection, Iterable
+from pathlib import Path
 from typing import Any
 
 from ..central import Supervision
@@ -25,8 +26,10 @@ from ..roles.supervise import (
     process_state,
     thread_times,
 )
-from ..transport.endpoints import is_socket
-from ..transport.node import rss_kb
+from ..transport.endpoints import default_endpoint, is_socket, loopback_endpoint, with_free_port
+from ..transport.limits import Limits
+from ..transport.node import Node, rss_kb
+from ..transport.zsession import make_config
 
 STOP_REPORTS_WAIT_S = 0.5
 """How long the central waits for the roles' last reports (the plant's safe stop among
@@ -94,6 +97,35 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
 
     return Supervision(check, role_state, role_times, machine_load,
                        None if respawn is None else restart, promote, last_cpus)
+
+
+def central_node(rc: RunConfig, run_dir: Path) -> tuple[Node, str, RunConfig]:
+    """The central's node, the endpoint the children connect to, and ``rc`` with the
+    ports listened on. The node listens on that endpoint and on ``--listen``. Without keys
+    the endpoint is the first unix socket of ``--listen``, else the local socket in the
+    run's folder, and any other link carries the observers' keys alone unless
+    ``--insecure`` (runtime/transport/security.py); with keys (links must carry the
+    roles' certificates) the first ``--listen`` endpoint, else TLS on a free loopback
+    port. A port 0 becomes one free now, which the report then names; a port chosen here
+    and taken meanwhile is chosen again (5 tries). ``--connect`` joins the central to
+    another Zenoh network (e.g. another unit's)."""
+    t = rc.transport
+    socket = next(filter(is_socket, t.listen or []), None)
+    for attempt in range(5):
+        given = [with_free_port(e) for e in t.listen or []]
+        endpoint = (given[0] if given else loopback_endpoint("tls")) \
+            if t.keys else socket or default_endpoint(run_dir)
+        conf = make_config(listen=list(dict.fromkeys([endpoint, *given])),  # once each
+                           connect=t.connect, config_file=t.zenoh_config, keys=t.keys,
+                           role="central", limits=Limits.of(t), control=not t.insecure)
+        try:
+            node = Node(conf, t.unit, "central")
+        except Exception:  # ZError: a port chosen here was taken meanwhile
+            if (given == (t.listen or []) and (t.listen or not t.keys)) or attempt == 4:
+                raise
+            continue
+        return node, endpoint, rc if given == (t.listen or []) else rc.replace(listen=given)
+    raise AssertionError("unreachable")
 
 
 def live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:

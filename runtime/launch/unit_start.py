@@ -30,14 +30,12 @@ from ..host.unit_load import UnitLoad
 from ..observe.report import finish_report
 from ..roles.stopping import STOP_SIGNALS, held_stops, not_ignored, stop_of, stopped_by_user
 from ..roles.supervise import end_children, role_cpus, spawn_role, unit_cores
-from ..transport.endpoints import default_endpoint, is_socket, loopback_endpoint
-from ..transport.limits import Limits
-from ..transport.node import Node, freeze_heap
-from ..transport.zsession import make_config
+from ..transport.node import freeze_heap
 from .admission import Unsustainable, admit
 from .run_dir import keep, make_run_dir
 from .run_parts import (
     STOP_REPORTS_WAIT_S,
+    central_node,
     chain,
     child_names,
     every_start,
@@ -159,7 +157,8 @@ class UnitStart:
         self.cpus = role_cpus(rc)  # (the central's, the children's): before pinning
         if self.cpus[0]:
             sched.pin_all(self.cpus[0])  # before zenoh.open: its threads inherit it
-        self.node = self._central_node()
+        self.node, self.endpoint, self.rc = central_node(rc, self.run_dir)
+        rc = self.rc  # with the ports listened on
         self.guard = self._busy_guard()
         self.observers = observers_view(rc, setup, self.node, self.echo)
         # after the node's session: Zenoh's threads, shared, are made under the RT policy
@@ -179,31 +178,6 @@ class UnitStart:
             supervision=supervision(self.children, self.pids, child_names(rc, setup),
                                     respawn=self._spawn_one)
             if self.spawn else Supervision())
-
-    def _central_node(self) -> Node:
-        """The central's node, listening on the endpoint the children connect to and on
-        ``--listen``. Without keys that endpoint is the first unix socket of ``--listen``,
-        else the local socket in the run's folder, and any other link
-        carries the observers' keys alone unless ``--insecure``
-        (runtime/transport/security.py, ``socket_rule``); with keys, whose links must
-        carry the roles' certificates, the first ``--listen`` endpoint, else TLS on a free
-        loopback port (another on a port taken meanwhile, up to 5 tries). ``--connect``
-        joins the central to another Zenoh network (e.g. another unit's)."""
-        t = self.rc.transport
-        socket = next(filter(is_socket, t.listen or []), None)
-        for attempt in range(5):
-            self.endpoint = (t.listen[0] if t.listen else loopback_endpoint("tls")) \
-                if t.keys else socket or default_endpoint(self.run_dir)
-            listen = list(dict.fromkeys([self.endpoint, *(t.listen or [])]))  # once each
-            conf = make_config(listen=listen, connect=t.connect,
-                               config_file=t.zenoh_config, keys=t.keys, role="central",
-                               limits=Limits.of(t), control=not t.insecure)
-            try:
-                return Node(conf, t.unit, "central")
-            except Exception:  # ZError: the port was taken meanwhile
-                if t.listen or not t.keys or attempt == 4:
-                    raise
-        raise AssertionError("unreachable")
 
     def _busy_guard(self) -> BusyGuard | None:
         """Under FIFO: back to the default policy before the kernel throttles. The guard

@@ -87,9 +87,24 @@ def loopback_endpoint(protocol: str = "tls") -> str:
     bound to port 0, then closed): the central's default endpoint with keys, whose links
     must carry the roles' certificates, which a unix socket cannot. Another process may
     take the port before Zenoh binds it: the caller retries on another one."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"{protocol}/127.0.0.1:{s.getsockname()[1]}"
+    return with_free_port(f"{protocol}/127.0.0.1:0")
+
+
+def with_free_port(endpoint: str) -> str:
+    """``endpoint`` with port 0 replaced by a port free now on its host (as
+    :func:`loopback_endpoint` chooses one), so that what the summary names, and what
+    the roles connect to, is the port listened on; any other endpoint unchanged. Another
+    process may take the port before Zenoh binds it: the caller retries on another."""
+    m = _IP_ENDPOINT.match(endpoint)
+    if not m or m.group("port") != "0":
+        return endpoint
+    host = m.group("host").strip("[]")
+    udp = m.group(1) in ("udp", "quic")
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_DGRAM if udp else socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        port = s.getsockname()[1]
+    return f"{endpoint[:m.end('port') - 1]}{port}{endpoint[m.end('port'):]}"
 
 
 def socket_path_taken(endpoint: str) -> str | None:
