@@ -241,6 +241,25 @@ def test_no_router_refuses_the_start(tmp_path):
     assert "rmw_zenohd" in res.stdout + res.stderr
 
 
+def test_a_listener_that_answers_no_zenoh_handshake_refuses_the_start(tmp_path):
+    """A TCP port that accepts and never answers (another program's, or a stalled one)
+    is no router: refused before anything runs, within about a second, naming it. Before
+    (a review), the start went on and announced ROS 2 topics nobody could receive."""
+    import socket
+
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(8)
+        port = silent.getsockname()[1]
+        res = subprocess.run([sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--ros2",
+                              "--unit", unit_id("silentrouter"), "--cycles", "10", "--clock",
+                              "lockstep"], capture_output=True, text=True, env=_env(port),
+                             timeout=120)
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert f"tcp/127.0.0.1:{port} accepted a connection but answered no Zenoh handshake" in \
+        res.stderr, res.stderr
+
+
 def test_lockstep_joint_states_equal_the_recording(tmp_path, router):
     """A lockstep run with ``--ros2 --record``: the ROS 2 graph holds the node and its
     four publishers as ``ros2 topic list`` reads them, and every /joint_states message

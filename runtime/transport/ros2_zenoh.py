@@ -132,16 +132,32 @@ def check_links(conf: Any) -> None:
 
 
 def probe(conf: Any) -> None:
-    """Whether a router answers on the session's ``tcp/`` endpoints (a TCP connection;
-    other protocols are left to Zenoh). Raises OSError naming them and how to start one."""
+    """Whether a Zenoh router answers on the session's ``tcp/`` endpoints: a TCP
+    connection, then Zenoh's handshake in a client session of its own, each within
+    :data:`PROBE_S` (other protocols are left to Zenoh). Raises OSError naming them and
+    how to start one; a listener that accepts and never answers is no router."""
+    import zenoh
+
     tcp = [e for e in router_endpoints(conf) if e.startswith("tcp/")]
+    silent = []
     for e in tcp:
         host, _, port = e[4:].split("#")[0].split("?")[0].rpartition(":")
         try:
             socket.create_connection((host.strip("[]"), int(port)), timeout=PROBE_S).close()
-            return
         except (OSError, ValueError):
             continue
+        client = zenoh.Config.from_json5(json.dumps({
+            "mode": "client", "scouting": {"multicast": {"enabled": False}},
+            "connect": {"endpoints": [e], "timeout_ms": int(PROBE_S * 1000)}}))
+        try:
+            zenoh.open(client).close()
+            return
+        except Exception:  # ZError: no Zenoh handshake within the time
+            silent.append(e)
+    if silent:
+        raise OSError(f"--ros2: {', '.join(silent)} accepted a connection but answered no "
+                      f"Zenoh handshake within {PROBE_S:g} s: not a Zenoh router (start the "
+                      "ROS 2 one: ros2 run rmw_zenoh_cpp rmw_zenohd)")
     if tcp:
         raise OSError(f"--ros2: no Zenoh router answers at {', '.join(tcp)}: start the ROS 2 "
                       "one (ros2 run rmw_zenoh_cpp rmw_zenohd), or name yours with "
