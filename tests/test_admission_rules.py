@@ -288,7 +288,8 @@ def test_the_climb_stops_where_tracking_gets_too_poor(monkeypatch):
         admit(central)
     assert calls == [(1e-3, 1 << 41)]
     assert "the longer periods that might hold track the task worse than half of " \
-           "--max-error (at 1.25 ms: 10.1 mm in the one-process simulation)" in str(e.value)
+           "--max-error (at 1.25 ms the one-process simulation tracks within 10.1 mm)" in \
+        str(e.value)
     assert e.value.info["untrackable_from_s"] == 1.25e-3
 
 
@@ -305,6 +306,23 @@ def test_the_tracking_a_period_predicts_is_the_one_process_loops_at_it():
     assert f"{admission.predicted_tracking(central, 8e-3) * 1e3:.1f}" == "5.8"
     kin = SimpleNamespace(rc=rc.replace(law="kinematics"), params=engine.cfg.params)
     assert math.isnan(admission.predicted_tracking(kin, 1e-3))
+    # at 50 ms the loop loses the robot: its observer finds no pose (ObserverDiverged,
+    # which a live start reported as "a damaged recording?", exit 1), now infinite
+    assert admission.predicted_tracking(central, 50e-3) == math.inf
+    assert "loses the robot" in admission.tracks(math.inf)
+
+
+def test_a_trial_longer_than_two_seconds_is_said_before_it_runs(monkeypatch):
+    """A long period's trial (50 intervals at least) would keep the user waiting in
+    silence: at 50 ms, 2.5 s is said first; at 1 ms (0.3 s) nothing is."""
+    said: list[str] = []
+    central, _ = scripted(monkeypatch, [rung(50e-3, held=True)], period=50e-3)
+    admit(central, note=said.append)
+    assert said == ["ctrlunit: the admission's trial at 50 ms: 50 intervals, 2 s before the "
+                    "first command (--no-admission skips it)"]
+    central, _ = scripted(monkeypatch, [rung(1e-3, held=True)])
+    admit(central, note=said.append)
+    assert len(said) == 1
 
 
 def test_auto_goes_down_the_ladder_while_the_shorter_periods_hold(monkeypatch):
@@ -417,7 +435,8 @@ def test_the_refusals_words_and_figures_in_full(monkeypatch):
     with pytest.raises(Unsustainable, match="tracks within 123.4 mm"):
         admit(central)
     central, _ = scripted(monkeypatch, [rung(1e-3, held=False)], tracking={1.25e-3: 0.1234})
-    with pytest.raises(Unsustainable, match=r"\(at 1.25 ms: 123.4 mm in the one-process"):
+    with pytest.raises(Unsustainable,
+                       match=r"\(at 1.25 ms the one-process simulation tracks within 123.4"):
         admit(central)
     central, _ = scripted(monkeypatch, [rung(1e-3, held=False), rung(1.25e-3, held=True)],
                           period_auto=True)

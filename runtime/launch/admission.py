@@ -50,6 +50,7 @@ from ..config import EXIT_UNSUSTAINABLE
 from ..host import sched
 from ..host.busy_guard import ADMIT_BUSY_SHARE
 from ..transport.codec import WARMUP_BASE
+from .predicted import predicted_tracking, tracks
 from .refusal import HEADROOM, LATE_SHARE, advice, trial_findings
 
 if TYPE_CHECKING:
@@ -83,6 +84,18 @@ class Unsustainable(Exception):
                  advice: str = "") -> None:
         super().__init__(message)
         self.info, self.headline, self.advice = info, headline or message, advice
+
+
+SAY_TRIAL_S = 2.0
+"""A trial longer than this is said before it runs."""
+
+
+def _say_long_trial(note: Callable[[str], Any] | None, period: float) -> None:
+    """Tell ``note`` of a trial at ``period`` longer than :data:`SAY_TRIAL_S` (a long
+    period's: the user would wait in silence)."""
+    if note is not None and (n := trial_intervals(period)) * period > SAY_TRIAL_S:
+        note(f"ctrlunit: the admission's trial at {period * 1e3:g} ms: {n} intervals, "
+             f"{n * period:.0f} s before the first command (--no-admission skips it)")
 
 
 def trial_intervals(period_s: float, *, seconds: float = 0.3, least: int = 50,
@@ -200,7 +213,8 @@ Rehearse = Callable[[], Rehearsal]
 
 
 def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
-          rehearse: Rehearse | None = None, descend: bool = False) -> dict[str, Any]:
+          rehearse: Rehearse | None = None, descend: bool = False,
+          note: Callable[[str], Any] | None = None) -> dict[str, Any]:
     """Run the trial from the configured period up :data:`LADDER_S` until a period holds.
     Returns the admission's report when the configured period holds; raises
     :class:`Unsustainable` otherwise (with ``--period auto`` the caller starts again at
@@ -212,7 +226,7 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
     interval besides the control (its recorder, writing nowhere: :data:`Rehearse`).
     ``descend`` (``--period auto``'s first start): where the period asked holds, go down
     the ladder (:func:`descend_from`); a shorter period that held raises
-    :class:`ShorterHeld`."""
+    :class:`ShorterHeld`. ``note`` is told of a long trial (:func:`_say_long_trial`)."""
     rc = central.rc
     rtt = central.snapshot().times.warm_rtt_s
     transit = statistics.median(rtt) / 2 if rtt else 0.0
@@ -226,6 +240,7 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
         if err > TRACKING_SHARE * rc.control.max_error:  # longer periods only track worse
             untrackable = (period, err)
             break
+        _say_long_trial(note, period)
         verdict = trial(central, period, base=TRIAL_BASE + (len(rungs) << 20),
                         transit_s=transit, unit_cpu=unit_cpu, rehearse=rehearse)
         verdict["predicted_tracking_max_m"] = err
@@ -249,9 +264,8 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
         if not rungs:
             raise Unsustainable(
                 f"the task cannot be tracked at {asked * 1e3:g} ms: the one-process "
-                f"simulation at it tracks within {untrackable[1] * 1e3:.1f} mm, more than "
-                f"half of --max-error {rc.control.max_error * 1e3:g} mm; refused before any "
-                "motion (try a shorter --period or a slower task)", info)
+                f"simulation at it {tracks(untrackable[1], rc.control.max_error)}; refused "
+                "before any motion (try a shorter --period or a slower task)", info)
     if held_at is not None and math.isclose(held_at, asked):
         shortest = descend_from(central, rungs, transit_s=transit, unit_cpu=unit_cpu,
                                 rehearse=rehearse) if descend else asked
@@ -263,8 +277,8 @@ def admit(central: Central, *, unit_cpu: CpuTimes | None = None,
     first = rungs[0]
     if held_at is None and untrackable is not None:
         found = (f"the longer periods that might hold track the task worse than half of "
-                 f"--max-error (at {untrackable[0] * 1e3:g} ms: {untrackable[1] * 1e3:.1f} "
-                 "mm in the one-process simulation)")
+                 f"--max-error (at {untrackable[0] * 1e3:g} ms the one-process simulation "
+                 f"{tracks(untrackable[1])})")
     elif held_at is None:
         found = (f"none of the ladder's periods up to {LADDER_S[-1] * 1e3:g} ms held "
                  f"either (the last: traversal p99 {rungs[-1]['traversal_p99_s'] * 1e3:.2f} "
@@ -302,31 +316,6 @@ def descend_from(central: Central, rungs: list[dict[str, Any]], *, transit_s: fl
             break
         held = verdict
     return float(held["period_s"])
-
-
-def predicted_tracking(central: Central, period: float) -> float:
-    """Max tracking error (m) of the task in the one-process closed loop at ``period`` with
-    the run's law, model, observer, model state, gains and command delay
-    (runtime/compute/controller.py's ``simulate``, lockstep: no misses), over the run or
-    one loop of the task, whichever is shorter (a long run repeats the loop; simulating a
-    60 s run took longer than the roles wait in silence). NaN for the kinematics law (no
-    torques)."""
-    from ...kernels.laws import Gains
-    from ...kernels.task_file import get_task
-    from ..compute.controller import simulate
-
-    rc = central.rc.replace(period=period)
-    if rc.control.law == "kinematics":
-        return math.nan
-    task = get_task(rc.control.task)
-    res = simulate(central.params, task, law=rc.control.law, model=rc.control.model,
-                   gains=Gains.from_bandwidth(rc.bandwidth), period=period,
-                   cycles=min(rc.total_cycles(task.period), round(task.period / period) + 1),
-                   delay=rc.delay_periods,
-                   observer=rc.control.observer, model_state=rc.resolved_model_state)
-    ref = np.asarray(res.references, dtype=float)
-    pos = np.asarray(res.positions, dtype=float)
-    return float(np.max(np.linalg.norm(ref - pos, axis=1))) if ref.size else math.nan
 
 
 def fifo_busy_limit() -> float | None:

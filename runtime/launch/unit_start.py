@@ -210,7 +210,8 @@ class UnitStart:
             self.decided["admission"] = admit(
                 central, unit_cpu=self.guard.load.sample if self.guard and self.guard.load
                 else None, rehearse=self._rehearsal if self.recorder else None,
-                descend=descend and rc.schedule.period_auto and not rc.schedule.trial_only)
+                descend=descend and rc.schedule.period_auto and not rc.schedule.trial_only,
+                note=self.echo)
 
     def _rehearsal(self) -> Any:
         """The recorder of one admission trial: the run's work after each interval, kept
