@@ -259,6 +259,32 @@ def test_latency_measures_under_the_policy_asked_and_leaves_the_caller_as_it_was
     assert os.sched_getscheduler(0) == before and lat.size == rep["ticks"] > 0
 
 
+def test_latency_s_unit_trial_is_the_unit_start_runs(monkeypatch):
+    """``latency --unit`` tries what ``ctrlunit start`` with the same options would run,
+    stopped after its trial: every setting equal (the unit's fresh id aside). Its own
+    configuration had the thesis's placement, not start's ``auto``, and measured a unit
+    ten times slower than the one start runs."""
+    from ctrlunit.runtime.launch.latency import trial_config
+
+    ours = trial_config(peripherals=3, pipeline=2, period_s=1e-3, idle="auto").to_dict()
+    captured = {}
+
+    def fake_start(rc, **kw):
+        captured["rc"] = rc
+        return 0, {}
+
+    monkeypatch.setattr("ctrlunit.runtime.launch.launcher.start", fake_start)
+    from click.testing import CliRunner
+    from ctrlunit.runtime.cli import cli
+
+    CliRunner().invoke(cli, ["start", "--peripherals", "3", "--pipeline", "2", "--period",
+                             "1ms"])
+    theirs = captured["rc"].to_dict()
+    differ = {k for k in ours.keys() | theirs.keys() if ours.get(k) != theirs.get(k)}
+    assert differ <= {"unit", "trial_only"}, {k: (ours.get(k), theirs.get(k)) for k in differ}
+    assert ours["placement_auto"] and ours["trial_only"]
+
+
 def test_latency_refuses_a_period_out_of_range():
     res = ctrlunit("latency", "--period", "5s", "--duration", "1s", timeout=30)
     assert res.returncode == 1

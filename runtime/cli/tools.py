@@ -217,7 +217,7 @@ def latency(period: float, duration: float, with_unit: bool, peripherals: int, p
     p99.9 and max and the shortest period of the admission ladder that leaves half of
     each period for the work. With --unit, then run the unit's admission trial at the
     period: the traversal the unit itself shows, and the period it holds."""
-    from ..config import ConfigError, RunConfig
+    from ..config import ConfigError
     from ..host.idle import IdlePermissionError
     from ..host.sched import RtPermissionError
     from ..launch.latency import histogram_png, latency_report
@@ -241,10 +241,11 @@ def latency(period: float, duration: float, with_unit: bool, peripherals: int, p
             return
         rep["plot"] = plot
     if with_unit:
+        from ..launch.latency import trial_config
         from ..launch.launcher import start
 
-        rc = RunConfig.of(peripherals=peripherals, pipeline=pipeline, clock="realtime",
-                       period=period_s, trial_only=True, idle=idle)
+        rc = trial_config(peripherals=peripherals, pipeline=pipeline, period_s=period_s,
+                          idle=idle)
         code, urep = start(rc, echo=lambda m: click.echo(m, err=True))
         raise_if_stopped(code, urep)
         adm = urep.get("admission")

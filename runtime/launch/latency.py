@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 
 from ..compute.timing import quantiles
+from ..config import RunConfig
+from ..config.spellings import to_fields
 from ..host import sched
 from ..host.idle import idle_request
 from ..roles.plant_ticks import SLEEP_SLICE_S
@@ -84,6 +86,18 @@ def histogram_png(lat_s: np.ndarray, path: str, *, period_s: float, title: str) 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def trial_config(*, peripherals: int, pipeline: int, period_s: float, idle: str) -> RunConfig:
+    """The unit ``latency --unit`` tries: ``ctrlunit start``'s at its defaults (read as
+    its flags read them: ``--placement auto`` among them) with these settings, stopped
+    after the admission trial. Built with :meth:`RunConfig.of` alone it was the thesis's
+    placement (``axes``), whose trial at 1 ms measured a traversal p50 of 1.8-2.0 ms where
+    the main job's own trial measured 0.19 ms (a review: latency advised 1.25-2 ms while
+    ``start`` held 0.64-1 ms)."""
+    settings = {"peripherals": peripherals, "pipeline": pipeline, "clock": "realtime",
+                "period": period_s, "idle": idle, "placement": "auto"}
+    return RunConfig.of(**to_fields(settings), trial_only=True)
 
 
 def latency_report(period_s: float, duration_s: float, *, rt_priority: int | str = sched.AUTO,
