@@ -10,7 +10,11 @@ its socket fills; 2 s after connecting each is stopped whole (SIGSTOP), so that 
 keep-alives end and Zenoh closes its link (the two ways a reader has stopped a unit:
 docs/measurements/2026-11-28-stopped-readers.md).
 
-``python -m ctrlunit.bench.frozen_observers [--pairs 5] [--duration 20s]`` prints each
+``--reading``: the same three readers keep reading every message instead (what live
+observers cost).
+
+``python -m ctrlunit.bench.frozen_observers [--pairs 5] [--duration 20s] [--reading]``
+prints each
 run's exit code, period, misses per 1000 and tracking error, and the acceptance figure of
 issues 56 and 61: the runs with frozen readers whose misses stay within ``max(1,
 baseline + 1)`` per 1000, the baseline being the median of the runs without readers.
@@ -35,11 +39,18 @@ from typing import Any
 READER = """
 import json, sys, time, zenoh
 endpoint, key, seconds = sys.argv[1], sys.argv[2], float(sys.argv[3])
+reading = len(sys.argv) > 4 and sys.argv[4] == "reading"
 print("ready", flush=True)
 sys.stdin.readline()
 conf = zenoh.Config.from_json5(json.dumps({"mode": "peer", "connect": {"endpoints": [
     endpoint]}, "scouting": {"multicast": {"enabled": False}}}))
 with zenoh.open(conf) as s:
+    if reading:  # it reads every message until it ends
+        got = []
+        s.declare_subscriber(key, lambda sample: got.append(1))
+        time.sleep(seconds)
+        print(f"got {len(got)}", flush=True)
+        sys.exit(0)
     sub = s.declare_subscriber(key, zenoh.handlers.FifoChannel(1))
     end = time.monotonic() + seconds
     got = None
@@ -50,7 +61,8 @@ with zenoh.open(conf) as s:
     time.sleep(max(0.0, end - time.monotonic()))
 """
 """A reader that takes one message and never reads again (``argv``: endpoint, key
-expression, seconds); it prints ``ready`` once Zenoh is imported and connects on a line."""
+expression, seconds, and ``reading`` for one that reads every message instead); it
+prints ``ready`` once Zenoh is imported and connects on a line."""
 
 ROUTER = """
 import json, sys, time, zenoh
@@ -87,15 +99,17 @@ def _ready(args: list[str]) -> subprocess.Popen:
 
 
 def run(*, duration_s: float, router_port: int, readers: bool, workdir: Path,
-        timeout_s: float = 300.0) -> dict[str, Any]:
-    """One main job, with frozen readers or without; its figures."""
+        reading: bool = False, timeout_s: float = 300.0) -> dict[str, Any]:
+    """One main job, with readers or without (``reading``: readers that keep reading,
+    neither frozen nor stopped); its figures."""
     unit = f"bench-frozen-{uuid.uuid4().hex[:8]}"
     port = _port()
     report, status = workdir / f"{unit}.json", workdir / f"{unit}.status"
     keys = [(f"tcp/127.0.0.1:{port}", f"ctrlunit/{unit}/view/**"),
             (f"tcp/127.0.0.1:{port}", f"ctrlunit/{unit}/**"),
             (f"tcp/127.0.0.1:{router_port}", "*/joint_states/**")]
-    procs = [_ready([READER, ep, key, str(duration_s + 60)]) for ep, key in keys] \
+    mode = ["reading"] if reading else []
+    procs = [_ready([READER, ep, key, str(duration_s + 60), *mode]) for ep, key in keys] \
         if readers else []
     env = os.environ | {"ZENOH_CONFIG_OVERRIDE":
                         f'connect/endpoints=["tcp/127.0.0.1:{router_port}"]'}
@@ -118,7 +132,7 @@ def run(*, duration_s: float, router_port: int, readers: bool, workdir: Path,
             assert p.stdin is not None
             p.stdin.write("\n")
             p.stdin.flush()
-        if procs:
+        if procs and not reading:
             time.sleep(STOP_AFTER_S)
             for p in procs:
                 os.kill(p.pid, signal.SIGSTOP)
@@ -157,6 +171,8 @@ def main(argv: list[str] | None = None) -> None:
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--pairs", type=int, default=5, help="runs with readers (and without)")
     ap.add_argument("--duration", default="20s", help="length of each run")
+    ap.add_argument("--reading", action="store_true",
+                    help="readers that keep reading instead (a live subscriber's cost)")
     args = ap.parse_args(argv)
     from ..runtime.config import parse_duration
 
@@ -169,7 +185,7 @@ def main(argv: list[str] | None = None) -> None:
             for k in range(args.pairs):
                 for readers in ((False, True) if k % 2 == 0 else (True, False)):
                     r = run(duration_s=seconds, router_port=router_port, readers=readers,
-                            workdir=Path(tmp))
+                            workdir=Path(tmp), reading=args.reading)
                     (frozen if readers else base).append(r)
                     print(_line(f"pair {k + 1} {'readers' if readers else 'none   '}", r),
                           flush=True)
@@ -179,7 +195,8 @@ def main(argv: list[str] | None = None) -> None:
     baseline = statistics.median(b["misses_per_1000"] for b in base)
     bound = max(1.0, baseline + 1.0)
     within = [r for r in frozen if r["exit"] == 0 and r["misses_per_1000"] <= bound]
-    print(f"with frozen readers: {len(within)} of {len(frozen)} ended normally with misses "
+    kind = "reading" if args.reading else "frozen"
+    print(f"with {kind} readers: {len(within)} of {len(frozen)} ended normally with misses "
           f"within max(1, baseline {baseline:.2f} + 1) per 1000; exit 0 without readers in "
           f"{sum(b['exit'] == 0 for b in base)} of {len(base)}")
 
