@@ -14,10 +14,9 @@ docs/measurements/2026-11-28-stopped-readers.md).
 observers cost).
 
 ``python -m ctrlunit.bench.frozen_observers [--pairs 5] [--duration 20s] [--reading]``
-prints each
-run's exit code, period, misses per 1000 and tracking error, and the acceptance figure of
-issues 56 and 61: the runs with frozen readers whose misses stay within ``max(1,
-baseline + 1)`` per 1000, the baseline being the median of the runs without readers.
+prints each run's exit code, period, misses per 1000 and tracking error, and the
+acceptance figure of issues 56 and 61: the runs with readers whose misses stay within
+``max(1, baseline + 1)`` per 1000, the baseline being the median of the runs without.
 """
 
 from __future__ import annotations
