@@ -215,3 +215,32 @@ def test_a_listen_port_0_becomes_a_port_listened_on_and_named(tmp_path):
         (link,) = [ln for ln in rep["link_list"] if ln["endpoint"].startswith(proto)]
         port = int(link["endpoint"].rsplit(":", 1)[1])
         assert 0 < port <= 65535 and f"{proto}/127.0.0.1:{port} (listen)" in out, out
+
+
+def test_a_central_started_by_hand_names_the_port_it_listens_on():
+    """``ctrlunit central --listen tcp/127.0.0.1:0`` tells the user which endpoint to give
+    the other roles: it named port 0 (a new user's review), where nobody can connect."""
+    import re
+
+    from runner import unit_id
+
+    res = ctrlunit("central", "--unit", unit_id("central0"), "--clock", "lockstep",
+                   "--peripherals", "0", "--listen", "tcp/127.0.0.1:0", "--insecure",
+                   "--set", "transport.startup_timeout=1", timeout=120)
+    said = re.search(r"--connect tcp/127\.0\.0\.1:(\d+)", res.stderr)
+    assert said and said[1] != "0", res.stderr
+    assert f"tcp/127.0.0.1:{said[1]} (listen)" in res.stdout + res.stderr, res.stdout
+
+
+def test_a_port_0_is_chosen_once_for_every_start_of_the_run():
+    """``--period auto`` may start the unit again; each start listened on a port of its
+    own, and a viewer connected to the first lost the run (a new user's review). The
+    launcher chooses the port once: choosing again keeps it."""
+    from ctrlunit.runtime.config import RunConfig
+    from ctrlunit.runtime.launch.run_parts import listen_ports
+
+    rc = RunConfig.of(listen=["tcp/127.0.0.1:0", "unixsock-stream//tmp/x.sock"])
+    once = listen_ports(rc)
+    port = once.transport.listen[0].rsplit(":", 1)[1]
+    assert port != "0" and once.transport.listen[1] == "unixsock-stream//tmp/x.sock"
+    assert listen_ports(once).transport.listen == once.transport.listen

@@ -170,6 +170,7 @@ def central(as_json: bool, **kw: Any) -> None:
     configuration from this process at the handshake)."""
     from ..compute.setup import make_setup
     from ..launch.launcher import central_only
+    from ..launch.run_parts import listen_ports
     from ..transport.endpoints import is_socket
 
     check = kw.pop("check", False)
@@ -186,6 +187,7 @@ def central(as_json: bool, **kw: Any) -> None:
     if check:
         click.echo("ctrlunit central: the options are valid; nothing was started.")
         sys.exit(0)
+    rc = listen_ports(rc)  # a port 0 chosen now: the line below names where it listens
     t = rc.transport
     roles_at = next((e for e in t.listen or [] if t.keys or is_socket(e)),
                     (t.listen or ["ENDPOINT"])[0])

@@ -22,6 +22,7 @@ from ..host import sched
 from ..host.idle import IdlePermissionError, idle_request
 from ..roles.stopping import stop_of, stop_signals
 from .admission import LADDER_S
+from .run_parts import listen_ports
 from .unit_start import UnitStart
 
 
@@ -37,7 +38,8 @@ def start(rc: RunConfig, *, echo: Any = print, progress: Any = None, spawn: bool
     policy is what it was before when it returns (see :mod:`..host.sched`). SIGTERM and SIGHUP
     end the run as Ctrl-C does (:func:`stop_of`)."""
     with stop_signals():
-        return _starts(rc, echo=echo, progress=progress, spawn=spawn, inspect=inspect)
+        return _starts(listen_ports(rc), echo=echo, progress=progress, spawn=spawn,
+                       inspect=inspect)
 
 
 def _quieter(echo: Any, said: set[str]) -> Any:

@@ -99,33 +99,39 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
                        None if respawn is None else restart, promote, last_cpus)
 
 
-def central_node(rc: RunConfig, run_dir: Path) -> tuple[Node, str, RunConfig]:
-    """The central's node, the endpoint the children connect to, and ``rc`` with the
-    ports listened on. The node listens on that endpoint and on ``--listen``. Without keys
-    the endpoint is the first unix socket of ``--listen``, else the local socket in the
-    run's folder, and any other link carries the observers' keys alone unless
-    ``--insecure`` (runtime/transport/security.py); with keys (links must carry the
-    roles' certificates) the first ``--listen`` endpoint, else TLS on a free loopback
-    port. A port 0 becomes one free now, which the report then names; a port chosen here
-    and taken meanwhile is chosen again (5 tries). ``--connect`` joins the central to
+def central_node(rc: RunConfig, run_dir: Path) -> tuple[Node, str]:
+    """The central's node and the endpoint the children connect to. The node listens on
+    that endpoint and on ``--listen`` (its ports chosen already: :func:`listen_ports`).
+    Without keys the endpoint is the first unix socket of ``--listen``, else the local
+    socket in the run's folder, and any other link carries the observers' keys alone
+    unless ``--insecure`` (runtime/transport/security.py); with keys (links must carry
+    the roles' certificates) the first ``--listen`` endpoint, else TLS on a free loopback
+    port, chosen again if taken meanwhile (5 tries). ``--connect`` joins the central to
     another Zenoh network (e.g. another unit's)."""
     t = rc.transport
     socket = next(filter(is_socket, t.listen or []), None)
     for attempt in range(5):
-        given = [with_free_port(e) for e in t.listen or []]
-        endpoint = (given[0] if given else loopback_endpoint("tls")) \
+        endpoint = (t.listen[0] if t.listen else loopback_endpoint("tls")) \
             if t.keys else socket or default_endpoint(run_dir)
-        conf = make_config(listen=list(dict.fromkeys([endpoint, *given])),  # once each
+        conf = make_config(listen=list(dict.fromkeys([endpoint, *(t.listen or [])])),
                            connect=t.connect, config_file=t.zenoh_config, keys=t.keys,
                            role="central", limits=Limits.of(t), control=not t.insecure)
         try:
-            node = Node(conf, t.unit, "central")
-        except Exception:  # ZError: a port chosen here was taken meanwhile
-            if (given == (t.listen or []) and (t.listen or not t.keys)) or attempt == 4:
+            return Node(conf, t.unit, "central"), endpoint
+        except Exception:  # ZError: the port was taken meanwhile
+            if t.listen or not t.keys or attempt == 4:
                 raise
-            continue
-        return node, endpoint, rc if given == (t.listen or []) else rc.replace(listen=given)
     raise AssertionError("unreachable")
+
+
+def listen_ports(rc: RunConfig) -> RunConfig:
+    """``rc`` with each ``--listen`` port 0 replaced by one free now
+    (runtime/transport/endpoints.py, ``with_free_port``): chosen once for the whole run,
+    so that what is printed is where the central listens, and every start of ``--period
+    auto`` listens there (a viewer stays connected)."""
+    given = rc.transport.listen or []
+    fixed = [with_free_port(e) for e in given]
+    return rc if fixed == given else rc.replace(listen=fixed)
 
 
 def live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:

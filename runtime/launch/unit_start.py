@@ -157,8 +157,7 @@ class UnitStart:
         self.cpus = role_cpus(rc)  # (the central's, the children's): before pinning
         if self.cpus[0]:
             sched.pin_all(self.cpus[0])  # before zenoh.open: its threads inherit it
-        self.node, self.endpoint, self.rc = central_node(rc, self.run_dir)
-        rc = self.rc  # with the ports listened on
+        self.node, self.endpoint = central_node(rc, self.run_dir)
         self.guard = self._busy_guard()
         self.observers = observers_view(rc, setup, self.node, self.echo)
         # after the node's session: Zenoh's threads, shared, are made under the RT policy
