@@ -231,7 +231,7 @@ def test_a_refusal_names_the_first_trials_figures_and_what_to_try(monkeypatch):
         "measured to hold is 1.25 ms. Try --period auto "
         "(it climbs to a period that holds at each start); or --period 1.25ms (measured to "
         "hold); or --rt-priority 10 (SCHED_FIFO: other programs then wait for the unit). "
-        "ctrlunit latency measures what this machine holds.")
+        "ctrlunit latency --unit measures what this machine holds for the unit.")
 
 
 @pytest.mark.parametrize(("held", "suggested"), [
@@ -264,7 +264,8 @@ def test_a_busy_cpu_is_named_in_the_refusal(monkeypatch):
     assert ("; a CPU was 90% busy under SCHED_FIFO, over the limit of 71% of the CPU (75% "
             "of the kernel's real-time budget); ") in msg
     assert msg.endswith("or a placement from ctrlunit balance (less of the unit's CPU "
-                        "time). ctrlunit latency measures what this machine holds.")
+                        "time). ctrlunit latency --unit measures what this machine holds for the "
+                        "unit.")
     assert "none of the ladder's periods up to 10 ms held either (the last: traversal " \
            "p99 24.00 ms of 20.00 ms)" in msg
     assert e.value.info["sustainable_period_s"] is None
@@ -422,15 +423,15 @@ def test_the_refusals_words_and_figures_in_full(monkeypatch):
         "the 19.00 ms allowed (95% of a 20.00 ms budget: 2 period(s)); none of the "
         "ladder's periods up to 10 ms held either (the last: "
         "traversal p99 24.00 ms of 20.00 ms). Try --rt-priority 10 (SCHED_FIFO: other "
-        "programs then wait for the unit). ctrlunit latency measures what this machine "
-        "holds.")
+        "programs then wait for the unit). ctrlunit latency --unit measures what this "
+        "machine holds for the unit.")
     monkeypatch.setattr(sched, "fifo_in_force", lambda: True)
     central, _ = scripted(monkeypatch, [rung(10e-3, held=False)], period=10e-3)
     monkeypatch.setattr(sched, "fifo_in_force", lambda: True)
     with pytest.raises(Unsustainable) as e:
         admit(central)
-    assert str(e.value).endswith("20.00 ms). ctrlunit latency measures what this machine "
-                                 "holds.")  # under FIFO, not busy: nothing to try
+    assert str(e.value).endswith("20.00 ms). ctrlunit latency --unit measures what this "
+                                 "machine holds for the unit.")  # FIFO, not busy: nothing to try
     central, _ = scripted(monkeypatch, [], tracking={1e-3: 0.1234})
     with pytest.raises(Unsustainable, match="tracks within 123.4 mm"):
         admit(central)

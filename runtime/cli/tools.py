@@ -246,7 +246,11 @@ def latency(period: float, duration: float, with_unit: bool, peripherals: int, p
 
         rc = trial_config(peripherals=peripherals, pipeline=pipeline, period_s=period_s,
                           idle=idle)
-        code, urep = start(rc, echo=lambda m: click.echo(m, err=True))
+        def say(line: Any) -> None:  # the placement chosen is start's news, not latency's
+            if not str(line).startswith("ctrlunit: --placement auto"):
+                click.echo(line, err=True)
+
+        code, urep = start(rc, echo=say)
         raise_if_stopped(code, urep)
         adm = urep.get("admission")
         if not adm:
@@ -285,8 +289,12 @@ def latency(period: float, duration: float, with_unit: bool, peripherals: int, p
                      f"included: p50 {us(t['p50'])}  p99 {us(t['p99'])}  p99.9 "
                      f"{us(t['p999'])}  max {us(t['max'])}; {u['late']} of {u['intervals']} "
                      "trial intervals late")
+    held = rep["sustainable_period_s"]
+    tail = ("; the timer alone, not the unit's work: --unit tries the unit" if "unit" not in rep
+            else "; shorter periods not tried: give a shorter --period to try one"
+            if held is not None and math.isclose(held, period_s) else "")
     lines.append(f"shortest sustainable period ({rep['sustainable_period_from']}): "
-                 f"{ms(rep['sustainable_period_s'])}")
+                 f"{ms(held)}{tail}")
     if plot:
         lines.append(f"histogram: {plot}")
     click.echo("\n".join(lines))

@@ -88,9 +88,9 @@ def advice(period_auto: bool, first: dict[str, Any], held: dict[str, Any] | None
     if busy_over(first):
         tries.append("a placement from ctrlunit balance (less of the unit's CPU time)")
     if not tries:
-        return " ctrlunit latency measures what this machine holds."
+        return " ctrlunit latency --unit measures what this machine holds for the unit."
     return (" Try " + "; or ".join(tries)
-            + ". ctrlunit latency measures what this machine holds.")
+            + ". ctrlunit latency --unit measures what this machine holds for the unit.")
 
 
 __all__ = ["HEADROOM", "LATE_SHARE", "NEAR_LIMIT", "advice", "busy_over", "suggested",
