@@ -278,7 +278,7 @@ def test_a_task_the_period_cannot_track_is_refused_before_any_trial(monkeypatch)
     assert calls == []
     assert str(e.value).startswith(
         "the task cannot be tracked at 1 ms: the one-process simulation at it tracks "
-        "within 11.0 mm, more than half of --max-error 20 mm; refused before any motion")
+        "within 11.0 mm, more than half (10 mm) of --max-error 20 mm; refused before any motion")
     assert e.value.info["untrackable_from_s"] == 1e-3
 
 

@@ -53,7 +53,7 @@ def tracks(err_m: float, max_error_m: float | None = None) -> str:
         return "loses the robot (its observer finds no pose that fits the samples)"
     return f"tracks within {err_m * 1e3:.1f} mm" + (
         "" if max_error_m is None else
-        f", more than half of --max-error {max_error_m * 1e3:g} mm")
+        f", more than half ({max_error_m * 0.5e3:g} mm) of --max-error {max_error_m * 1e3:g} mm")
 
 
 __all__ = ["predicted_tracking", "tracks"]
