@@ -372,6 +372,26 @@ def test_may_hold_at_scales_the_last_figures_to_the_shorter_period():
     assert shorter_rungs(0.25e-3) == []
 
 
+def test_a_shorter_period_not_tried_is_said_with_the_figure_that_ruled_it_out(monkeypatch):
+    """``--period auto`` that stays at 1 ms said nothing of why (a new user's review):
+    the rung keeps why the next shorter one was not tried, and the summary says it."""
+    from ctrlunit.runtime.launch.admission import why_not_at
+    from ctrlunit.runtime.observe.summary import _admission_lines
+
+    held = rung(1e-3, held=True, busy=0.6, limit=0.71) | {"traversal_p99_s": 0.3e-3}
+    assert why_not_at(held, 0.8e-3) == ("0.8 ms not tried: a CPU 60% busy at 1 ms would be "
+                                        "75% there, over the limit of 71%")
+    slow = held | {"busy_share": None, "traversal_p99_s": 1.6e-3}
+    assert "the traversal p99 of 1.60 ms would pass 95% of its 1.60 ms budget" in \
+        why_not_at(slow, 0.8e-3)
+    central, calls = scripted(monkeypatch, [held], period=1e-3)
+    info = admit(central, descend=True)
+    assert calls == [(1e-3, 1 << 41)]  # no trial below
+    line = _admission_lines({"admission": info})[0]
+    assert line.endswith("; 0.8 ms not tried: a CPU 60% busy at 1 ms would be 75% there, "
+                         "over the limit of 71%"), line
+
+
 # -- edges of the verdict and the refusal's wording ------------------------------------
 
 

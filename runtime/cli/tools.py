@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -220,7 +219,7 @@ def latency(period: float, duration: float, with_unit: bool, peripherals: int, p
     from ..config import ConfigError
     from ..host.idle import IdlePermissionError
     from ..host.sched import RtPermissionError
-    from ..launch.latency import histogram_png, latency_report
+    from ..launch.latency import histogram_png, latency_lines, latency_report
 
     period_s, duration_s = period, duration
     if duration_s <= 0:
@@ -246,6 +245,7 @@ def latency(period: float, duration: float, with_unit: bool, peripherals: int, p
 
         rc = trial_config(peripherals=peripherals, pipeline=pipeline, period_s=period_s,
                           idle=idle)
+
         def say(line: Any) -> None:  # the placement chosen is start's news, not latency's
             if not str(line).startswith("ctrlunit: --placement auto"):
                 click.echo(line, err=True)
@@ -269,32 +269,6 @@ def latency(period: float, duration: float, with_unit: bool, peripherals: int, p
     if as_json:
         click.echo(json.dumps(_json_safe(rep), indent=2))
         return
-    q = rep["wakeup_latency_s"]
-
-    def us(x: float | None) -> str:
-        return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:.0f} us"
-
-    def ms(x: float | None) -> str:
-        return "none of the ladder" if x is None else f"{x * 1e3:g} ms"
-
-    polling = ", idle CPUs poll" if rep["idle"]["in_force"] == "poll" else ""
-    lines = [f"wake-up latency at {period_s * 1e3:g} ms over {rep['ticks']} ticks "
-             f"({rep['scheduling']}{polling}): p50 "
-             f"{us(q['p50'])}  p99 {us(q['p99'])}  p99.9 {us(q['p999'])}  max "
-             f"{us(q['max'])}; {rep['ticks_lost']} tick(s) woken more than a period late"]
-    if "unit" in rep:
-        u = rep["unit"]
-        t = u["traversal_s"]
-        lines.append(f"unit (n = {peripherals}, depth {pipeline}) traversal, command transit "
-                     f"included: p50 {us(t['p50'])}  p99 {us(t['p99'])}  p99.9 "
-                     f"{us(t['p999'])}  max {us(t['max'])}; {u['late']} of {u['intervals']} "
-                     "trial intervals late")
-    held = rep["sustainable_period_s"]
-    tail = ("; the timer alone, not the unit's work: --unit tries the unit" if "unit" not in rep
-            else "; shorter periods not tried: give a shorter --period to try one"
-            if held is not None and math.isclose(held, period_s) else "")
-    lines.append(f"shortest sustainable period ({rep['sustainable_period_from']}): "
-                 f"{ms(held)}{tail}")
-    if plot:
-        lines.append(f"histogram: {plot}")
+    lines = latency_lines(rep, period_s=period_s, peripherals=peripherals,
+                          pipeline=pipeline)
     click.echo("\n".join(lines))

@@ -179,12 +179,22 @@ def may_hold_at(verdict: dict[str, Any], shorter_s: float) -> bool:
     taken as they were: its busy share grows as the period shrinks and stays within its
     limit (under SCHED_FIFO), and its traversal p99 stays within the headroom of a budget
     that shrinks with the period (:func:`rung_verdict`'s rules). A trial is not run where
-    the figures already say no."""
+    the figures already say no (:func:`why_not_at` says why)."""
+    return why_not_at(verdict, shorter_s) is None
+
+
+def why_not_at(verdict: dict[str, Any], shorter_s: float) -> str | None:
+    """Why :func:`may_hold_at` says no, in words for the summary; None where it may."""
     scale = verdict["period_s"] / shorter_s
     busy, limit = verdict.get("busy_share"), verdict.get("busy_limit")
+    at = f"{shorter_s * 1e3:g} ms not tried"
     if busy is not None and limit is not None and busy * scale > limit:
-        return False
-    return verdict["traversal_p99_s"] <= HEADROOM * verdict["budget_s"] / scale
+        return (f"{at}: a CPU {busy:.0%} busy at {verdict['period_s'] * 1e3:g} ms would be "
+                f"{busy * scale:.0%} there, over the limit of {limit:.0%}")
+    if verdict["traversal_p99_s"] > HEADROOM * verdict["budget_s"] / scale:
+        return (f"{at}: the traversal p99 of {verdict['traversal_p99_s'] * 1e3:.2f} ms would "
+                f"pass {HEADROOM:.0%} of its {verdict['budget_s'] / scale * 1e3:.2f} ms budget")
+    return None
 
 
 class ShorterHeld(Unsustainable):
@@ -304,7 +314,8 @@ def descend_from(central: Central, rungs: list[dict[str, Any]], *, transit_s: fl
     shortest period that held."""
     held = rungs[-1]
     for shorter in shorter_rungs(held["period_s"]):
-        if not may_hold_at(held, shorter):
+        if (why := why_not_at(held, shorter)) is not None:
+            held["shorter_not_tried"] = why  # the summary's admission line says it
             break
         err = predicted_tracking(central, shorter)
         if err > TRACKING_SHARE * central.rc.control.max_error:

@@ -13,6 +13,7 @@ the period for the work.
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -86,6 +87,41 @@ def histogram_png(lat_s: np.ndarray, path: str, *, period_s: float, title: str) 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def latency_lines(rep: dict[str, Any], *, period_s: float, peripherals: int,
+                  pipeline: int) -> list[str]:
+    """The lines ``ctrlunit latency`` prints for ``rep`` (:func:`latency_report`, with
+    ``unit`` for ``--unit``): each figure with what it was measured on."""
+    q = rep["wakeup_latency_s"]
+
+    def us(x: float | None) -> str:
+        return "n/a" if x is None or not math.isfinite(x) else f"{x * 1e6:.0f} us"
+
+    def ms(x: float | None) -> str:
+        return "none of the ladder" if x is None else f"{x * 1e3:g} ms"
+
+    polling = ", idle CPUs poll" if rep["idle"]["in_force"] == "poll" else ""
+    lines = [f"wake-up latency at {period_s * 1e3:g} ms over {rep['ticks']} ticks "
+             f"({rep['scheduling']}{polling}): p50 "
+             f"{us(q['p50'])}  p99 {us(q['p99'])}  p99.9 {us(q['p999'])}  max "
+             f"{us(q['max'])}; {rep['ticks_lost']} tick(s) woken more than a period late"]
+    if "unit" in rep:
+        u = rep["unit"]
+        t = u["traversal_s"]
+        lines.append(f"unit (n = {peripherals}, depth {pipeline}) traversal, command transit "
+                     f"included: p50 {us(t['p50'])}  p99 {us(t['p99'])}  p99.9 "
+                     f"{us(t['p999'])}  max {us(t['max'])}; {u['late']} of {u['intervals']} "
+                     "trial intervals late")
+    held = rep["sustainable_period_s"]
+    tail = ("; the timer alone, not the unit's work: --unit tries the unit" if "unit" not in rep
+            else "; shorter periods not tried: give a shorter --period to try one"
+            if held is not None and math.isclose(held, period_s) else "")
+    lines.append(f"shortest sustainable period ({rep['sustainable_period_from']}): "
+                 f"{ms(held)}{tail}")
+    if rep.get("plot"):
+        lines.append(f"histogram: {rep['plot']}")
+    return lines
 
 
 def trial_config(*, peripherals: int, pipeline: int, period_s: float, idle: str) -> RunConfig:

@@ -309,15 +309,16 @@ def _descent(rungs: list[dict[str, Any]]) -> str:
     """``--period auto``'s way down the ladder in its first start: which shorter periods
     held, the first that did not, and whether the start again at the shortest held."""
     down = [x for x in rungs if x.get("descent")]
+    why = next((x["shorter_not_tried"] for x in rungs if x.get("shorter_not_tried")), None)
     if not down:
-        return ""
+        return f"; {why}" if why else ""
     held = [f"{x['period_s'] * 1e3:g} ms" for x in down if x["held"]]
     not_held = [f"{x['period_s'] * 1e3:g} ms" for x in down if not x["held"]]
     again = next((x for x in rungs if x.get("start") == 1), None)
     return (f"; below {rungs[0]['period_s'] * 1e3:g} ms the first start's trials held "
             f"{', '.join(held) or 'none'}" + (f", not {not_held[0]}" if not_held else "")
             + (f"; started again at {again['period_s'] * 1e3:g} ms, its trial did not hold"
-               if again is not None and not again["held"] else ""))
+               if again is not None and not again["held"] else "") + (f"; {why}" if why else ""))
 
 
 def summary(r: dict[str, Any]) -> str:
