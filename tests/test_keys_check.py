@@ -222,6 +222,39 @@ def test_keys_init_keeps_an_existing_folder_s_mode_and_refuses_one_others_may_wr
     assert not list(open_.iterdir()) and not (tmp_path / "open-authority").exists()
 
 
+def test_keys_init_refuses_before_writing_what_the_run_would_refuse(tmp_path):
+    """An attacker's review: a link to nothing in the folder stopped keys init half-way
+    (an errno, ca.pem written, the authority's key lost when the link was its), and a
+    folder under one others may write, or another user's, was filled with keys every
+    run then refused. Each is now refused before any file is written."""
+    (tmp_path / "open").mkdir()
+    (tmp_path / "open").chmod(0o777)
+    res = ctrlunit("keys", "init", str(tmp_path / "open" / "k"), "--peripherals", "1")
+    assert res.returncode == 1 and "which others can write (mode 0777)" in res.stderr, \
+        res.stderr
+    assert not (tmp_path / "open" / "k").exists()
+    for where in ("k", "k-authority"):
+        d = tmp_path / f"link-{where}"
+        keys = tmp_path / "link-k"
+        d.mkdir(mode=0o700, exist_ok=True)
+        keys.mkdir(mode=0o700, exist_ok=True)
+        name = "ca.key" if where == "k-authority" else "central.key"
+        (d / name).symlink_to(tmp_path / f"nothing-{where}")
+        res = ctrlunit("keys", "init", str(keys), "--peripherals", "1")
+        assert res.returncode == 1 and f"{d / name} exists" in res.stderr, res.stderr
+        assert sorted(p.name for p in keys.iterdir()) == (
+            [] if where == "k-authority" else ["central.key"])  # nothing written
+        assert not (tmp_path / f"nothing-{where}").exists()  # nor through the link
+        (d / name).unlink()
+    if os.geteuid() == 0:  # another user's folder: only root can make one here
+        other = tmp_path / "other"
+        other.mkdir(mode=0o700)
+        os.chown(other, 65534, 65534)
+        res = ctrlunit("keys", "init", str(other), "--peripherals", "1")
+        assert res.returncode == 1 and "belongs to another user" in res.stderr, res.stderr
+        assert not list(other.iterdir())
+
+
 def test_keys_init_never_overwrites_the_authority(tmp_path):
     auth = tmp_path / "safe"
     auth.mkdir()

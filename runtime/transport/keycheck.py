@@ -50,10 +50,8 @@ def check_credentials(directory: str | Path, roles: list[str] | tuple[str, ...],
     if mode & 0o022:
         raise ValueError(f"{where}: {directory} can be written by others (mode {mode:04o}), "
                          f"who could replace the unit's keys: chmod 700 {directory}")
-    _check_folders(d / CA_CERT, where)
+    check_folders(d / CA_CERT, where)
     if (d / CA_KEY).exists():
-        from .keygen import authority_of
-
         raise ValueError(
             f"{where}: {CA_KEY} is there, the authority's private key: no role needs it, and "
             "whoever reads it can make a certificate for any role; move it off the unit's "
@@ -71,7 +69,7 @@ def check_credentials(directory: str | Path, roles: list[str] | tuple[str, ...],
                 raise ValueError(f"{where}: {f.name} is missing (each host needs {CA_CERT} "
                                  "and its role's .pem and .key; make a unit's keys with: "
                                  "ctrlunit keys init DIR)")
-            _check_folders(f, where)
+            check_folders(f, where)
             _check_mode(f, where, secret=f.suffix == ".key")
         cert = _read_cert(files[0], where)
         _check_issued(cert, ca, files[0].name, where)
@@ -80,7 +78,16 @@ def check_credentials(directory: str | Path, roles: list[str] | tuple[str, ...],
         _check_key(files[1], files[0].name, cert, where)
 
 
-def _check_folders(path: Path, where: str) -> None:
+def authority_of(directory: str | Path) -> Path:
+    """The authority's directory by default: ``DIR-authority`` beside ``directory``
+    (``keys/`` -> ``keys-authority``; ``.`` is named by its absolute path)."""
+    d = Path(directory)
+    if d.name in ("", ".", ".."):
+        d = d.resolve()
+    return d.parent / f"{d.name}-authority"
+
+
+def check_folders(path: Path, where: str) -> None:
     """Every folder above the file ``path`` is (through any symbolic link: its target's
     folders) owned by this user or root and writable by no one else, as ssh checks the
     folders above its keys: whoever may write one could put another file, or another

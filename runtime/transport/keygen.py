@@ -16,28 +16,24 @@ import os
 from pathlib import Path
 from typing import Any
 
+from .keycheck import authority_of, check_folders
+
 KEY_MODE, CERT_MODE, DIR_MODE = 0o600, 0o644, 0o700
-
-
-def authority_of(directory: str | Path) -> Path:
-    """The authority's directory by default: ``DIR-authority`` beside ``directory``
-    (``keys/`` -> ``keys-authority``; ``.`` is named by its absolute path)."""
-    d = Path(directory)
-    if d.name in ("", ".", ".."):
-        d = d.resolve()
-    return d.parent / f"{d.name}-authority"
 
 
 def _refuse_open_dir(path: Path) -> None:
     """Refuse an existing ``path`` that others may write (they could replace the keys):
     its mode is the user's to set, not changed here."""
     if path.exists():
-        mode = path.stat().st_mode & 0o777
+        mode = path.stat().st_mode & 0o7777
         if not path.is_dir():
             raise ValueError(f"{path} is not a directory")
         if mode & 0o022:
             raise ValueError(f"{path} can be written by others (mode {mode:04o}), who could "
                              f"replace the keys: chmod 700 {path}, or choose a new directory")
+    # the folders above it as the run checks them (owner, write bits), before any is made
+    here = next(d for d in (path, *path.absolute().parents) if d.exists())
+    check_folders(here / "ca.pem", f"keys init {path}")
 
 
 def _private_dir(path: Path) -> None:
@@ -92,7 +88,7 @@ def write_keys(directory: str | Path, names: list[str], *, authority: str | Path
     files = [out / ca_cert] + [out / f"{r}.{x}" for r in names for x in ("pem", "key")]
     kept = [auth / ca_key, auth / ca_cert]
     for f in files + kept:
-        if f.exists():
+        if os.path.lexists(f):  # a link to nothing too: it would fail half-way
             raise FileExistsError(f"{f} exists: keys are never overwritten (choose another "
                                   "directory)")
     for d in (out, auth):
