@@ -12,6 +12,7 @@ longer names one, and stays until the user deletes it.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -33,12 +34,27 @@ def _started(pid: int) -> str | None:
     return fields[19] if len(fields) > 19 else None
 
 
+NAME = re.compile(rf"^{PREFIX}[a-z0-9_]{{8}}$")
+"""A run directory's name as :func:`tempfile.mkdtemp` makes it."""
+
+CONTENTS = re.compile(r"^(spec\.json|central\.sock(\.lock)?|[a-z0-9-]+\.log|launcher\.pid)$")
+"""What a run directory holds; one holding anything else (a folder, other files) is not
+removed, whatever its launcher file says."""
+
+
 def _owner_gone(d: Path) -> bool:
-    """Whether ``d`` is a run directory of this user whose launcher has ended (False for
-    anything else: another user's, a link, one kept on purpose, one being made)."""
+    """Whether ``d`` is a run directory of this user whose launcher has ended: named and
+    made as :func:`make_run_dir` makes one (mode 0700), holding only what a run writes
+    (:data:`CONTENTS`, no folder). False for anything else: another user's, a link, a
+    folder of the user's own that happens to be named alike, one kept on purpose, one
+    being made."""
     try:
         st = d.lstat()
-        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
+        if (not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or not NAME.match(d.name)
+                or stat.S_IMODE(st.st_mode) != 0o700):
+            return False
+        if not all(CONTENTS.match(e.name) and not e.is_dir(follow_symlinks=False)
+                   for e in os.scandir(d)):
             return False
         owner = d / OWNER
         if not stat.S_ISREG(owner.lstat().st_mode):
