@@ -162,14 +162,16 @@ def test_input_nested_too_deeply_or_not_utf8_is_refused(tmp_path):
 
 
 def test_every_input_file_is_read_by_one_rule(tmp_path):
-    """A task, a parameters file and a placement: each larger than 1 MiB or not UTF-8 is
-    refused naming the file, as kernels/small_file.py says, before anything starts."""
+    """A task, a parameters file, a placement, a run file and a Zenoh configuration: each
+    larger than 1 MiB or not UTF-8 is refused naming the file, as kernels/small_file.py
+    says, before anything starts (an attacker's review parsed a run file of 100 MB)."""
     big = tmp_path / "big.json"
     big.write_text(" " * ((1 << 20) + 1))
     bad = tmp_path / "bad.json"
     bad.write_bytes(b"\xff\xfe{}")
     for flag, name in (("--task", "task file"), ("--params", "parameters file"),
-                       ("--placement", "placement file")):
+                       ("--placement", "placement file"), ("--config", "--config"),
+                       ("--zenoh-config", "--zenoh-config")):
         for path, said in ((big, "is larger than 1048576 bytes"), (bad, "is not UTF-8 text")):
             _one_error(ctrlunit("start", "--check", "--clock", "lockstep", flag, str(path),
                                 timeout=60), f"{name} {path} {said}")

@@ -14,6 +14,7 @@ import re
 import tomllib
 from typing import Any
 
+from ...kernels.small_file import read_small_text
 from . import BY_FIELD, ConfigError
 from .sections import SECTIONS
 from .spellings import USER, not_a_setting, read_setting, user_view
@@ -59,11 +60,9 @@ def read_run_file(path: str) -> dict[str, Any]:
     ------
     ConfigError
         Naming the file and the section, key or line at fault."""
+    text = read_small_text(path, whose=f"--config {path}", error=ConfigError)
     try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except OSError as exc:
-        raise ConfigError(f"--config {path}: {exc.strerror or exc}") from None
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"--config {path}: {exc}{_quote_hint(path, str(exc))}") from None
     out: dict[str, Any] = {}

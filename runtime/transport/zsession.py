@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import zenoh
 
+from ...kernels.small_file import read_small_text
 from .endpoints import check_endpoint, is_socket, zenoh_error_line
 from .limits import Limits
 
@@ -71,18 +72,17 @@ recurses, and 100 000 nested lists overflowed its stack (the process died of SIG
 
 
 def _check_nesting(path: str) -> None:
-    """Refuse a file whose brackets nest deeper than :data:`MAX_NESTING` (counted on the
-    text, strings included: a bracket in a string only makes the count stricter)."""
-    try:
-        text = open(path, "rb").read(1 << 24)
-    except OSError:
-        return  # Zenoh names it
+    """Refuse a file that is not one the project reads (kernels/small_file.py: a regular
+    file of at most 1 MiB), or whose brackets nest deeper than :data:`MAX_NESTING`
+    (counted on the text, strings included: a bracket in a string only makes the count
+    stricter)."""
+    text = read_small_text(path, whose=f"--zenoh-config {path}")
     depth = deepest = 0
     for b in text:
-        if b in b"[{":
+        if b in "[{":
             depth += 1
             deepest = max(deepest, depth)
-        elif b in b"]}":
+        elif b in "]}":
             depth -= 1
     if deepest > MAX_NESTING:
         raise ValueError(f"--zenoh-config {path}: nested {deepest} levels deep: allowed "
