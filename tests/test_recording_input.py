@@ -136,6 +136,19 @@ def test_a_file_cut_in_its_first_bytes_says_it_was_cut_off(recorded, tmp_path, c
     assert code == 1 and said in out and "Traceback" not in out, out
 
 
+def test_a_whole_file_damaged_near_its_start_is_not_called_cut_off(recorded, tmp_path):
+    """An attacker's review: one byte flipped at offset 200 of a whole recording read as
+    "cut off before its first interval"; the file ends with MCAP's magic, so it was
+    changed, not cut off, and says so."""
+    data = bytearray(recorded.read_bytes())
+    data[200] ^= 0xFF
+    path = tmp_path / "flipped.mcap"
+    path.write_bytes(bytes(data))
+    code, out = run("report", str(path))
+    assert code == 1 and "is damaged" in out and "not cut off" in out, out
+    assert "Traceback" not in out
+
+
 def test_a_disk_that_fills_ends_the_recording_not_the_run(tmp_path, monkeypatch):
     """An attacker's review: ``--record`` on a file that stops taking writes (a full disk,
     /dev/full) raised in the central's loop mid-run, then again in its clean-up, past the

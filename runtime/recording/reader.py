@@ -136,6 +136,10 @@ def read(path: str | Path) -> Recording:
     except Exception as exc:
         rec.note = f"{type(exc).__name__}"
     if not rec.metadata and not rec.topics:
+        if _begins_mcap(path) and _ends_whole(path):  # written whole, damaged near its start
+            raise ValueError(f"{path}: the recording is damaged ({first_error}) before its "
+                             "first record: the file is whole, so it was changed or "
+                             "corrupted, not cut off; there is nothing to replay or report")
         if _begins_mcap(path):  # a recording's first bytes, then nothing whole
             raise ValueError(f"{path}: the recording was cut off before its first interval "
                              "was written (it holds MCAP's header and no record whole): "
