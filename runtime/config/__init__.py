@@ -66,10 +66,8 @@ def parse_duration(text: str | float, *, field_name: str = "duration",
     else:
         m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zµ]*)\s*", text)
         if not m or (m.group(2) and m.group(2) not in _UNITS):
-            raise ConfigError(
-                f"{field_name} = {text!r}: expected a number with a unit (s, ms, us, ns, min) "
-                "or a bare number of seconds"
-            )
+            raise ConfigError(f"{field_name} = {text!r}: expected a number with a unit (s, "
+                              "ms, us, ns, min) or a bare number of seconds")
         value = float(Decimal(m.group(1)) * _UNITS[m.group(2) or "s"])
     if not (value > 0.0 or (zero and value == 0.0)):
         raise ConfigError(f"{field_name} = {text!r} must be {'0 or more' if zero else 'positive'}")
@@ -169,10 +167,11 @@ class RunConfig:
 
     def _bad(self, name: str, allowed: str) -> ConfigError:
         """Names the option (``--max-error``) and the value as the user would write it."""
-        value = self.option(name)
-        unit = " s" if _ABOUT[name].kind in ("duration", "period") else {
-            "max_error": " m", "bandwidth_hz": " Hz", "foxglove_rate": " Hz"}.get(name, "")
-        shown = f"{value:g}{unit}" if isinstance(value, float) else repr(value)
+        value, timed = self.option(name), _ABOUT[name].kind in ("duration", "period")
+        unit = " s" if timed else {"max_error": " m", "bandwidth_hz": " Hz",
+                                   "foxglove_rate": " Hz"}.get(name, "")
+        shown = repr(value) if not isinstance(value, float) else f"{value * 1e6:g} us" if (
+            timed and 0 < value < 1e-3) else f"{value:g}{unit}"  # 5us, not 5e-06 s
         option = "--" + name.removesuffix("_hz").replace("_", "-")
         return ConfigError(f"{option} = {shown}: allowed {allowed}")
 
