@@ -567,6 +567,26 @@ def test_a_starved_plant_is_excused_a_limit_at_a_time_too(monkeypatch):
     assert looks[-1] == 5 * MS + 8 * 3 * MS + 1
 
 
+@pytest.mark.parametrize("ran, renewed", [(0.0, True), (0.05, True), (0.2, False)])
+def test_a_plant_asleep_through_its_ticks_without_running_is_excused_up_to_the_cap(
+        monkeypatch, ran, renewed):
+    """CI, 2026-11-29: "no sample from the plant for 4.0 ms; its process was sleeping (...
+    it was kept from a CPU 0.0 ms and ran 0.0 ms, and tasks waited for a CPU 0.0 ms)",
+    twice in an hour, the CPUs free. The plant ticks on its own clock: asleep through its
+    ticks without running, its timer was not served, the machine's doing as a CPU denied
+    is, so it is renewed a limit at a time up to the cap. A plant that ran a fifth of the
+    window and still sent nothing is at fault after one extension."""
+    clock = Clock(0)
+    accounting = Accounting(clock, {"plant": (ran, 0.0)})
+    c, clock = silent_plant(f"plant-unserved-{int(ran * 100)}", monkeypatch,
+                            accounting.supervision(lambda role: "sleeping"), clock=clock)
+    exc, looks = renewals_until_fault(c, clock, 3 * MS, None)
+    assert exc.process == "plant"
+    assert excused(c) == (8 - 1 if renewed else 1), (ran, excused(c))
+    if renewed:
+        assert looks[-1] == 5 * MS + 8 * 3 * MS + 1  # the cap: 8 limits
+
+
 @pytest.mark.parametrize("state", ["stopped", "exited", "blocked"])
 def test_a_frozen_or_exited_process_is_a_fault_whatever_the_central_is_doing(monkeypatch,
                                                                               state):
