@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from ctrlunit.bench.frozen_observers import ROUTER  # a Zenoh router bounded in time
 from ctrlunit.runtime.recording.ros2 import JOINTS
 from ctrlunit.runtime.transport import ros2_zenoh as rz
 from runner import kill_unit, slow_task, taken_over_and_back, unit_id
@@ -48,14 +49,6 @@ def router():
         session.close()
 
 
-ROUTER = """
-import json, sys, time, zenoh
-conf = zenoh.Config.from_json5(json.dumps({"mode": "router", "listen": {"endpoints": [
-    "tcp/127.0.0.1:" + sys.argv[1]]}, "scouting": {"multicast": {"enabled": False}}}))
-with zenoh.open(conf):
-    print("ready", flush=True)
-    time.sleep(float(sys.argv[2]))
-"""
 
 
 def _router_process(port: int, *, nice: int, seconds: float = 300) -> subprocess.Popen:
