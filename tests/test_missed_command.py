@@ -229,3 +229,25 @@ def test_the_hold_spans_the_same_time_at_every_period(period_s, window, ahead):
     assert hold.held(5) == [2.0, 2.0, 2.0]  # fewer than three: their mean
     with pytest.raises(ValueError, match="period_s must be > 0"):
         CommandHold(0.0)
+
+
+def test_off_the_halved_grid_the_acting_command_holds_its_second_period():
+    """At the halved control rate each command acts two periods (the central's model
+    assumes so): off the grid the plant keeps it, not the trend of the last ones, which
+    had the halved rate track 1.1 mm where it tracks 0.02
+    (docs/measurements/2026-11-29-late-runs.md). A late command that comes off the grid
+    is applied at once; a command missed on the grid still gets the trend."""
+    server = _server()
+    server.take_stride({"stride": 2, "start": 10})
+    for k in range(10, 20, 2):  # a ramp: the trend at an odd cycle is not the last one
+        tau = [1.0 + 0.1 * k, 2.0, 3.0 - 0.1 * k]
+        server.take_command(_command(k, tau))
+        assert server.apply(k) and server.plant.command == tau
+        assert not server.apply(k + 1)
+        assert server.plant.command == tau, k + 1
+    assert server.spares_applied == 0
+    assert not server.apply(20)  # missed on the grid: the trend of the last ones
+    assert server.plant.command == pytest.approx([1.0 + 0.1 * 20, 2.0, 3.0 - 0.1 * 20])
+    server.take_command(_command(20, [5.0, 5.0, 5.0]))  # late: it comes off the grid
+    assert not server.apply(21) and server.plant.command == [5.0, 5.0, 5.0]
+    assert server.misses == 0  # counting misses is the tick loop's, on the grid only

@@ -153,7 +153,10 @@ class PlantServer:
         command the central extrapolated for it with the command before (``next``, sent
         in realtime at the full rate), else the newest earlier command that arrived late,
         else the trend of the last commands (:class:`.plant_hold.CommandHold`). Returns
-        whether the due command was here.
+        whether the due command was here. Off the control rate's grid (halved) no command
+        is due: a late one that came is applied, else the acting one holds its second
+        period, as the central's model has it (the trend there had the halved rate track
+        1.1 mm where it tracks 0.02: docs/measurements/2026-11-29-late-runs.md).
 
         A late command left the last one acting a period longer; a burst of them, each
         the next period's, held a command ever older: at 1.6 ms four in a row cost up to
@@ -164,12 +167,13 @@ class PlantServer:
         for c in [c for c in self.spares if c < cycle]:
             del self.spares[c]
         newest = max(ready) if ready else None
-        if newest != cycle and spare is not None:
+        due = self.grid.on_grid(cycle)
+        if due and newest != cycle and spare is not None:
             self.plant.set_command(spare)
             self.spares_applied += 1
         elif newest is not None:
             self.plant.set_command(self.commands[newest])
-        elif (held := self.hold.held(cycle)) is not None:
+        elif due and (held := self.hold.held(cycle)) is not None:
             self.plant.set_command(held)
         if newest is not None:
             self.hold.note(newest, self.commands[newest])
