@@ -67,7 +67,12 @@ class Overload:
         self.rate_changes: list[dict[str, Any]] = []
         """Each change of the control rate: stride, first cycle, when and why."""
         self.late_marks: deque[int] = deque()
-        """The interval count at each late interval (at the full rate)."""
+        """The interval count at the start of each run of late intervals (at the full
+        rate)."""
+        self.run_last = -2
+        """The interval count of the newest late mark."""
+        self.run_length = 0
+        """Intervals in the newest run of late ones (consecutive interval counts)."""
         self.calm_since = 0
         """Halved: the interval count at the halving or the latest late interval."""
         self.calm_needed = 0
@@ -78,14 +83,25 @@ class Overload:
     def mark_late(self, done: int, stride: int) -> None:
         """Note a late interval after ``done`` intervals at control-rate divisor
         ``stride``: its command left after its deadline, or it started behind, skipping
-        samples (one mark for the skip, so that one stall of the host does not halve the
-        rate by itself)."""
+        samples (one mark for the skip). Marks at consecutive interval counts are one
+        run of late intervals: a run counts once towards :data:`OVERLOAD_LATE`, so that
+        one stall of the host, which makes the intervals in flight late together, does
+        not halve the rate by itself (docs/measurements/2026-11-29-late-runs.md); a run
+        that lasts as long as the count that halves is a unit that stays behind, and
+        halves it (:meth:`after_interval`)."""
         if not self.enabled or done < OVERLOAD_SETTLE:
             return
-        if stride == 1:
-            self.late_marks.append(done)
-        else:
+        if stride != 1:
             self.calm_since = done
+            return
+        if done == self.run_last:  # a skip and the interval it began: one interval
+            return
+        if done - self.run_last == 1:
+            self.run_length += 1
+        else:
+            self.late_marks.append(done)
+            self.run_length = 1
+        self.run_last = done
 
     def after_interval(self, done: int, stride: int) -> None:
         """After each interval. At the full rate, once :data:`OVERLOAD_LATE` of the last
@@ -105,12 +121,16 @@ class Overload:
             while marks and marks[0] <= done - OVERLOAD_WINDOW:
                 marks.popleft()
             on_trial = done <= self.trial_until
-            if len(marks) >= (OVERLOAD_PROBE_LATE if on_trial else OVERLOAD_LATE):
-                why = {"late": len(marks), "window": OVERLOAD_WINDOW}
+            needed = OVERLOAD_PROBE_LATE if on_trial else OVERLOAD_LATE
+            in_a_row = self.run_length if done - self.run_last <= 1 else 0
+            if len(marks) >= needed or in_a_row >= needed:
+                why = ({"in_a_row": in_a_row} if in_a_row >= needed
+                       else {"late": len(marks), "window": OVERLOAD_WINDOW})
                 if on_trial:  # intervals since the return was decided
                     why["after_return"] = done - self.rate_changes[-1]["at_interval"]
                 self.rate_changes.append(self.change_rate(2, why))
                 marks.clear()
+                self.run_length = 0
                 self.calm_since = done
                 returns = len(self.rate_changes) // 2  # changes alternate: 2, 1, 2, ...
                 self.calm_needed = 0 if returns >= OVERLOAD_RETURNS else math.ceil(

@@ -129,9 +129,10 @@ def late_work_figures(work_ns: Sequence[int], late_work_ns: Sequence[int], late:
 def overload_figures(changes: list[dict[str, Any]], halves: bool, grid: StrideSchedule, *,
                      end: int) -> dict[str, Any]:
     """The report's ``overload``: ``policy`` (halve or continue), ``changes`` (each change
-    of the control rate: ``stride``, ``from_cycle``, ``at_interval`` and why: ``late`` of
-    ``window`` intervals, with ``after_return`` where a return on trial ended, or ``calm``
-    intervals without a late one), ``halved`` (the first
+    of the control rate: ``stride``, ``from_cycle``, ``at_interval`` and why: ``late`` runs
+    of late intervals within ``window`` intervals or ``in_a_row`` late intervals, with
+    ``after_return`` where a return on trial ended, or ``calm`` intervals without a late
+    one), ``halved`` (the first
     halving, or None) and ``halved_periods`` (periods run at the halved rate up to cycle
     ``end``, from ``grid``)."""
     return {"policy": "halve" if halves else "continue", "changes": list(changes),

@@ -19,8 +19,9 @@ def _overload_lines(r: dict[str, Any]) -> list[str]:
     for c in o.get("changes") or []:
         at = f" at interval {c['at_interval']}" if "at_interval" in c else ""
         if c["stride"] == 2:
-            why = f"{c['late']} of the last {c['window']} intervals late" if "late" in c \
-                else "late intervals"
+            why = (f"late {c['late']} times in the last {c['window']} intervals" if "late" in c
+                   else f"{c['in_a_row']} intervals late in a row" if "in_a_row" in c
+                   else "late intervals")
             if "after_return" in c:
                 why += f", {c['after_return']} intervals after going back (on trial)"
             lines.append(f"  overload    {why}{at}: from sample {c['from_cycle']} on every "
