@@ -138,6 +138,32 @@ def test_a_damaged_whole_recording_is_not_passed_for_a_cut_off_one(recorded, tmp
     assert res.returncode == 0 and "verified" in res.stdout, res.stderr
 
 
+def test_a_byte_changed_in_the_summary_or_footer_is_damage(recorded, tmp_path):
+    """The seeking reader checks each chunk's CRC, not the summary's: a byte changed in the
+    summary section (the indexes, the statistics) or the footer passed ``replay --verify``
+    in about half the places tried (2026-11-29). The footer's ``summary_crc`` now decides:
+    every such change is damage, and verify fails; the file unchanged still reads whole."""
+    import struct
+
+    path, _ = recorded
+    data = path.read_bytes()
+    assert not read(path).salvaged
+    footer = len(data) - 8 - 29
+    start = struct.unpack_from("<Q", data, footer + 9)[0]
+    assert 8 < start < footer
+    places = sorted({*range(start, footer + 29, max(1, (footer + 29 - start) // 40)),
+                     footer + 25, footer + 28})
+    for at in places:
+        bad = bytearray(data)
+        bad[at] ^= 0x40
+        damaged = tmp_path / "summary.mcap"
+        damaged.write_bytes(bad)
+        rec = read(damaged)
+        assert rec.salvaged and rec.damaged and "is damaged" in rec.note, (at - start, rec.note)
+    res = ctrlunit("replay", str(damaged), "--verify")
+    assert res.returncode == 1 and "the recording is damaged" in res.stderr, res.stderr
+
+
 def test_kill_9_of_the_central_leaves_a_salvageable_recording(tmp_path):
     unit = unit_id("kill")
     path, status = tmp_path / "cut.mcap", tmp_path / "status"

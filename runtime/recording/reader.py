@@ -7,6 +7,8 @@ non-seeking pass when it was cut off (the seeking reader needs the footer).
 from __future__ import annotations
 
 import json
+import struct
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -117,7 +119,9 @@ def read(path: str | Path) -> Recording:
                 rec.topics.setdefault(channel.topic, []).append((msg.log_time, msg.data))
             for m in reader.iter_metadata():
                 rec.metadata[m.name] = dict(m.metadata)
-        return rec
+        if (why := _summary_damage(path)) is None:
+            return rec
+        first_error: Exception = ValueError(why)
     except Exception as exc:
         first_error = exc
     rec = Recording(path, salvaged=True)
@@ -183,3 +187,34 @@ def _ends_whole(path: str) -> bool:
             return fh.read() == MAGIC
     except OSError:
         return False
+
+
+FOOTER = struct.Struct("<BQQQI")
+"""MCAP's footer record before the closing magic: opcode 0x02, its length (20), where the
+summary section starts, where its offsets start, and the summary's CRC-32."""
+
+
+def _summary_damage(path: str) -> str | None:
+    """Why the summary section of a whole file fails its CRC (MCAP's footer
+    ``summary_crc``: every byte from the summary's start through the footer's
+    ``summary_offset_start``), or None: the seeking reader checks each chunk's CRC but not
+    this one, so a byte changed in the summary (the indexes, the statistics) went
+    unnoticed. None too where the writer left no summary or no CRC (0)."""
+    with open(path, "rb") as fh:
+        fh.seek(0, 2)
+        size = fh.tell()
+        end = size - len(MAGIC) - FOOTER.size
+        if end < len(MAGIC):
+            return None
+        fh.seek(end)
+        opcode, length, start, _offsets, crc = FOOTER.unpack(fh.read(FOOTER.size))
+        if opcode != 0x02 or length != FOOTER.size - 9:
+            return "its footer is not MCAP's"
+        if start == 0 or crc == 0:
+            return None
+        if not len(MAGIC) <= start <= end:
+            return f"its footer places the summary at byte {start}, outside the file"
+        fh.seek(start)
+        got = zlib.crc32(fh.read(end + FOOTER.size - 4 - start))
+    return None if got == crc else (f"its summary section's CRC is {got:08x}, the footer "
+                                    f"says {crc:08x}")
