@@ -56,3 +56,25 @@ def test_a_reused_pid_does_not_keep_a_directory(tmp_path):
     another process (here this one, with another start time) is a launcher gone."""
     reused = _run_dir(tmp_path, "ctrlunit-reused00", pid=os.getpid(), started="1")
     assert sweep(tmp_path) == [reused]
+
+
+def test_the_launchers_file_is_never_seen_half_written(tmp_path, monkeypatch):
+    """``launcher.pid`` is written under another name and renamed: a SIGKILL between
+    creating it and writing it (a review found an empty one, which no sweep removed) now
+    leaves ``launcher.pid.part`` at worst, and the file that takes the name is whole."""
+    import ctrlunit.runtime.launch.run_dir as run_dir
+
+    made: list[str] = []
+    real = Path.write_text
+
+    def watch(self: Path, text: str, *a: object, **k: object) -> int:
+        made.append(self.name)
+        assert not (self.parent / OWNER).exists()  # the name comes after the writing
+        return real(self, text, *a, **k)
+
+    monkeypatch.setattr(Path, "write_text", watch)
+    d = run_dir.make_run_dir(tmp_path)
+    assert made == [f"{OWNER}.part"]
+    assert sorted(p.name for p in d.iterdir()) == [OWNER]
+    pid, started = (d / OWNER).read_text().split()
+    assert int(pid) == os.getpid() and started

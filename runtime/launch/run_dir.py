@@ -6,7 +6,10 @@ The launcher removes it at the end, or keeps it for the diagnosis of a fault (th
 names it). A launcher ended by SIGKILL can do neither, so each directory names its
 launcher (:data:`OWNER`: its process id and start time), and every start first removes
 the directories of this user whose launcher is gone. A directory kept on purpose no
-longer names one, and stays until the user deletes it.
+longer names one, and stays until the user deletes it. The launcher's file is written
+whole before it takes its name, so a SIGKILL never leaves it empty or half written (an
+empty one read as no owner, and the directory stayed for good); a SIGKILL in the moment
+between making the directory and naming the file still leaves it, as if kept.
 """
 
 from __future__ import annotations
@@ -37,7 +40,8 @@ def _started(pid: int) -> str | None:
 NAME = re.compile(rf"^{PREFIX}[a-z0-9_]{{8}}$")
 """A run directory's name as :func:`tempfile.mkdtemp` makes it."""
 
-CONTENTS = re.compile(r"^(spec\.json|central\.sock(\.lock)?|[a-z0-9-]+\.log|launcher\.pid)$")
+CONTENTS = re.compile(
+    r"^(spec\.json|central\.sock(\.lock)?|[a-z0-9-]+\.log|launcher\.pid(\.part)?)$")
 """What a run directory holds; one holding anything else (a folder, other files) is not
 removed, whatever its launcher file says."""
 
@@ -79,7 +83,9 @@ def make_run_dir(root: str | Path | None = None) -> Path:
     """A new run directory owned by this process, after :func:`sweep`."""
     sweep(root)
     d = Path(tempfile.mkdtemp(prefix=PREFIX, dir=root))
-    (d / OWNER).write_text(f"{os.getpid()} {_started(os.getpid())}")
+    part = d / f"{OWNER}.part"  # written whole, then renamed: never seen empty or half
+    part.write_text(f"{os.getpid()} {_started(os.getpid())}")
+    part.rename(d / OWNER)
     return d
 
 
