@@ -139,13 +139,14 @@ def test_a_damaged_whole_recording_is_not_passed_for_a_cut_off_one(recorded, tmp
 
 
 def test_a_byte_changed_in_the_summary_or_footer_is_damage(recorded, tmp_path):
-    """The seeking reader checks each chunk's CRC, not the summary's: a byte changed in the
-    summary section (the indexes, the statistics) or the footer passed ``replay --verify``
-    in about half the places tried (2026-11-29). The footer's ``summary_crc`` now decides:
-    every such change is damage, and verify fails; the file unchanged still reads whole."""
+    """The seeking reader checks each chunk's CRC, not the file's: a byte changed in the
+    summary section (the indexes, the statistics), the footer or the run's result record
+    passed ``replay --verify`` in about half the places tried (2026-11-29). MCAP's
+    ``summary_crc`` and ``data_section_crc`` now decide: every such change is damage, and
+    verify fails; the file unchanged still reads whole."""
     import struct
 
-    path, _ = recorded
+    path, rep = recorded
     data = path.read_bytes()
     assert not read(path).salvaged
     footer = len(data) - 8 - 29
@@ -159,9 +160,33 @@ def test_a_byte_changed_in_the_summary_or_footer_is_damage(recorded, tmp_path):
         damaged = tmp_path / "summary.mcap"
         damaged.write_bytes(bad)
         rec = read(damaged)
-        assert rec.salvaged and rec.damaged and "is damaged" in rec.note, (at - start, rec.note)
+        assert rec.damaged and "is damaged" in rec.note, (at - start, rec.note)
+        assert "but ;" not in rec.note  # a reason, always
+        whole = not rec.salvaged  # the records read whole: every interval is there
+        assert not whole or f"all {rep['cycles']} intervals were read" in rec.note, rec.note
     res = ctrlunit("replay", str(damaged), "--verify")
     assert res.returncode == 1 and "the recording is damaged" in res.stderr, res.stderr
+    # a summary damaged, its records whole: every interval was read and compares
+    bad = bytearray(data)
+    bad[start + 40] ^= 0x40
+    damaged.write_bytes(bad)
+    rec = read(damaged)
+    assert rec.damaged and not rec.salvaged and "summary section's CRC" in rec.note
+    res = ctrlunit("replay", str(damaged), "--verify")
+    assert res.returncode == 1, res.stderr
+    assert f"all {rep['cycles']} are bit-identical" in res.stderr, res.stderr
+    res = ctrlunit("report", str(damaged))  # the run's own result, and the note
+    assert res.returncode == 0 and "is damaged" in res.stderr
+    assert "FAULT" not in res.stdout and "completed" in res.stdout, res.stdout[-800:]
+    # the run's result record, between the chunks (MCAP metadata: no CRC of its own)
+    bad = bytearray(data)
+    at = data.index(b"block_cost_s") + len(b"block_cost_s") + 4  # past its value's length
+    bad[at] ^= 0x40
+    damaged.write_bytes(bad)
+    rec = read(damaged)
+    assert rec.damaged and not rec.salvaged and "data section's CRC" in rec.note, rec.note
+    res = ctrlunit("replay", str(damaged), "--verify")
+    assert res.returncode == 1 and "damaged outside its intervals" in res.stderr, res.stderr
 
 
 def test_kill_9_of_the_central_leaves_a_salvageable_recording(tmp_path):

@@ -62,7 +62,7 @@ def _open_recording(path: str) -> Any:
         run_config(rec)  # every use of it reads its configuration
     except (OSError, ValueError) as exc:
         _fail(str(exc))
-    if rec.salvaged:
+    if rec.salvaged or rec.damaged:
         click.echo(f"ctrlunit: note: {rec.note}", err=True)
     return rec
 
@@ -112,7 +112,9 @@ def replay(file: str, verify: bool, cycle_range: tuple[int, int] | None, csv_dir
                   "before its first command)", EXIT_CONFIG)
         if rec.damaged:  # what could be read verified, but the file is not what was written
             _fail(f"replay --verify: the recording is damaged; the {n} intervals before the "
-                  "damage are bit-identical, the rest could not be read", EXIT_CONFIG)
+                  "damage are bit-identical, the rest could not be read" if rec.salvaged else
+                  f"replay --verify: the recording is damaged outside its intervals (see the "
+                  f"note above); all {n} are bit-identical", EXIT_CONFIG)
         click.echo(f"verified {n} intervals: every block's outputs are bit-identical to the "
                    "recording")
     if csv_dir:  # with --verify too: each output asked for is made

@@ -119,9 +119,11 @@ def read(path: str | Path) -> Recording:
                 rec.topics.setdefault(channel.topic, []).append((msg.log_time, msg.data))
             for m in reader.iter_metadata():
                 rec.metadata[m.name] = dict(m.metadata)
-        if (why := _summary_damage(path)) is None:
-            return rec
-        first_error: Exception = ValueError(why)
+        if (why := _summary_damage(path)) is not None:  # the records themselves are whole
+            rec.damaged = True
+            rec.note = (f"{path} is damaged: {why}; every chunk passed its CRC, and all "
+                        f"{len(rec.topics.get('/plant/command', []))} intervals were read")
+        return rec
     except Exception as exc:
         first_error = exc
     rec = Recording(path, salvaged=True)
@@ -141,26 +143,32 @@ def read(path: str | Path) -> Recording:
         rec.note = f"{type(exc).__name__}"
     if not rec.metadata and not rec.topics:
         if _begins_mcap(path) and _ends_whole(path):  # written whole, damaged near its start
-            raise ValueError(f"{path}: the recording is damaged ({first_error}) before its "
+            raise ValueError(f"{path}: the recording is damaged ({_said(first_error)}) before its "
                              "first record: the file is whole, so it was changed or "
                              "corrupted, not cut off; there is nothing to replay or report")
         if _begins_mcap(path):  # a recording's first bytes, then nothing whole
             raise ValueError(f"{path}: the recording was cut off before its first interval "
                              "was written (it holds MCAP's header and no record whole): "
                              "there is nothing to replay or report")
-        raise ValueError(f"{path}: not a readable MCAP recording ({first_error})")
+        raise ValueError(f"{path}: not a readable MCAP recording ({_said(first_error)})")
     rec.damaged = _ends_whole(path)
     n = len(rec.topics.get("/plant/command", []))
     if n == 0:
         raise ValueError(f"{path}: " + (
-            f"the recording is damaged ({first_error}) before its first interval"
+            f"the recording is damaged ({_said(first_error)}) before its first interval"
             if rec.damaged else "the recording was cut off before its first interval was "
             "written") + ": there is nothing to replay or report")
-    rec.note = (f"{path} is damaged: the file is whole, but {first_error}; salvaged {n} "
+    rec.note = (f"{path} is damaged: the file is whole, but {_said(first_error)}; salvaged {n} "
                 "intervals before the damage with a non-seeking pass" if rec.damaged else
                 f"{path} has no footer (the recording was cut off); salvaged {n} intervals "
                 "with a non-seeking pass")
     return rec
+
+
+def _said(exc: Exception) -> str:
+    """An exception as a reader of the note can take it: its message, or its kind where
+    it has none (the MCAP reader raises some without one)."""
+    return str(exc) or f"the MCAP reader's {type(exc).__name__}"
 
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -193,28 +201,34 @@ FOOTER = struct.Struct("<BQQQI")
 """MCAP's footer record before the closing magic: opcode 0x02, its length (20), where the
 summary section starts, where its offsets start, and the summary's CRC-32."""
 
+DATA_END = struct.Struct("<BQI")
+"""MCAP's DataEnd record, the data section's last: opcode 0x0F, its length (4), and the
+CRC-32 of every byte of the file before it."""
+
 
 def _summary_damage(path: str) -> str | None:
-    """Why the summary section of a whole file fails its CRC (MCAP's footer
-    ``summary_crc``: every byte from the summary's start through the footer's
-    ``summary_offset_start``), or None: the seeking reader checks each chunk's CRC but not
-    this one, so a byte changed in the summary (the indexes, the statistics) went
-    unnoticed. None too where the writer left no summary or no CRC (0)."""
+    """Why a whole file fails one of MCAP's two file-wide CRCs, or None. The seeking reader
+    checks each chunk's CRC and neither of these, so a byte changed outside the chunks
+    went unnoticed: in the summary section (the indexes, the statistics; the footer's
+    ``summary_crc``, every byte from the summary's start through the footer's
+    ``summary_offset_start``) or in a record between the chunks, such as the run's result
+    record (DataEnd's ``data_section_crc``). A CRC the writer left at 0 is not checked."""
     with open(path, "rb") as fh:
-        fh.seek(0, 2)
-        size = fh.tell()
-        end = size - len(MAGIC) - FOOTER.size
-        if end < len(MAGIC):
-            return None
-        fh.seek(end)
-        opcode, length, start, _offsets, crc = FOOTER.unpack(fh.read(FOOTER.size))
-        if opcode != 0x02 or length != FOOTER.size - 9:
-            return "its footer is not MCAP's"
-        if start == 0 or crc == 0:
-            return None
-        if not len(MAGIC) <= start <= end:
-            return f"its footer places the summary at byte {start}, outside the file"
-        fh.seek(start)
-        got = zlib.crc32(fh.read(end + FOOTER.size - 4 - start))
-    return None if got == crc else (f"its summary section's CRC is {got:08x}, the footer "
-                                    f"says {crc:08x}")
+        data = fh.read()
+    end = len(data) - len(MAGIC) - FOOTER.size
+    if end < len(MAGIC) + DATA_END.size:
+        return None
+    opcode, length, start, _offsets, crc = FOOTER.unpack_from(data, end)
+    if opcode != 0x02 or length != FOOTER.size - 9:
+        return "its footer is not MCAP's"
+    if start and not len(MAGIC) + DATA_END.size <= start <= end:
+        return f"its footer places the summary at byte {start}, outside the file"
+    if start and crc and (got := zlib.crc32(data[start:end + FOOTER.size - 4])) != crc:
+        return f"its summary section's CRC is {got:08x}, the footer says {crc:08x}"
+    data_end = (start or end) - DATA_END.size
+    opcode, length, crc = DATA_END.unpack_from(data, data_end)
+    if opcode != 0x0F or length != DATA_END.size - 9:
+        return f"no DataEnd record where its data section ends (byte {data_end})"
+    if crc and (got := zlib.crc32(data[:data_end])) != crc:
+        return f"its data section's CRC is {got:08x}, its DataEnd says {crc:08x}"
+    return None
