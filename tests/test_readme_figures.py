@@ -23,8 +23,8 @@ STATED = {
     "up to 8 limits (24 ms at 1 ms": "test_guard",
     # overload: tests/test_overload.py (10 late of 100, a run counted once unless 10 long;
     # 2, 4, 8 s; three returns; 3 late on a 0.5 s trial)
-    "once 10 of the last 100 intervals came late, a run of late ones in a row counted once "
-    "unless it reaches 10": "test_overload",
+    "once 10 of the last 100 intervals came late, late ones in a row counting once, and at "
+    "once on 10 late in a row": "test_overload",
     "go back to every sample after 2 s without a late one (4 s after a second halving, "
     "8 s after a third; at most three returns), on trial for 0.5 s: 3 late intervals "
     "halve it again": "test_overload",

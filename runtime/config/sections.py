@@ -182,8 +182,8 @@ class ScheduleConfig:
     overload: str = setting(
         "auto", flag=Flag(), choices=OVERLOAD_ACTIONS,
         help="Realtime: when 10 of the last 100 intervals were late (their command left "
-        "after its deadline, or their sample was skipped; a run of late ones in a row "
-        "counts once unless it reaches 10), halve the control rate: the unit "
+        "after its deadline, or their sample was skipped; late ones in a row count once), "
+        "or 10 in a row were, halve the control rate: the unit "
         "takes every second sample and the plant holds each command two periods, still "
         "ticking at --period (the report's overload says from where); continue: go on as "
         "it is; auto: halve with the admission on where the gains keep their margin at "

@@ -28,7 +28,9 @@ def _overload_lines(r: dict[str, Any]) -> list[str]:
                          "second sample taken, each command held two periods (the control rate "
                          "halved; the plant still ticks at the period)")
         else:
-            why = f"{c['calm']} intervals without a late one" if "calm" in c else "calm"
+            period = r.get("nominal_period_s") or 0.0  # a halved interval covers two
+            why = (f"{c['calm']} intervals without a late one"
+                   f" ({c['calm'] * 2 * period:.3g} s)" if "calm" in c else "calm")
             lines.append(f"  overload    {why}{at}: from sample {c['from_cycle']} on every "
                          "sample taken again (the full control rate)")
     if lines and o.get("halved_periods") is not None:
