@@ -236,3 +236,17 @@ def test_a_tracking_error_that_is_not_a_number_says_why(err, noted):
                            "torque_nm": {"max": 1.0}})
     assert ("not a number" in line) == noted, line
     assert ("n/a" in line) == noted
+
+
+def test_a_run_that_did_not_halve_says_why_where_intervals_came_late():
+    """A new user's review: 31 late commands and no overload line left them asking why the
+    rate was not halved."""
+    from ctrlunit.runtime.observe.summary import _overload_lines
+
+    r = {"nominal_period_s": 5e-4, "late_intervals": {"intervals": 31},
+         "overload": {"policy": "halve", "changes": [], "halved": None, "halved_periods": 0}}
+    assert _overload_lines(r) == [
+        "  overload    not halved: 31 interval(s) late, never 10 of the last 100 (late ones "
+        "in a row counting once) nor 10 in a row"]
+    assert _overload_lines(r | {"late_intervals": {"intervals": 0}}) == []
+    assert _overload_lines(r | {"overload": {**r["overload"], "policy": "continue"}}) == []

@@ -35,6 +35,10 @@ def _overload_lines(r: dict[str, Any]) -> list[str]:
                          "sample taken again (the full control rate)")
     if lines and o.get("halved_periods") is not None:
         lines.append(f"              {o['halved_periods']} period(s) at the halved rate")
+    late = (r.get("late_intervals") or {}).get("intervals") or 0
+    if not lines and o.get("policy") == "halve" and late:
+        lines.append(f"  overload    not halved: {late} interval(s) late, never 10 of the last "
+                     "100 (late ones in a row counting once) nor 10 in a row")
     return lines
 
 
