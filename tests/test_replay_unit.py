@@ -604,3 +604,25 @@ def test_only_stride_orders_with_integer_fields_change_the_replayed_rate():
     rec = Recording("orders.mcap", topics={
         "/plant/control": [(t, msgpack.packb(m)) for t, m in enumerate(orders)]})
     assert replay.stride_changes(rec) == [(40, 2), (120, 1)]
+
+
+@pytest.mark.parametrize(("topic", "edit"), [
+    ("/central/reply/2", lambda m: m | {"parts": "x"} if m.get("cycle") == 30 else m),
+    ("/central/reply/2", lambda m: m | {"parts": [{"cycle": "30", "stage": 1}]}
+     if m.get("cycle") == 30 else m),
+    ("/trace/central", lambda m: {k: v for k, v in m.items() if k != "vals"}),
+    ("/peripheral/request", lambda m: m | {"parts": [1, 2]} if m.get("cycle") == 30 else m)])
+def test_a_recording_edited_to_messages_of_another_shape_fails_verify_in_one_line(
+        made, tmp_path, topic, edit):
+    """An attacker's review (2026-11-29): a reply's ``parts`` made a string, or the
+    central's trace without ``vals``, rewritten with fresh CRCs, made ``replay --verify``
+    end in a traceback. Such a message is now one the reader skips, as the live roles
+    would refuse it: verify names what is missing, in one line, exit 1."""
+    from runner import ctrlunit
+
+    bad = tmp_path / "shape.mcap"
+    copy_with(made[0], bad, topic, edit)
+    res = ctrlunit("replay", str(bad), "--verify", timeout=120)
+    err = res.stderr.strip().splitlines()
+    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr[-800:]
+    assert len(err) == 1 and err[0].startswith("ctrlunit: error: replay --verify"), err

@@ -46,9 +46,29 @@ def _command_ok(m: dict[str, Any]) -> bool:
     return _cycle_ok(m) and check_command(m.get("tau")) is None
 
 
+def _stage_ok(m: Any) -> bool:
+    return isinstance(m, dict) and _cycle_ok(m) and type(m.get("stage")) is int
+
+
+def _parts_ok(m: dict[str, Any]) -> bool:
+    """A request or a reply: its parts, each a round's cycle, stage and values."""
+    parts = m.get("parts")
+    return isinstance(parts, list) and all(
+        _stage_ok(p) and isinstance(p.get("vals", {}), dict) for p in parts)
+
+
+def _trace_ok(m: dict[str, Any]) -> bool:
+    """The central's traced outputs of an interval."""
+    return _cycle_ok(m) and isinstance(m.get("vals"), dict)
+
+
 CHECKED: dict[str, Callable[[dict[str, Any]], bool]] = {
-    "/central/sample": _sample_ok, "/plant/command": _command_ok}
-"""The wire's messages that readers take fields from, each with the live check."""
+    "/central/sample": _sample_ok, "/plant/command": _command_ok,
+    "/peripheral/request": _parts_ok, "/central/reply/": _parts_ok,
+    "/trace/central": _trace_ok}
+"""The wire's messages that readers take fields from, each with the live check (the
+replies under their prefix): a file edited to hold a field of another shape is then a
+message missing, which ``replay --verify`` names, not a traceback."""
 
 
 @dataclass
@@ -69,7 +89,7 @@ class Recording:
         a map, and for a sample or a command what the live roles would refuse
         (:data:`CHECKED`), so that no reader of a forged file meets a field of the wrong
         type."""
-        check = CHECKED.get(topic)
+        check = CHECKED.get("/central/reply/" if topic.startswith("/central/reply/") else topic)
         out = []
         for t, data in self.topics.get(topic, []):
             try:
@@ -212,7 +232,8 @@ def _summary_damage(path: str) -> str | None:
     went unnoticed: in the summary section (the indexes, the statistics; the footer's
     ``summary_crc``, every byte from the summary's start through the footer's
     ``summary_offset_start``) or in a record between the chunks, such as the run's result
-    record (DataEnd's ``data_section_crc``). A CRC the writer left at 0 is not checked."""
+    record (DataEnd's ``data_section_crc``). A CRC left at 0 (not computed, as MCAP allows
+    and other writers do: a file rewritten by a tool) is not checked."""
     with open(path, "rb") as fh:
         data = fh.read()
     end = len(data) - len(MAGIC) - FOOTER.size
