@@ -226,8 +226,9 @@ def verify(
 def _central_trace(rec: Recording) -> Callable[[int], dict | None]:
     """Interval -> the central's outputs the recording traced: None for an interval a
     recording that traces the central lacks (or holds in a form the reader skips); {}
-    (nothing to compare) for any of one that does not trace it (no such channel), and past the last traced one of a salvaged file (its command and
-    its trace may have been written in chunks on either side of the cut)."""
+    (nothing to compare) for any of one that does not trace it (no such channel), and
+    past the last traced one of a salvaged file (its command and its trace may have been
+    written in chunks on either side of the cut)."""
     traced = bool(rec.topics.get("/trace/central"))  # messages there, readable or not
     trace = {m["cycle"]: m["vals"] for _, m in rec.decoded("/trace/central")}
     last = max(trace, default=-1)
