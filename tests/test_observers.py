@@ -237,3 +237,58 @@ def test_readers_stopped_together_as_many_as_the_listener_admits(tmp_path, unit_
     assert code == 0, out[-2000:]
     assert all("got 1" in r for r in readers), readers  # each read, then was stopped
     assert rep["periods"] == cycles
+
+
+def _relays(unit: str) -> list[int]:
+    """The observers' relays of ``unit``'s run (their socket is in its run's folder)."""
+    out = subprocess.run(["pgrep", "-f", "ctrlunit.runtime.observe.relay"], capture_output=True,
+                         text=True).stdout.split()
+    return [int(p) for p in out if Path(f"/proc/{p}").exists()]
+
+
+@pytest.mark.parametrize("ending", ["normal", "kill -9"])
+def test_a_keyless_listen_port_is_the_relays_and_ends_with_the_run(tmp_path, ending):
+    """Without keys the ``--listen`` port is a relay process's (runtime/observe/relay.py):
+    a peer connecting there finds a Zenoh router, not the central, and reads the view; the
+    relay ends with the run, and with its launcher killed (its standard input closes)."""
+    unit, port = unit_id("relay"), free_port()
+    status = tmp_path / "status"
+    before = set(_relays(unit))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
+         "--peripherals", "3", "--pipeline", "2", "--clock", "lockstep", "--cycles", "4000",
+         "--listen", f"tcp/127.0.0.1:{port}", "--status-file", str(status)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (status.exists() and status.read_text()
+                                                   .strip().isdigit()):
+            time.sleep(0.05)
+        relays = set(_relays(unit)) - before
+        assert len(relays) == 1, relays
+        conf = zenoh.Config.from_json5(json.dumps({
+            "mode": "peer", "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]},
+            "scouting": {"multicast": {"enabled": False}}}))
+        got: list[str] = []
+        with zenoh.open(conf) as peer:
+            peer.declare_subscriber(f"ctrlunit/{unit}/view/**",
+                                    lambda s: got.append(str(s.key_expr)))
+            time.sleep(1.0)
+            routers, peers = list(peer.info.routers_zid()), list(peer.info.peers_zid())
+        assert (len(routers), len(peers)) == (1, 0)
+        assert got, "the view came through the relay"
+        if ending == "kill -9":
+            os.kill(proc.pid, signal.SIGKILL)  # the launcher alone
+        out, _ = proc.communicate(timeout=120)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and set(_relays(unit)) & relays:
+            time.sleep(0.05)
+        assert not set(_relays(unit)) & relays, out[-800:]
+        if ending == "normal":
+            assert proc.returncode == 0, out[-800:]
+    finally:
+        kill_unit(unit)
+        if proc.poll() is None:
+            proc.kill()
+        for p in set(_relays(unit)) - before:
+            os.kill(p, signal.SIGKILL)

@@ -148,7 +148,10 @@ def attacked_run(tmp_path, tag: str, attackers: Any, *options: str
                     peer.put(keys.reply(1), encode(unit, k, 0, parts=[]))
                     peer.put(keys.command, encode(unit, k, "command", tau=[20.0, -20.0, 20.0]))
                 time.sleep(0.3)
-                seen[name] = {"received": got[0], "peers": len(list(peer.info.peers_zid()))}
+                # the port's Zenoh: the central's session with keys, else the observers'
+                # relay (a router: runtime/observe/relay.py)
+                seen[name] = {"received": got[0], "peers": len(list(peer.info.peers_zid()))
+                              + len(list(peer.info.routers_zid()))}
                 sub.undeclare()
         out, _ = proc.communicate(timeout=300)
     finally:

@@ -41,7 +41,7 @@ NAME = re.compile(rf"^{PREFIX}[a-z0-9_]{{8}}$")
 """A run directory's name as :func:`tempfile.mkdtemp` makes it."""
 
 CONTENTS = re.compile(
-    r"^(spec\.json|central\.sock(\.lock)?|[a-z0-9-]+\.log|launcher\.pid(\.part)?)$")
+    r"^(spec\.json|(central|view)\.sock(\.lock)?|[a-z0-9-]+\.log|launcher\.pid(\.part)?)$")
 """What a run directory holds; one holding anything else (a folder, other files) is not
 removed, whatever its launcher file says."""
 

@@ -4,6 +4,7 @@ and the report's parts that come from the roles' final reports."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import subprocess
@@ -99,6 +100,62 @@ def supervision(children: list[subprocess.Popen], pids: dict[str, int],
                        None if respawn is None else restart, promote, last_cpus)
 
 
+def relayed(rc: RunConfig) -> list[str]:
+    """The ``--listen`` endpoints the observers' relay takes (runtime/observe/relay.py):
+    without keys and without ``--insecure`` every one but a unix socket, where only the
+    observers' keys go; none otherwise (with keys roles on other hosts share the port)."""
+    t = rc.transport
+    if t.keys or t.insecure:
+        return []
+    return [e for e in t.listen or [] if not is_socket(e)]
+
+
+RELAY_READY_S = 10.0
+"""How long the launcher waits for the relay to listen."""
+
+
+def start_relay(rc: RunConfig, run_dir: Path) -> subprocess.Popen | None:
+    """The observers' relay on :func:`relayed`'s endpoints and a socket in ``run_dir``,
+    once it listens; None where there are none. Its standard input is a pipe from this
+    process: it ends when this process does, SIGKILL included. Raises OSError if it does
+    not start (a port taken, say), naming why."""
+    listen = relayed(rc)
+    if not listen:
+        return None
+    import sys
+
+    from ..observe.relay import SOCKET
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ctrlunit.runtime.observe.relay", "--socket",
+         str(run_dir / SOCKET), "--listen", *listen], stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    ready: list[str] = []
+    reader = threading.Thread(target=lambda: ready.append(proc.stdout.readline()),  # type: ignore[union-attr]
+                              daemon=True)
+    reader.start()
+    reader.join(RELAY_READY_S)
+    if not ready or ready[0].strip() != "ready":
+        proc.kill()
+        out = (ready[0] if ready else "") + (proc.communicate(timeout=5)[0] or "")
+        raise OSError(f"--listen {', '.join(listen)}: the observers' relay did not start: "
+                      f"{out.strip().splitlines()[-1] if out.strip() else 'no answer'}")
+    return proc
+
+
+def end_relay(proc: subprocess.Popen | None) -> None:
+    """End the relay: its standard input closes, then SIGKILL if it lingers."""
+    if proc is None:
+        return
+    with contextlib.suppress(OSError):
+        proc.stdin.close()  # type: ignore[union-attr]
+    try:
+        proc.wait(timeout=2.0)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
 def central_node(rc: RunConfig, run_dir: Path) -> tuple[Node, str]:
     """The central's node and the endpoint the children connect to. The node listens on
     that endpoint and on ``--listen`` (its ports chosen already: :func:`listen_ports`).
@@ -113,7 +170,9 @@ def central_node(rc: RunConfig, run_dir: Path) -> tuple[Node, str]:
     for attempt in range(5):
         endpoint = (t.listen[0] if t.listen else loopback_endpoint("tls")) \
             if t.keys else socket or default_endpoint(run_dir)
-        conf = make_config(listen=list(dict.fromkeys([endpoint, *(t.listen or [])])),
+        listen = [e for e in dict.fromkeys([endpoint, *(t.listen or [])])
+                  if e not in relayed(rc)]  # the observers' relay listens there instead
+        conf = make_config(listen=listen,
                            connect=t.connect, config_file=t.zenoh_config, keys=t.keys,
                            role="central", limits=Limits.of(t), control=not t.insecure)
         try:
@@ -150,10 +209,13 @@ def live_view(rc: RunConfig, setup: Setup, echo: Any) -> Any:
     return view
 
 
-def observers_view(rc: RunConfig, setup: Setup, node: Any, echo: Any) -> Any:
-    """The observers' view on ``ctrlunit/<unit>/view/`` (runtime/observe/zview.py) in the
-    central's session ``node``: built only while someone subscribes. Where ``--listen``
-    gives observers a way in, ``echo`` says where, and the keys they read."""
+def observers_view(rc: RunConfig, setup: Setup, node: Any, echo: Any,
+                   run_dir: Path | None = None) -> Any:
+    """The observers' view on ``ctrlunit/<unit>/view/`` (runtime/observe/zview.py): built
+    only while someone subscribes, in the central's session ``node``, or, where
+    :func:`relayed` gives the observers' relay ports (and ``run_dir`` its socket), in a
+    client session of the relay, which it starts and ends with the view. Where
+    ``--listen`` gives observers a way in, ``echo`` says where, and the keys they read."""
     from ..observe.viewer import LiveView
     from ..observe.zview import ZenohSink
     from ..transport.security import tls_endpoint
@@ -164,7 +226,21 @@ def observers_view(rc: RunConfig, setup: Setup, node: Any, echo: Any) -> Any:
     if ports:
         echo(f"ctrlunit: unit {t.unit}: observers read {node.keys.view('**')} on "
              f"{', '.join(ports)}" + (" (the viewer's certificate)" if t.keys else ""))
-    return LiveView(sink=ZenohSink(node.session, node.keys), task=view_task(rc, setup),
+    relay = start_relay(rc, run_dir) if run_dir is not None else None
+    sink = ZenohSink(node.session, node.keys)
+    if relay is not None and run_dir is not None:
+        import zenoh
+
+        from ..observe.relay import SOCKET
+
+        conf = make_config(connect=[f"unixsock-stream/{run_dir / SOCKET}"], lowlatency=False)
+        conf.insert_json5("mode", '"client"')
+        try:
+            sink = ZenohSink(zenoh.open(conf), node.keys, own=lambda: end_relay(relay))
+        except Exception:
+            end_relay(relay)
+            raise
+    return LiveView(sink=sink, task=view_task(rc, setup),
                     period_s=rc.schedule.period, cycles=setup.cycles,
                     rate_hz=rc.run.foxglove_rate)
 
@@ -281,6 +357,21 @@ def every_start(tried: list[dict[str, Any]], admission: dict[str, Any]) -> dict[
                                             for r in admission.get("rungs") or [])]}
 
 
-__all__ = ["STOP_REPORTS_WAIT_S", "chain", "child_names", "every_start", "live_view",
-           "observers_view", "raise_to_mine", "report_extras", "ros2_config", "ros2_live",
-           "status_writer", "supervision", "view_task"]
+__all__ = [
+    "STOP_REPORTS_WAIT_S",
+    "chain",
+    "child_names",
+    "end_relay",
+    "every_start",
+    "live_view",
+    "observers_view",
+    "raise_to_mine",
+    "relayed",
+    "report_extras",
+    "ros2_config",
+    "ros2_live",
+    "start_relay",
+    "status_writer",
+    "supervision",
+    "view_task",
+]

@@ -159,7 +159,7 @@ class UnitStart:
             sched.pin_all(self.cpus[0])  # before zenoh.open: its threads inherit it
         self.node, self.endpoint = central_node(rc, self.run_dir)
         self.guard = self._busy_guard()
-        self.observers = observers_view(rc, setup, self.node, self.echo)
+        self.observers = observers_view(rc, setup, self.node, self.echo, self.run_dir)
         # after the node's session: Zenoh's threads, shared, are made under the RT policy
         self.ros2 = ros2_live(rc, setup, self.echo)
         self.recorder = None

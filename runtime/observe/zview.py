@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import zenoh
@@ -43,12 +44,18 @@ class ZenohSink:
     :attr:`listening` is whether a subscriber matches, asked at most every
     :data:`LISTENING_EVERY_S` (the central's thread reads a cached flag)."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, *,
+                 own: Callable[[], None] | None = None) -> None:
         opts: dict[str, Any] = {"congestion_control": zenoh.CongestionControl.DROP,
                                 "priority": zenoh.Priority.DATA_LOW}
         self._state = session.declare_publisher(keys.view("state"), **opts)
         self._running = session.declare_publisher(keys.view("running"), **opts)
         self.url = keys.view("**")
+        self.session = session if own else None
+        """The session, where the sink was given it to own (the observers' relay's
+        client): kept alive with the sink, closed with it, then ``own`` called (it ends
+        the relay)."""
+        self.own = own
         self._listening = False
         self._asked = 0.0
         self._lock = threading.Lock()
@@ -78,3 +85,10 @@ class ZenohSink:
                 pub.undeclare()
             except Exception:  # the session closed first
                 pass
+        if self.session is not None:
+            try:
+                self.session.close()
+            except Exception:  # a close that times out: the process ends it
+                pass
+        if self.own is not None:
+            self.own()
