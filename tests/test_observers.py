@@ -239,10 +239,10 @@ def test_readers_stopped_together_as_many_as_the_listener_admits(tmp_path, unit_
     assert rep["periods"] == cycles
 
 
-def _relays(unit: str) -> list[int]:
-    """The observers' relays of ``unit``'s run (their socket is in its run's folder)."""
-    out = subprocess.run(["pgrep", "-f", "ctrlunit.runtime.observe.relay"], capture_output=True,
-                         text=True).stdout.split()
+def _relays(port: int) -> list[int]:
+    """The observers' relays listening on ``port`` (tests may run side by side)."""
+    out = subprocess.run(["pgrep", "-f", f"ctrlunit.runtime.observe.relay .*:{port}$"],
+                         capture_output=True, text=True).stdout.split()
     return [int(p) for p in out if Path(f"/proc/{p}").exists()]
 
 
@@ -253,7 +253,7 @@ def test_a_keyless_listen_port_is_the_relays_and_ends_with_the_run(tmp_path, end
     relay ends with the run, and with its launcher killed (its standard input closes)."""
     unit, port = unit_id("relay"), free_port()
     status = tmp_path / "status"
-    before = set(_relays(unit))
+    before = set(_relays(port))
     proc = subprocess.Popen(
         [sys.executable, "-m", "ctrlunit.runtime.cli", "start", "--unit", unit,
          "--peripherals", "3", "--pipeline", "2", "--clock", "lockstep", "--cycles", "4000",
@@ -264,7 +264,7 @@ def test_a_keyless_listen_port_is_the_relays_and_ends_with_the_run(tmp_path, end
         while time.monotonic() < deadline and not (status.exists() and status.read_text()
                                                    .strip().isdigit()):
             time.sleep(0.05)
-        relays = set(_relays(unit)) - before
+        relays = set(_relays(port)) - before
         assert len(relays) == 1, relays
         conf = zenoh.Config.from_json5(json.dumps({
             "mode": "peer", "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]},
@@ -281,14 +281,14 @@ def test_a_keyless_listen_port_is_the_relays_and_ends_with_the_run(tmp_path, end
             os.kill(proc.pid, signal.SIGKILL)  # the launcher alone
         out, _ = proc.communicate(timeout=120)
         deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and set(_relays(unit)) & relays:
+        while time.monotonic() < deadline and set(_relays(port)) & relays:
             time.sleep(0.05)
-        assert not set(_relays(unit)) & relays, out[-800:]
+        assert not set(_relays(port)) & relays, out[-800:]
         if ending == "normal":
             assert proc.returncode == 0, out[-800:]
     finally:
         kill_unit(unit)
         if proc.poll() is None:
             proc.kill()
-        for p in set(_relays(unit)) - before:
+        for p in set(_relays(port)) - before:
             os.kill(p, signal.SIGKILL)

@@ -264,9 +264,10 @@ class Orders:
                 next_say = time.monotonic() + REPEAT_S
 
     def zenoh_identity(self) -> dict[str, Any]:
-        """This central's Zenoh id and the ids of the peers it has been connected to."""
+        """This central's Zenoh id and the ids of the peers and routers it has been
+        connected to (another unit's observers' relay is a router)."""
         info = self.node.session.info
-        self.peers_seen.update(str(z) for z in info.peers_zid())
+        self.peers_seen.update(str(z) for z in [*info.peers_zid(), *info.routers_zid()])
         return {"zid": str(info.zid()), "peers": sorted(self.peers_seen)}
 
 

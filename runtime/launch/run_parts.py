@@ -137,10 +137,35 @@ def start_relay(rc: RunConfig, run_dir: Path) -> subprocess.Popen | None:
     reader.join(RELAY_READY_S)
     if not ready or ready[0].strip() != "ready":
         proc.kill()
-        out = (ready[0] if ready else "") + (proc.communicate(timeout=5)[0] or "")
+        proc.wait()
+        why = ready[0].strip().removeprefix("error: ") if ready and ready[0].strip() else \
+            f"no answer within {RELAY_READY_S:g} s"
         raise OSError(f"--listen {', '.join(listen)}: the observers' relay did not start: "
-                      f"{out.strip().splitlines()[-1] if out.strip() else 'no answer'}")
+                      f"{why}")
     return proc
+
+
+VIEW_CONNECT_TRIES = 15
+"""How many times the view tries to reach its relay, 0.2 s apart: connections held at
+the observers' port can fill the relay's pending handshakes for a while."""
+
+
+def _relay_client(socket: Path) -> Any:
+    """A Zenoh client session of the observers' relay at ``socket``, or the last error."""
+    import time
+
+    import zenoh
+
+    conf = make_config(connect=[f"unixsock-stream/{socket}"], lowlatency=False)
+    conf.insert_json5("mode", '"client"')
+    for attempt in range(VIEW_CONNECT_TRIES):
+        try:
+            return zenoh.open(conf)
+        except Exception as exc:  # ZError: no handshake admitted
+            if attempt == VIEW_CONNECT_TRIES - 1:
+                return exc
+            time.sleep(0.2)
+    return None
 
 
 def end_relay(proc: subprocess.Popen | None) -> None:
@@ -221,25 +246,23 @@ def observers_view(rc: RunConfig, setup: Setup, node: Any, echo: Any,
     from ..transport.security import tls_endpoint
 
     t = rc.transport
+    relay = start_relay(rc, run_dir) if run_dir is not None else None
     ports = [tls_endpoint(e) if t.keys else e for e in t.listen or []
              if not is_socket(e)]
     if ports:
         echo(f"ctrlunit: unit {t.unit}: observers read {node.keys.view('**')} on "
              f"{', '.join(ports)}" + (" (the viewer's certificate)" if t.keys else ""))
-    relay = start_relay(rc, run_dir) if run_dir is not None else None
     sink = ZenohSink(node.session, node.keys)
     if relay is not None and run_dir is not None:
-        import zenoh
-
         from ..observe.relay import SOCKET
 
-        conf = make_config(connect=[f"unixsock-stream/{run_dir / SOCKET}"], lowlatency=False)
-        conf.insert_json5("mode", '"client"')
-        try:
-            sink = ZenohSink(zenoh.open(conf), node.keys, own=lambda: end_relay(relay))
-        except Exception:
-            end_relay(relay)
-            raise
+        session = _relay_client(run_dir / SOCKET)
+        if isinstance(session, Exception) or session is None:
+            end_relay(relay)  # the run goes on: an observer never stops the unit
+            echo(f"ctrlunit: --listen: the observers' view could not reach its relay "
+                 f"({str(session).split(' at /')[0]}): no view is served this run")
+        else:
+            sink = ZenohSink(session, node.keys, own=lambda: end_relay(relay))
     return LiveView(sink=sink, task=view_task(rc, setup),
                     period_s=rc.schedule.period, cycles=setup.cycles,
                     rate_hz=rc.run.foxglove_rate)

@@ -15,8 +15,9 @@ the socket's peer everything, a TCP peer the observers' keys alone. The central'
 session then listens on its local socket alone; the control path never reaches the relay.
 
 ``python -m ctrlunit.runtime.observe.relay --socket PATH --listen ENDPOINT ...``, started
-by the launcher through runtime/host/launched.py (it dies with the launcher); it prints
-``ready`` once it listens, and ends when its standard input closes or on SIGTERM.
+by the launcher (runtime/launch/run_parts.py, ``start_relay``); it prints ``ready`` once it
+listens, or ``error: ...`` and exits 1, and ends when its standard input closes (its
+launcher ended, SIGKILL included) or on SIGTERM.
 """
 
 from __future__ import annotations
@@ -51,7 +52,12 @@ def serve(listen: list[str], socket: str) -> None:
     conf.insert_json5("mode", '"router"')
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    with zenoh.open(conf):
+    try:
+        session = zenoh.open(conf)
+    except Exception as exc:  # a port taken: one line for the launcher to name
+        print(f"error: {str(exc).split(' at /')[0]}", flush=True)
+        sys.exit(1)
+    with session:
         print("ready", flush=True)
         def until_eof() -> None:  # the launcher's end closes the pipe, SIGKILL included
             sys.stdin.read()
