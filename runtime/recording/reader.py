@@ -139,7 +139,7 @@ def read(path: str | Path) -> Recording:
                 rec.topics.setdefault(channel.topic, []).append((msg.log_time, msg.data))
             for m in reader.iter_metadata():
                 rec.metadata[m.name] = dict(m.metadata)
-        if (why := _summary_damage(path)) is not None:  # the records themselves are whole
+        if (why := _crc_damage(path)) is not None:  # the records themselves are whole
             rec.damaged = True
             rec.note = (f"{path} is damaged: {why}; every chunk passed its CRC, and all "
                         f"{len(rec.topics.get('/plant/command', []))} intervals were read")
@@ -226,7 +226,17 @@ DATA_END = struct.Struct("<BQI")
 CRC-32 of every byte of the file before it."""
 
 
-def _summary_damage(path: str) -> str | None:
+def _crc(fh: Any, start: int, stop: int) -> int:
+    """CRC-32 of bytes ``[start, stop)`` of ``fh``, read a block at a time: a recording may
+    be larger than the memory one should take to check it."""
+    fh.seek(start)
+    crc, left = 0, stop - start
+    while left > 0 and (block := fh.read(min(left, 1 << 20))):
+        crc, left = zlib.crc32(block, crc), left - len(block)
+    return crc
+
+
+def _crc_damage(path: str) -> str | None:
     """Why a whole file fails one of MCAP's two file-wide CRCs, or None. The seeking reader
     checks each chunk's CRC and neither of these, so a byte changed outside the chunks
     went unnoticed: in the summary section (the indexes, the statistics; the footer's
@@ -235,21 +245,22 @@ def _summary_damage(path: str) -> str | None:
     record (DataEnd's ``data_section_crc``). A CRC left at 0 (not computed, as MCAP allows
     and other writers do: a file rewritten by a tool) is not checked."""
     with open(path, "rb") as fh:
-        data = fh.read()
-    end = len(data) - len(MAGIC) - FOOTER.size
-    if end < len(MAGIC) + DATA_END.size:
-        return None
-    opcode, length, start, _offsets, crc = FOOTER.unpack_from(data, end)
-    if opcode != 0x02 or length != FOOTER.size - 9:
-        return "its footer is not MCAP's"
-    if start and not len(MAGIC) + DATA_END.size <= start <= end:
-        return f"its footer places the summary at byte {start}, outside the file"
-    if start and crc and (got := zlib.crc32(data[start:end + FOOTER.size - 4])) != crc:
-        return f"its summary section's CRC is {got:08x}, the footer says {crc:08x}"
-    data_end = (start or end) - DATA_END.size
-    opcode, length, crc = DATA_END.unpack_from(data, data_end)
-    if opcode != 0x0F or length != DATA_END.size - 9:
-        return f"no DataEnd record where its data section ends (byte {data_end})"
-    if crc and (got := zlib.crc32(data[:data_end])) != crc:
-        return f"its data section's CRC is {got:08x}, its DataEnd says {crc:08x}"
+        end = fh.seek(0, 2) - len(MAGIC) - FOOTER.size
+        if end < len(MAGIC) + DATA_END.size:
+            return None
+        fh.seek(end)
+        opcode, length, start, _offsets, crc = FOOTER.unpack(fh.read(FOOTER.size))
+        if opcode != 0x02 or length != FOOTER.size - 9:
+            return "its footer is not MCAP's"
+        if start and not len(MAGIC) + DATA_END.size <= start <= end:
+            return f"its footer places the summary at byte {start}, outside the file"
+        if start and crc and (got := _crc(fh, start, end + FOOTER.size - 4)) != crc:
+            return f"its summary section's CRC is {got:08x}, the footer says {crc:08x}"
+        data_end = (start or end) - DATA_END.size
+        fh.seek(data_end)
+        opcode, length, crc = DATA_END.unpack(fh.read(DATA_END.size))
+        if opcode != 0x0F or length != DATA_END.size - 9:
+            return f"no DataEnd record where its data section ends (byte {data_end})"
+        if crc and (got := _crc(fh, 0, data_end)) != crc:
+            return f"its data section's CRC is {got:08x}, its DataEnd says {crc:08x}"
     return None
